@@ -1,0 +1,240 @@
+"""Controller designs as data: load, validate and derive the cascade gains.
+
+A design file (TOML, under ``designs/``) holds the gains of the rig's cascade
+in the units the rig uses::
+
+    control_period_s = 1e-4
+    computation_delay_samples = 0        # optional, 0 or 1
+    [current_loop]  kp_V_per_A, ki_V_per_A_s, voltage_limit_V (optional: V_dc/sqrt(3))
+    [velocity_loop] kp_A_per_rad_s, ki_A_per_rad, current_limit_A
+    [position_loop] kp_per_s, max_speed_mm_s (optional, 15)
+    [derivation]    the loop bandwidths the gains come from (optional)
+    [requirements]  what the analysis checks (optional; see the analysis)
+
+Gains are derived from stated bandwidths by :func:`derive_gains`: the current
+PI cancels the stator pole (``kp = L wc``, ``ki = R wc``, a first-order closed
+loop of bandwidth ``wc``); the velocity PI gives crossover ``wv`` on the
+rigid-body plant ``Kt / (J s)`` with its zero ``zero_ratio`` below
+(``kp = J wv / Kt``, ``ki = kp wv / zero_ratio``); the position P loop has
+``kp = wx``.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import DesignError
+from .params import ParameterSet
+
+__all__ = ["Design", "load_design", "parse_design", "derive_gains", "reflected_inertia"]
+
+_TABLES = {
+    "current_loop": {"kp_V_per_A": True, "ki_V_per_A_s": True, "voltage_limit_V": False},
+    "velocity_loop": {"kp_A_per_rad_s": True, "ki_A_per_rad": True, "current_limit_A": True},
+    "position_loop": {"kp_per_s": True, "max_speed_mm_s": False},
+}
+_TOP = {"name", "description", "control_period_s", "computation_delay_samples", "derivation", "requirements",
+        *_TABLES}
+
+
+@dataclass(frozen=True)
+class Design:
+    """Gains and settings of the cascade (SI units).
+
+    Attributes
+    ----------
+    current_kp [V/A], current_ki [V/(A s)], voltage_limit [V] (None: V_dc/sqrt(3)),
+    velocity_kp [A s/rad], velocity_ki [A/rad], current_limit [A],
+    position_kp [1/s], max_speed [m/s], control_period [s],
+    computation_delay_samples (0 or 1), requirements, derivation (dicts as given).
+    """
+
+    name: str
+    current_kp: float
+    current_ki: float
+    velocity_kp: float
+    velocity_ki: float
+    current_limit: float
+    position_kp: float
+    control_period: float = 1e-4
+    voltage_limit: float | None = None
+    max_speed: float = 0.015
+    computation_delay_samples: int = 0
+    source: str = "<memory>"
+    description: str = ""
+    derivation: dict = field(default_factory=dict)
+    requirements: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        checks = {
+            "current_loop.kp_V_per_A": self.current_kp, "current_loop.ki_V_per_A_s": self.current_ki,
+            "velocity_loop.kp_A_per_rad_s": self.velocity_kp, "velocity_loop.ki_A_per_rad": self.velocity_ki,
+            "velocity_loop.current_limit_A": self.current_limit, "position_loop.kp_per_s": self.position_kp,
+            "control_period_s": self.control_period, "position_loop.max_speed_mm_s": self.max_speed,
+        }
+        if self.voltage_limit is not None:
+            checks["current_loop.voltage_limit_V"] = self.voltage_limit
+        for key, value in checks.items():
+            if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+                raise DesignError(self.source, f"{key} = {value!r} is not a finite number")
+            if value < 0 or (value == 0 and key != "position_loop.kp_per_s"):
+                raise DesignError(self.source, f"{key} = {value!r} must be positive")
+        if self.computation_delay_samples not in (0, 1):
+            raise DesignError(self.source, f"computation_delay_samples = {self.computation_delay_samples!r} must be 0 or 1")
+
+    def check_against(self, params: ParameterSet) -> None:
+        """Raise :class:`DesignError` if the design asks more than the actuator has."""
+        imax = params.value("motor.max_current")
+        if self.current_limit > imax * (1 + 1e-9):
+            raise DesignError(self.source, f"velocity_loop.current_limit_A = {self.current_limit:g} exceeds motor.max_current = {imax:g} A")
+        vmax = params.value("inverter.dc_bus_voltage") / math.sqrt(3.0)
+        if self.voltage_limit is not None and self.voltage_limit > vmax * (1 + 1e-4):
+            raise DesignError(self.source, f"current_loop.voltage_limit_V = {self.voltage_limit:g} exceeds V_dc/sqrt(3) = {vmax:.6g} V")
+
+    def controller_vector(self, params: ParameterSet, *, accel_limit: float, jerk_limit: float = math.inf,
+                          motor_off_at_zero: bool = True) -> np.ndarray:
+        """Values in ``controllers.CONTROLLER_PARAMETERS`` order (SI)."""
+        self.check_against(params)
+        vmax = params.value("inverter.dc_bus_voltage") / math.sqrt(3.0)
+        r = params.value("screw.lead") / (2 * math.pi * params.value("gear.ratio"))
+        return np.array([
+            self.current_kp, self.current_ki, self.voltage_limit if self.voltage_limit is not None else vmax,
+            self.velocity_kp, self.velocity_ki, self.current_limit, self.position_kp,
+            float(self.computation_delay_samples), accel_limit, jerk_limit, self.max_speed,
+            1.0 if motor_off_at_zero else 0.0, r,
+        ], dtype=float)
+
+    def to_toml_dict(self) -> dict:
+        """The design as a TOML-ready dict in the file's units."""
+        doc = {"name": self.name, "description": self.description, "control_period_s": self.control_period,
+               "computation_delay_samples": self.computation_delay_samples,
+               "current_loop": {"kp_V_per_A": self.current_kp, "ki_V_per_A_s": self.current_ki},
+               "velocity_loop": {"kp_A_per_rad_s": self.velocity_kp, "ki_A_per_rad": self.velocity_ki,
+                                 "current_limit_A": self.current_limit},
+               "position_loop": {"kp_per_s": self.position_kp, "max_speed_mm_s": self.max_speed * 1e3}}
+        if self.voltage_limit is not None:
+            doc["current_loop"]["voltage_limit_V"] = self.voltage_limit
+        if self.derivation:
+            doc["derivation"] = dict(self.derivation)
+        if self.requirements:
+            doc["requirements"] = dict(self.requirements)
+        return doc
+
+
+def parse_design(doc: dict, source: str = "<dict>") -> Design:
+    """Validate a design document (the TOML's content) and build a :class:`Design`.
+
+    Raises
+    ------
+    DesignError
+        Unknown or missing table or key, non-numeric, negative or zero gain.
+    """
+    unknown = set(doc) - _TOP
+    if unknown:
+        raise DesignError(source, f"unknown key(s) {sorted(unknown)}; allowed: {sorted(_TOP)}")
+    values = {}
+    for table, keys in _TABLES.items():
+        if table not in doc:
+            raise DesignError(source, f"missing table [{table}]")
+        if not isinstance(doc[table], dict):
+            raise DesignError(source, f"[{table}] must be a table")
+        extra = set(doc[table]) - set(keys)
+        if extra:
+            raise DesignError(source, f"unknown key(s) {sorted(extra)} in [{table}]; allowed: {sorted(keys)}")
+        for key, required in keys.items():
+            if key in doc[table]:
+                values[f"{table}.{key}"] = doc[table][key]
+            elif required:
+                raise DesignError(source, f"missing {table}.{key}")
+    if "control_period_s" not in doc:
+        raise DesignError(source, "missing control_period_s")
+    for key in ("derivation", "requirements"):
+        if key in doc and not isinstance(doc[key], dict):
+            raise DesignError(source, f"[{key}] must be a table")
+    delay = doc.get("computation_delay_samples", 0)
+    max_speed_mm = values.get("position_loop.max_speed_mm_s", 15.0)
+    if not isinstance(max_speed_mm, (int, float)) or isinstance(max_speed_mm, bool):
+        raise DesignError(source, f"position_loop.max_speed_mm_s = {max_speed_mm!r} is not a number")
+    return Design(
+        name=str(doc.get("name", Path(source).stem)), description=str(doc.get("description", "")),
+        current_kp=values["current_loop.kp_V_per_A"], current_ki=values["current_loop.ki_V_per_A_s"],
+        voltage_limit=values.get("current_loop.voltage_limit_V"),
+        velocity_kp=values["velocity_loop.kp_A_per_rad_s"], velocity_ki=values["velocity_loop.ki_A_per_rad"],
+        current_limit=values["velocity_loop.current_limit_A"], position_kp=values["position_loop.kp_per_s"],
+        max_speed=max_speed_mm * 1e-3, control_period=doc["control_period_s"],
+        computation_delay_samples=delay, source=source,
+        derivation=dict(doc.get("derivation", {})), requirements=dict(doc.get("requirements", {})),
+    )
+
+
+def load_design(path: str | Path) -> Design:
+    """Load and validate a design file; errors name the file and the key."""
+    path = Path(path)
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise DesignError(str(path), f"cannot read: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise DesignError(str(path), f"not valid TOML: {exc}") from None
+    return parse_design(doc, source=str(path))
+
+
+def reflected_inertia(params: ParameterSet, *, motors: int = 1, noback: bool = False, surface: bool = True) -> float:
+    """Inertia of the rigid drive referred to the motor shaft [kg m^2].
+
+    Rotors (``motors`` of them), screw (and the two ratchet wheels with
+    ``noback``), load-path mass and (with ``surface``) the surface mass.  The
+    same sum the plant's structure builds.
+    """
+    n = params.value("gear.ratio")
+    r = params.value("screw.lead") / (2 * math.pi * n)
+    j_screw = params.value("screw.inertia") + (2 * params.value("noback.ratchet_inertia") if noback else 0.0)
+    mass = params.value("loadpath.mass") + (params.value("surface.mass") if surface else 0.0)
+    return motors * params.value("motor.rotor_inertia") + j_screw / n**2 + mass * r**2
+
+
+def derive_gains(params: ParameterSet, *, current_bandwidth_hz: float, velocity_crossover_hz: float,
+                 velocity_pi_zero_ratio: float, position_bandwidth_hz: float, name: str = "derived",
+                 control_period_s: float = 1e-4, current_limit_A: float | None = None, **extra) -> Design:
+    """Gains of the cascade from loop bandwidths at 25 degC (level-A plant, one motor).
+
+    Parameters
+    ----------
+    params : ParameterSet
+        Actuator.
+    current_bandwidth_hz : float
+        Closed current-loop bandwidth [Hz].
+    velocity_crossover_hz : float
+        Velocity-loop crossover [Hz].
+    velocity_pi_zero_ratio : float
+        Crossover / PI zero [-].
+    position_bandwidth_hz : float
+        Position-loop bandwidth [Hz].
+
+    Examples
+    --------
+    >>> from thsa_control.params import default_parameters
+    >>> d = derive_gains(default_parameters(), current_bandwidth_hz=1000, velocity_crossover_hz=30,
+    ...                  velocity_pi_zero_ratio=5, position_bandwidth_hz=2)
+    >>> round(d.current_kp, 3), round(d.current_ki, 1)
+    (14.137, 7728.3)
+    """
+    wc = 2 * math.pi * current_bandwidth_hz
+    wv = 2 * math.pi * velocity_crossover_hz
+    kt = 1.5 * params.value("motor.pole_pairs") * params.value("motor.flux_linkage")
+    j = reflected_inertia(params)
+    kpv = j * wv / kt
+    derivation = dict(current_bandwidth_hz=current_bandwidth_hz, velocity_crossover_hz=velocity_crossover_hz,
+                      velocity_pi_zero_ratio=velocity_pi_zero_ratio, position_bandwidth_hz=position_bandwidth_hz,
+                      **extra)
+    return Design(
+        name=name, current_kp=params.value("motor.inductance") * wc, current_ki=params.value("motor.resistance") * wc,
+        velocity_kp=kpv, velocity_ki=kpv * wv / velocity_pi_zero_ratio,
+        current_limit=current_limit_A if current_limit_A is not None else params.value("motor.max_current"),
+        position_kp=2 * math.pi * position_bandwidth_hz, control_period=control_period_s, derivation=derivation,
+    )

@@ -1,0 +1,302 @@
+"""Effect library: the physical effects that model levels add to the structure.
+
+Each effect is a pure function of an :class:`~thsa_control.model.structure.Assembly`
+that declares its states and parameters and adds terms (torques, friction
+channels, states with their derivatives, losses, outputs).  It is written once
+as casadi expressions; linearisation, simulation, optimisation and
+identification all consume the same terms through ``plant.py``.
+
+Effects (the papers' incremental modelling):
+
+``standby_motor``
+    A second, identical PMSM torque-summed at the gearbox input, with its own
+    enable; its rotor is always dragged (inertia and bearing drag).
+``loadpath_compliance``
+    The nut (with the load-path mass) and the surface become two bodies joined
+    by the papers' piecewise law: disk springs ``2 kds x`` everywhere, contact
+    springs ``kp,u`` beyond ``+b`` and ``kp,l`` beyond ``-b`` with contact
+    damping that cannot pull (Modelica ``ElastoBacklash`` rule).
+``temperature_friction``
+    Gearbox and nut-screw drag as a function of speed and temperature::
+
+        b(T)  = b_25 exp(a_v (T_ref - T))
+        Tc(T) = T_cold (exp(a_c max(T_ref - T, 0)) - 1)
+        T_f   = Tc(T) (1 + r_st exp(-(w/w_st)^2)) sgn(w) + b(T) w
+
+    It rises at low temperature and at low speed, and at ``T_ref`` (25 degC) it
+    is exactly the base (level-A) viscous drag.  Valid -55..70 degC.
+``noback_quadrant_friction``
+    Two friction-disk sets, each between the screw flange and a ratchet wheel.
+    The compressive-side wheel is locked by its pawl against retraction, the
+    tensile-side wheel against extension; the other direction is free, so the
+    wheel turns with the screw and its disks do not slip.  Normal forces:
+    ``N_comp = preload + max(F, 0)``, ``N_tens = preload + max(-F, 0)``.  So when
+    the load aids the motion the loaded disk slips (large friction) and when it
+    opposes, the preload-only disk slips (small friction); with the motors off
+    the loaded disk holds the load by stiction.  Disk law per rotation
+    direction: ``T = (mu_c + (mu_s - mu_c) exp(-(ws/ws_t)^2)) N sgn(ws) + fs ws``.
+``noback_backlash``
+    The ratchet/pawl clearance: a wheel turned in its free direction lets its
+    pawl drop behind each tooth, so the clearance to the locking face grows
+    from 0 to one pitch (8.57 deg) and wraps; turned the other way, the wheel
+    (and the screw, its disks sticking) travels the clearance freely before
+    the pawl engages.  Needs ``noback_quadrant_friction``.
+
+Simplifications stated here once: the ratchet wheels' inertia is counted with
+the screw at all times (0.7 % of the reflected inertia; the impact of a wheel
+stopped by its pawl is not modelled); gear efficiency is applied to the load
+torque only, not to the no-back torque; there is no secondary load path, no
+d-axis current, no torque-limiter slip (its threshold is monitored only).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import casadi as ca
+
+from .structure import Assembly, FrictionChannel, StateInfo, kinematic_ratio, motor_lag, torque_constant
+
+__all__ = ["Effect", "EFFECTS", "EFFECT_ORDER"]
+
+
+@dataclass(frozen=True)
+class Effect:
+    """A physical effect: what it adds, and the function that adds it.
+
+    Parameters
+    ----------
+    name : str
+        Effect name used in effect sets.
+    summary : str
+        One line for listings.
+    states : tuple of StateInfo
+        States it adds.
+    parameters : tuple of str
+        Parameters it reads (beyond the structure's).
+    requires : tuple of str
+        Effects that must be in the same set.
+    apply : callable
+        ``apply(assembly)`` adds the terms.
+    """
+
+    name: str
+    summary: str
+    states: tuple[StateInfo, ...]
+    parameters: tuple[str, ...]
+    requires: tuple[str, ...]
+    apply: Callable[[Assembly], None]
+
+
+def _standby_motor(a: Assembly) -> None:
+    x, u, p = a.x, a.u, a.p
+    w = x["motor_speed"]
+    i = x["standby_current"]
+    tau, target, v_applied, copper = motor_lag(a, i, u["voltage_standby"], u["enable_standby"], w)
+    a.lags["standby_current"] = (tau, target)
+    a.torques.append(("motor_standby", torque_constant(p) * i))
+    a.inertia.append(p["motor.rotor_inertia"])  # the standby rotor is always dragged
+    b = p["motor.bearing_viscous_friction"]
+    a.torques.append(("viscous_standby", -b * w))
+    a.loss("viscous_standby", b * w**2)
+    a.loss("copper_standby", copper)
+    a.stored_energy["magnetic_standby"] = 0.75 * p["motor.inductance"] * i**2
+    a.output("standby_current", "A", i)
+    a.output("standby_voltage", "V", v_applied)
+    a.output("standby_energised", "-", ca.if_else(u["enable_standby"] > 0.5, 1.0, 0.0))
+
+
+def loadpath_force_law(p: dict, deflection, deflection_rate):
+    """Papers' piecewise load-path law [N], compressive positive.
+
+    ``deflection = x_nut - x_surface`` [m] (positive: the nut pushes the
+    surface), ``deflection_rate`` its derivative [m/s].  Returns
+    ``(force, conservative_part)``.
+    """
+    d, dd = deflection, deflection_rate
+    b = p["loadpath.backlash"]
+    k_ds = 2.0 * p["loadpath.disk_spring_stiffness"]
+    c = p["loadpath.contact_damping"]
+    upper = ca.if_else(d > b, ca.fmax(p["loadpath.contact_stiffness_upper"] * (d - b) + c * dd, 0.0), 0.0)
+    lower = ca.if_else(d < -b, ca.fmin(p["loadpath.contact_stiffness_lower"] * (d + b) + c * dd, 0.0), 0.0)
+    spring = (
+        k_ds * d
+        + p["loadpath.contact_stiffness_upper"] * ca.fmax(d - b, 0.0)
+        + p["loadpath.contact_stiffness_lower"] * ca.fmin(d + b, 0.0)
+    )
+    force = k_ds * d + p["loadpath.disk_spring_damping"] * dd + upper + lower
+    return force, spring
+
+
+def loadpath_static_deflection(p: dict, force):
+    """Deflection [m] at which the load path carries ``force`` [N] at rest (inverse of the law)."""
+    b = p["loadpath.backlash"]
+    k_ds = 2.0 * p["loadpath.disk_spring_stiffness"]
+    ku, kl = p["loadpath.contact_stiffness_upper"], p["loadpath.contact_stiffness_lower"]
+    f_edge = k_ds * b
+    return ca.if_else(
+        force > f_edge,
+        (force + ku * b) / (k_ds + ku),
+        ca.if_else(force < -f_edge, (force - kl * b) / (k_ds + kl), force / ca.fmax(k_ds, 1e-300)),
+    )
+
+
+def _loadpath_compliance(a: Assembly) -> None:
+    x, u, p = a.x, a.u, a.p
+    r = kinematic_ratio(p)
+    v_nut = r * x["motor_speed"]
+    d = x["nut_position"] - x["surface_position"]
+    dd = v_nut - x["surface_speed"]
+    force, spring = loadpath_force_law(p, d, dd)
+    a.translating_mass = p["loadpath.mass"]  # the surface is now a body of its own
+    a.axial_force = force
+    a.rates["surface_position"] = x["surface_speed"]
+    a.rates["surface_speed"] = (force - u["load_force"]) / p["surface.mass"]
+    a.loss("loadpath_damping", (force - spring) * dd)
+    b = p["loadpath.backlash"]
+    a.stored_energy["loadpath_springs"] = (
+        p["loadpath.disk_spring_stiffness"] * d**2
+        + 0.5 * p["loadpath.contact_stiffness_upper"] * ca.fmax(d - b, 0.0) ** 2
+        + 0.5 * p["loadpath.contact_stiffness_lower"] * ca.fmin(d + b, 0.0) ** 2
+    )
+    a.stored_energy["kinetic_surface"] = 0.5 * p["surface.mass"] * x["surface_speed"] ** 2
+    a.initial["surface_position"] = lambda x0, f0: x0["nut_position"] - loadpath_static_deflection(p, f0)
+    a.output("surface_position", "m", x["surface_position"])
+    a.output("surface_speed", "m/s", x["surface_speed"])
+    a.output("loadpath_force", "N", force)
+    a.output("loadpath_deflection", "m", d)
+
+
+def _temperature_friction(a: Assembly) -> None:
+    x, u, p = a.x, a.u, a.p
+    w = x["motor_speed"]
+    dT = p["friction.reference_temperature"] - u["temperature"]
+    b25 = p["gear.viscous_friction"]
+    db = b25 * (ca.exp(p["friction.viscous_temperature_coefficient"] * dT) - 1.0)
+    a.torques.append(("viscous_temperature", -db * w))
+    a.loss("viscous_temperature", db * w**2)  # sums with "viscous" to b(T) w^2 >= 0
+    tc = p["friction.cold_coulomb_torque"] * (ca.exp(p["friction.coulomb_temperature_coefficient"] * ca.fmax(dT, 0.0)) - 1.0)
+    r_st = p["friction.cold_stribeck_ratio"]
+    kinetic = tc * (1.0 + r_st * ca.exp(-((w / p["friction.cold_stribeck_speed"]) ** 2)))
+    static = tc * (1.0 + r_st)
+    a.channels.append(FrictionChannel("temperature", static, static, kinetic, kinetic))
+    a.loss("temperature_coulomb", lambda res: res.channel["temperature"] * res.speed)
+    a.output("temperature_drag_torque", "N m", lambda res: res.channel["temperature"])
+    a.output("viscous_coefficient", "N m s/rad", p["motor.bearing_viscous_friction"] + b25 + db)
+
+
+def _stribeck(mu_s, mu_c, speed, w_st):
+    return mu_c + (mu_s - mu_c) * ca.exp(-((speed / w_st) ** 2))
+
+
+def _noback_quadrant_friction(a: Assembly) -> None:
+    x, p = a.x, a.p
+    w = x["motor_speed"]
+    N = p["gear.ratio"]
+    ws = w / N
+    F = a.axial_force
+    pre = p["noback.preload"]
+    n_comp = pre + ca.fmax(F, 0.0)
+    n_tens = pre + ca.fmax(-F, 0.0)
+    g_comp = a.pawl_engaged.get("comp", 1.0)
+    g_tens = a.pawl_engaged.get("tens", 1.0)
+    a.inertia.append(2.0 * p["noback.ratchet_inertia"] / N**2)
+    # compressive-side disks slip only in retraction (their wheel is locked then)
+    s_comp = g_comp * p["noback.mu_static_neg"] * n_comp / N
+    k_comp = g_comp * _stribeck(p["noback.mu_static_neg"], p["noback.mu_coulomb_neg"], ws, p["noback.stribeck_speed_neg"]) * n_comp / N
+    a.channels.append(FrictionChannel("noback_comp", 0.0, s_comp, 0.0, k_comp))
+    s_tens = g_tens * p["noback.mu_static_pos"] * n_tens / N
+    k_tens = g_tens * _stribeck(p["noback.mu_static_pos"], p["noback.mu_coulomb_pos"], ws, p["noback.stribeck_speed_pos"]) * n_tens / N
+    a.channels.append(FrictionChannel("noback_tens", s_tens, 0.0, k_tens, 0.0))
+    visc = ca.if_else(w < 0, g_comp * p["noback.viscous_neg"], ca.if_else(w > 0, g_tens * p["noback.viscous_pos"], 0.0)) / N**2
+    a.torques.append(("noback_viscous", -visc * w))
+    a.loss("noback_viscous", visc * w**2)
+    a.loss("noback_disks", lambda res: (res.channel["noback_comp"] + res.channel["noback_tens"]) * res.speed)
+    a.output("noback_torque", "N m", lambda res: (res.channel["noback_comp"] + res.channel["noback_tens"]) * N - visc * w * N)
+    a.output("noback_normal_force_comp", "N", n_comp)
+    a.output("noback_normal_force_tens", "N", n_tens)
+    a.output("noback_disk_comp_slipping", "-", lambda res: g_comp * ca.if_else(res.speed < 0, 1.0, 0.0))
+    a.output("noback_disk_tens_slipping", "-", lambda res: g_tens * ca.if_else(res.speed > 0, 1.0, 0.0))
+    a.output("pawl_comp_engaged", "-", g_comp)
+    a.output("pawl_tens_engaged", "-", g_tens)
+    a.output("pawl_engaged", "-", ca.if_else(F >= 0, g_comp, g_tens))
+
+
+def _noback_backlash(a: Assembly) -> None:
+    x, p = a.x, a.p
+    N = p["gear.ratio"]
+    pitch = p["noback.pawl_pitch"]
+    c_comp, c_tens = x["pawl_clearance_comp"], x["pawl_clearance_tens"]
+    a.pawl_engaged["comp"] = ca.if_else(c_comp <= 0.0, 1.0, 0.0)
+    a.pawl_engaged["tens"] = ca.if_else(c_tens <= 0.0, 1.0, 0.0)
+    a.rates["pawl_clearance_comp"] = x["motor_speed"] / N
+    a.rates["pawl_clearance_tens"] = -x["motor_speed"] / N
+
+    def advance(c, travel):
+        # travel > 0: free direction (pawl drops behind each tooth, clearance wraps);
+        # travel < 0: towards the locking face, stopped there.
+        moved = c + travel
+        wrapped = ca.if_else(pitch > 0, ca.fmod(moved, ca.fmax(pitch, 1e-300)), 0.0)
+        return ca.if_else(travel >= 0, wrapped, ca.fmax(moved, 0.0))
+
+    a.discrete["pawl_clearance_comp"] = lambda new, h: advance(c_comp, h * new["motor_speed"] / N)
+    a.discrete["pawl_clearance_tens"] = lambda new, h: advance(c_tens, -h * new["motor_speed"] / N)
+    a.initial["pawl_clearance_comp"] = lambda x0, f0: p["noback.pawl_initial_clearance"] * pitch
+    a.initial["pawl_clearance_tens"] = lambda x0, f0: p["noback.pawl_initial_clearance"] * pitch
+    a.output("pawl_clearance_comp", "rad", c_comp)
+    a.output("pawl_clearance_tens", "rad", c_tens)
+
+
+_NOBACK = tuple(f"noback.{n}" for n in (
+    "preload", "ratchet_inertia", "mu_static_pos", "mu_coulomb_pos", "viscous_pos", "stribeck_speed_pos",
+    "mu_static_neg", "mu_coulomb_neg", "viscous_neg", "stribeck_speed_neg",
+))
+
+EFFECTS: dict[str, Effect] = {
+    e.name: e
+    for e in (
+        Effect(
+            "standby_motor", "second PMSM torque-summed at the gearbox input, rotor always dragged",
+            (StateInfo("standby_current", "A", "lag", "q-axis current of the standby motor"),),
+            ("motor.rotor_inertia", "motor.bearing_viscous_friction"), (), _standby_motor,
+        ),
+        Effect(
+            "loadpath_compliance", "load-path backlash and preload compliance; surface as a separate body",
+            (
+                StateInfo("surface_position", "m", "position", "surface position referred to the nut axis"),
+                StateInfo("surface_speed", "m/s", "velocity", "surface speed referred to the nut axis"),
+            ),
+            tuple(f"loadpath.{n}" for n in (
+                "contact_stiffness_lower", "contact_stiffness_upper", "disk_spring_stiffness", "backlash",
+                "contact_damping", "disk_spring_damping")) + ("surface.mass",),
+            (), _loadpath_compliance,
+        ),
+        Effect(
+            "temperature_friction", "gearbox and nut-screw drag rising at low temperature and low speed",
+            (),
+            tuple(f"friction.{n}" for n in (
+                "reference_temperature", "viscous_temperature_coefficient", "cold_coulomb_torque",
+                "coulomb_temperature_coefficient", "cold_stribeck_ratio", "cold_stribeck_speed")),
+            (), _temperature_friction,
+        ),
+        Effect(
+            "noback_backlash", "ratchet/pawl clearance crossed before the pawl engages",
+            (
+                StateInfo("pawl_clearance_comp", "rad", "custom", "screw travel left before the compressive-side pawl locks retraction"),
+                StateInfo("pawl_clearance_tens", "rad", "custom", "screw travel left before the tensile-side pawl locks extension"),
+            ),
+            ("noback.pawl_pitch", "noback.pawl_initial_clearance"), ("noback_quadrant_friction",), _noback_backlash,
+        ),
+        Effect(
+            "noback_quadrant_friction", "no-back friction disks with load- and quadrant-dependent normal force",
+            (), _NOBACK, (), _noback_quadrant_friction,
+        ),
+    )
+}
+
+#: Order in which effects are applied: those that change the axial force or
+#: gate the pawls come before those that read them.
+EFFECT_ORDER: tuple[str, ...] = (
+    "standby_motor", "loadpath_compliance", "temperature_friction", "noback_backlash", "noback_quadrant_friction",
+)

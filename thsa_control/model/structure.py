@@ -1,0 +1,274 @@
+"""Functional structure of the THSA: states, inputs, balances and sign conventions.
+
+The structure owns the balances; effects (``effects.py``) only add terms to
+them.  Everything is written once as casadi ``SX`` expressions and used twice,
+by two numerical forms assembled in ``plant.py``:
+
+* the continuous right-hand side ``f(x, u, p) -> (xdot, y)`` (linearisation,
+  python-control), where set-valued friction is resolved by the sign of the
+  speed (valid away from zero speed);
+* the fixed-step discrete map used by the simulator, where the same friction
+  limits are resolved implicitly (stick or slip decided per step, so that
+  stiction holds exactly and does not chatter at any step size).
+
+Sign conventions (``shared/rig-data/FORMAT.md``): nut position and speed,
+motor and screw speed and motor current are positive when the actuator
+extends; the load force on the nut is positive when compressive (it pushes the
+nut back, opposing extension).  All rotational quantities of the main body are
+referred to the motor shaft: ``motor_speed`` [rad/s]; the screw turns at
+``motor_speed / N`` and the nut moves at ``r * motor_speed`` with
+``r = lead / (2 pi N)``.
+
+Main mechanical balance (motor shaft)::
+
+    J dw/dt = sum_k Kt i_k  - b w  - F_ax r c0  + (effect torques)  - T_f
+    T_f in friction set:  w > 0: sum K+_c(w);  w < 0: -sum K-_c(w);
+                          w = 0: [-sum S-_c, +sum S+_c]
+
+``F_ax r c0`` and the load-dependent channel ``|F_ax| r c1`` are the
+power-flow-dependent efficiency written as a mean load torque plus a Coulomb
+friction: with ``c0 = (1/eta_d + eta_i)/2`` and ``c1 = (1/eta_d - eta_i)/2``
+the motor sees ``F r / eta_d`` when it drives the load and ``F r eta_i`` when
+the load drives it.
+
+This module imports casadi only (no numpy I/O, no matplotlib).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import casadi as ca
+
+__all__ = [
+    "INPUTS",
+    "StateInfo",
+    "FrictionChannel",
+    "FrictionResolution",
+    "Assembly",
+    "apply_structure",
+    "STRUCTURE_STATES",
+]
+
+
+@dataclass(frozen=True)
+class StateInfo:
+    """A state of the plant.
+
+    ``kind`` says how the discrete map integrates it: ``"lag"`` (first-order
+    linear, integrated exactly), ``"speed"`` (the main body's speed, with
+    implicit friction), ``"velocity"`` (another body's velocity, explicit),
+    ``"position"`` (integrated with the updated velocities, symplectic Euler),
+    ``"custom"`` (an effect gives its own discrete update).
+    """
+
+    name: str
+    unit: str
+    kind: str
+    description: str
+
+
+#: Plant inputs, the same for every effect set (unused ones are ignored).
+INPUTS: tuple[tuple[str, str, str], ...] = (
+    ("voltage_primary", "V", "q-axis voltage command of the primary motor (clamped to V_dc/sqrt(3))"),
+    ("voltage_standby", "V", "q-axis voltage command of the standby motor (needs standby_motor)"),
+    ("enable_primary", "-", "1: primary inverter energised, 0: off (current decays)"),
+    ("enable_standby", "-", "1: standby inverter energised (needs standby_motor)"),
+    ("load_force", "N", "axial load on the surface/nut, positive compressive (opposes extension)"),
+    ("temperature", "degC", "actuator temperature (needs temperature_friction)"),
+)
+
+STRUCTURE_STATES: tuple[StateInfo, ...] = (
+    StateInfo("motor_current", "A", "lag", "q-axis current of the primary motor"),
+    StateInfo("motor_speed", "rad/s", "speed", "speed of the motor shaft (rotors, gearbox, screw, nut)"),
+    StateInfo("nut_position", "m", "position", "nut position, positive extending"),
+)
+
+
+@dataclass(frozen=True)
+class FrictionChannel:
+    """Set-valued friction acting on the main body, referred to the motor shaft.
+
+    ``static_pos`` / ``static_neg`` (>= 0) bound the torque the channel can
+    hold against positive / negative motion at standstill;
+    ``kinetic_pos`` / ``kinetic_neg`` (>= 0, <= static) is its torque while the
+    body slides in that direction (may depend on speed).  The effect that adds
+    it also names it so that its torque is a signal.
+    """
+
+    name: str
+    static_pos: ca.SX
+    static_neg: ca.SX
+    kinetic_pos: ca.SX
+    kinetic_neg: ca.SX
+
+
+@dataclass(frozen=True)
+class FrictionResolution:
+    """Friction torques as resolved by one of the numerical forms.
+
+    ``channel`` maps channel name to its torque [N m at the motor shaft,
+    positive opposing positive motion]; ``total`` is their sum; ``stuck`` is 1
+    while the main body is held by stiction (discrete form only); ``speed`` is
+    the motor speed the friction acts at [rad/s] (the end-of-step speed in the
+    discrete form).
+    """
+
+    channel: dict
+    total: ca.SX
+    stuck: ca.SX
+    speed: ca.SX
+
+
+@dataclass
+class Assembly:
+    """Mutable collector used while one effect set is assembled.
+
+    Effects receive it, read symbols (``x``, ``u``, ``p``) and add terms.  It
+    never leaves ``model/``: ``plant.py`` turns it into casadi Functions.
+    """
+
+    states: tuple[StateInfo, ...]
+    x: dict
+    u: dict
+    p: dict
+    effects: tuple[str, ...]
+    inertia: list = field(default_factory=list)  # [N m s^2/rad] at the motor shaft
+    torques: list = field(default_factory=list)  # (label, expr) smooth torques at the motor shaft
+    channels: list = field(default_factory=list)  # FrictionChannel
+    lags: dict = field(default_factory=dict)  # state -> (tau, target)
+    rates: dict = field(default_factory=dict)  # state -> continuous derivative
+    discrete: dict = field(default_factory=dict)  # state -> fn(x_new: dict, h) -> expr
+    outputs: dict = field(default_factory=dict)  # name -> (unit, expr | fn(FrictionResolution) -> expr)
+    losses: dict = field(default_factory=dict)  # label -> expr | fn(FrictionResolution) -> expr [W]
+    stored_energy: dict = field(default_factory=dict)  # label -> expr [J]
+    axial_force: ca.SX | None = None  # [N], compressive positive, on the nut
+    translating_mass: ca.SX | None = None  # [kg] moving rigidly with the nut
+    pawl_engaged: dict = field(default_factory=dict)  # "comp"/"tens" -> expr (1 engaged)
+    initial: dict = field(default_factory=dict)  # state -> fn(load_force) -> expr (static equilibrium)
+
+    def output(self, name: str, unit: str, expr) -> None:
+        """Define (or redefine) an output signal."""
+        self.outputs[name] = (unit, expr)
+
+    def loss(self, label: str, expr) -> None:
+        """Add a dissipated power [W] (must be >= 0 for every state)."""
+        self.losses[label] = expr
+
+    def has(self, effect: str) -> bool:
+        """True if ``effect`` is part of the set being assembled."""
+        return effect in self.effects
+
+
+def kinematic_ratio(p: dict):
+    """Nut travel per motor radian ``r = lead / (2 pi N)`` [m/rad]."""
+    return p["screw.lead"] / (2 * math.pi * p["gear.ratio"])
+
+
+def torque_constant(p: dict):
+    """PMSM torque constant ``Kt = 1.5 p psi`` [N m/A] (amplitude-invariant dq)."""
+    return 1.5 * p["motor.pole_pairs"] * p["motor.flux_linkage"]
+
+
+def motor_lag(a: Assembly, current, voltage, enable, speed):
+    """q-axis electrics of one motor as a first-order lag ``(tau, target)``.
+
+    ``L di/dt = clamp(v) - R i - p psi w`` while energised; with the inverter
+    off the current decays with ``motor.off_current_time_constant``.  Written
+    as ``di/dt = (target - i) / tau`` so that the discrete map can integrate it
+    exactly over a step with the speed frozen.
+    """
+    p = a.p
+    vmax = p["inverter.dc_bus_voltage"] / math.sqrt(3.0)
+    v = ca.fmin(ca.fmax(voltage, -vmax), vmax)
+    back_emf = p["motor.pole_pairs"] * p["motor.flux_linkage"] * speed
+    on = enable > 0.5
+    tau = ca.if_else(on, p["motor.inductance"] / p["motor.resistance"], p["motor.off_current_time_constant"])
+    target = ca.if_else(on, (v - back_emf) / p["motor.resistance"], 0.0)
+    # copper loss when energised; when off the magnetic energy is dissipated in the diodes
+    loss = ca.if_else(
+        on, 1.5 * p["motor.resistance"], 1.5 * p["motor.inductance"] / p["motor.off_current_time_constant"]
+    ) * current**2
+    return tau, target, v, loss
+
+
+def apply_structure(a: Assembly) -> None:
+    """The functional structure (level A): one motor, rigid transmission, efficiencies, viscous drag."""
+    x, u, p = a.x, a.u, a.p
+    w = x["motor_speed"]
+    N = p["gear.ratio"]
+    r = kinematic_ratio(p)
+    kt = torque_constant(p)
+
+    tau, target, v_applied, copper = motor_lag(a, x["motor_current"], u["voltage_primary"], u["enable_primary"], w)
+    a.lags["motor_current"] = (tau, target)
+    a.torques.append(("motor_primary", kt * x["motor_current"]))
+    a.loss("copper_primary", copper)
+    a.stored_energy["magnetic_primary"] = 0.75 * p["motor.inductance"] * x["motor_current"] ** 2
+
+    a.inertia += [p["motor.rotor_inertia"], p["screw.inertia"] / N**2]
+    a.translating_mass = p["loadpath.mass"] + p["surface.mass"]
+    a.axial_force = u["load_force"]
+
+    b = p["motor.bearing_viscous_friction"] + p["gear.viscous_friction"]
+    a.torques.append(("viscous", -b * w))
+    a.loss("viscous", b * w**2)
+
+    a.rates["nut_position"] = r * w
+
+    a.output("motor_voltage", "V", v_applied)
+    a.output("motor_current", "A", x["motor_current"])
+    a.output("motor_speed", "rad/s", w)
+    a.output("screw_speed", "rad/s", w / N)
+    a.output("nut_position", "m", x["nut_position"])
+    a.output("nut_speed", "m/s", r * w)
+    a.output("load_force", "N", u["load_force"])
+    a.output("temperature", "degC", u["temperature"])
+    a.output("primary_energised", "-", ca.if_else(u["enable_primary"] > 0.5, 1.0, 0.0))
+    # Signals of effects, at their neutral value when the effect is absent, so
+    # that every effect set has the same outputs (effects redefine them).
+    for name, unit, value in (
+        ("standby_current", "A", 0.0), ("standby_voltage", "V", 0.0), ("standby_energised", "-", 0.0),
+        ("surface_position", "m", x["nut_position"]), ("surface_speed", "m/s", r * w),
+        ("loadpath_force", "N", u["load_force"]), ("loadpath_deflection", "m", 0.0),
+        ("temperature_drag_torque", "N m", 0.0),
+        ("viscous_coefficient", "N m s/rad", p["motor.bearing_viscous_friction"] + p["gear.viscous_friction"]),
+        ("noback_torque", "N m", 0.0), ("noback_normal_force_comp", "N", 0.0), ("noback_normal_force_tens", "N", 0.0),
+        ("noback_disk_comp_slipping", "-", 0.0), ("noback_disk_tens_slipping", "-", 0.0),
+        ("pawl_comp_engaged", "-", 0.0), ("pawl_tens_engaged", "-", 0.0), ("pawl_engaged", "-", 0.0),
+        ("pawl_clearance_comp", "rad", 0.0), ("pawl_clearance_tens", "rad", 0.0),
+    ):
+        a.output(name, unit, value)
+
+
+def finish_structure(a: Assembly) -> None:
+    """Terms that depend on what the effects decided (axial force, masses)."""
+    x, p = a.x, a.p
+    w = x["motor_speed"]
+    r = kinematic_ratio(p)
+    a.inertia.append(a.translating_mass * r**2)
+    eta_d = p["gear.efficiency"] * p["screw.efficiency_direct"]
+    eta_i = p["gear.efficiency"] * p["screw.efficiency_inverse"]
+    c0 = 0.5 * (1.0 / eta_d + eta_i)
+    c1 = 0.5 * (1.0 / eta_d - eta_i)
+    F = a.axial_force
+    a.torques.append(("load", -F * r * c0))
+    limit = ca.fabs(F) * r * c1
+    a.channels.append(FrictionChannel("efficiency", limit, limit, limit, limit))
+
+    def efficiency_loss(res: FrictionResolution):
+        # power into the load path is F r w; what the motor gives beyond it is lost
+        return F * r * res.speed * (c0 - 1.0) + res.channel["efficiency"] * res.speed
+
+    a.loss("efficiency", efficiency_loss)
+    a.stored_energy["kinetic_main"] = 0.5 * sum(a.inertia) * w**2
+    a.output("axial_force", "N", F)
+    # Monitoring only: the torque limiter does not slip in this model.
+    motor_torque = sum(expr for label, expr in a.torques if label.startswith("motor_"))
+    a.output("motor_torque", "N m", motor_torque)
+    a.output(
+        "torque_limiter_exceeded", "-",
+        ca.if_else(ca.fabs(motor_torque) * p["gear.ratio"] > p["gear.torque_limiter_threshold"], 1.0, 0.0),
+    )

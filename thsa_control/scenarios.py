@@ -1,0 +1,187 @@
+"""Named test scenarios of the papers, as reusable input definitions.
+
+A scenario gives the target nut speed (piecewise constant; the controller's
+shaper turns it into trapezoids with the scenario's acceleration limit), or a
+position command, the load force (piecewise linear, FORMAT.md sign:
+compressive positive, i.e. it opposes extension), the temperature and the
+channel enables.  Timings the papers do not state exactly are chosen here and
+written in each description.
+
+Examples
+--------
+>>> sorted(SCENARIOS)[:2]
+['backdrive_bipolar_ramp', 'cold_ramp']
+>>> s = get_scenario("backdrive_bipolar_ramp")
+>>> u = s.inputs([0.5, 2.0, 7.0])
+>>> u["load_force"].tolist()
+[0.0, 29000.0, 29000.0]
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .errors import ScenarioError
+
+__all__ = ["Scenario", "SCENARIOS", "get_scenario", "TEMPERATURE_RANGE"]
+
+#: Temperature range of the friction law and of the papers' tests [degC].
+TEMPERATURE_RANGE = (-55.0, 70.0)
+
+Breakpoints = tuple[tuple[float, float], ...]
+
+
+def _steps(points: Breakpoints, t: np.ndarray) -> np.ndarray:
+    """Piecewise-constant signal: value of the last breakpoint at or before t."""
+    times = np.array([p[0] for p in points])
+    values = np.array([p[1] for p in points])
+    idx = np.searchsorted(times, t, side="right") - 1
+    return np.where(idx >= 0, values[np.clip(idx, 0, None)], 0.0)
+
+
+def _linear(points: Breakpoints, t: np.ndarray) -> np.ndarray:
+    """Piecewise-linear signal, held before the first and after the last breakpoint."""
+    return np.interp(t, [p[0] for p in points], [p[1] for p in points])
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One scenario: inputs as functions of time (SI, FORMAT.md signs).
+
+    Parameters
+    ----------
+    name, description : str
+    duration : float
+        [s].
+    speed_target : tuple of (t [s], v [m/s])
+        Piecewise-constant target nut speed; shaped by the controller.
+    accel_limit : float
+        Shaper rate limit [m/s^2].
+    load : tuple of (t [s], F [N])
+        Piecewise-linear load force.
+    temperature : float
+        [degC], -55..70.
+    jerk_limit : float
+        Shaper acceleration limit [m/s^3] (inf: none).
+    primary_enable, standby_enable : tuple of (t [s], 0/1)
+        Channel enables (piecewise constant).
+    position_cmd : tuple of (t [s], x [m]) or None
+        If given, the position loop is closed and ``speed_target`` ignored.
+    required_effects : tuple of str
+        Effects the scenario needs (e.g. ``standby_motor``).
+    motor_off_at_zero : bool
+        De-energise the motors while the shaped command is exactly zero.
+    """
+
+    name: str
+    description: str
+    duration: float
+    speed_target: Breakpoints
+    accel_limit: float
+    load: Breakpoints
+    temperature: float = 25.0
+    jerk_limit: float = math.inf
+    primary_enable: Breakpoints = ((0.0, 1.0),)
+    standby_enable: Breakpoints = ((0.0, 0.0),)
+    position_cmd: Breakpoints | None = None
+    required_effects: tuple[str, ...] = ()
+    motor_off_at_zero: bool = True
+
+    def __post_init__(self):
+        if not (self.duration > 0 and math.isfinite(self.duration)):
+            raise ScenarioError(f"scenario {self.name!r}: duration {self.duration!r} must be positive")
+        if not self.accel_limit > 0:
+            raise ScenarioError(f"scenario {self.name!r}: accel_limit {self.accel_limit!r} must be positive")
+        lo, hi = TEMPERATURE_RANGE
+        if not (lo <= self.temperature <= hi):
+            raise ScenarioError(
+                f"scenario {self.name!r}: temperature {self.temperature!r} degC outside the model's range {lo:g}..{hi:g} degC")
+        for field_name in ("speed_target", "load", "primary_enable", "standby_enable", "position_cmd"):
+            pts = getattr(self, field_name)
+            if pts is None:
+                continue
+            times = [p[0] for p in pts]
+            if not pts or any(b < a for a, b in zip(times, times[1:])):
+                raise ScenarioError(f"scenario {self.name!r}: {field_name} breakpoints must be non-empty and ordered in time")
+            if not all(math.isfinite(v) for p in pts for v in p):
+                raise ScenarioError(f"scenario {self.name!r}: {field_name} has a non-finite value")
+
+    def with_temperature(self, temperature: float) -> "Scenario":
+        """Same scenario at another temperature [degC]."""
+        return replace(self, temperature=float(temperature))
+
+    def inputs(self, t) -> dict[str, np.ndarray]:
+        """Input signals at times ``t`` [s] (SI): speed_target, position_cmd,
+        position_mode, primary_enable, standby_enable, load_force, temperature."""
+        t = np.asarray(t, dtype=float)
+        pos_mode = self.position_cmd is not None
+        return {
+            "speed_target": _steps(self.speed_target, t),
+            "position_cmd": _linear(self.position_cmd, t) if pos_mode else np.zeros_like(t),
+            "position_mode": np.full_like(t, 1.0 if pos_mode else 0.0),
+            "primary_enable": _steps(self.primary_enable, t),
+            "standby_enable": _steps(self.standby_enable, t),
+            "load_force": _linear(self.load, t),
+            "temperature": np.full_like(t, self.temperature),
+        }
+
+
+_MM = 1e-3
+
+SCENARIOS: dict[str, Scenario] = {
+    s.name: s
+    for s in (
+        Scenario(
+            "backdrive_bipolar_ramp",
+            "Papers' back-drive test: +15 mm/s trapezoid (30 mm/s^2) from 1 s to a trim stop at 4 s, "
+            "-15 mm/s trapezoid from 6 s to a trim stop at 9 s; compressive load ramp to 29 kN at 58 kN/s "
+            "from 1 s, then held: the load opposes the first motion and aids the second. Motors off in the stops.",
+            10.0, ((0.0, 0.0), (1.0, 15 * _MM), (3.5, 0.0), (6.0, -15 * _MM), (8.5, 0.0)), 30 * _MM,
+            ((0.0, 0.0), (1.0, 0.0), (1.5, 29e3)),
+        ),
+        Scenario(
+            "unipolar_speed_bipolar_load",
+            "+15 mm/s trapezoids (30 mm/s^2) from 1 s and from 6 s with a trim stop between; the load ramps to "
+            "29 kN compressive from 1 s, then turns to 29 kN tensile at 58 kN/s during the stop (zero at 5.5 s): "
+            "opposing, then aiding.",
+            10.0, ((0.0, 0.0), (1.0, 15 * _MM), (3.5, 0.0), (6.0, 15 * _MM), (8.5, 0.0)), 30 * _MM,
+            ((0.0, 0.0), (1.0, 0.0), (1.5, 29e3), (5.0, 29e3), (6.0, -29e3)),
+        ),
+        Scenario(
+            "triangular_load",
+            "-15 mm/s trapezoid (30 mm/s^2) from 1 s to a stop at 15 s under a triangular load of 29 kN "
+            "amplitude and 15 s period, starting at 1 s towards tension (opposing the retraction), crossing zero "
+            "towards compression (aiding) at 8.5 s, where the load-path backlash is crossed.",
+            16.0, ((0.0, 0.0), (1.0, -15 * _MM), (14.5, 0.0)), 30 * _MM,
+            ((0.0, 0.0), (1.0, 0.0), (4.75, -29e3), (12.25, 29e3), (16.0, 0.0)),
+        ),
+        Scenario(
+            "cold_ramp",
+            "Cold operation at -30 degC: ramp to +9 mm/s at 30 mm/s^2 from 0.5 s against a 55 kN opposing "
+            "(compressive) load applied with the motion (0.5 s ramp), stop from 2.5 s.",
+            3.0, ((0.0, 0.0), (0.5, 9 * _MM), (2.5, 0.0)), 30 * _MM,
+            ((0.0, 0.0), (0.5, 0.0), (1.0, 55e3)), temperature=-30.0,
+        ),
+        Scenario(
+            "motor_fault_switch",
+            "Active/standby switch-over: -5 mm/s at 20 mm/s^2 from 0.5 s; aiding load (compressive, the papers' "
+            "tensile) ramped to 20 kN by 1 s, then rising 40 kN/s (held at 55 kN); primary disabled at 1.8 s, "
+            "standby enabled 15 ms later.",
+            3.0, ((0.0, 0.0), (0.5, -5 * _MM)), 20 * _MM,
+            ((0.0, 0.0), (0.5, 0.0), (1.0, 20e3), (1.875, 55e3)),
+            primary_enable=((0.0, 1.0), (1.8, 0.0)), standby_enable=((0.0, 0.0), (1.815, 1.0)),
+            required_effects=("standby_motor",),
+        ),
+    )
+}
+
+
+def get_scenario(name: str) -> Scenario:
+    """The scenario called ``name``; :class:`ScenarioError` lists the known ones otherwise."""
+    try:
+        return SCENARIOS[name]
+    except KeyError:
+        raise ScenarioError(f"unknown scenario {name!r}; scenarios are {', '.join(SCENARIOS)}") from None
