@@ -31,7 +31,7 @@ import numpy as np
 from .errors import DesignError
 from .params import ParameterSet
 
-__all__ = ["Design", "load_design", "parse_design", "derive_gains", "reflected_inertia"]
+__all__ = ["Design", "load_design", "parse_design", "derive_gains", "reflected_inertia", "nominal_design_path"]
 
 _TABLES = {
     "current_loop": {"kp_V_per_A": True, "ki_V_per_A_s": True, "voltage_limit_V": False},
@@ -170,6 +170,23 @@ def parse_design(doc: dict, source: str = "<dict>") -> Design:
         computation_delay_samples=delay, source=source,
         derivation=dict(doc.get("derivation", {})), requirements=dict(doc.get("requirements", {})),
     )
+
+
+def nominal_design_path() -> Path:
+    """Path of ``designs/nominal.toml`` of the repository this package is installed from.
+
+    Raises
+    ------
+    DesignError
+        When the package is not installed from a checkout (``pip install -e .``)
+        and the current folder has no ``designs/nominal.toml`` either.
+    """
+    for cand in (Path(__file__).resolve().parents[1] / "designs" / "nominal.toml",
+                 Path.cwd() / "designs" / "nominal.toml", Path.cwd().parent / "designs" / "nominal.toml"):
+        if cand.exists():
+            return cand
+    raise DesignError("designs/nominal.toml", "not found: install from the repository with 'pip install -e .' "
+                      "or pass a design file")
 
 
 def load_design(path: str | Path) -> Design:

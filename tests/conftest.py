@@ -1,0 +1,61 @@
+"""Shared fixtures: the default actuator, the nominal design, memoised runs, figure clean-up."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+import numpy as np
+import pytest
+
+matplotlib.use("Agg")
+
+from thsa_control.design import load_design  # noqa: E402
+from thsa_control.model import build_plant  # noqa: E402
+from thsa_control.params import default_parameters  # noqa: E402
+from thsa_control.scenarios import get_scenario  # noqa: E402
+from thsa_control.simulate import SimulationSettings, Simulator  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="session")
+def params():
+    return default_parameters()
+
+
+@pytest.fixture(scope="session")
+def design():
+    return load_design(ROOT / "designs" / "nominal.toml")
+
+
+@pytest.fixture(scope="session")
+def run(params, design):
+    """``run(scenario, level, effects=(), substeps=1, output_period=1e-3, params=None)``, memoised per session."""
+    cache = {}
+
+    def _run(scenario, level, effects=(), substeps=1, output_period=1e-3, params_override=None, compiled=True):
+        p = params_override or params
+        key = (scenario, level, tuple(effects), substeps, output_period, id(params_override), compiled)
+        if key not in cache:
+            sc = get_scenario(scenario) if isinstance(scenario, str) else scenario
+            eff = tuple(effects) + tuple(e for e in sc.required_effects if e not in effects)
+            sim = Simulator(build_plant(level, eff, params=p),
+                            SimulationSettings(substeps=substeps, output_period=output_period, compiled=compiled))
+            cache[key] = sim.run(sc, design, p)
+        return cache[key]
+
+    return _run
+
+
+@pytest.fixture(autouse=True)
+def _close_figures():
+    yield
+    import matplotlib.pyplot as plt
+
+    plt.close("all")
+
+
+@pytest.fixture
+def rng(request):
+    return np.random.default_rng(abs(hash(request.node.name)) % (2**32))

@@ -1,0 +1,152 @@
+"""Plant model: kinematics, statics, effects switching, balances, stiction.
+
+Reference values are hand-derived from the parameter values (formulas written
+out here, independently of the model code) or quoted from the papers.
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+from thsa_control.errors import ModelError
+from thsa_control.model import EFFECT_ORDER, EFFECTS, LEVELS, build_plant, resolve_effects
+from thsa_control.scenarios import Scenario
+
+
+def _u(plant, **kw):
+    u = np.zeros(len(plant.inputs))
+    for k, v in kw.items():
+        u[plant.index("input", k)] = v
+    return u
+
+
+def test_kinematics_one_mm_per_s_is_328_rpm(params):
+    # FORMAT.md: 1 mm/s nut = 5 rpm screw = 328.05 rpm motor
+    plant = build_plant("A")
+    x = plant.initial_state(params)
+    x[plant.index("state", "motor_speed")] = 328.05 * 2 * math.pi / 60
+    xdot, y = (np.asarray(v).ravel() for v in plant.f(x, _u(plant, temperature=25), plant.p_vector(params)))
+    assert xdot[plant.index("state", "nut_position")] == pytest.approx(1e-3, rel=1e-6)
+    assert y[plant.index("output", "screw_speed")] * 60 / (2 * math.pi) == pytest.approx(5.0, rel=1e-6)
+
+
+def _constant_motion(speed_mm_s, load_N):
+    return Scenario("steady", "constant speed and load", 2.5, ((0.0, 0.0), (0.2, speed_mm_s * 1e-3)), 0.03,
+                    ((0.0, 0.0), (0.2, 0.0), (0.7, load_N)))
+
+
+@pytest.mark.parametrize("level", ["A", "B"])
+@pytest.mark.parametrize("speed_mm_s, load_N", [(5.0, 20e3), (-5.0, 20e3), (8.0, -15e3), (-8.0, -15e3)])
+def test_steady_current_equals_torque_balance(run, params, level, speed_mm_s, load_N):
+    P = params.value
+    N, lead = P("gear.ratio"), P("screw.lead")
+    r = lead / (2 * math.pi * N)
+    kt = 1.5 * P("motor.pole_pairs") * P("motor.flux_linkage")
+    w = speed_mm_s * 1e-3 / r
+    eta_d = P("gear.efficiency") * P("screw.efficiency_direct")
+    eta_i = P("gear.efficiency") * P("screw.efficiency_inverse")
+    b = P("motor.bearing_viscous_friction") + P("gear.viscous_friction")
+    opposing = load_N * speed_mm_s > 0
+    # motor torque = viscous + load through the efficiency of the power-flow direction (+ no-back)
+    torque = b * w + load_N * r * (1 / eta_d if opposing else eta_i)
+    if level == "B":
+        ws = w / N
+        sfx = "pos" if w > 0 else "neg"
+        normal = P("noback.preload") + (max(load_N, 0) if w < 0 else max(-load_N, 0))
+        mu = P(f"noback.mu_coulomb_{sfx}") + (P(f"noback.mu_static_{sfx}") - P(f"noback.mu_coulomb_{sfx}")) * math.exp(
+            -((ws / P(f"noback.stribeck_speed_{sfx}")) ** 2))
+        torque += math.copysign(mu * normal / N, w)
+    res = run(_constant_motion(speed_mm_s, load_N), level)
+    m = res.window(2.0, 2.5)
+    assert np.mean(res["nut_speed"][m]) == pytest.approx(speed_mm_s * 1e-3, rel=1e-6)
+    # tolerance: the integral action leaves no steady error; 1e-4 covers the discrete ripple
+    assert np.mean(res["motor_current"][m]) == pytest.approx(torque / kt, rel=1e-4)
+
+
+def test_levels_are_nested_and_effects_known():
+    assert set(EFFECT_ORDER) == set(EFFECTS)
+    for lower, upper in zip("ABC", "BCD"):
+        assert set(LEVELS[lower]) < set(LEVELS[upper])
+    assert resolve_effects("D", remove=["loadpath_compliance"]) == resolve_effects("C")
+    with pytest.raises(ModelError, match="unknown effect 'friction'"):
+        resolve_effects("A", add=["friction"])
+    with pytest.raises(ModelError, match="unknown model level 'E'"):
+        resolve_effects("E")
+    with pytest.raises(ModelError, match="needs effect 'noback_quadrant_friction'"):
+        resolve_effects("A", add=["noback_backlash"])
+
+
+def _max_diff(r1, r2, names=("motor_current", "motor_speed", "nut_position", "noback_torque")):
+    return max(float(np.max(np.abs(np.asarray(r1[n]) - np.asarray(r2[n])))) for n in names)
+
+
+def test_temperature_friction_at_25C_is_the_base_friction(run):
+    # the law reduces exactly to the level-A viscous drag at the reference temperature
+    assert _max_diff(run("backdrive_bipolar_ramp", "B", ("temperature_friction",)),
+                     run("backdrive_bipolar_ramp", "B")) < 1e-9
+
+
+def test_zero_pawl_pitch_reproduces_level_B(run, params):
+    p0 = params.replace({"noback.pawl_pitch": 0.0})
+    assert _max_diff(run("backdrive_bipolar_ramp", "C", params_override=p0),
+                     run("backdrive_bipolar_ramp", "B", params_override=p0)) < 1e-9
+
+
+def test_stiff_load_path_approaches_level_C(run, params):
+    stiff = params.replace({"loadpath.backlash": 0.0, "loadpath.contact_stiffness_upper": 1e10,
+                            "loadpath.contact_stiffness_lower": 1e10, "loadpath.disk_spring_stiffness": 1e9,
+                            "loadpath.contact_damping": 1.8e6, "loadpath.disk_spring_damping": 1e5})
+    d = run("backdrive_bipolar_ramp", "D", params_override=stiff)
+    c = run("backdrive_bipolar_ramp", "C", params_override=stiff)
+    # within 1 % of the 15 mm/s command and of the 4 A plateau current (the surface is 350 kg on a stiff spring)
+    assert np.max(np.abs(d["nut_speed"] - c["nut_speed"])) < 0.01 * 15e-3
+    m = d.window(1.6, 3.4)
+    assert np.max(np.abs(d["motor_current"][m] - c["motor_current"][m])) < 0.04
+
+
+def test_noback_holds_a_deenergised_actuator_and_level_A_backdrives(run):
+    hold = Scenario("hold", "motors off, load ramp to 29 kN", 2.0, ((0.0, 0.0),), 0.03,
+                    ((0.0, 0.0), (0.5, 29e3)))
+    b = run(hold, "B")
+    assert np.all(b["motor_current"] == 0) and np.all(b["nut_position"] == 0.0)
+    assert np.all(b["stuck"] == 1.0)
+    a = run(hold, "A")
+    assert a["nut_position"][-1] < -1e-3  # a reversible screw with no no-back back-drives
+
+
+def test_losses_are_never_negative(run):
+    for level in "ABCD":
+        res = run("backdrive_bipolar_ramp", level)
+        assert np.min(res["loss_power"]) > -1e-6 * np.max(np.abs(res["electrical_power"]))
+
+
+@pytest.mark.parametrize("level", ["B", "D"])
+def test_energy_balance(run, level):
+    res = run("unipolar_speed_bipolar_load", level, output_period=None)
+    h = res.info["control_period_s"]
+    e_in = np.sum(res["electrical_power"]) * h
+    lost = np.sum(res["loss_power"]) * h
+    to_load = np.sum(res["load_power"]) * h
+    stored = res["stored_energy"][-1] - res["stored_energy"][0]
+    scale = np.sum(np.abs(res["electrical_power"])) * h
+    # first-order scheme: the balance closes to O(h); 0.5 % of the energy throughput
+    assert abs(e_in - lost - to_load - stored) < 5e-3 * scale
+
+
+def test_discrete_step_is_consistent_with_the_rhs(params):
+    plant = build_plant("D", ["temperature_friction", "standby_motor"])
+    p = plant.p_vector(params)
+    x = plant.initial_state(params, load_force=12e3)
+    x[plant.index("state", "motor_speed")] = 120.0
+    x[plant.index("state", "motor_current")] = 3.0
+    x[plant.index("state", "standby_current")] = 1.0
+    x[plant.index("state", "pawl_clearance_comp")] = 0.05
+    x[plant.index("state", "pawl_clearance_tens")] = 0.07  # off the stops, where the rates are smooth
+    u = _u(plant, voltage_primary=40.0, voltage_standby=20.0, enable_primary=1, enable_standby=1,
+           load_force=12e3, temperature=-20.0)
+    xdot = np.asarray(plant.f(x, u, p)[0]).ravel()
+    h = 1e-8
+    fd = (np.asarray(plant.step(x, u, p, h)[0]).ravel() - x) / h
+    # both forms come from the same terms: first-order agreement at h = 1e-8
+    np.testing.assert_allclose(fd, xdot, rtol=1e-5, atol=1e-6)

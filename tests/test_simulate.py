@@ -1,0 +1,137 @@
+"""Closed-loop behaviour of the papers' scenarios, convergence and the written runs.
+
+Papers' figures quoted in issue #2: about 3x more current when the load aids
+(about 1.4 expected from Table 2 with preload + load as normal force), about
+40 % back-drive at the first trim stop at level C, about 30 % surface speed
+overshoot at level D while the load crosses the load-path backlash.
+"""
+
+import numpy as np
+import pytest
+
+from thsa_control.errors import ScenarioError
+from thsa_control.export import write_simulation
+from thsa_control.metrics import backdrive_metrics, surface_speed_deviation
+from thsa_control.model import build_plant
+from thsa_control.rigdata import read_run
+from thsa_control.scenarios import SCENARIOS, get_scenario
+from thsa_control.simulate import SimulationSettings, Simulator
+
+
+def test_backdrive_level_B_motor_drives_against_the_noback(run):
+    m = backdrive_metrics(run("backdrive_bipolar_ramp", "B"))
+    print(f"level B: aiding/opposing mean |I| = {m.aiding_to_opposing:.3f}, breakaway/opposing = {m.breakaway_to_opposing:.3f}")
+    assert m.aiding_drive_fraction == 1.0  # current has the sign of the speed through the aiding plateau
+    assert m.aiding_mean_current > m.opposing_mean_current
+    assert m.breakaway_peak >= 2.0 * m.opposing_mean_current
+    # Table 2 (-) coefficients with N = preload + load give 1.17 here; the papers' 1.4 is the (+) set
+    assert 1.1 < m.aiding_to_opposing < 1.5
+
+
+def test_backdrive_level_A_brakes_when_aided(run):
+    m = backdrive_metrics(run("backdrive_bipolar_ramp", "A"))
+    assert m.aiding_drive_fraction == 0.0  # the motor holds the load back: current opposes the speed
+
+
+def test_aided_with_the_plus_coefficients_gives_the_papers_ratio(run):
+    # unipolar speed: aided motion is extension, i.e. the (+) friction coefficients, as in the papers' 1.4
+    res = run("unipolar_speed_bipolar_load", "B")
+    t, i = res.time, res["motor_current"]
+    ratio = np.mean(i[(t > 7.0) & (t < 8.4)]) / np.mean(i[(t > 2.0) & (t < 3.4)])
+    print(f"unipolar level B: aiding/opposing current = {ratio:.3f}")
+    assert ratio == pytest.approx(1.36, abs=0.08)
+
+
+def test_trim_stop_backdrive_only_with_pawl_backlash(run):
+    c = backdrive_metrics(run("backdrive_bipolar_ramp", "C"))
+    b = backdrive_metrics(run("backdrive_bipolar_ramp", "B"))
+    first_stop = 1  # stops: before the motion, first trim stop, final stop
+    frac = c.stop_backdrive_peak[first_stop] / c.command_amplitude
+    print(f"level C back-drive at the first trim stop: {100 * frac:.1f} % of the command")
+    assert 0.10 <= frac <= 0.60
+    assert b.stop_backdrive_peak[first_stop] == 0.0
+    res = run("backdrive_bipolar_ramp", "C")
+    stop = res.window(4.5, 6.0)
+    assert np.all(res["pawl_engaged"][stop] == 1.0) and np.all(res["nut_speed"][stop] == 0.0)
+
+
+def test_surface_overshoot_where_the_load_path_backlash_is_crossed(run):
+    d = surface_speed_deviation(run("triangular_load", "D"))
+    c = surface_speed_deviation(run("triangular_load", "C"))
+    print(f"triangular load: surface speed deviation D {100 * d:.1f} %, C {100 * c:.2f} %")
+    assert d > 0.15
+    assert c < 0.02
+    res = run("triangular_load", "D")
+    worst = np.argmax(np.abs(res["surface_speed"] - res["speed_cmd"]) * res.window(2.0, 14.0))
+    # it happens while |load| is below what closes the backlash (2 kds b = 1983 N) or just after
+    assert abs(res["load_force"][worst]) < 3e3
+
+
+@pytest.mark.parametrize("level, scenario", [("C", "backdrive_bipolar_ramp"), ("D", "backdrive_bipolar_ramp"),
+                                             ("D", "triangular_load")])
+def test_converges_under_step_halving(run, level, scenario):
+    ref = run(scenario, level, substeps=16)
+    err = [float(np.max(np.abs(run(scenario, level, substeps=s)["nut_position"] - ref["nut_position"])))
+           for s in (1, 2, 4)]
+    print(f"{level} {scenario}: max nut position error vs 16 substeps: {err}")
+    assert err[0] < 5e-6  # 5 um at the control period
+    assert err[1] < 0.75 * err[0] and err[2] < 0.75 * err[1]  # first order: roughly halves
+    cur = float(np.max(np.abs(run(scenario, level, substeps=1)["motor_current"] - ref["motor_current"])))
+    assert cur < 0.02
+
+
+@pytest.mark.parametrize("substeps", [1, 4])
+def test_stiction_does_not_chatter(run, substeps):
+    res = run("backdrive_bipolar_ramp", "B", substeps=substeps)
+    held = res.window(4.2, 6.0)
+    assert np.all(res["stuck"][held] == 1.0)
+    assert np.all(res["nut_speed"][held] == 0.0)
+    # the holding torque equals the load's back-driving torque (F r eta_i at the motor, times N at the screw)
+    assert np.ptp(res["noback_torque"][held]) < 1e-9
+
+
+def test_motor_fault_switch_recovers(run):
+    res = run("motor_fault_switch", "B")
+    gap = res.window(1.801, 1.815)
+    assert np.all(res["energised_primary"][gap] == 0) and np.all(res["energised_standby"][gap] == 0)
+    after = res.window(2.3, 3.0)
+    assert np.all(res["energised_standby"][after] == 1)
+    assert np.mean(res["nut_speed"][after]) == pytest.approx(-5e-3, rel=1e-3)
+    assert np.all(res["motor_current"][after] == 0)
+
+
+def test_scenario_needing_an_effect_the_plant_lacks(design, params):
+    with pytest.raises(ScenarioError, match="standby_motor"):
+        Simulator(build_plant("B")).run(get_scenario("motor_fault_switch"), design, params)
+
+
+def test_compiled_and_interpreted_agree(run):
+    a = run("cold_ramp", "B", ("temperature_friction",))
+    b = run("cold_ramp", "B", ("temperature_friction",), compiled=False)
+    for name in ("motor_current", "nut_position", "noback_torque"):
+        np.testing.assert_allclose(a[name], b[name], rtol=1e-9, atol=1e-12)
+
+
+def test_cold_friction_raises_the_current(run):
+    cold = run("cold_ramp", "B", ("temperature_friction",))
+    warm = run(get_scenario("cold_ramp").with_temperature(25.0), "B", ("temperature_friction",))
+    m = cold.window(1.5, 2.4)
+    assert np.mean(cold["motor_current"][m]) > np.mean(warm["motor_current"][m]) + 0.1
+
+
+@pytest.mark.parametrize("name", sorted(SCENARIOS))
+def test_every_scenario_runs_at_level_D_and_writes_a_valid_run(run, name, tmp_path):
+    res = run(name, "D")
+    csv, js = write_simulation(res, tmp_path / name, level="D")
+    back = read_run(csv)  # the reader validates FORMAT.md and raises on any violation
+    assert back.duration_s == pytest.approx(res.time[-1], abs=1e-9)
+    np.testing.assert_allclose(back.signals["nut_position"], res["nut_position"], atol=1e-8)
+    for extra in ("surface_position_mm", "noback_torque_Nm", "pawl_engaged", "loadpath_force_N"):
+        assert extra in back.extra
+
+
+def test_settings_and_inputs_are_validated(design, params):
+    with pytest.raises(ValueError, match="substeps"):
+        Simulator(build_plant("A"), SimulationSettings(substeps=0))
+    with pytest.raises(ScenarioError, match="temperature"):
+        get_scenario("cold_ramp").with_temperature(-80.0)

@@ -1,0 +1,26 @@
+"""thsa-control: design and check the controls of an electrical THSA.
+
+The plant at levels A-D is one casadi effect library (``thsa_control.model``);
+the simulator, and later the linearisation, tuning and identification,
+consume the same expressions.  Only ``thsa_control.report`` imports
+matplotlib.
+"""
+
+from .design import Design, derive_gains, load_design, nominal_design_path
+from .errors import DesignError, ModelError, ParameterError, RigDataError, ScenarioError, SolverError, ThsaError
+from .model import EFFECTS, LEVELS, Plant, build_plant, resolve_effects
+from .params import Parameter, ParameterSet, default_parameters, load_parameters
+from .scenarios import SCENARIOS, Scenario, get_scenario
+from .simulate import InputSeries, SimulationResult, SimulationSettings, Simulator, simulate
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "Design", "derive_gains", "load_design", "nominal_design_path",
+    "DesignError", "ModelError", "ParameterError", "RigDataError", "ScenarioError", "SolverError", "ThsaError",
+    "EFFECTS", "LEVELS", "Plant", "build_plant", "resolve_effects",
+    "Parameter", "ParameterSet", "default_parameters", "load_parameters",
+    "SCENARIOS", "Scenario", "get_scenario",
+    "InputSeries", "SimulationResult", "SimulationSettings", "Simulator", "simulate",
+    "__version__",
+]

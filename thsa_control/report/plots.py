@@ -1,0 +1,109 @@
+"""Figures of simulation results.  The only module of thsa-control that imports matplotlib.
+
+Functions take results (data) and return a ``Figure``; they never compute
+physics.  They use the non-interactive Agg backend.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+__all__ = ["plot_run", "plot_levels", "close"]
+
+_LEVEL_COLORS = {"A": "tab:gray", "B": "tab:blue", "C": "tab:orange", "D": "tab:green"}
+
+
+def close(fig) -> None:
+    """Release a figure's memory."""
+    plt.close(fig)
+
+
+def _mark_stops(ax, result):
+    t = np.asarray(result.time)
+    off = np.asarray(result["energised_primary"]) + np.asarray(result["energised_standby"]) < 0.5
+    edges = np.diff(np.concatenate([[0], off.astype(int), [0]]))
+    for i, j in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
+        ax.axvspan(t[i], t[j - 1], color="0.92", zorder=0, lw=0)
+
+
+def plot_run(result, *, title: str | None = None):
+    """Four panels of one run: speeds, currents, forces, no-back.
+
+    Grey bands mark the motors de-energised (trim stops, faults).
+    """
+    t = np.asarray(result.time)
+    fig, axes = plt.subplots(4, 1, figsize=(10, 10), sharex=True, constrained_layout=True)
+    ax = axes[0]
+    ax.plot(t, np.asarray(result["speed_cmd"]) * 1e3, "k--", lw=1, label="command")
+    ax.plot(t, np.asarray(result["nut_speed"]) * 1e3, label="nut")
+    if "loadpath_compliance" in result.effects:
+        ax.plot(t, np.asarray(result["surface_speed"]) * 1e3, lw=0.8, label="surface")
+    ax.set_ylabel("speed [mm/s]")
+    ax = axes[1]
+    ax.plot(t, result["motor_current"], label="primary")
+    if "standby_motor" in result.effects:
+        ax.plot(t, result["standby_current"], label="standby")
+    ax.plot(t, result["current_ref"], "k:", lw=0.8, label="reference")
+    ax.set_ylabel("q current [A]")
+    ax = axes[2]
+    ax.plot(t, np.asarray(result["load_force"]) * 1e-3, "k--", lw=1, label="load (+ compressive)")
+    if "loadpath_compliance" in result.effects:
+        ax.plot(t, np.asarray(result["loadpath_force"]) * 1e-3, label="load path")
+    ax.set_ylabel("force [kN]")
+    ax = axes[3]
+    ax.plot(t, result["noback_torque"], label="no-back torque at screw")
+    ax.set_ylabel("no-back [N m]")
+    ax2 = ax.twinx()
+    ax2.plot(t, result["pawl_engaged"], color="tab:red", lw=0.8, label="pawl engaged (loaded side)")
+    ax2.set_ylim(-0.1, 1.1)
+    ax2.set_ylabel("pawl engaged [-]")
+    ax.set_xlabel("time [s]")
+    for a in axes:
+        _mark_stops(a, result)
+        a.grid(True, alpha=0.3)
+        a.legend(loc="upper right", fontsize=8)
+    ax2.legend(loc="lower right", fontsize=8)
+    fig.suptitle(title or f"{result.name}: effects {', '.join(result.effects) or '(level A)'}")
+    return fig
+
+
+def plot_levels(results: Mapping[str, object], *, title: str | None = None):
+    """Levels side by side (one column each): speed, current, no-back torque.
+
+    ``results`` maps a label (``"A"`` ...) to a result of the same scenario.
+    Each panel has its own scale, so a level that runs away (level A has no
+    no-back) does not flatten the others.
+    """
+    labels = list(results)
+    fig, axes = plt.subplots(3, len(labels), figsize=(4.2 * len(labels), 8), sharex=True, squeeze=False,
+                             constrained_layout=True)
+    for col, label in enumerate(labels):
+        r = results[label]
+        t = np.asarray(r.time)
+        color = _LEVEL_COLORS.get(label, None)
+        a = axes[0, col]
+        a.plot(t, np.asarray(r["speed_cmd"]) * 1e3, "k--", lw=0.8, label="command")
+        a.plot(t, np.asarray(r["nut_speed"]) * 1e3, color=color, label="nut")
+        if "loadpath_compliance" in r.effects:
+            a.plot(t, np.asarray(r["surface_speed"]) * 1e3, color="tab:purple", lw=0.7, label="surface")
+        a.set_title(f"level {label}" if len(label) == 1 else label)
+        a.set_ylabel("speed [mm/s]" if col == 0 else "")
+        a = axes[1, col]
+        a.plot(t, r["motor_current"], color=color)
+        a.set_ylabel("q current [A]" if col == 0 else "")
+        a = axes[2, col]
+        a.plot(t, r["noback_torque"], color=color)
+        a.set_ylabel("no-back torque [N m]" if col == 0 else "")
+        a.set_xlabel("time [s]")
+        for row in range(3):
+            _mark_stops(axes[row, col], r)
+            axes[row, col].grid(True, alpha=0.3)
+        axes[0, col].legend(fontsize=7, loc="lower left")
+    fig.suptitle(title or f"{results[labels[0]].name}: model levels side by side (grey: motors de-energised)")
+    return fig
