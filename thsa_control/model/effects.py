@@ -58,7 +58,8 @@ import casadi as ca
 
 from .structure import Assembly, FrictionChannel, StateInfo, kinematic_ratio, motor_lag, torque_constant
 
-__all__ = ["Effect", "EFFECTS", "EFFECT_ORDER"]
+__all__ = ["Effect", "EFFECTS", "EFFECT_ORDER", "stribeck", "temperature_drag_terms", "loadpath_force_law",
+           "loadpath_static_deflection"]
 
 
 @dataclass(frozen=True)
@@ -168,25 +169,36 @@ def _loadpath_compliance(a: Assembly) -> None:
     a.output("loadpath_deflection", "m", d)
 
 
+def temperature_drag_terms(p: dict, speed, temperature):
+    """Terms of the temperature law at motor speed ``speed`` [rad/s] and ``temperature`` [degC].
+
+    Returns ``(delta_viscous, coulomb_static, coulomb_kinetic)``: the change of
+    the gearbox/screw viscous coefficient from its 25 degC value [N m s/rad]
+    and the extra Coulomb drag at standstill and at ``speed`` [N m], all
+    referred to the motor shaft.
+    """
+    dT = p["friction.reference_temperature"] - temperature
+    db = p["gear.viscous_friction"] * (ca.exp(p["friction.viscous_temperature_coefficient"] * dT) - 1.0)
+    tc = p["friction.cold_coulomb_torque"] * (ca.exp(p["friction.coulomb_temperature_coefficient"] * ca.fmax(dT, 0.0)) - 1.0)
+    r_st = p["friction.cold_stribeck_ratio"]
+    kinetic = tc * (1.0 + r_st * ca.exp(-((speed / p["friction.cold_stribeck_speed"]) ** 2)))
+    return db, tc * (1.0 + r_st), kinetic
+
+
 def _temperature_friction(a: Assembly) -> None:
     x, u, p = a.x, a.u, a.p
     w = x["motor_speed"]
-    dT = p["friction.reference_temperature"] - u["temperature"]
-    b25 = p["gear.viscous_friction"]
-    db = b25 * (ca.exp(p["friction.viscous_temperature_coefficient"] * dT) - 1.0)
+    db, static, kinetic = temperature_drag_terms(p, w, u["temperature"])
     a.torques.append(("viscous_temperature", -db * w))
     a.loss("viscous_temperature", db * w**2)  # sums with "viscous" to b(T) w^2 >= 0
-    tc = p["friction.cold_coulomb_torque"] * (ca.exp(p["friction.coulomb_temperature_coefficient"] * ca.fmax(dT, 0.0)) - 1.0)
-    r_st = p["friction.cold_stribeck_ratio"]
-    kinetic = tc * (1.0 + r_st * ca.exp(-((w / p["friction.cold_stribeck_speed"]) ** 2)))
-    static = tc * (1.0 + r_st)
     a.channels.append(FrictionChannel("temperature", static, static, kinetic, kinetic))
     a.loss("temperature_coulomb", lambda res: res.channel["temperature"] * res.speed)
     a.output("temperature_drag_torque", "N m", lambda res: res.channel["temperature"])
-    a.output("viscous_coefficient", "N m s/rad", p["motor.bearing_viscous_friction"] + b25 + db)
+    a.output("viscous_coefficient", "N m s/rad", p["motor.bearing_viscous_friction"] + p["gear.viscous_friction"] + db)
 
 
-def _stribeck(mu_s, mu_c, speed, w_st):
+def stribeck(mu_s, mu_c, speed, w_st):
+    """Stribeck coefficient ``mu_c + (mu_s - mu_c) exp(-(speed/w_st)^2)`` of the disk law."""
     return mu_c + (mu_s - mu_c) * ca.exp(-((speed / w_st) ** 2))
 
 
@@ -204,10 +216,10 @@ def _noback_quadrant_friction(a: Assembly) -> None:
     a.inertia.append(2.0 * p["noback.ratchet_inertia"] / N**2)
     # compressive-side disks slip only in retraction (their wheel is locked then)
     s_comp = g_comp * p["noback.mu_static_neg"] * n_comp / N
-    k_comp = g_comp * _stribeck(p["noback.mu_static_neg"], p["noback.mu_coulomb_neg"], ws, p["noback.stribeck_speed_neg"]) * n_comp / N
+    k_comp = g_comp * stribeck(p["noback.mu_static_neg"], p["noback.mu_coulomb_neg"], ws, p["noback.stribeck_speed_neg"]) * n_comp / N
     a.channels.append(FrictionChannel("noback_comp", 0.0, s_comp, 0.0, k_comp))
     s_tens = g_tens * p["noback.mu_static_pos"] * n_tens / N
-    k_tens = g_tens * _stribeck(p["noback.mu_static_pos"], p["noback.mu_coulomb_pos"], ws, p["noback.stribeck_speed_pos"]) * n_tens / N
+    k_tens = g_tens * stribeck(p["noback.mu_static_pos"], p["noback.mu_coulomb_pos"], ws, p["noback.stribeck_speed_pos"]) * n_tens / N
     a.channels.append(FrictionChannel("noback_tens", s_tens, 0.0, k_tens, 0.0))
     visc = ca.if_else(w < 0, g_comp * p["noback.viscous_neg"], ca.if_else(w > 0, g_tens * p["noback.viscous_pos"], 0.0)) / N**2
     a.torques.append(("noback_viscous", -visc * w))
