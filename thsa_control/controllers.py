@@ -13,7 +13,13 @@ One control period ``h`` (10 kHz by default) does, in this order:
    (no integration while the clamp is active and the error drives further into
    it, nor while no motor is energised);
 5. one current PI per energised motor, voltage clamped to ``+-voltage_limit``,
-   same anti-windup; optional one-sample computation delay.
+   same anti-windup; optional one-sample computation delay;
+6. optional bumpless hand-over: in the period a channel is energised, its
+   current integrator is preset to the steady voltage ``R i_ref + p psi w``
+   (back-EMF feed-forward) instead of zero; the proportional action adds to it.  The
+   velocity integrator is held while a fault leaves no channel energised, so
+   the channel taking over inherits the load torque; without hand-over it is
+   reset (a standby channel starting its own controller from zero).
 
 The controller is a casadi ``Function`` so that simulation, tuning and
 identification differentiate through it.  No numpy arrays are made here.
@@ -28,6 +34,7 @@ __all__ = ["CONTROLLER_STATES", "REFERENCE_INPUTS", "MEASUREMENTS", "CONTROLLER_
 CONTROLLER_STATES = (
     "shaped_speed", "shaped_accel", "velocity_integrator", "current_integrator_primary",
     "current_integrator_standby", "delayed_voltage_primary", "delayed_voltage_standby",
+    "energised_prev_primary", "energised_prev_standby",
 )
 #: Per-sample reference inputs: target nut speed [m/s], position command [m],
 #: position mode (1: P loop closed), channel enables (0/1).
@@ -37,7 +44,7 @@ MEASUREMENTS = ("motor_speed", "motor_current", "standby_current", "nut_position
 CONTROLLER_PARAMETERS = (
     "current_kp", "current_ki", "voltage_limit", "velocity_kp", "velocity_ki", "current_limit",
     "position_kp", "delay_samples", "accel_limit", "jerk_limit", "max_speed", "motor_off_at_zero",
-    "nut_per_motor_rad",
+    "nut_per_motor_rad", "handover", "motor_resistance", "back_emf_constant",
 )
 CONTROLLER_SIGNALS = ("speed_cmd", "motor_speed_ref", "current_ref", "voltage_cmd_primary", "voltage_cmd_standby",
                       "energised_primary", "energised_standby")
@@ -97,23 +104,32 @@ def build_controller() -> ca.Function:
     en_p = ca.logic_and(run, R["primary_enable"] > 0.5)
     en_s = ca.logic_and(run, R["standby_enable"] > 0.5)
     any_on = ca.logic_or(en_p, en_s)
-    # 4. velocity PI (held, not reset, while a fault leaves no motor energised; reset at zero command)
+    # 4. velocity PI (reset at zero command; in a fault gap held with hand-over, else reset)
     w_ref = speed_cmd / K["nut_per_motor_rad"]
     i_ref, vi = _pi(w_ref - M["motor_speed"], X["velocity_integrator"], K["velocity_kp"], K["velocity_ki"],
                     K["current_limit"], h, any_on)
-    vi = ca.if_else(run, ca.if_else(any_on, vi, X["velocity_integrator"]), 0.0)
+    held = ca.if_else(K["handover"] > 0.5, X["velocity_integrator"], 0.0)
+    vi = ca.if_else(run, ca.if_else(any_on, vi, held), 0.0)
     i_ref = ca.if_else(any_on, i_ref, 0.0)
     # 5. current PIs
-    v_p, ci_p = _pi(i_ref - M["motor_current"], X["current_integrator_primary"], K["current_kp"], K["current_ki"],
-                    K["voltage_limit"], h, en_p)
-    v_s, ci_s = _pi(i_ref - M["standby_current"], X["current_integrator_standby"], K["current_kp"], K["current_ki"],
-                    K["voltage_limit"], h, en_s)
+    steady_v = K["motor_resistance"] * i_ref + K["back_emf_constant"] * M["motor_speed"]
+
+    def preset(integrator, en, prev):
+        starting = ca.logic_and(ca.logic_and(en, prev < 0.5), K["handover"] > 0.5)
+        return ca.if_else(starting, steady_v, integrator)
+
+    v_p, ci_p = _pi(i_ref - M["motor_current"],
+                    preset(X["current_integrator_primary"], en_p, X["energised_prev_primary"]),
+                    K["current_kp"], K["current_ki"], K["voltage_limit"], h, en_p)
+    v_s, ci_s = _pi(i_ref - M["standby_current"],
+                    preset(X["current_integrator_standby"], en_s, X["energised_prev_standby"]),
+                    K["current_kp"], K["current_ki"], K["voltage_limit"], h, en_s)
     v_p, v_s = ca.if_else(en_p, v_p, 0.0), ca.if_else(en_s, v_s, 0.0)
+    f_en_p, f_en_s = ca.if_else(en_p, 1.0, 0.0), ca.if_else(en_s, 1.0, 0.0)
     delayed = K["delay_samples"] > 0.5
     u_p = ca.if_else(delayed, X["delayed_voltage_primary"], v_p)
     u_s = ca.if_else(delayed, X["delayed_voltage_standby"], v_s)
-    f_en_p, f_en_s = ca.if_else(en_p, 1.0, 0.0), ca.if_else(en_s, 1.0, 0.0)
-    xc_next = ca.vertcat(s_new, a_new, vi, ci_p, ci_s, v_p, v_s)
+    xc_next = ca.vertcat(s_new, a_new, vi, ci_p, ci_s, v_p, v_s, f_en_p, f_en_s)
     u_plant = ca.vertcat(u_p, u_s, f_en_p, f_en_s)
     signals = ca.vertcat(speed_cmd, w_ref, i_ref, v_p, v_s, f_en_p, f_en_s)
     return ca.Function("ctrl", [xc, ref, meas, k, h], [xc_next, u_plant, signals],

@@ -8,6 +8,9 @@ in the units the rig uses::
     [current_loop]  kp_V_per_A, ki_V_per_A_s, voltage_limit_V (optional: V_dc/sqrt(3))
     [velocity_loop] kp_A_per_rad_s, ki_A_per_rad, current_limit_A
     [position_loop] kp_per_s, max_speed_mm_s (optional, 15)
+    [switching]     bumpless_handover (optional, false): hold the velocity
+                    integrator through a fault gap and preset the current
+                    integrator of the channel taking over (back-EMF feed-forward)
     [derivation]    the loop bandwidths the gains come from (optional)
     [requirements]  what the analysis checks (optional; see the analysis)
 
@@ -39,7 +42,7 @@ _TABLES = {
     "position_loop": {"kp_per_s": True, "max_speed_mm_s": False},
 }
 _TOP = {"name", "description", "control_period_s", "computation_delay_samples", "derivation", "requirements",
-        *_TABLES}
+        "switching", *_TABLES}
 
 
 @dataclass(frozen=True)
@@ -65,6 +68,7 @@ class Design:
     voltage_limit: float | None = None
     max_speed: float = 0.015
     computation_delay_samples: int = 0
+    bumpless_handover: bool = False
     source: str = "<memory>"
     description: str = ""
     derivation: dict = field(default_factory=dict)
@@ -84,6 +88,8 @@ class Design:
                 raise DesignError(self.source, f"{key} = {value!r} is not a finite number")
             if value < 0 or (value == 0 and key != "position_loop.kp_per_s"):
                 raise DesignError(self.source, f"{key} = {value!r} must be positive")
+        if not isinstance(self.bumpless_handover, bool):
+            raise DesignError(self.source, f"switching.bumpless_handover = {self.bumpless_handover!r} must be true or false")
         if self.computation_delay_samples not in (0, 1):
             raise DesignError(self.source, f"computation_delay_samples = {self.computation_delay_samples!r} must be 0 or 1")
 
@@ -106,7 +112,8 @@ class Design:
             self.current_kp, self.current_ki, self.voltage_limit if self.voltage_limit is not None else vmax,
             self.velocity_kp, self.velocity_ki, self.current_limit, self.position_kp,
             float(self.computation_delay_samples), accel_limit, jerk_limit, self.max_speed,
-            1.0 if motor_off_at_zero else 0.0, r,
+            1.0 if motor_off_at_zero else 0.0, r, 1.0 if self.bumpless_handover else 0.0,
+            params.value("motor.resistance"), params.value("motor.pole_pairs") * params.value("motor.flux_linkage"),
         ], dtype=float)
 
     def to_toml_dict(self) -> dict:
@@ -123,6 +130,8 @@ class Design:
             doc["derivation"] = dict(self.derivation)
         if self.requirements:
             doc["requirements"] = dict(self.requirements)
+        if self.bumpless_handover:
+            doc["switching"] = {"bumpless_handover": True}
         return doc
 
 
@@ -153,10 +162,14 @@ def parse_design(doc: dict, source: str = "<dict>") -> Design:
                 raise DesignError(source, f"missing {table}.{key}")
     if "control_period_s" not in doc:
         raise DesignError(source, "missing control_period_s")
-    for key in ("derivation", "requirements"):
+    for key in ("derivation", "requirements", "switching"):
         if key in doc and not isinstance(doc[key], dict):
             raise DesignError(source, f"[{key}] must be a table")
     delay = doc.get("computation_delay_samples", 0)
+    switching = doc.get("switching", {})
+    extra = set(switching) - {"bumpless_handover"}
+    if extra:
+        raise DesignError(source, f"unknown key(s) {sorted(extra)} in [switching]; allowed: ['bumpless_handover']")
     max_speed_mm = values.get("position_loop.max_speed_mm_s", 15.0)
     if not isinstance(max_speed_mm, (int, float)) or isinstance(max_speed_mm, bool):
         raise DesignError(source, f"position_loop.max_speed_mm_s = {max_speed_mm!r} is not a number")
@@ -167,7 +180,7 @@ def parse_design(doc: dict, source: str = "<dict>") -> Design:
         velocity_kp=values["velocity_loop.kp_A_per_rad_s"], velocity_ki=values["velocity_loop.ki_A_per_rad"],
         current_limit=values["velocity_loop.current_limit_A"], position_kp=values["position_loop.kp_per_s"],
         max_speed=max_speed_mm * 1e-3, control_period=doc["control_period_s"],
-        computation_delay_samples=delay, source=source,
+        computation_delay_samples=delay, bumpless_handover=switching.get("bumpless_handover", False), source=source,
         derivation=dict(doc.get("derivation", {})), requirements=dict(doc.get("requirements", {})),
     )
 
