@@ -2,7 +2,9 @@
 
 One control period ``h`` (10 kHz by default) does, in this order:
 
-1. position P loop (optional): ``v_target = clamp(kp_x (x_cmd - x_nut), +-v_max)``;
+1. position P loop (optional): ``v_target = sgn(e) min(kp_x |e|, sqrt(2 a_max |e|), v_max)``
+   with ``e = x_cmd - x_nut``: the P law, capped by the speed from which the
+   shaper can brake to rest within the error;
 2. speed-command shaping: the target nut speed is rate limited to
    ``accel_limit`` and, if finite, acceleration limited to ``jerk_limit`` with
    braking so that it lands on the target without overshoot;
@@ -87,7 +89,11 @@ def build_controller() -> ca.Function:
     K = dict(zip(CONTROLLER_PARAMETERS, ca.vertsplit(k)))
 
     # 1. position loop
-    p_loop = _clamp(K["position_kp"] * (R["position_cmd"] - M["nut_position"]), K["max_speed"])
+    # P law, capped by the speed from which the shaper can still brake to rest within the error
+    # (square-root law), so the acceleration limit does not make the position overshoot
+    e_x = R["position_cmd"] - M["nut_position"]
+    v_brake = ca.sqrt(2.0 * K["accel_limit"] * ca.fabs(e_x) + 1e-24)  # offset: finite derivative at e = 0
+    p_loop = ca.sign(e_x) * ca.fmin(ca.fmin(K["position_kp"] * ca.fabs(e_x), v_brake), K["max_speed"])
     target = ca.if_else(R["position_mode"] > 0.5, p_loop, R["speed_target"])
     # 2. shaping (rate limit; acceleration limit with braking when finite)
     s, acc = X["shaped_speed"], X["shaped_accel"]
