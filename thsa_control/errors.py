@@ -16,6 +16,7 @@ __all__ = [
     "ScenarioError",
     "RigDataError",
     "SolverError",
+    "SignalError",
 ]
 
 
@@ -108,3 +109,19 @@ class SolverError(ThsaError, RuntimeError):
         self.status = status
         self.stats = dict(stats or {})
         super().__init__(f"{solver} failed: {status}")
+
+
+class SignalError(ThsaError, ValueError):
+    """A signal handed to an analysis is malformed (shape, length, NaN, order).
+
+    Parameters
+    ----------
+    signal : str
+        Name of the signal (``measured['nut_position']``, ``time``, ...).
+    message : str
+        What is wrong with it.
+    """
+
+    def __init__(self, signal: str, message: str):
+        self.signal = signal
+        super().__init__(f"signal '{signal}': {message}")

@@ -72,7 +72,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import linalg, signal, stats
 
-from thsa_control.errors import ThsaError
+from thsa_control.errors import SignalError, ThsaError  # noqa: F401 (SignalError re-exported)
 
 __all__ = [
     "SignalError",
@@ -97,22 +97,6 @@ Float1D = NDArray[np.float64]
 
 #: Labels of :func:`quadrant` categories (FORMAT.md signs).
 QUADRANT_LABELS: dict[int, str] = {1: "opposing", -1: "aiding", 0: "unloaded/stopped"}
-
-
-class SignalError(ThsaError, ValueError):
-    """A signal handed to the residual analysis is malformed.
-
-    Parameters
-    ----------
-    signal : str
-        Name of the signal (``measured['nut_position']``, ``time``, ...).
-    message : str
-        What is wrong with it.
-    """
-
-    def __init__(self, signal: str, message: str):
-        self.signal = signal
-        super().__init__(f"signal '{signal}': {message}")
 
 
 # ------------------------------------------------------------------ settings

@@ -1,6 +1,7 @@
 """Reader, writer and summary of ``thsa-rig-run/1`` test-rig runs.
 
-This is the only module of thsa-control that parses rig files.  It owns the
+This is the only module of thsa-control that parses rig-run files (component-rig
+tables are read by ``component_id``).  It owns the
 format of ``shared/rig-data/FORMAT.md``: a run is ``NAME.csv`` (samples, in
 FORMAT units: mm, mm/s, rpm, N, A, degC) plus ``NAME.json`` (metadata).
 Everything downstream receives a :class:`RigRun` whose signals are SI (the one
