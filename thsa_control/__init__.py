@@ -12,6 +12,12 @@ from .model import EFFECTS, LEVELS, Plant, build_plant, resolve_effects
 from .params import Parameter, ParameterSet, default_parameters, load_parameters
 from .scenarios import SCENARIOS, Scenario, get_scenario
 from .simulate import InputSeries, SimulationResult, SimulationSettings, Simulator, simulate
+from .identify import IdentificationResult, IdentificationSettings, Identifier, ParameterEstimate
+from .replay import ReplayResult, ReplaySettings, analyse_replay, replay, replay_closed_loop, replay_open_loop
+from .virtual_rig import VirtualRig, excitation_inputs
+from .linear import ConditionGrid, OperatingCondition, PlantLinearization, current_driven, linearize_conditions, plant_model
+from .analysis import (AnalysisSettings, DesignAnalysis, LoopAnalysis, analyse_configurations, analyse_design,
+                       analyse_loops, check_requirements, describing_functions)
 
 __version__ = "0.1.0"
 
@@ -22,5 +28,11 @@ __all__ = [
     "Parameter", "ParameterSet", "default_parameters", "load_parameters",
     "SCENARIOS", "Scenario", "get_scenario",
     "InputSeries", "SimulationResult", "SimulationSettings", "Simulator", "simulate",
+    "IdentificationResult", "IdentificationSettings", "Identifier", "ParameterEstimate",
+    "ReplayResult", "ReplaySettings", "analyse_replay", "replay", "replay_closed_loop", "replay_open_loop",
+    "VirtualRig", "excitation_inputs",
+    "ConditionGrid", "OperatingCondition", "PlantLinearization", "current_driven", "linearize_conditions", "plant_model",
+    "AnalysisSettings", "DesignAnalysis", "LoopAnalysis", "analyse_configurations", "analyse_design", "analyse_loops",
+    "check_requirements", "describing_functions",
     "__version__",
 ]

@@ -8,6 +8,12 @@ Commands::
     thsa simulate  --scenario NAME --level C [--effects E ...] [--design FILE] [--params FILE]
                    [--temperature T] [--output-period S] --out DIR
     thsa check-data RUN.csv
+    thsa identify  RUN.csv [RUN2.csv ...] --model B --free PARAM,... [--effects E ...] [--params FILE] --out DIR
+    thsa residual  RUN.csv --model A [--mode closed_loop|open_loop] [--effects E ...] [--params FILE] --out DIR
+    thsa report    --design designs/nominal.toml --out DIR [--level B] [--effects E ...] [--params FILE]
+                   [--no-switching] [--check]
+    thsa linearize --level A --speed 5 --load 20000 --temperature -30 [--effects E ...] [--active standby]
+                   [--params FILE] [--save FILE.npz]
 
 Errors of the input (unknown scenario, level or effect, bad design or
 parameter file, malformed run) print one message naming the culprit and exit
@@ -160,6 +166,120 @@ def _cmd_check_data(args) -> int:
     return 0
 
 
+def _read_runs(paths, column_map):
+    from .rigdata import read_run
+
+    mapping = json.loads(column_map) if column_map else None
+    return [read_run(p, column_map=mapping) for p in paths]
+
+
+def _replay_mode(run, mode):
+    return mode if mode != "auto" else ("closed_loop" if run.controller is not None else "open_loop")
+
+
+def _cmd_identify(args) -> int:
+    from .identify import IdentificationSettings, Identifier
+    from .params import default_parameters, load_parameters
+    from .replay import analyse_replay, replay
+    from .report import atomic_folder
+    from .report.identification import write_identification_folder
+
+    params = load_parameters(args.params, base=default_parameters()) if args.params else default_parameters()
+    runs = _read_runs(args.runs, args.column_map)
+    effects = _effects_arg(args.effects)
+    free = [n.strip() for n in (args.free or "").split(",") if n.strip()]
+    settings = IdentificationSettings(segment_duration=args.segment, substeps=args.substeps,
+                                      global_stage=args.global_stage)
+    result = Identifier(args.model, params, free, effects=effects, settings=settings).fit(runs)
+    fitted = result.to_parameter_set()
+    before, after, analyses = [], [], []
+    for run in runs:
+        mode = _replay_mode(run, args.mode)
+        before.append(replay(run, args.model, effects, params=params, mode=mode))
+        after.append(replay(run, args.model, effects, params=fitted, mode=mode))
+        analyses.append(analyse_replay(run, after[-1]))
+    with atomic_folder(args.out) as tmp:
+        write_identification_folder(tmp, result, before, after, analyses)
+    print(result.fit_report())
+    for b, a in zip(before, after):
+        print(f"{b.run_name} ({b.mode.replace('_', ' ')} replay): " + ", ".join(
+            f"{c} fit {b.fits[c].fit_percent:.1f} -> {a.fits[c].fit_percent:.1f} %" for c in a.fits))
+    print(f"wrote {Path(args.out).resolve()}")
+    return 0
+
+
+def _cmd_residual(args) -> int:
+    from .params import default_parameters, load_parameters
+    from .replay import analyse_replay, replay
+    from .report import atomic_folder
+    from .report.identification import write_residual_folder
+    from .residuals import format_residual_report
+
+    params = load_parameters(args.params, base=default_parameters()) if args.params else default_parameters()
+    run, = _read_runs([args.run], args.column_map)
+    result = replay(run, args.model, _effects_arg(args.effects), params=params, mode=_replay_mode(run, args.mode))
+    analysis = analyse_replay(run, result)
+    with atomic_folder(args.out) as tmp:
+        write_residual_folder(tmp, result, analysis)
+    print(format_residual_report(analysis))
+    print(f"wrote {Path(args.out).resolve()}")
+    return 0
+
+
+def _analysis_effects(args) -> list[str]:
+    # the linear workflow is about temperature: temperature_friction unless --effects says otherwise
+    return ["temperature_friction"] if args.effects is None else _effects_arg(args.effects)
+
+
+def _cmd_report(args) -> int:
+    from .analysis import AnalysisSettings, analyse_design
+    from .design import load_design, nominal_design_path
+    from .model import resolve_effects
+    from .params import default_parameters, load_parameters
+    from .report.analysis_report import write_analysis_report
+
+    params = load_parameters(args.params, base=default_parameters()) if args.params else default_parameters()
+    design = load_design(args.design or nominal_design_path())
+    design.check_against(params)
+    effects = _analysis_effects(args)
+    resolve_effects(args.level, add=effects)  # validate names before any work
+    settings = AnalysisSettings(level=args.level.upper(), effects=tuple(effects))
+    result = analyse_design(design, params, settings=settings, switching=not args.no_switching)
+    out = write_analysis_report(result, args.out)
+    print(result.requirements.summary())
+    for loop in ("current_loop", "velocity_loop", "position_loop"):
+        for metric in ("phase_margin_deg", "gain_margin_db"):
+            w = result.loops.worst(loop, metric)
+            if w is not None:
+                print(f"worst {w.text()}")
+    n_bad = int((~result.loops.valid).sum())
+    print(f"{n_bad} of {len(result.loops)} grid points not analysed (zero speed, backlash edge or saturated), "
+          "listed with their reason in the report")
+    print(f"wrote {out / 'report.html'} and {out / 'analysis.json'}")
+    return 1 if args.check and not result.requirements.passed else 0
+
+
+def _cmd_linearize(args) -> int:
+    from .linear import OperatingCondition, format_linear_model, linearize_condition, plant_model
+    from .model import resolve_effects
+    from .params import default_parameters, load_parameters
+
+    params = load_parameters(args.params, base=default_parameters()) if args.params else default_parameters()
+    effects = _analysis_effects(args)
+    if args.active == "standby" and "standby_motor" not in effects:
+        effects.append("standby_motor")
+    resolve_effects(args.level, add=effects)
+    try:
+        cond = OperatingCondition(args.speed * 1e-3, args.load, args.temperature, args.active)
+    except ValueError as exc:
+        raise ThsaError(str(exc)) from None
+    lin = linearize_condition(plant_model(args.level, effects, params), cond)
+    print(format_linear_model(lin))
+    if args.save:
+        print(f"saved {lin[0].save(args.save)}")
+    return 0
+
+
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="thsa", description="THSA control workbench")
     sub = ap.add_subparsers(dest="command", required=True)
@@ -187,6 +307,48 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("run", help="RUN.csv (RUN.json beside it)")
     p.add_argument("--column-map", help='JSON mapping of rig column names to FORMAT names, e.g. \'{"t": "time_s"}\'')
     p.set_defaults(fn=_cmd_check_data)
+
+    def model_args(p):
+        p.add_argument("--model", required=True, help="model level A, B, C or D")
+        p.add_argument("--effects", nargs="*", help="effects added to the level")
+        p.add_argument("--params", help="parameter TOML overriding the embedded actuator (initial values)")
+        p.add_argument("--column-map", help="JSON mapping of rig column names to FORMAT names")
+        p.add_argument("--mode", default="auto", choices=["auto", "closed_loop", "open_loop"],
+                       help="replay: closed loop under the run's controller (auto: when its JSON has one) or "
+                            "open loop driven by the measured current")
+        p.add_argument("--out", required=True, help="output folder (replaced atomically)")
+
+    p = sub.add_parser("identify", help="fit parameters to rig runs; JSON, parameter TOML and HTML report")
+    p.add_argument("runs", nargs="+", help="RUN.csv files (RUN.json beside each)")
+    p.add_argument("--free", required=True, help="comma-separated parameters to fit, e.g. gear.viscous_friction")
+    p.add_argument("--segment", type=float, default=0.25, help="multiple-shooting segment length [s]")
+    p.add_argument("--substeps", type=int, default=1, help="plant steps per sample period")
+    p.add_argument("--global", dest="global_stage", action="store_true", help="differential evolution first")
+    model_args(p)
+    p.set_defaults(fn=_cmd_identify)
+    p = sub.add_parser("residual", help="replay a run through a model; residual analysis JSON and HTML report")
+    p.add_argument("run", help="RUN.csv (RUN.json beside it)")
+    model_args(p)
+    p.set_defaults(fn=_cmd_residual)
+    p = sub.add_parser("report", help="loop analysis of a design over speed, load and temperature: HTML + JSON")
+    p.add_argument("--design", help="design TOML (default designs/nominal.toml)")
+    p.add_argument("--level", default="B", help="model level A, B, C or D (default B)")
+    p.add_argument("--effects", nargs="*", help="effects added to the level (default: temperature_friction)")
+    p.add_argument("--params", help="parameter TOML overriding the embedded actuator")
+    p.add_argument("--no-switching", action="store_true", help="skip the nonlinear switch-over transient")
+    p.add_argument("--check", action="store_true", help="exit with status 1 when a requirement is not met")
+    p.add_argument("--out", required=True, help="output folder (replaced atomically)")
+    p.set_defaults(fn=_cmd_report)
+    p = sub.add_parser("linearize", help="print the linear model at one operating point (and save it)")
+    p.add_argument("--level", required=True, help="model level A, B, C or D")
+    p.add_argument("--speed", type=float, required=True, help="trim nut speed [mm/s], positive extending")
+    p.add_argument("--load", type=float, required=True, help="load [N], compressive positive (opposes extension)")
+    p.add_argument("--temperature", type=float, default=25.0, help="temperature [degC], -55..70 (default 25)")
+    p.add_argument("--effects", nargs="*", help="effects added to the level (default: temperature_friction)")
+    p.add_argument("--active", choices=["primary", "standby"], default="primary", help="energised motor channel")
+    p.add_argument("--params", help="parameter TOML overriding the embedded actuator")
+    p.add_argument("--save", help="write the linear model to this .npz file")
+    p.set_defaults(fn=_cmd_linearize)
     return ap
 
 

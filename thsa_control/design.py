@@ -12,7 +12,8 @@ in the units the rig uses::
                     integrator through a fault gap and preset the current
                     integrator of the channel taking over (back-EMF feed-forward)
     [derivation]    the loop bandwidths the gains come from (optional)
-    [requirements]  what the analysis checks (optional; see the analysis)
+    [requirements.<loop>]  what the analysis checks (optional; <loop> is current_loop,
+                    velocity_loop or position_loop; keys in REQUIREMENT_KEYS, see analysis.py)
 
 Gains are derived from stated bandwidths by :func:`derive_gains`: the current
 PI cancels the stator pole (``kp = L wc``, ``ki = R wc``, a first-order closed
@@ -166,6 +167,7 @@ def parse_design(doc: dict, source: str = "<dict>") -> Design:
         if key in doc and not isinstance(doc[key], dict):
             raise DesignError(source, f"[{key}] must be a table")
     delay = doc.get("computation_delay_samples", 0)
+    _check_requirements(doc.get("requirements", {}), source)
     switching = doc.get("switching", {})
     extra = set(switching) - {"bumpless_handover"}
     if extra:
@@ -183,6 +185,27 @@ def parse_design(doc: dict, source: str = "<dict>") -> Design:
         computation_delay_samples=delay, bumpless_handover=switching.get("bumpless_handover", False), source=source,
         derivation=dict(doc.get("derivation", {})), requirements=dict(doc.get("requirements", {})),
     )
+
+
+#: ``[requirements.<loop>]`` tables and their keys (checked at every valid grid point by
+#: ``thsa_control.analysis.check_requirements``; gain margins are compared by magnitude).
+REQUIREMENT_LOOPS = ("current_loop", "velocity_loop", "position_loop")
+REQUIREMENT_KEYS = ("min_phase_margin_deg", "min_gain_margin_db", "min_delay_margin_s", "min_bandwidth_hz",
+                    "max_sensitivity_peak", "max_overshoot_percent", "max_settling_time_s", "max_rise_time_s")
+
+
+def _check_requirements(req: dict, source: str) -> None:
+    """Raise :class:`DesignError` naming the first unknown table or key, or a bad value."""
+    for loop, table in req.items():
+        if loop not in REQUIREMENT_LOOPS:
+            raise DesignError(source, f"unknown table [requirements.{loop}]; allowed: {list(REQUIREMENT_LOOPS)}")
+        if not isinstance(table, dict):
+            raise DesignError(source, f"[requirements.{loop}] must be a table")
+        for key, value in table.items():
+            if key not in REQUIREMENT_KEYS:
+                raise DesignError(source, f"unknown key {key!r} in [requirements.{loop}]; allowed: {list(REQUIREMENT_KEYS)}")
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+                raise DesignError(source, f"requirements.{loop}.{key} = {value!r} must be a finite number >= 0")
 
 
 def nominal_design_path() -> Path:
