@@ -290,16 +290,15 @@ class IdentificationResult:
 
     def parameters_toml(self) -> str:
         """TOML of the identified entries only, for ``load_parameters(path, base=...)``."""
+        return self._identified_set().to_toml()
+
+    def _identified_set(self) -> ParameterSet:
         full = self.to_parameter_set()
-        return ParameterSet(tuple(full[n] for n in self.estimates)).to_toml()
+        return ParameterSet(tuple(full[n] for n in self.estimates))
 
     def save_parameters(self, path: str | Path) -> Path:
         """Write :meth:`parameters_toml` to ``path`` (atomically)."""
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(self.parameters_toml(), encoding="utf-8")
-        tmp.replace(path)
-        return path
+        return self._identified_set().save(path)
 
     def to_dict(self) -> dict:
         """JSON-ready summary (no time series)."""
