@@ -339,7 +339,8 @@ class IdentificationResult:
                          f"cost {self.global_stage.get('fun', float('nan')):.4g}")
         lines.append("[[Variables]]")
         for n, e in self.estimates.items():
-            pct = f"({100 * e.relative_stderr:.2f}%)" if math.isfinite(e.relative_stderr) else ""
+            # a relative error means nothing for a value at (or next to) zero
+            pct = f"({100 * e.relative_stderr:.2f}%)" if math.isfinite(e.relative_stderr) and e.relative_stderr < 1e3 else ""
             err = f"+/- {e.stderr:.4g} {pct}" if math.isfinite(e.stderr) else "+/- undetermined"
             flags = []
             if e.at_bound:
