@@ -24,13 +24,11 @@ from thsa_control.errors import RigDataError
 from thsa_control.rigdata import (
     FORMAT_TAG,
     RigRun,
-    SummarySettings,
-    format_summary,
     read_run,
-    summarize_run,
     to_columns,
     write_run,
 )
+from thsa_control.rigsummary import SummarySettings, format_summary, summarize_run
 from thsa_control.units import mm_to_m, rpm_to_rad_s
 
 MOTOR_RPM_PER_MM_S = 328.05  # FORMAT.md: 12 mm lead, gear ratio 65.61

@@ -158,7 +158,8 @@ def _cmd_simulate(args) -> int:
 
 
 def _cmd_check_data(args) -> int:
-    from .rigdata import format_summary, read_run, summarize_run
+    from .rigdata import read_run
+    from .rigsummary import format_summary, summarize_run
 
     mapping = json.loads(args.column_map) if args.column_map else None
     run = read_run(args.run, column_map=mapping)
