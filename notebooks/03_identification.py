@@ -28,7 +28,6 @@
 import tempfile
 from pathlib import Path
 
-import numpy as np
 
 import thsa_control as thsa
 from thsa_control.identify import IdentificationSettings, Identifier

@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thsa_control.design import derive_gains
 from thsa_control.errors import RigDataError
 from thsa_control.model import build_plant
 from thsa_control.replay import ReplaySettings, channel_fit, replay, replay_closed_loop, replay_open_loop

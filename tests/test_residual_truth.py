@@ -8,7 +8,6 @@ plateau and aids the other.  The seed is fixed: at 95 % a white residual is
 rejected in about 5 % of seeds (measured by the residuals module's tests).
 """
 
-import numpy as np
 import pytest
 
 from thsa_control.replay import analyse_replay, replay

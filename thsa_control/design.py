@@ -237,18 +237,27 @@ def load_design(path: str | Path) -> Design:
     return parse_design(doc, source=str(path))
 
 
-def reflected_inertia(params: ParameterSet, *, motors: int = 1, noback: bool = False, surface: bool = True) -> float:
-    """Inertia of the rigid drive referred to the motor shaft [kg m^2].
+def reflected_inertia(params: ParameterSet, level: str = "A", effects=()) -> float:
+    """Inertia of the rigid drive referred to the motor shaft [kg m^2], taken from the plant.
 
-    Rotors (``motors`` of them), screw (and the two ratchet wheels with
-    ``noback``), load-path mass and (with ``surface``) the surface mass.  The
-    same sum the plant's structure builds.
+    At standstill and no load the speed's derivative is linear in the motor
+    current, ``dw/dt = Kt i / J``, so ``J = Kt / (dw/dt(i=1) - dw/dt(i=0))``
+    exactly: no second copy of the inertia sum the structure builds.
     """
-    n = params.value("gear.ratio")
-    r = params.value("screw.lead") / (2 * math.pi * n)
-    j_screw = params.value("screw.inertia") + (2 * params.value("noback.ratchet_inertia") if noback else 0.0)
-    mass = params.value("loadpath.mass") + (params.value("surface.mass") if surface else 0.0)
-    return motors * params.value("motor.rotor_inertia") + j_screw / n**2 + mass * r**2
+    from .model import build_plant
+    from .model.structure import torque_constant
+
+    plant = build_plant(level, effects, params=params)
+    p = plant.p_vector(params)
+    u = np.zeros(len(plant.inputs))
+    u[plant.index("input", "enable_primary")] = 1.0
+    u[plant.index("input", "temperature")] = params.value("friction.reference_temperature")
+    x = plant.initial_state(params)
+    iw, ii = plant.index("state", "motor_speed"), plant.index("state", "motor_current")
+    w0 = float(plant.f(x, u, p)[0][iw])
+    x[ii] = 1.0
+    w1 = float(plant.f(x, u, p)[0][iw])
+    return torque_constant({n: params.value(n) for n in params}) / (w1 - w0)
 
 
 def derive_gains(params: ParameterSet, *, current_bandwidth_hz: float, velocity_crossover_hz: float,
@@ -279,7 +288,9 @@ def derive_gains(params: ParameterSet, *, current_bandwidth_hz: float, velocity_
     """
     wc = 2 * math.pi * current_bandwidth_hz
     wv = 2 * math.pi * velocity_crossover_hz
-    kt = 1.5 * params.value("motor.pole_pairs") * params.value("motor.flux_linkage")
+    from .model.structure import torque_constant
+
+    kt = torque_constant({n: params.value(n) for n in params})
     j = reflected_inertia(params)
     kpv = j * wv / kt
     derivation = dict(current_bandwidth_hz=current_bandwidth_hz, velocity_crossover_hz=velocity_crossover_hz,

@@ -53,7 +53,7 @@ from .model import build_plant
 from .model.plant import Plant
 from .params import Parameter, ParameterSet, default_parameters
 from .replay import (
-    ChannelFit, ReplaySettings, channel_fit, current_driven_map, mech_inputs, replay_closed_loop, run_design,
+    channel_fit, current_driven_map, mech_inputs, replay_closed_loop, run_design,
     sample_periods,
 )
 from .rigdata import RigRun

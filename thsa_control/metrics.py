@@ -12,6 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .rigdata import _runs  # maximal runs of True, (start, stop exclusive)
+
 __all__ = ["Interval", "plateaus", "stops", "backdrive_metrics", "surface_speed_deviation", "BackdriveMetrics"]
 
 
@@ -32,18 +34,13 @@ class Interval:
         return "opposing" if self.load * self.command > 0 else "aiding"
 
 
-def _segments(mask: np.ndarray) -> list[tuple[int, int]]:
-    edges = np.diff(np.concatenate([[0], mask.astype(int), [0]]))
-    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
-
-
 def plateaus(time, speed_cmd, load_force, *, min_duration: float = 0.2) -> list[Interval]:
     """Intervals of constant, non-zero speed command (at least ``min_duration`` [s])."""
     t, v, f = map(np.asarray, (time, speed_cmd, load_force))
     dv = np.abs(np.gradient(v, t))
     mask = (np.abs(v) > 0) & (dv < 1e-6)
     out = []
-    for i, j in _segments(mask):
+    for i, j in _runs(mask):
         if t[j - 1] - t[i] >= min_duration:
             out.append(Interval(float(t[i]), float(t[j - 1]), float(np.median(v[i:j])), float(np.mean(f[i:j]))))
     return out
@@ -53,7 +50,7 @@ def stops(time, speed_cmd, load_force, *, min_duration: float = 0.05) -> list[In
     """Intervals where the speed command is exactly zero (trim stops)."""
     t, v, f = map(np.asarray, (time, speed_cmd, load_force))
     out = []
-    for i, j in _segments(v == 0):
+    for i, j in _runs(v == 0):
         if t[j - 1] - t[i] >= min_duration:
             out.append(Interval(float(t[i]), float(t[j - 1]), 0.0, float(np.mean(f[i:j]))))
     return out

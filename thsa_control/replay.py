@@ -37,13 +37,12 @@ from types import MappingProxyType
 import casadi as ca
 import numpy as np
 
-from .controllers import CONTROLLER_SIGNALS
 from .design import Design
 from .errors import RigDataError, ThsaError
 from .model.plant import Plant
 from .params import ParameterSet
 from .rigdata import RigRun
-from .simulate import RUN_INPUTS, InputSeries, SimulationSettings, Simulator
+from .simulate import InputSeries, SimulationSettings, Simulator
 
 __all__ = [
     "FIT_CHANNELS",

@@ -72,7 +72,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import linalg, signal, stats
 
-from thsa_control.errors import SignalError, ThsaError  # noqa: F401 (SignalError re-exported)
+from thsa_control.errors import SignalError  # noqa: F401 (re-exported)
 
 __all__ = [
     "SignalError",

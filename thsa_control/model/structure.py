@@ -37,7 +37,6 @@ This module imports casadi only (no numpy I/O, no matplotlib).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import casadi as ca
