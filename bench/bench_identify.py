@@ -25,10 +25,10 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 import thsa_control as thsa  # noqa: E402
-from thsa_control.identify import IdentificationSettings, Identifier, _RunProblem  # noqa: E402
-from thsa_control.replay import current_driven_map  # noqa: E402
-from thsa_control.rigdata import read_run  # noqa: E402
-from thsa_control.virtual_rig import VirtualRig, excitation_inputs  # noqa: E402
+from thsa_control.fit.identify import IdentificationSettings, Identifier, _RunProblem  # noqa: E402
+from thsa_control.fit.replay import current_driven_map  # noqa: E402
+from thsa_control.data.rigdata import read_run  # noqa: E402
+from thsa_control.fit.virtual_rig import VirtualRig, excitation_inputs  # noqa: E402
 
 FREE = ("motor.rotor_inertia", "screw.efficiency_direct", "screw.efficiency_inverse", "noback.mu_coulomb_pos",
         "noback.mu_coulomb_neg")

@@ -7,7 +7,7 @@ the finite-difference cross-check and kink detection), zero-order-hold
 discretisation, 500-frequency Bode data and the margins (gain, phase, delay,
 Ms, bandwidth).
 
-* **this project**: ``thsa_control.analysis.analyse_loops(..., steps=False)``:
+* **this project**: ``thsa_control.loops.analysis.analyse_loops(..., steps=False)``:
   one mapped Newton solve, one ``linearize_batch`` call, batched ZOH,
   frequency responses and margins on arrays.
 * **python-control, looped**: per point, ``ct.linearize`` of the plant as a
@@ -36,8 +36,8 @@ import control as ct  # noqa: E402
 import numpy as np  # noqa: E402
 
 import thsa_control as thsa  # noqa: E402
-from thsa_control.analysis import AnalysisSettings, analyse_loops  # noqa: E402
-from thsa_control.linear import ConditionGrid, operating_points, plant_model  # noqa: E402
+from thsa_control.loops.analysis import AnalysisSettings, analyse_loops  # noqa: E402
+from thsa_control.loops.linear import ConditionGrid, operating_points, plant_model  # noqa: E402
 
 TEMPERATURES = tuple(np.linspace(-55.0, 70.0, 8))
 SPEEDS = tuple(v * 1e-3 for v in (0.5, 1.0, 2.0, 3.0, 5.0, 8.0, 11.0, 15.0))

@@ -27,7 +27,7 @@ sys.stdout.reconfigure(line_buffering=True)
 import numpy as np  # noqa: E402
 
 import thsa_control as thsa  # noqa: E402
-from thsa_control.controllers import CONTROLLER_PARAMETERS  # noqa: E402
+from thsa_control.loops.controllers import CONTROLLER_PARAMETERS  # noqa: E402
 
 
 def best_of(fn, n=5):

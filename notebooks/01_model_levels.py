@@ -27,7 +27,7 @@
 import numpy as np
 
 import thsa_control as thsa
-from thsa_control.metrics import backdrive_metrics
+from thsa_control.sim.metrics import backdrive_metrics
 from thsa_control.report.plots import plot_levels
 
 params = thsa.default_parameters()

@@ -30,7 +30,7 @@
 import numpy as np
 
 import thsa_control as thsa
-from thsa_control.linear import format_linear_model
+from thsa_control.loops.linear import format_linear_model
 from thsa_control.report.analysis_report import plot_loop_bode, plot_margin_maps, plot_steps
 
 params = thsa.default_parameters()

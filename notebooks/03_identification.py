@@ -30,12 +30,12 @@ from pathlib import Path
 
 
 import thsa_control as thsa
-from thsa_control.identify import IdentificationSettings, Identifier
-from thsa_control.replay import analyse_replay, replay
+from thsa_control.fit.identify import IdentificationSettings, Identifier
+from thsa_control.fit.replay import analyse_replay, replay
 from thsa_control.report.identification import plot_overlay, plot_segments
-from thsa_control.residuals import format_residual_report
-from thsa_control.rigdata import read_run
-from thsa_control.virtual_rig import VirtualRig, excitation_inputs
+from thsa_control.fit.residuals import format_residual_report
+from thsa_control.data.rigdata import read_run
+from thsa_control.fit.virtual_rig import VirtualRig, excitation_inputs
 
 truth = thsa.default_parameters().replace({"noback.mu_coulomb_pos": 0.0055, "screw.efficiency_inverse": 0.80})
 work = Path(tempfile.mkdtemp())

@@ -10,11 +10,11 @@ import pytest
 
 matplotlib.use("Agg")
 
-from thsa_control.design import load_design  # noqa: E402
+from thsa_control.loops.design import load_design  # noqa: E402
 from thsa_control.model import build_plant  # noqa: E402
-from thsa_control.params import default_parameters  # noqa: E402
-from thsa_control.scenarios import get_scenario  # noqa: E402
-from thsa_control.simulate import SimulationSettings, Simulator  # noqa: E402
+from thsa_control.model.params import default_parameters  # noqa: E402
+from thsa_control.sim.scenarios import get_scenario  # noqa: E402
+from thsa_control.sim.simulate import SimulationSettings, Simulator  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -11,7 +11,7 @@ import control as ct
 import numpy as np
 import pytest
 
-from thsa_control.analysis import (
+from thsa_control.loops.analysis import (
     LOOPS,
     AnalysisSettings,
     analyse_configurations,
@@ -22,12 +22,12 @@ from thsa_control.analysis import (
     predict_limit_cycles,
     step_metrics,
 )
-from thsa_control.design import parse_design
+from thsa_control.loops.design import parse_design
 from thsa_control.errors import DesignError
-from thsa_control.linear import OperatingCondition
+from thsa_control.loops.linear import OperatingCondition
 from thsa_control.model import build_plant
-from thsa_control.scenarios import Scenario
-from thsa_control.simulate import SimulationSettings, Simulator
+from thsa_control.sim.scenarios import Scenario
+from thsa_control.sim.simulate import SimulationSettings, Simulator
 
 # A grid small enough for the tests, large enough to hold the nominal design's worst points
 # (2 mm/s under 55 kN aiding at -55 degC) and every kind of invalid point.

@@ -10,11 +10,11 @@ from pathlib import Path
 
 import pytest
 
-from thsa_control.analysis import AnalysisSettings, analyse_design
+from thsa_control.loops.analysis import AnalysisSettings, analyse_design
 from thsa_control.cli import main
-from thsa_control.design import parse_design
+from thsa_control.loops.design import parse_design
 from thsa_control.report.analysis_report import FIGURES, TABLES, write_analysis_report
-from thsa_control.switching import analyse_switchover
+from thsa_control.loops.switching import analyse_switchover
 
 ROOT = Path(__file__).resolve().parents[1]
 SCHEMA = json.loads((ROOT / "docs" / "analysis_schema.json").read_text())
@@ -154,7 +154,7 @@ def test_failing_design_is_reported_with_point_and_value(nominal_result, tmp_pat
     doc = nominal_result.design.to_toml_dict()
     doc["requirements"] = {"velocity_loop": {"max_overshoot_percent": 20.0}}
     strict = parse_design(doc, source="strict.toml")
-    from thsa_control.analysis import check_requirements
+    from thsa_control.loops.analysis import check_requirements
 
     loops = replace(nominal_result.loops, design=strict)
     result = replace(nominal_result, design=strict, loops=loops, requirements=check_requirements(loops))

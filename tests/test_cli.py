@@ -7,7 +7,7 @@ import subprocess
 import pytest
 
 from thsa_control.cli import main
-from thsa_control.scenarios import SCENARIOS
+from thsa_control.sim.scenarios import SCENARIOS
 
 
 def test_scenarios_lists_all(capsys):

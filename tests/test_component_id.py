@@ -1,4 +1,4 @@
-"""Tests of :mod:`thsa_control.component_id` (component-rig tables and their fits).
+"""Tests of :mod:`thsa_control.fit.component_id` (component-rig tables and their fits).
 
 Oracles:
 
@@ -22,7 +22,7 @@ import math
 import numpy as np
 import pytest
 
-from thsa_control.component_id import (
+from thsa_control.fit.component_id import (
     DEFAULT_GRIDS,
     KINDS,
     ComponentTable,
@@ -33,7 +33,7 @@ from thsa_control.component_id import (
     write_component_table,
 )
 from thsa_control.errors import ParameterError, RigDataError
-from thsa_control.params import default_parameters
+from thsa_control.model.params import default_parameters
 
 # The papers' Table 1 (load-path stiffness) and Table 2 (friction disk per
 # rotation direction), SI, as quoted in issue #2 and embedded in

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from thsa_control.scenarios import Scenario
+from thsa_control.sim.scenarios import Scenario
 
 
 def test_shaper_respects_rate_and_acceleration_limits(run):

@@ -2,7 +2,7 @@
 
 import pytest
 
-from thsa_control.design import derive_gains, load_design
+from thsa_control.loops.design import derive_gains, load_design
 from thsa_control.errors import DesignError
 
 

@@ -18,14 +18,14 @@ import pytest
 import json
 
 from thsa_control.cli import main
-from thsa_control.design import derive_gains
+from thsa_control.loops.design import derive_gains
 from thsa_control.model import build_plant
-from thsa_control.replay import replay_closed_loop
+from thsa_control.fit.replay import replay_closed_loop
 from thsa_control.errors import ParameterError, RigDataError, SolverError
-from thsa_control.identify import IdentificationSettings, Identifier
-from thsa_control.params import default_parameters, load_parameters
-from thsa_control.rigdata import read_run
-from thsa_control.virtual_rig import VirtualRig, excitation_inputs
+from thsa_control.fit.identify import IdentificationSettings, Identifier
+from thsa_control.model.params import default_parameters, load_parameters
+from thsa_control.data.rigdata import read_run
+from thsa_control.fit.virtual_rig import VirtualRig, excitation_inputs
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -14,7 +14,7 @@ import pytest
 
 from linearization import LinearModel, finite_difference_jacobians
 from thsa_control.cli import main
-from thsa_control.linear import (
+from thsa_control.loops.linear import (
     ConditionGrid,
     LinearizationSettings,
     OperatingCondition,

@@ -11,7 +11,7 @@ import pytest
 
 from thsa_control.errors import ModelError
 from thsa_control.model import EFFECT_ORDER, EFFECTS, LEVELS, build_plant, resolve_effects
-from thsa_control.scenarios import Scenario
+from thsa_control.sim.scenarios import Scenario
 
 
 def _u(plant, **kw):

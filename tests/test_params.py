@@ -5,7 +5,7 @@ import math
 import pytest
 
 from thsa_control.errors import ParameterError
-from thsa_control.params import Parameter, ParameterSet, load_parameters
+from thsa_control.model.params import Parameter, ParameterSet, load_parameters
 
 
 def test_papers_values_and_torque_constant(params):

@@ -11,9 +11,9 @@ import pytest
 
 from thsa_control.errors import RigDataError
 from thsa_control.model import build_plant
-from thsa_control.replay import ReplaySettings, channel_fit, replay, replay_closed_loop, replay_open_loop
-from thsa_control.rigdata import read_run
-from thsa_control.virtual_rig import VirtualRig, excitation_inputs
+from thsa_control.fit.replay import ReplaySettings, channel_fit, replay, replay_closed_loop, replay_open_loop
+from thsa_control.data.rigdata import read_run
+from thsa_control.fit.virtual_rig import VirtualRig, excitation_inputs
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -10,9 +10,9 @@ rejected in about 5 % of seeds (measured by the residuals module's tests).
 
 import pytest
 
-from thsa_control.replay import analyse_replay, replay
-from thsa_control.rigdata import read_run
-from thsa_control.virtual_rig import VirtualRig, excitation_inputs
+from thsa_control.fit.replay import analyse_replay, replay
+from thsa_control.data.rigdata import read_run
+from thsa_control.fit.virtual_rig import VirtualRig, excitation_inputs
 
 NOISE = {"motor_speed_rpm": 2.0, "motor_current_A": 0.05, "nut_position_mm": 0.005, "screw_speed_rpm": 0.2}
 CHANNELS = ("motor_speed", "motor_current", "nut_position", "screw_speed")

@@ -1,4 +1,4 @@
-"""Tests of :mod:`thsa_control.residuals` (residual analysis numerics).
+"""Tests of :mod:`thsa_control.fit.residuals` (residual analysis numerics).
 
 Oracles are statistical facts with seeded data:
 
@@ -23,7 +23,7 @@ import math
 import numpy as np
 import pytest
 
-from thsa_control.residuals import (
+from thsa_control.fit.residuals import (
     QUADRANT_LABELS,
     ResidualSettings,
     SignalError,

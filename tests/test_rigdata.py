@@ -1,4 +1,4 @@
-"""Tests of :mod:`thsa_control.rigdata` (``thsa-rig-run/1`` reader, writer, summary).
+"""Tests of :mod:`thsa_control.data.rigdata` (``thsa-rig-run/1`` reader, writer, summary).
 
 Oracles:
 
@@ -21,15 +21,15 @@ import numpy as np
 import pytest
 
 from thsa_control.errors import RigDataError
-from thsa_control.rigdata import (
+from thsa_control.data.rigdata import (
     FORMAT_TAG,
     RigRun,
     read_run,
     to_columns,
     write_run,
 )
-from thsa_control.rigsummary import SummarySettings, format_summary, summarize_run
-from thsa_control.units import mm_to_m, rpm_to_rad_s
+from thsa_control.data.rigsummary import SummarySettings, format_summary, summarize_run
+from thsa_control.data.units import mm_to_m, rpm_to_rad_s
 
 MOTOR_RPM_PER_MM_S = 328.05  # FORMAT.md: 12 mm lead, gear ratio 65.61
 SCREW_RPM_PER_MM_S = 5.0

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from thsa_control.errors import ScenarioError
-from thsa_control.export import write_simulation
-from thsa_control.metrics import backdrive_metrics, surface_speed_deviation
+from thsa_control.data.export import write_simulation
+from thsa_control.sim.metrics import backdrive_metrics, surface_speed_deviation
 from thsa_control.model import build_plant
-from thsa_control.rigdata import read_run
-from thsa_control.scenarios import SCENARIOS, get_scenario
-from thsa_control.simulate import SimulationSettings, Simulator
+from thsa_control.data.rigdata import read_run
+from thsa_control.sim.scenarios import SCENARIOS, get_scenario
+from thsa_control.sim.simulate import SimulationSettings, Simulator
 
 
 def test_backdrive_level_B_motor_drives_against_the_noback(run):

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from thsa_control.switching import analyse_switchover
+from thsa_control.loops.switching import analyse_switchover
 
 
 @pytest.fixture(scope="module")

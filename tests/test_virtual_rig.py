@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from thsa_control.rigdata import read_run
-from thsa_control.scenarios import get_scenario
-from thsa_control.virtual_rig import VirtualRig, excitation_inputs
+from thsa_control.data.rigdata import read_run
+from thsa_control.sim.scenarios import get_scenario
+from thsa_control.fit.virtual_rig import VirtualRig, excitation_inputs
 
 
 def test_record_reads_back_with_truth(tmp_path, params):
@@ -36,7 +36,7 @@ def test_noise_and_quantisation_are_as_asked(tmp_path, params):
     clean.record(scenario, tmp_path / "clean")
     noisy.record(scenario, tmp_path / "noisy")
     a, b = read_run(tmp_path / "clean.csv"), read_run(tmp_path / "noisy.csv")
-    from thsa_control.units import rad_s_to_rpm
+    from thsa_control.data.units import rad_s_to_rpm
 
     for signal, sigma, k in (("motor_speed", 2.0, rad_s_to_rpm(1.0)), ("load_force", 50.0, 1.0)):
         e = (b.signals[signal] - a.signals[signal]) * k

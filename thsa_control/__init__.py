@@ -6,17 +6,17 @@ consume the same expressions.  Only ``thsa_control.report`` imports
 matplotlib.
 """
 
-from .design import Design, derive_gains, load_design, nominal_design_path
+from .loops.design import Design, derive_gains, load_design, nominal_design_path
 from .errors import DesignError, ModelError, ParameterError, RigDataError, ScenarioError, SolverError, ThsaError
 from .model import EFFECTS, LEVELS, Plant, build_plant, resolve_effects
-from .params import Parameter, ParameterSet, default_parameters, load_parameters
-from .scenarios import SCENARIOS, Scenario, get_scenario
-from .simulate import InputSeries, SimulationResult, SimulationSettings, Simulator, simulate
-from .identify import IdentificationResult, IdentificationSettings, Identifier, ParameterEstimate
-from .replay import ReplayResult, ReplaySettings, analyse_replay, replay, replay_closed_loop, replay_open_loop
-from .virtual_rig import VirtualRig, excitation_inputs
-from .linear import ConditionGrid, OperatingCondition, PlantLinearization, current_driven, linearize_conditions, plant_model
-from .analysis import (AnalysisSettings, DesignAnalysis, LoopAnalysis, analyse_configurations, analyse_design,
+from .model.params import Parameter, ParameterSet, default_parameters, load_parameters
+from .sim.scenarios import SCENARIOS, Scenario, get_scenario
+from .sim.simulate import InputSeries, SimulationResult, SimulationSettings, Simulator, simulate
+from .fit.identify import IdentificationResult, IdentificationSettings, Identifier, ParameterEstimate
+from .fit.replay import ReplayResult, ReplaySettings, analyse_replay, replay, replay_closed_loop, replay_open_loop
+from .fit.virtual_rig import VirtualRig, excitation_inputs
+from .loops.linear import ConditionGrid, OperatingCondition, PlantLinearization, current_driven, linearize_conditions, plant_model
+from .loops.analysis import (AnalysisSettings, DesignAnalysis, LoopAnalysis, analyse_configurations, analyse_design,
                        analyse_loops, check_requirements, describing_functions)
 
 __version__ = "0.1.0"

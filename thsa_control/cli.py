@@ -33,9 +33,9 @@ __all__ = ["main"]
 
 
 def _load_common(args):
-    from .design import load_design, nominal_design_path
-    from .params import default_parameters, load_parameters
-    from .scenarios import get_scenario
+    from .loops.design import load_design, nominal_design_path
+    from .model.params import default_parameters, load_parameters
+    from .sim.scenarios import get_scenario
 
     params = default_parameters()
     if args.params:
@@ -56,7 +56,7 @@ def _effects_arg(values):
 
 
 def _cmd_scenarios(args) -> int:
-    from .scenarios import SCENARIOS
+    from .sim.scenarios import SCENARIOS
 
     for s in SCENARIOS.values():
         need = f" [needs {', '.join(s.required_effects)}]" if s.required_effects else ""
@@ -66,7 +66,7 @@ def _cmd_scenarios(args) -> int:
 
 def _run_levels(params, design, scenario, levels, effects, output_period):
     from .model import build_plant
-    from .simulate import SimulationSettings, Simulator
+    from .sim.simulate import SimulationSettings, Simulator
 
     settings = SimulationSettings(output_period=output_period)
     results = {}
@@ -78,7 +78,7 @@ def _run_levels(params, design, scenario, levels, effects, output_period):
 
 
 def _summary(result) -> dict:
-    from .metrics import backdrive_metrics, surface_speed_deviation
+    from .sim.metrics import backdrive_metrics, surface_speed_deviation
 
     out = {"effects": list(result.effects), "wall_s": result.info["wall_s"],
            "real_time_factor": float(result.time[-1] / max(result.info["wall_s"], 1e-12)),
@@ -101,7 +101,7 @@ def _summary(result) -> dict:
 
 
 def _write_results(out, results, scenario, params, design):
-    from .export import write_simulation
+    from .data.export import write_simulation
     from .report import atomic_folder, write_json
     from .report.plots import close, plot_levels, plot_run
 
@@ -158,8 +158,8 @@ def _cmd_simulate(args) -> int:
 
 
 def _cmd_check_data(args) -> int:
-    from .rigdata import read_run
-    from .rigsummary import format_summary, summarize_run
+    from .data.rigdata import read_run
+    from .data.rigsummary import format_summary, summarize_run
 
     mapping = json.loads(args.column_map) if args.column_map else None
     run = read_run(args.run, column_map=mapping)
@@ -168,7 +168,7 @@ def _cmd_check_data(args) -> int:
 
 
 def _read_runs(paths, column_map):
-    from .rigdata import read_run
+    from .data.rigdata import read_run
 
     mapping = json.loads(column_map) if column_map else None
     return [read_run(p, column_map=mapping) for p in paths]
@@ -179,9 +179,9 @@ def _replay_mode(run, mode):
 
 
 def _cmd_identify(args) -> int:
-    from .identify import IdentificationSettings, Identifier
-    from .params import default_parameters, load_parameters
-    from .replay import analyse_replay, replay
+    from .fit.identify import IdentificationSettings, Identifier
+    from .model.params import default_parameters, load_parameters
+    from .fit.replay import analyse_replay, replay
     from .report import atomic_folder
     from .report.identification import write_identification_folder
 
@@ -210,11 +210,11 @@ def _cmd_identify(args) -> int:
 
 
 def _cmd_residual(args) -> int:
-    from .params import default_parameters, load_parameters
-    from .replay import analyse_replay, replay
+    from .model.params import default_parameters, load_parameters
+    from .fit.replay import analyse_replay, replay
     from .report import atomic_folder
     from .report.identification import write_residual_folder
-    from .residuals import format_residual_report
+    from .fit.residuals import format_residual_report
 
     params = load_parameters(args.params, base=default_parameters()) if args.params else default_parameters()
     run, = _read_runs([args.run], args.column_map)
@@ -233,10 +233,10 @@ def _analysis_effects(args) -> list[str]:
 
 
 def _cmd_report(args) -> int:
-    from .analysis import AnalysisSettings, analyse_design
-    from .design import load_design, nominal_design_path
+    from .loops.analysis import AnalysisSettings, analyse_design
+    from .loops.design import load_design, nominal_design_path
     from .model import resolve_effects
-    from .params import default_parameters, load_parameters
+    from .model.params import default_parameters, load_parameters
     from .report.analysis_report import write_analysis_report
 
     params = load_parameters(args.params, base=default_parameters()) if args.params else default_parameters()
@@ -261,9 +261,9 @@ def _cmd_report(args) -> int:
 
 
 def _cmd_linearize(args) -> int:
-    from .linear import OperatingCondition, format_linear_model, linearize_condition, plant_model
+    from .loops.linear import OperatingCondition, format_linear_model, linearize_condition, plant_model
     from .model import resolve_effects
-    from .params import default_parameters, load_parameters
+    from .model.params import default_parameters, load_parameters
 
     params = load_parameters(args.params, base=default_parameters()) if args.params else default_parameters()
     effects = _analysis_effects(args)

@@ -27,7 +27,7 @@ import casadi as ca
 import numpy as np
 
 from ..errors import ModelError, ParameterError
-from ..params import ParameterSet, default_parameters
+from .params import ParameterSet, default_parameters
 from .effects import EFFECT_ORDER, EFFECTS
 from .levels import resolve_effects
 from .structure import (

@@ -1,6 +1,6 @@
 """Report of a design's loop analysis: a self-contained HTML page and ``analysis.json``.
 
-Takes a :class:`thsa_control.analysis.DesignAnalysis` (numbers only) and
+Takes a :class:`thsa_control.loops.analysis.DesignAnalysis` (numbers only) and
 draws and writes it; it computes no physics.  The folder is built in a
 temporary sibling and renamed (:func:`thsa_control.report.build.atomic_folder`),
 so a failure leaves nothing half-written.
@@ -40,7 +40,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
 
-from ..analysis import LOOPS, METRICS, DesignAnalysis, LoopAnalysis, check_requirements  # noqa: E402
+from ..loops.analysis import LOOPS, METRICS, DesignAnalysis, LoopAnalysis, check_requirements  # noqa: E402
 from .build import atomic_folder, write_json  # noqa: E402
 
 __all__ = [
@@ -351,7 +351,7 @@ def plot_switching(switching):
 
     Parameters
     ----------
-    switching : thsa_control.switching.SwitchoverAnalysis
+    switching : thsa_control.loops.switching.SwitchoverAnalysis
 
     Returns
     -------

@@ -1,7 +1,7 @@
 """Identification and residual reports: figures and one self-contained HTML page.
 
-Draws results computed elsewhere (:mod:`thsa_control.replay`,
-:mod:`thsa_control.identify`, :mod:`thsa_control.residuals`); computes no
+Draws results computed elsewhere (:mod:`thsa_control.fit.replay`,
+:mod:`thsa_control.fit.identify`, :mod:`thsa_control.fit.residuals`); computes no
 physics.  Figures embed in the HTML as base64 PNG, so the page is one file.
 Only ``thsa_control.report`` imports matplotlib.
 """
@@ -84,7 +84,7 @@ def plot_segments(prediction: Mapping, *, title: str = ""):
 def plot_residual_channel(time, channel, *, title: str = ""):
     """Residual of one channel: time series, autocorrelation with its band, spectrum.
 
-    ``channel`` is a :class:`thsa_control.residuals.ChannelResiduals`.
+    ``channel`` is a :class:`thsa_control.fit.residuals.ChannelResiduals`.
     """
     k, unit = _scale(channel.name)
     fig, axes = plt.subplots(3, 1, figsize=(10, 8), constrained_layout=True)
@@ -168,7 +168,7 @@ def write_residual_folder(folder: str | Path, replay_result, analysis, *, title:
 
     Returns the JSON content.
     """
-    from ..residuals import format_residual_report
+    from ..fit.residuals import format_residual_report
     from .build import write_json
 
     folder = Path(folder)
@@ -193,7 +193,7 @@ def write_identification_folder(folder: str | Path, result, before: Sequence, af
     ``before`` / ``after`` are replays of each run at the initial and identified
     parameters, ``analyses`` the residual analyses of the ``after`` replays.
     """
-    from ..residuals import format_residual_report
+    from ..fit.residuals import format_residual_report
     from .build import write_json
 
     folder = Path(folder)

@@ -1,4 +1,4 @@
-"""Batched numerics of discrete SISO loops (private to :mod:`thsa_control.analysis`).
+"""Batched numerics of discrete SISO loops (private to :mod:`thsa_control.loops.analysis`).
 
 State-space blocks stacked over N operating points (point index first):
 series connection, closing a loop around a plant, zero-order-hold

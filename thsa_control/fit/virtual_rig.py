@@ -2,11 +2,11 @@
 
 A :class:`VirtualRig` is the documented generator of test data with known
 truth.  It runs the project's closed-loop simulator (the plant of a level
-plus effects, the sampled-data cascade of a :class:`~thsa_control.design.Design`)
-on a scenario or an :class:`~thsa_control.simulate.InputSeries`, samples the
+plus effects, the sampled-data cascade of a :class:`~thsa_control.loops.design.Design`)
+on a scenario or an :class:`~thsa_control.sim.simulate.InputSeries`, samples the
 outputs at ``sample_rate_hz`` (a divisor of the control rate), adds white
 Gaussian sensor noise and quantisation per column, and writes the pair
-``STEM.csv`` / ``STEM.json`` with :func:`thsa_control.rigdata.write_run`
+``STEM.csv`` / ``STEM.json`` with :func:`thsa_control.data.rigdata.write_run`
 (atomic, read back before it is published).
 
 What the generator does, in order, per column (FORMAT.md units):
@@ -38,13 +38,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .design import Design, load_design, nominal_design_path
-from .export import rig_columns, rig_metadata
-from .model import build_plant
-from .params import ParameterSet, default_parameters
-from .rigdata import COLUMNS, write_run
-from .scenarios import Scenario
-from .simulate import InputSeries, SimulationResult, SimulationSettings, Simulator
+from ..loops.design import Design, load_design, nominal_design_path
+from ..data.export import rig_columns, rig_metadata
+from ..model import build_plant
+from ..model.params import ParameterSet, default_parameters
+from ..data.rigdata import COLUMNS, write_run
+from ..sim.scenarios import Scenario
+from ..sim.simulate import InputSeries, SimulationResult, SimulationSettings, Simulator
 
 __all__ = ["VirtualRig", "excitation_inputs", "NOISY_COLUMNS"]
 
@@ -87,11 +87,11 @@ class VirtualRig:
     Examples
     --------
     >>> import tempfile
-    >>> from thsa_control.scenarios import get_scenario
+    >>> from thsa_control.sim.scenarios import get_scenario
     >>> rig = VirtualRig("B", noise={"motor_speed_rpm": 2.0}, seed=1)
     >>> with tempfile.TemporaryDirectory() as d:
     ...     csv_path, json_path = rig.record(get_scenario("cold_ramp"), f"{d}/cold")
-    ...     from thsa_control.rigdata import read_run
+    ...     from thsa_control.data.rigdata import read_run
     ...     run = read_run(csv_path)
     >>> run.metadata["truth"]["effects"], len(run.time)
     (['noback_quadrant_friction'], 3000)

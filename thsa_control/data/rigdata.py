@@ -7,7 +7,7 @@ FORMAT units: mm, mm/s, rpm, N, A, degC) plus ``NAME.json`` (metadata).
 Everything downstream receives a :class:`RigRun` whose signals are SI (the one
 exception is ``temperature``, kept in degC as everywhere in the project).  It
 imports numpy, the standard library, :mod:`thsa_control.errors` and
-:mod:`thsa_control.units` only; never matplotlib.
+:mod:`thsa_control.data.units` only; never matplotlib.
 
 Validation rules (decisions taken where FORMAT.md leaves room)
 -----------------------------------------------------------------
@@ -76,7 +76,7 @@ Examples
 ...     run = read_run(csv_path)
 >>> run.name, round(run.duration_s, 3), run.has("nut_position")
 ('ramp', 0.999, False)
->>> from thsa_control.rigsummary import summarize_run
+>>> from thsa_control.data.rigsummary import summarize_run
 >>> [(p.kind, p.direction) for p in summarize_run(run).load_phases]
 [('aiding', 'extend')]
 """
@@ -98,7 +98,7 @@ from typing import Any
 import numpy as np
 
 from thsa_control.errors import RigDataError
-from thsa_control.units import m_to_mm, mm_to_m, rad_s_to_rpm, rpm_to_rad_s
+from thsa_control.data.units import m_to_mm, mm_to_m, rad_s_to_rpm, rpm_to_rad_s
 
 __all__ = [
     "FORMAT_TAG",
@@ -147,7 +147,7 @@ class ColumnSpec:
     role : str
         ``time``, ``required``, ``measured``, ``command`` or ``enable``.
     to_si, from_si : callable
-        Conversions CSV unit <-> SI unit (from :mod:`thsa_control.units`).
+        Conversions CSV unit <-> SI unit (from :mod:`thsa_control.data.units`).
     default : float or None
         Value of an absent enable flag.
     """

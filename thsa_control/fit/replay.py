@@ -1,6 +1,6 @@
 """Replay a rig run through a declared model, in closed loop or driven by the measured current.
 
-Two replays of one :class:`~thsa_control.rigdata.RigRun`:
+Two replays of one :class:`~thsa_control.data.rigdata.RigRun`:
 
 * **closed loop** (:func:`replay_closed_loop`): the plant of the declared
   effect set, under the rig's cascade as the run's JSON gives it
@@ -18,7 +18,7 @@ Two replays of one :class:`~thsa_control.rigdata.RigRun`:
   period) before each fixed step of the plant's own discrete map
   (:func:`current_driven_map`), so the motor torque is ``Kt i_measured`` and
   neither the controller nor the electrics take part.  The same map, mapped
-  over segments, is what :mod:`thsa_control.identify` differentiates.
+  over segments, is what :mod:`thsa_control.fit.identify` differentiates.
 
 Both return a :class:`ReplayResult` with simulated and measured signals at the
 run's sample times (SI, FORMAT.md signs) and the fit statistics of
@@ -37,12 +37,12 @@ from types import MappingProxyType
 import casadi as ca
 import numpy as np
 
-from .design import Design
-from .errors import RigDataError, ThsaError
-from .model.plant import Plant
-from .params import ParameterSet
-from .rigdata import RigRun
-from .simulate import InputSeries, SimulationSettings, Simulator
+from ..loops.design import Design
+from ..errors import RigDataError, ThsaError
+from ..model.plant import Plant
+from ..model.params import ParameterSet
+from ..data.rigdata import RigRun
+from ..sim.simulate import InputSeries, SimulationSettings, Simulator
 
 __all__ = [
     "FIT_CHANNELS",
@@ -259,7 +259,7 @@ def _resample(t_run, y, t, how: str):
 
 
 def run_inputs(run: RigRun, control_period: float, *, interpolation: str = "linear") -> InputSeries:
-    """The run's inputs at the controller period, ready for :class:`~thsa_control.simulate.Simulator`.
+    """The run's inputs at the controller period, ready for :class:`~thsa_control.sim.simulate.Simulator`.
 
     Parameters
     ----------
@@ -515,8 +515,8 @@ def replay(run: RigRun, level: str | None = "A", effects=(), *, params: Paramete
     ValueError
         Unknown mode.
     """
-    from .model import build_plant
-    from .params import default_parameters
+    from ..model import build_plant
+    from ..model.params import default_parameters
 
     params = params or default_parameters()
     plant = build_plant(level, effects, params=params)
@@ -564,7 +564,7 @@ def residual_signals(run: RigRun, result: ReplayResult) -> tuple[dict, dict]:
 
 
 def analyse_replay(run: RigRun, result: ReplayResult, settings=None):
-    """Residual analysis (:func:`thsa_control.residuals.analyse_residuals`) of a replay's fitted channels."""
+    """Residual analysis (:func:`thsa_control.fit.residuals.analyse_residuals`) of a replay's fitted channels."""
     from .residuals import analyse_residuals
 
     conditioning, inputs = residual_signals(run, result)

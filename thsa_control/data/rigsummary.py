@@ -3,7 +3,7 @@
 Duration, sample rate, channels and their ranges, gaps, the phases where the
 load aids or opposes the motion (FORMAT.md: opposes when
 ``load_force * speed > 0``), motor-off phases and direction reversals.  Works
-on a :class:`~thsa_control.rigdata.RigRun`; parses no file itself.
+on a :class:`~thsa_control.data.rigdata.RigRun`; parses no file itself.
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from thsa_control.rigdata import _SPECS, RigRun, _number, _runs
-from thsa_control.units import m_to_mm
+from thsa_control.data.rigdata import _SPECS, RigRun, _number, _runs
+from thsa_control.data.units import m_to_mm
 
 __all__ = ["SummarySettings", "ChannelRange", "Gap", "Interval", "LoadPhase", "Reversal", "RunSummary",
            "summarize_run", "format_summary"]

@@ -9,7 +9,7 @@ display.  This module does no physics and imports nothing from the model.
 
 Examples
 --------
->>> from thsa_control.params import default_parameters
+>>> from thsa_control.model.params import default_parameters
 >>> p = default_parameters()
 >>> p["gear.ratio"].value
 65.61
@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import tomli_w
 
-from .errors import ParameterError
+from ..errors import ParameterError
 
 __all__ = ["Parameter", "ParameterSet", "default_parameters", "load_parameters"]
 
@@ -276,5 +276,5 @@ def load_parameters(path: str | Path, *, base: ParameterSet | None = None) -> Pa
 
 def default_parameters() -> ParameterSet:
     """The embedded default actuator (the papers' values, assumed ones marked)."""
-    text = resources.files("thsa_control").joinpath("default_actuator.toml").read_text(encoding="utf-8")
+    text = resources.files("thsa_control.model").joinpath("default_actuator.toml").read_text(encoding="utf-8")
     return ParameterSet.from_toml(text, source_name="default_actuator.toml")

@@ -12,9 +12,9 @@ identification differentiate through.
 Examples
 --------
 >>> from thsa_control.model import build_plant
->>> from thsa_control.scenarios import get_scenario
->>> from thsa_control.params import default_parameters
->>> from thsa_control.design import derive_gains
+>>> from thsa_control.sim.scenarios import get_scenario
+>>> from thsa_control.model.params import default_parameters
+>>> from thsa_control.loops.design import derive_gains
 >>> P = default_parameters()
 >>> d = derive_gains(P, current_bandwidth_hz=1000, velocity_crossover_hz=30,
 ...                  velocity_pi_zero_ratio=5, position_bandwidth_hz=2)
@@ -35,11 +35,11 @@ import casadi as ca
 import numpy as np
 
 from ._compile import compile_run_loop
-from .controllers import CONTROLLER_PARAMETERS, CONTROLLER_SIGNALS, CONTROLLER_STATES, REFERENCE_INPUTS, build_controller
-from .design import Design
-from .errors import ScenarioError, ThsaError
-from .model.plant import Plant
-from .params import ParameterSet
+from ..loops.controllers import CONTROLLER_PARAMETERS, CONTROLLER_SIGNALS, CONTROLLER_STATES, REFERENCE_INPUTS, build_controller
+from ..loops.design import Design
+from ..errors import ScenarioError, ThsaError
+from ..model.plant import Plant
+from ..model.params import ParameterSet
 from .scenarios import TEMPERATURE_RANGE, Scenario
 
 __all__ = ["SimulationSettings", "InputSeries", "SimulationResult", "Simulator", "simulate"]
@@ -353,7 +353,7 @@ def simulate(scenario: Scenario | InputSeries, design: Design, params: Parameter
 
     Adds the scenario's required effects (e.g. ``standby_motor``) to the set.
     """
-    from .model import build_plant
+    from ..model import build_plant
 
     required = scenario.required_effects
     plant = build_plant(level, tuple(effects) + tuple(e for e in required if e not in effects), params=params)

@@ -1,12 +1,12 @@
 """Parameter identification from rig runs: casadi least squares with honest error bars.
 
-:class:`Identifier` fits a chosen subset of a :class:`~thsa_control.params.ParameterSet`
+:class:`Identifier` fits a chosen subset of a :class:`~thsa_control.model.params.ParameterSet`
 to one or several rig runs at once (multi-experiment) and returns an
 lmfit-style :class:`IdentificationResult`.
 
 Method (``IdentificationSettings.method = "multiple_shooting"``, the only one
 so far): the model is the plant's own discrete map driven by the measured
-motor current (:func:`thsa_control.replay.current_driven_map`), so the
+motor current (:func:`thsa_control.fit.replay.current_driven_map`), so the
 controller and the electrics do not take part and only the mechanics are
 fitted.  The mechanics are not stable in open loop (the no-back's Stribeck
 friction is a negative damping; aiding loads accelerate), so each run is cut
@@ -48,15 +48,15 @@ from types import MappingProxyType
 import casadi as ca
 import numpy as np
 
-from .errors import ParameterError, RigDataError, SolverError, ThsaError
-from .model import build_plant
-from .model.plant import Plant
-from .params import Parameter, ParameterSet, default_parameters
+from ..errors import ParameterError, RigDataError, SolverError, ThsaError
+from ..model import build_plant
+from ..model.plant import Plant
+from ..model.params import Parameter, ParameterSet, default_parameters
 from .replay import (
     channel_fit, current_driven_map, mech_inputs, replay_closed_loop, run_design,
     sample_periods,
 )
-from .rigdata import RigRun
+from ..data.rigdata import RigRun
 
 __all__ = ["IdentificationSettings", "ParameterEstimate", "IdentificationResult", "Identifier", "estimate_noise"]
 

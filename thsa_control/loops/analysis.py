@@ -4,7 +4,7 @@ This module owns the numerics of the linear loop analysis and returns frozen
 result objects; it never imports matplotlib (``report/analysis_report.py``
 draws them).  All loops are **discrete** (the rig's controller runs at the
 design's control period ``h``, 10 kHz), built from the plant linearised by
-:mod:`thsa_control.linear`:
+:mod:`thsa_control.loops.linear`:
 
 * **plant**: the continuous linear model (inputs: active voltage, load force,
   disturbance torque; outputs: active current, motor speed, nut speed),
@@ -92,7 +92,7 @@ from ._loopmath import (
 )
 
 from .design import REQUIREMENT_KEYS, REQUIREMENT_LOOPS, Design
-from .errors import DesignError
+from ..errors import DesignError
 from .linear import (
     ConditionGrid,
     LinearizationSettings,
@@ -102,7 +102,7 @@ from .linear import (
     linearize_conditions,
     plant_model,
 )
-from .params import ParameterSet, default_parameters
+from ..model.params import ParameterSet, default_parameters
 
 __all__ = [
     "LOOPS",
@@ -588,7 +588,7 @@ def analyse_loops(design: Design, params: ParameterSet | None = None, conditions
 
     Examples
     --------
-    >>> from thsa_control.design import load_design, nominal_design_path
+    >>> from thsa_control.loops.design import load_design, nominal_design_path
     >>> a = analyse_loops(load_design(nominal_design_path()),
     ...                   conditions=[OperatingCondition(10e-3, 20e3, 25.0)])
     >>> round(float(a.metric("velocity_loop", "crossover_hz")[0]), 1)  # designed for 30 Hz
@@ -724,7 +724,7 @@ def check_requirements(analysis: LoopAnalysis, requirements: Mapping | None = No
     analysis : LoopAnalysis
     requirements : mapping, optional
         ``{loop: {key: limit}}``; default ``analysis.design.requirements``.
-        Keys: see the module notes (``thsa_control.design.REQUIREMENT_KEYS``).
+        Keys: see the module notes (``thsa_control.loops.design.REQUIREMENT_KEYS``).
 
     Returns
     -------
@@ -1054,7 +1054,7 @@ class DesignAnalysis:
     requirements : RequirementCheck
     limit_cycles : tuple of LimitCycle
     configurations : ConfigurationAnalysis or None
-    switching : thsa_control.switching.SwitchoverAnalysis or None
+    switching : thsa_control.loops.switching.SwitchoverAnalysis or None
         The nonlinear switch-over transient (None when not run).
     timings : dict
         Wall time of each part [s].
@@ -1081,7 +1081,7 @@ def analyse_design(design: Design, params: ParameterSet | None = None, *, settin
     params : ParameterSet, optional
     settings : AnalysisSettings, optional
     switching : bool or SwitchoverAnalysis
-        True: run :func:`thsa_control.switching.analyse_switchover` (the
+        True: run :func:`thsa_control.loops.switching.analyse_switchover` (the
         nonlinear ``motor_fault_switch`` transient over detection delays) at
         the analysis level; False: skip; or a result computed beforehand.
     configurations, limit_cycles : bool

@@ -32,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import DesignError
-from .params import ParameterSet
+from ..errors import DesignError
+from ..model.params import ParameterSet
 
 __all__ = ["Design", "load_design", "parse_design", "derive_gains", "reflected_inertia", "nominal_design_path"]
 
@@ -188,7 +188,7 @@ def parse_design(doc: dict, source: str = "<dict>") -> Design:
 
 
 #: ``[requirements.<loop>]`` tables and their keys (checked at every valid grid point by
-#: ``thsa_control.analysis.check_requirements``; gain margins are compared by magnitude).
+#: ``thsa_control.loops.analysis.check_requirements``; gain margins are compared by magnitude).
 REQUIREMENT_LOOPS = ("current_loop", "velocity_loop", "position_loop")
 REQUIREMENT_KEYS = ("min_phase_margin_deg", "min_gain_margin_db", "min_delay_margin_s", "min_bandwidth_hz",
                     "max_sensitivity_peak", "max_overshoot_percent", "max_settling_time_s", "max_rise_time_s")
@@ -217,7 +217,7 @@ def nominal_design_path() -> Path:
         When the package is not installed from a checkout (``pip install -e .``)
         and the current folder has no ``designs/nominal.toml`` either.
     """
-    for cand in (Path(__file__).resolve().parents[1] / "designs" / "nominal.toml",
+    for cand in (Path(__file__).resolve().parents[2] / "designs" / "nominal.toml",
                  Path.cwd() / "designs" / "nominal.toml", Path.cwd().parent / "designs" / "nominal.toml"):
         if cand.exists():
             return cand
@@ -244,8 +244,8 @@ def reflected_inertia(params: ParameterSet, level: str = "A", effects=()) -> flo
     current, ``dw/dt = Kt i / J``, so ``J = Kt / (dw/dt(i=1) - dw/dt(i=0))``
     exactly: no second copy of the inertia sum the structure builds.
     """
-    from .model import build_plant
-    from .model.structure import torque_constant
+    from ..model import build_plant
+    from ..model.structure import torque_constant
 
     plant = build_plant(level, effects, params=params)
     p = plant.p_vector(params)
@@ -280,7 +280,7 @@ def derive_gains(params: ParameterSet, *, current_bandwidth_hz: float, velocity_
 
     Examples
     --------
-    >>> from thsa_control.params import default_parameters
+    >>> from thsa_control.model.params import default_parameters
     >>> d = derive_gains(default_parameters(), current_bandwidth_hz=1000, velocity_crossover_hz=30,
     ...                  velocity_pi_zero_ratio=5, position_bandwidth_hz=2)
     >>> round(d.current_kp, 3), round(d.current_ki, 1)
@@ -288,7 +288,7 @@ def derive_gains(params: ParameterSet, *, current_bandwidth_hz: float, velocity_
     """
     wc = 2 * math.pi * current_bandwidth_hz
     wv = 2 * math.pi * velocity_crossover_hz
-    from .model.structure import torque_constant
+    from ..model.structure import torque_constant
 
     kt = torque_constant({n: params.value(n) for n in params})
     j = reflected_inertia(params)

@@ -3,7 +3,7 @@
 The standard columns come first in FORMAT.md units; every other signal
 follows as an extra column named ``<signal>_<unit tag>`` in display units
 (``surface_position_mm``, ``noback_torque_Nm``, ``pawl_engaged``).  Writing
-goes through :func:`thsa_control.rigdata.write_run` (atomic, validated).
+goes through :func:`thsa_control.data.rigdata.write_run` (atomic, validated).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from .rigdata import FORMAT_TAG, write_run
-from .simulate import SimulationResult
+from ..sim.simulate import SimulationResult
 from .units import rad_s_to_rpm
 
 __all__ = ["rig_columns", "rig_metadata", "write_simulation", "UNIT_TAGS"]

@@ -20,11 +20,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .design import Design
-from .errors import ScenarioError
-from .model import build_plant
-from .params import ParameterSet
-from .scenarios import Scenario, get_scenario
-from .simulate import SimulationSettings, Simulator
+from ..errors import ScenarioError
+from ..model import build_plant
+from ..model.params import ParameterSet
+from ..sim.scenarios import Scenario, get_scenario
+from ..sim.simulate import SimulationSettings, Simulator
 
 __all__ = ["SwitchoverCase", "SwitchoverAnalysis", "analyse_switchover"]
 

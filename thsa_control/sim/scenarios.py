@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .errors import ScenarioError
+from ..errors import ScenarioError
 
 __all__ = ["Scenario", "SCENARIOS", "get_scenario", "TEMPERATURE_RANGE"]
 

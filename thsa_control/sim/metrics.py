@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .rigdata import _runs  # maximal runs of True, (start, stop exclusive)
+from ..data.rigdata import _runs  # maximal runs of True, (start, stop exclusive)
 
 __all__ = ["Interval", "plateaus", "stops", "backdrive_metrics", "surface_speed_deviation", "BackdriveMetrics"]
 

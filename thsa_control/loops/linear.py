@@ -94,9 +94,9 @@ from linearization import (
     linearize_batch,
 )
 
-from .errors import ModelError, SolverError
-from .model import Plant, build_plant
-from .params import ParameterSet, default_parameters
+from ..errors import ModelError, SolverError
+from ..model import Plant, build_plant
+from ..model.params import ParameterSet, default_parameters
 
 __all__ = [
     "INPUTS",

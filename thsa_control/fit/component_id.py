@@ -37,7 +37,7 @@ How the fit works
 Least squares of ``law(inputs, p) - measured`` over the free parameters with
 ``scipy.optimize.least_squares`` (trust-region reflective), the exact casadi
 Jacobian, each parameter scaled by its initial magnitude, and the
-:class:`~thsa_control.params.ParameterSet` bounds.  Standard errors come from
+:class:`~thsa_control.model.params.ParameterSet` bounds.  Standard errors come from
 the Jacobian at the optimum, ``cov = s^2 (J^T J)^-1`` with
 ``s^2 = RSS / (n - k)``; confidence intervals use Student's t.
 
@@ -58,7 +58,7 @@ every kind.
 Examples
 --------
 >>> import numpy as np
->>> from thsa_control.params import default_parameters
+>>> from thsa_control.model.params import default_parameters
 >>> p = default_parameters()
 >>> table = generate_component_table("loadpath_stiffness", p, noise=50.0, rng=1)
 >>> fit = fit_component(table, params=p)
@@ -85,8 +85,8 @@ from scipy import optimize, stats
 
 from thsa_control.errors import ModelError, ParameterError, RigDataError
 from thsa_control.model.laws import LAWS
-from thsa_control.params import ParameterSet, default_parameters
-from thsa_control.units import mm_to_m, rpm_to_rad_s
+from thsa_control.model.params import ParameterSet, default_parameters
+from thsa_control.data.units import mm_to_m, rpm_to_rad_s
 
 __all__ = [
     "ComponentKind",
@@ -525,7 +525,7 @@ def generate_component_table(kind: str, params: ParameterSet | None = None, *, n
     kind : str
         A key of :data:`KINDS`.
     params : ParameterSet, optional
-        True parameter values; default :func:`~thsa_control.params.default_parameters`
+        True parameter values; default :func:`~thsa_control.model.params.default_parameters`
         (the papers' Tables 1 and 2 and the assumed temperature law).
     noise : float
         Standard deviation of the Gaussian noise added to the measured column,
@@ -583,7 +583,7 @@ def generate_component_table(kind: str, params: ParameterSet | None = None, *, n
     comments = [
         f"kind: {kind}",
         f"description: {spec.description}",
-        "source: synthetic, thsa_control.component_id.generate_component_table "
+        "source: synthetic, thsa_control.fit.component_id.generate_component_table "
         "(laws of the effect library, thsa_control.model.laws)",
         "units: " + ", ".join(f"{c} [{u}]" for c, u in zip(spec.columns, spec.units)),
         f"noise: {noise:g} {spec.units[-1]} rms, Gaussian, added to {spec.output}",
@@ -974,7 +974,7 @@ def fit_component(table: ComponentTable, *, params: ParameterSet | None = None,
         From :func:`read_component_table` or :func:`generate_component_table`.
     params : ParameterSet, optional
         Initial values, bounds and held values; default
-        :func:`~thsa_control.params.default_parameters`.  Not modified.
+        :func:`~thsa_control.model.params.default_parameters`.  Not modified.
     free : sequence of str, optional
         Parameters to fit, all read by the table's law(s); default the kind's
         ``default_free`` (for a disk table only the directions present).

@@ -1,0 +1,1 @@
+"""Measured data: the rig-run format (FORMAT.md) reader and writer, run summary, export, units."""

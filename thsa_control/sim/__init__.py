@@ -1,0 +1,1 @@
+"""Simulation: the compiled closed-loop simulator, its C cache, the papers' scenarios and their metrics."""
