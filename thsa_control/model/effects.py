@@ -312,3 +312,11 @@ EFFECTS: dict[str, Effect] = {
 EFFECT_ORDER: tuple[str, ...] = (
     "standby_motor", "loadpath_compliance", "temperature_friction", "noback_backlash", "noback_quadrant_friction",
 )
+
+# Generic drive effects (drive_effects.py), applied after the load path and
+# before the no-back, which reads the axial force that force_offset changes.
+from .drive_effects import DRIVE_EFFECT_ORDER, DRIVE_EFFECTS  # noqa: E402
+
+EFFECTS.update(DRIVE_EFFECTS)
+EFFECT_ORDER = (tuple(e for e in EFFECT_ORDER if not e.startswith("noback")) + DRIVE_EFFECT_ORDER
+                + tuple(e for e in EFFECT_ORDER if e.startswith("noback")))
