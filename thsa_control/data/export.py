@@ -2,7 +2,9 @@
 
 The standard columns come first in FORMAT.md units; every other signal
 follows as an extra column named ``<signal>_<unit tag>`` in display units
-(``surface_position_mm``, ``noback_torque_Nm``, ``pawl_engaged``).  Writing
+(``noback_torque_Nm``, ``pawl_engaged``, ``model_nut_position_mm``).  The
+LVDT column ``nut_position_mm`` is the surface (output rod) position, the
+current column the active motor's.  Writing
 goes through :func:`thsa_control.data.rigdata.write_run` (atomic, validated).
 """
 
@@ -32,7 +34,7 @@ _STANDARD = {
     "load_force_N": ("load_force", 1.0),
     "motor_speed_rpm": ("motor_speed", float(rad_s_to_rpm(1.0))),
     "motor_current_A": ("motor_current", 1.0),
-    "nut_position_mm": ("nut_position", 1e3),
+    "nut_position_mm": ("surface_position", 1e3),  # the LVDT reads the output rod (= nut when rigid)
     "screw_speed_rpm": ("screw_speed", float(rad_s_to_rpm(1.0))),
     "temperature_C": ("temperature", 1.0),
 }
@@ -48,6 +50,9 @@ def rig_columns(result: SimulationResult) -> dict[str, np.ndarray]:
     idx = np.arange(len(result.time)) * dec
     cols["primary_enable"] = np.asarray(result.inputs.signals["primary_enable"])[idx]
     cols["standby_enable"] = np.asarray(result.inputs.signals["standby_enable"])[idx]
+    # FORMAT.md: the current column is the active motor's (the standby's after a switch-over)
+    standby_active = (cols["standby_enable"] > 0.5) & (cols["primary_enable"] < 0.5)
+    cols["motor_current_A"] = np.where(standby_active, np.asarray(result["standby_current"]), cols["motor_current_A"])
     if np.any(np.asarray(result.inputs.signals["position_mode"]) > 0.5):
         cols["position_cmd_mm"] = np.asarray(result.inputs.signals["position_cmd"])[idx] * 1e3
     used = {sig for sig, _ in _STANDARD.values()}
@@ -55,7 +60,10 @@ def rig_columns(result: SimulationResult) -> dict[str, np.ndarray]:
         if name in used:
             continue
         tag, k = UNIT_TAGS.get(result.units.get(name, "-"), ("", 1.0))
-        cols[f"{name}_{tag}" if tag else name] = np.asarray(result[name]) * k
+        key = f"{name}_{tag}" if tag else name
+        if key in cols:  # the model's nut position next to the LVDT column
+            key = f"model_{key}"
+        cols[key] = np.asarray(result[name]) * k
     return cols
 
 

@@ -53,14 +53,15 @@ from ..model import build_plant
 from ..model.plant import Plant
 from ..model.params import Parameter, ParameterSet, default_parameters
 from .replay import (
-    channel_fit, current_driven_map, mech_inputs, replay_closed_loop, run_design,
+    COMPARED_OUTPUT, channel_fit, check_run_model, current_driven_map, mech_inputs, replay_closed_loop, run_design,
     sample_periods,
 )
 from ..data.rigdata import RigRun
 
 __all__ = ["IdentificationSettings", "ParameterEstimate", "IdentificationResult", "Identifier", "estimate_noise"]
 
-#: Channels the mechanics are fitted on (RigRun signal = plant output of the same name).
+#: Channels the mechanics are fitted on (RigRun signals, compared with the plant
+#: outputs of :data:`~thsa_control.fit.replay.COMPARED_OUTPUT`: the LVDT with the surface position).
 MECH_CHANNELS = ("motor_speed", "nut_position", "screw_speed")
 _FREE_STATE_KINDS = ("speed", "velocity", "position")
 
@@ -101,6 +102,22 @@ class IdentificationSettings:
         Seed of the global stage.
     correlation_threshold : float
         ``|rho|`` above which a pair is flagged.
+    time_budget : float or None
+        Wall-time limit of the optimisation [s]; when it (or ``max_nfev``)
+        is reached the best point so far is returned, flagged not converged.
+    prior_relative_sd : float or None
+        Regularisation: each free parameter gets a Gaussian prior centred on
+        its value in the parameter file with standard deviation
+        ``prior_relative_sd * |value|`` (or a hundredth of its bound range
+        for a value at 0), added to the residuals as ``(theta - theta0) / sd``.
+        None: no prior.  It keeps weakly identified parameters at their
+        documented values instead of letting them stand in for a missing
+        effect (a self-locking screw for a missing no-back).
+    holdout_every : int
+        0: every segment is fitted.  k >= 2: every k-th segment is held out of
+        the parameter fit; its initial state is fitted afterwards at the
+        identified parameters and its error reported separately (validation on
+        data the parameter fit did not see).
     """
 
     method: str = "multiple_shooting"
@@ -116,6 +133,9 @@ class IdentificationSettings:
     global_span: float = 10.0
     seed: int = 0
     correlation_threshold: float = 0.95
+    time_budget: float | None = None
+    prior_relative_sd: float | None = None
+    holdout_every: int = 0
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad field."""
@@ -134,6 +154,13 @@ class IdentificationSettings:
         if not (0 < self.correlation_threshold < 1):
             raise ValueError(f"IdentificationSettings.correlation_threshold = {self.correlation_threshold!r} "
                              "must lie in (0, 1)")
+        if self.time_budget is not None and not (self.time_budget > 0 and math.isfinite(self.time_budget)):
+            raise ValueError(f"IdentificationSettings.time_budget = {self.time_budget!r} must be a positive number [s]")
+        if self.prior_relative_sd is not None and not (self.prior_relative_sd > 0
+                                                       and math.isfinite(self.prior_relative_sd)):
+            raise ValueError(f"IdentificationSettings.prior_relative_sd = {self.prior_relative_sd!r} must be positive")
+        if not (isinstance(self.holdout_every, int) and (self.holdout_every == 0 or self.holdout_every >= 2)):
+            raise ValueError(f"IdentificationSettings.holdout_every = {self.holdout_every!r} must be 0 or >= 2")
         if not self.global_span > 1:
             raise ValueError(f"IdentificationSettings.global_span = {self.global_span!r} must be > 1")
 
@@ -232,6 +259,15 @@ class IdentificationResult:
     settings : IdentificationSettings
     global_stage : dict
         Differential evolution summary (empty when not run).
+    converged : bool
+        False when the evaluation limit or the time budget stopped the fit:
+        the estimates are the best point found, not a converged optimum.
+    priors : mapping name -> (mean, sd)
+        Regularisation priors used (empty without).
+    holdout_fits : mapping run -> mapping channel -> ChannelFit
+        Error on the held-out segments (empty when none held out).
+    warnings : tuple of str
+        What the model only approximates in these runs.
     """
 
     method: str
@@ -259,6 +295,10 @@ class IdentificationResult:
     predictions: MappingProxyType
     settings: IdentificationSettings
     global_stage: dict = field(default_factory=dict)
+    converged: bool = True
+    priors: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
+    holdout_fits: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
+    warnings: tuple[str, ...] = ()
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -292,6 +332,10 @@ class IdentificationResult:
         """TOML of the identified entries only, for ``load_parameters(path, base=...)``."""
         return self._identified_set().to_toml()
 
+    def full_parameters_toml(self) -> str:
+        """TOML of the whole set (identified entries replaced): replayable with ``--params`` alone."""
+        return self.to_parameter_set().to_toml()
+
     def _identified_set(self) -> ParameterSet:
         full = self.to_parameter_set()
         return ParameterSet(tuple(full[n] for n in self.estimates))
@@ -319,6 +363,10 @@ class IdentificationResult:
             "settings": {k: (dict(v) if isinstance(v, Mapping) else (list(v) if isinstance(v, tuple) else v))
                          for k, v in self.settings.__dict__.items()},
             "global_stage": dict(self.global_stage),
+            "converged": self.converged,
+            "priors": {n: {"mean": m, "sd": sd} for n, (m, sd) in self.priors.items()},
+            "holdout_fits": fits(self.holdout_fits),
+            "warnings": list(self.warnings),
         }
 
     def fit_report(self) -> str:
@@ -327,6 +375,11 @@ class IdentificationResult:
                  f"    # method           = {self.method} (effects: {', '.join(self.effects) or 'functional'})",
                  f"    # runs             = {', '.join(self.runs)}",
                  f"    # solver           = scipy least_squares trf: {self.status}",
+                 *(["    # NOT CONVERGED: the estimates are the best point found before the limit"]
+                   if not self.converged else []),
+                 *([f"    # priors           = " + ", ".join(f"{n} ~ N({m:.4g}, {sd:.3g})"
+                                                               for n, (m, sd) in self.priors.items())]
+                   if self.priors else []),
                  f"    # function evals   = {self.nfev} (jacobians {self.njev}), {self.time_s:.1f} s",
                  f"    # data points      = {self.n_data}",
                  f"    # variables        = {self.n_free} parameters + {self.n_varys - self.n_free} segment states",
@@ -424,6 +477,11 @@ class _RunProblem:
         self.sigma0 = np.array([float(noise[c]) if c in noise else estimate_noise(run.signals[c])
                                 for c in self.channels])
         self.mask = np.isfinite(Ymeas)
+        k_hold = settings.holdout_every
+        seg_of = np.arange(L * M) // L
+        self.holdout_samples = (seg_of % k_hold == k_hold - 1) if k_hold and M >= k_hold else np.zeros(L * M, bool)
+        # channel-major residual rows: weight 0 on held-out samples in the parameter fit
+        self.train_weight = np.tile((~self.holdout_samples).astype(float), len(self.channels))
         # states: which are free per segment, initial guesses
         states = plant.states
         self.free_states = [i for i, s in enumerate(states) if s.kind in _FREE_STATE_KINDS
@@ -431,7 +489,7 @@ class _RunProblem:
         self.x_guess = self._initial_states(params, L, M)
         # casadi: one segment = mapaccum of the map; all segments = map
         n_p = len(plant.parameters)
-        y_idx = [plant.index("output", c) for c in self.channels]
+        y_idx = [plant.index("output", COMPARED_OUTPUT[c]) for c in self.channels]
         x = ca.SX.sym("x", len(states))
         v = ca.SX.sym("v", V.shape[0])
         p = ca.SX.sym("p", n_p)
@@ -462,10 +520,18 @@ class _RunProblem:
         X0 = ca.MX(ca.DM(self.x_guess))
         rows = []
         k_free = 0
+        pawl = {"pawl_clearance_comp", "pawl_clearance_tens"}
         for i in range(len(states)):
             if i in self.free_states:
                 rows.append(S[k_free, :])
                 k_free += 1
+            elif states[i].name in pawl and M > 0:
+                # the run starts with the ratchets where they stopped: the clearance of the first segment is a
+                # parameter (noback.pawl_initial_clearance, a fraction of the pitch); later segments take it
+                # from the replay at the initial parameters
+                ip, ic = plant.parameters.index("noback.pawl_pitch"), plant.parameters.index("noback.pawl_initial_clearance")
+                first = pv[ic] * pv[ip]
+                rows.append(ca.horzcat(first, X0[i, 1:]) if M > 1 else first)
             else:
                 rows.append(X0[i, :])
         X0full = ca.vertcat(*rows)
@@ -509,8 +575,15 @@ class _RunProblem:
                 w = ws * run.gear_ratio if ws is not None else None
             if w is not None:
                 X[plant.index("state", "motor_speed"), m] = w
-            if nut is not None:
-                X[plant.index("state", "nut_position"), m] = nut
+            if nut is not None:  # the LVDT reads the surface; the nut sits the load-path deflection ahead
+                i_nut = plant.index("state", "nut_position")
+                if "surface_position" in plant.state_names:
+                    i_srf = plant.index("state", "surface_position")
+                    deflection = X[i_nut, m] - X[i_srf, m]
+                    X[i_srf, m] = nut
+                    X[i_nut, m] = nut + deflection
+                else:
+                    X[i_nut, m] = nut
         return X
 
     def _measured_at(self, name: str, k: int) -> float | None:
@@ -579,6 +652,12 @@ class Identifier:
         seen = set()
         xs, us, ps, hs = (ca.SX.sym(k, plant.step.size1_in(i)) for i, k in enumerate(("x", "u", "p", "h")))
         used = ca.which_depends(ca.vertcat(*plant.step(xs, us, ps, hs)), ps, 1, False)
+        # initial values of the states the segments do not free (pawl clearances) act through init
+        custom = [i for i, s in enumerate(plant.states) if s.kind not in _FREE_STATE_KINDS and s.kind != "lag"]
+        if custom:
+            x0 = plant.init(ca.SX.sym("n"), ca.SX.sym("f"), ps)
+            used_init = ca.which_depends(ca.vertcat(*[x0[i] for i in custom]), ps, 1, False)
+            used = [a or b for a, b in zip(used, used_init)]
         for n in self.free:
             if n not in self.params:
                 raise ParameterError(n, "unknown; it cannot be identified (see default_actuator.toml for names)")
@@ -600,7 +679,13 @@ class Identifier:
                 out.append(1.0)
         return np.array(out)
 
-    def fit(self, runs: RigRun | Sequence[RigRun]) -> IdentificationResult:
+    def _priors(self, scale: np.ndarray) -> dict[str, tuple[float, float]]:
+        r = self.settings.prior_relative_sd
+        if r is None:
+            return {}
+        return {n: (self.params[n].value, float(r * s)) for n, s in zip(self.free, scale)}
+
+    def fit(self, runs: RigRun | Sequence[RigRun], *, progress=None) -> IdentificationResult:
         """Fit the free parameters to ``runs`` together.
 
         Parameters
@@ -608,6 +693,9 @@ class Identifier:
         runs : RigRun or sequence of RigRun
             Each needs ``motor_current`` and at least one of ``motor_speed``,
             ``nut_position``, ``screw_speed``.
+        progress : callable, optional
+            ``progress(nfev, cost, elapsed_s)`` after each residual evaluation
+            of the optimiser (the command line prints it).
 
         Returns
         -------
@@ -620,8 +708,10 @@ class Identifier:
         RigDataError
             A run lacks the current or every fitted channel.
         SolverError
-            The optimiser failed (its status named) or the model diverged at
-            the initial values.
+            The optimiser failed (improper input, its status named) or the
+            model diverged at the initial values.  Hitting ``max_nfev`` or
+            ``time_budget`` is not an error: the best point is returned with
+            ``converged = False``.
         """
         from scipy.optimize import least_squares
 
@@ -633,9 +723,14 @@ class Identifier:
         self._check(plant)
         st = self.settings
         mech = current_driven_map(plant, st.substeps)
+        from .replay import check_run_model
+
+        run_warnings = tuple(w for r in runs for w in check_run_model(r, plant, mode="open_loop"))
         problems = [_RunProblem(r, plant, mech, self.params, self.free, st) for r in runs]
         nf = len(self.free)
         scale = self._scales()
+        priors = self._priors(scale)
+        prior_w = np.array([scale[k] / priors[n][1] for k, n in enumerate(self.free)]) if priors else None
         p0 = plant.p_vector(self.params)
         lo = np.array([(self.params[n].min - self.params[n].value) / s for n, s in zip(self.free, scale)])
         hi = np.array([(self.params[n].max - self.params[n].value) / s for n, s in zip(self.free, scale)])
@@ -643,33 +738,58 @@ class Identifier:
         offsets = np.cumsum([nf] + sizes)
         sigmas = [pb.sigma0 for pb in problems]
         counters = {"nfev": 0, "njev": 0}
+        # fit weights: held-out segments do not inform the parameters
+        fit_w = [pb.train_weight for pb in problems]
+        best = {"cost": math.inf, "z": None}
+        tracking = {"on": False}
+
+        class _Budget(Exception):
+            pass
 
         def split(z):
             return [np.r_[z[:nf], z[offsets[i]:offsets[i] + sizes[i]]] for i in range(len(problems))]
 
-        def residuals(z):
+        def residuals(z, weights=None):
             counters["nfev"] += 1
-            parts = [np.asarray(pb.f_res(d, p0, scale, sg)).ravel() for pb, d, sg in zip(problems, split(z), sigmas)]
+            weights = fit_w if weights is None else weights
+            parts = [np.asarray(pb.f_res(d, p0, scale, sg)).ravel() * w
+                     for pb, d, sg, w in zip(problems, split(z), sigmas, weights)]
+            if prior_w is not None:
+                parts.append(z[:nf] * prior_w)
             r = np.concatenate(parts)
-            return np.where(np.isfinite(r), r, 1e10)
+            r = np.where(np.isfinite(r), r, 1e10)
+            if tracking["on"]:
+                cost = 0.5 * float(r @ r)
+                if cost < best["cost"]:
+                    best["cost"], best["z"] = cost, np.array(z, float)
+                elapsed = time.perf_counter() - t_start
+                if progress is not None:
+                    progress(counters["nfev"], best["cost"], elapsed)
+                if st.time_budget is not None and elapsed > st.time_budget:
+                    raise _Budget()
+            return r
 
-        def jacobian(z):
+        def jacobian(z, weights=None):
             counters["njev"] += 1
-            n_rows = sum(pb.Ymeas.size for pb in problems)
+            weights = fit_w if weights is None else weights
+            n_rows = sum(pb.Ymeas.size for pb in problems) + (nf if prior_w is not None else 0)
             J = np.zeros((n_rows, z.size))
             row = 0
             for i, (pb, d, sg) in enumerate(zip(problems, split(z), sigmas)):
                 _, Ji = pb.f_jac(d, p0, scale, sg)
-                Ji = Ji.sparse().toarray()
+                Ji = Ji.sparse().toarray() * weights[i][:, None]
                 m = Ji.shape[0]
                 J[row:row + m, :nf] = Ji[:, :nf]
                 J[row:row + m, offsets[i]:offsets[i] + sizes[i]] = Ji[:, nf:]
                 row += m
+            if prior_w is not None:
+                J[row:row + nf, :nf] = np.diag(prior_w)
+            if tracking["on"] and st.time_budget is not None and time.perf_counter() - t_start > st.time_budget:
+                raise _Budget()
             return np.nan_to_num(J)
 
         z0 = np.concatenate([np.zeros(nf)] + [pb.initial_decision() for pb in problems])
-        r_init = np.concatenate([np.asarray(pb.f_res(d, p0, scale, sg)).ravel()
-                                 for pb, d, sg in zip(problems, split(z0), sigmas)])
+        r_init = residuals(z0)
         if not np.all(np.isfinite(r_init)):
             raise SolverError("identification", "the model diverges at the initial parameter values (non-finite "
                               "residuals); shorten segment_duration or check the runs")
@@ -701,11 +821,13 @@ class Identifier:
             z0 = np.r_[de.x, zs]
 
         # -- fit the segment states alone at the initial parameters (for "before" statistics)
+        ones_w = [np.ones_like(w) for w in fit_w]
+
         def res_states(zs, dtheta):
-            return residuals(np.r_[dtheta, zs])
+            return residuals(np.r_[dtheta, zs], ones_w)
 
         def jac_states(zs, dtheta):
-            return jacobian(np.r_[dtheta, zs])[:, nf:]
+            return jacobian(np.r_[dtheta, zs], ones_w)[:, nf:]
 
         z_before = z0.copy()
         if st.max_nfev > 0:
@@ -717,22 +839,53 @@ class Identifier:
             else:
                 z0 = z_before.copy()
 
-        status, success = "not optimised (max_nfev = 0): statistics at the initial values", True
+        status, success, converged = "not optimised (max_nfev = 0): statistics at the initial values", True, True
         z = z0
         if st.max_nfev > 0:
             lb = np.r_[lo, np.full(z0.size - nf, -np.inf)]
             ub = np.r_[hi, np.full(z0.size - nf, np.inf)]
             z0c = np.clip(z0, lb, ub)
-            sol = least_squares(residuals, z0c, jac=jacobian, bounds=(lb, ub), method="trf", x_scale="jac",
-                                max_nfev=st.max_nfev, ftol=st.tolerance, xtol=st.tolerance, gtol=st.tolerance)
-            if sol.status <= 0:
-                what = {0: f"maximum number of function evaluations ({st.max_nfev}) exceeded",
-                        -1: "improper input parameters"}.get(sol.status, sol.message)
-                raise SolverError("scipy least_squares (trf)", f"status {sol.status}: {what}",
+            tracking["on"] = True
+            try:
+                sol = least_squares(residuals, z0c, jac=jacobian, bounds=(lb, ub), method="trf", x_scale="jac",
+                                    max_nfev=st.max_nfev, ftol=st.tolerance, xtol=st.tolerance, gtol=st.tolerance)
+            except _Budget:
+                sol = None
+            tracking["on"] = False
+            if sol is None:
+                status = f"not converged: time budget {st.time_budget:g} s reached; best point of {counters['nfev']} evaluations"
+                success, converged, z = False, False, best["z"]
+            elif sol.status == 0:
+                status = (f"not converged: status 0: maximum number of function evaluations ({st.max_nfev}) exceeded; "
+                          "best point so far")
+                success, converged = False, False
+                z = best["z"] if best["z"] is not None and best["cost"] < float(sol.cost) else sol.x
+            elif sol.status < 0:
+                raise SolverError("scipy least_squares (trf)", f"status {sol.status}: improper input parameters",
                                   {"nfev": sol.nfev, "cost": float(sol.cost)})
-            status = f"status {sol.status}: {sol.message}"
-            success = bool(sol.success)
-            z = sol.x
+            else:
+                status = f"status {sol.status}: {sol.message}"
+                success = bool(sol.success)
+                z = sol.x
+
+        # -- held-out segments: their initial states fitted at the identified parameters (a few steps)
+        if any(pb.holdout_samples.any() for pb in problems):
+            hold_w = [1.0 - w for w in fit_w]
+            n_rows = sum(w.size for w in hold_w)
+            # decision columns of the held-out segments' states
+            cols = np.concatenate([offsets[i] + np.flatnonzero(np.repeat(
+                (np.arange(pb.M) % st.holdout_every == st.holdout_every - 1), len(pb.free_states)))
+                for i, pb in enumerate(problems)]) if st.holdout_every else np.array([], int)
+
+            def _zh(zh):
+                zz = z.copy()
+                zz[cols] = zh
+                return zz
+
+            sol_h = least_squares(lambda zh: residuals(_zh(zh), hold_w)[:n_rows], z[cols],
+                                  jac=lambda zh: jacobian(_zh(zh), hold_w)[:n_rows][:, cols],
+                                  method="trf", x_scale="jac", max_nfev=10, ftol=1e-10, xtol=1e-10, gtol=1e-10)
+            z = _zh(sol_h.x)
 
         # -- statistics
         parts_z = split(z)
@@ -747,9 +900,9 @@ class Identifier:
                 s.append(max(rms, 1e-300))
             new_sig.append(np.array(s))
             noise_after[pb.run.name] = {c: v for c, v in zip(pb.channels, s)}
-        rw = residuals(z)  # weighted with the noise levels the fit used
+        rw = residuals(z)  # weighted with the noise levels the fit used (and the prior)
         chisqr = float(rw @ rw)
-        n_data = int(sum(int(pb.mask.sum()) for pb in problems))
+        n_data = int(sum(int((pb.mask & ~pb.holdout_samples[None, :]).sum()) for pb in problems))
         n_varys = int(z.size)
         dof = max(n_data - n_varys, 1)
         sigmas = new_sig  # the covariance uses the residual RMS of each channel (lmfit: scale_covar)
@@ -780,19 +933,26 @@ class Identifier:
                     high.append((self.free[i], self.free[j], float(rho)))
         high.sort(key=lambda p: -abs(p[2]))
 
-        fits, fits0, preds = {}, {}, {}
+        fits, fits0, preds, hold = {}, {}, {}, {}
         zb_parts = split(z_before)
         for pb, d, db in zip(problems, parts_z, zb_parts):
             Y = np.asarray(pb.f_pred(d, p0, scale))
             Y0 = np.asarray(pb.f_pred(db, p0, scale))
             n = pb.time.size
             name = pb.run.name
-            fits[name] = MappingProxyType({c: channel_fit(c, pb.Ymeas[i, :n], Y[i, :n]) for i, c in enumerate(pb.channels)})
+            tr = ~pb.holdout_samples[:n]
+            fits[name] = MappingProxyType({c: channel_fit(c, pb.Ymeas[i, :n][tr], Y[i, :n][tr])
+                                           for i, c in enumerate(pb.channels)})
+            if pb.holdout_samples.any():
+                ho = pb.holdout_samples[:n]
+                hold[name] = MappingProxyType({c: channel_fit(c, pb.Ymeas[i, :n][ho], Y[i, :n][ho])
+                                               for i, c in enumerate(pb.channels)})
             fits0[name] = MappingProxyType({c: channel_fit(c, pb.Ymeas[i, :n], Y0[i, :n]) for i, c in enumerate(pb.channels)})
             preds[name] = {"time": pb.time, "measured": {c: pb.Ymeas[i, :n] for i, c in enumerate(pb.channels)},
                            "simulated": {c: Y[i, :n] for i, c in enumerate(pb.channels)},
                            "initial": {c: Y0[i, :n] for i, c in enumerate(pb.channels)},
-                           "segment_starts": pb.time[np.arange(pb.M) * pb.L]}
+                           "segment_starts": pb.time[np.arange(pb.M) * pb.L],
+                           "holdout": pb.holdout_samples[:n].copy()}
         n_log = max(n_data, 1)
         chi_n = max(chisqr, 1e-300) / n_log
         return IdentificationResult(
@@ -803,4 +963,5 @@ class Identifier:
             channel_fits=MappingProxyType(fits), initial_channel_fits=MappingProxyType(fits0),
             noise=MappingProxyType(noise_after), success=success, status=status, nfev=counters["nfev"],
             njev=counters["njev"], time_s=time.perf_counter() - t_start, predictions=MappingProxyType(preds),
-            settings=st, global_stage=global_info)
+            settings=st, global_stage=global_info, converged=converged, priors=MappingProxyType(priors),
+            holdout_fits=MappingProxyType(hold), warnings=run_warnings)

@@ -51,6 +51,10 @@ __all__ = [
     "ReplaySettings",
     "ReplayResult",
     "channel_fit",
+    "COMPARED_OUTPUT",
+    "standby_active",
+    "check_run_model",
+    "compared_signals",
     "run_design",
     "run_inputs",
     "current_driven_map",
@@ -69,6 +73,12 @@ FIT_CHANNELS = ("motor_speed", "motor_current", "nut_position", "screw_speed")
 #: and end of the sample period [A], which motor carries it (1: standby), load
 #: force at start and end [N, compressive positive], temperature [degC].
 MECH_INPUTS = ("current_start", "current_end", "standby_active", "load_start", "load_end", "temperature")
+#: Plant output each measured channel is compared with: the LVDT
+#: (``nut_position_mm``) reads the output rod, which is the surface position
+#: when the load path is compliant (level D) and the nut position otherwise
+#: (the structure defines ``surface_position`` as the nut position then).
+COMPARED_OUTPUT = {"motor_speed": "motor_speed", "motor_current": "motor_current",
+                   "nut_position": "surface_position", "screw_speed": "screw_speed"}
 #: Shaper rate limit that passes a recorded (already shaped) command through [m/s^2].
 PASS_THROUGH_ACCEL = 1e9
 
@@ -198,6 +208,10 @@ class ReplayResult:
         drives it).
     info : dict
         ``wall_s``, substeps, the design (closed loop).
+    compared : mapping channel -> ndarray
+        The simulated signal each measured channel is compared with
+        (:func:`compared_signals`: the LVDT with the surface position, the
+        current with the active channel's).
     """
 
     run_name: str
@@ -209,6 +223,7 @@ class ReplayResult:
     params: ParameterSet
     fits: MappingProxyType
     info: dict = field(default_factory=dict)
+    compared: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
 
     @property
     def channels(self) -> tuple[str, ...]:
@@ -217,7 +232,8 @@ class ReplayResult:
 
     def residual(self, channel: str) -> np.ndarray:
         """``measured - simulated`` of ``channel`` (SI)."""
-        return np.asarray(self.measured[channel]) - np.asarray(self.simulated[channel])
+        sim = self.compared[channel] if channel in self.compared else self.simulated[channel]
+        return np.asarray(self.measured[channel]) - np.asarray(sim)
 
 
 # ----------------------------------------------------------------- inputs
@@ -294,6 +310,56 @@ def run_inputs(run: RigRun, control_period: float, *, interpolation: str = "line
                        str(run.metadata.get("description", "")))
 
 
+def standby_active(run: RigRun) -> np.ndarray:
+    """1 where the standby channel carries the torque (standby enabled, primary off), else 0."""
+    return ((np.asarray(run.signals["standby_enable"]) > 0.5)
+            & (np.asarray(run.signals["primary_enable"]) < 0.5)).astype(float)
+
+
+def check_run_model(run: RigRun, plant: Plant, *, mode: str = "closed_loop") -> list[str]:
+    """Refuse a run that the declared model cannot reproduce; return warnings for what it only approximates.
+
+    A run that enables the standby channel needs the ``standby_motor`` effect
+    in closed loop (without it the model has no torque after a switch-over).
+    Driven by the measured current (open loop, identification), the current
+    of the active channel drives the one motor of the model: a warning says
+    that the standby rotor's inertia and drag are missing.
+
+    Raises
+    ------
+    ModelError
+        Closed loop, standby enabled in the run, no ``standby_motor`` in the model.
+    """
+    from ..errors import ModelError
+
+    uses_standby = bool(np.any(np.asarray(run.signals["standby_enable"]) > 0.5))
+    if not uses_standby or "standby_motor" in plant.effects:
+        return []
+    msg = (f"run {run.name!r} enables the standby channel (standby_enable) but the model "
+           f"({', '.join(plant.effects) or 'level A'}) has no standby motor; add the effect standby_motor "
+           "(--effects standby_motor)")
+    if mode == "closed_loop":
+        raise ModelError(msg)
+    return [msg + "; driven by the measured current, the active channel's current drives the model's one motor "
+            "(the standby rotor's inertia and drag are missing)"]
+
+
+def compared_signals(run: RigRun, simulated: dict, channels) -> dict[str, np.ndarray]:
+    """The simulated signal each measured channel is compared with (:data:`COMPARED_OUTPUT`).
+
+    ``motor_current`` is the active channel's current: the standby motor's
+    after a switch-over (standby enabled, primary off), the primary's
+    otherwise (FORMAT.md: the column is the active motor's current).
+    """
+    out = {}
+    for c in channels:
+        y = np.asarray(simulated[COMPARED_OUTPUT.get(c, c)], float)
+        if c == "motor_current" and "standby_current" in simulated:
+            y = np.where(standby_active(run) > 0.5, np.asarray(simulated["standby_current"], float), y)
+        out[c] = y
+    return out
+
+
 def _measured(run: RigRun) -> dict[str, np.ndarray]:
     return {c: np.asarray(run.signals[c], float) for c in FIT_CHANNELS if c in run.source_columns}
 
@@ -348,6 +414,7 @@ def replay_closed_loop(run: RigRun, plant: Plant, params: ParameterSet, *, desig
     """
     settings = settings or ReplaySettings()
     settings.validate()
+    check_run_model(run, plant, mode="closed_loop")
     design = design or run_design(run)
     h = design.control_period
     inputs = run_inputs(run, h, interpolation=settings.command_interpolation)
@@ -368,11 +435,12 @@ def replay_closed_loop(run: RigRun, plant: Plant, params: ParameterSet, *, desig
             y = np.interp(t_run, t_sim, y)
         simulated[name] = y
     measured = _measured(run)
-    fits = {c: channel_fit(c, measured[c], simulated[c]) for c in measured}
+    compared = compared_signals(run, simulated, measured)
+    fits = {c: channel_fit(c, measured[c], compared[c]) for c in measured}
     info = {"wall_s": res.info["wall_s"], "substeps": settings.substeps, "design": design.name,
             "control_period_s": h, "command_interpolation": settings.command_interpolation}
     return ReplayResult(run.name, "closed_loop", t_run, MappingProxyType(simulated), MappingProxyType(measured),
-                        plant.effects, params, MappingProxyType(fits), info)
+                        plant.effects, params, MappingProxyType(fits), info, MappingProxyType(compared))
 
 
 # ----------------------------------------------------------------- open loop
@@ -446,8 +514,7 @@ def mech_inputs(run: RigRun) -> np.ndarray:
     i = _fill_single_gaps(t, np.asarray(run.signals["motor_current"], float))
     f = _fill_single_gaps(t, np.asarray(run.signals["load_force"], float))
     temp = _fill_single_gaps(t, np.asarray(run.signals["temperature"], float))
-    stby = ((np.asarray(run.signals["standby_enable"]) > 0.5)
-            & (np.asarray(run.signals["primary_enable"]) < 0.5)).astype(float)
+    stby = standby_active(run)
     nxt = np.r_[np.arange(1, len(t)), len(t) - 1]
     return np.vstack([i, i[nxt], stby, f, f[nxt], temp])
 
@@ -481,8 +548,12 @@ def replay_open_loop(run: RigRun, plant: Plant, params: ParameterSet, *, setting
     """
     import time as _time
 
+    import warnings as _warnings
+
     settings = settings or ReplaySettings()
     settings.validate()
+    for msg in check_run_model(run, plant, mode="open_loop"):
+        _warnings.warn(msg, stacklevel=2)
     V = mech_inputs(run)
     hs = sample_periods(run)
     n = V.shape[1]
@@ -499,10 +570,12 @@ def replay_open_loop(run: RigRun, plant: Plant, params: ParameterSet, *, setting
         raise ThsaError(f"open-loop replay of {run.name!r} diverged")
     simulated = {name: Y[i] for i, name in enumerate(plant.outputs)}
     measured = _measured(run)
-    fits = {c: channel_fit(c, measured[c], simulated[c]) for c in measured if c != "motor_current"}
+    compared = compared_signals(run, simulated, [c for c in measured if c != "motor_current"])
+    fits = {c: channel_fit(c, measured[c], compared[c]) for c in compared}
     info = {"wall_s": wall, "substeps": settings.substeps}
     return ReplayResult(run.name, "open_loop", np.asarray(run.time, float), MappingProxyType(simulated),
-                        MappingProxyType(measured), plant.effects, params, MappingProxyType(fits), info)
+                        MappingProxyType(measured), plant.effects, params, MappingProxyType(fits), info,
+                        MappingProxyType(compared))
 
 
 def replay(run: RigRun, level: str | None = "A", effects=(), *, params: ParameterSet | None = None,
@@ -570,5 +643,5 @@ def analyse_replay(run: RigRun, result: ReplayResult, settings=None):
     conditioning, inputs = residual_signals(run, result)
     channels = list(result.fits)
     return analyse_residuals(result.time, {c: result.measured[c] for c in channels},
-                             {c: result.simulated[c] for c in channels}, conditioning, inputs, settings=settings,
+                             {c: result.compared.get(c, result.simulated[c]) for c in channels}, conditioning, inputs, settings=settings,
                              units={c: _UNITS.get(c, "") for c in channels})
