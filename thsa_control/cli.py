@@ -9,6 +9,7 @@ Commands::
                    [--temperature T] [--output-period S] --out DIR
     thsa check-data RUN.csv
     thsa identify  RUN.csv [RUN2.csv ...] --model B --free PARAM,... [--effects E ...] [--params FILE] --out DIR
+    thsa trace     RUN.csv [RUN2.csv ...] --model A [--effects E ...] [--params FILE ...] --out DIR
     thsa residual  RUN.csv --model A [--mode closed_loop|open_loop] [--effects E ...] [--params FILE] --out DIR
     thsa report    --design designs/nominal.toml --out DIR [--level B] [--effects E ...] [--params FILE]
                    [--no-switching] [--check]
@@ -190,8 +191,12 @@ def _cmd_identify(args) -> int:
     effects = _effects_arg(args.effects)
     free = [n.strip() for n in (args.free or "").split(",") if n.strip()]
     settings = IdentificationSettings(segment_duration=args.segment, substeps=args.substeps,
-                                      global_stage=args.global_stage)
-    result = Identifier(args.model, params, free, effects=effects, settings=settings).fit(runs)
+                                      global_stage=args.global_stage, max_nfev=args.max_nfev,
+                                      time_budget=args.time_budget, prior_relative_sd=args.prior_sd)
+    from .fit.progress import stderr_progress
+
+    result = Identifier(args.model, params, free, effects=effects, settings=settings).fit(
+        runs, progress=stderr_progress("identify", quiet=args.quiet))
     fitted = result.to_parameter_set()
     before, after, analyses = [], [], []
     for run in runs:
@@ -202,6 +207,9 @@ def _cmd_identify(args) -> int:
     with atomic_folder(args.out) as tmp:
         write_identification_folder(tmp, result, before, after, analyses)
     print(result.fit_report())
+    if not result.converged:
+        print(f"warning: {result.status}; the best result so far is written, flagged converged = false",
+              file=sys.stderr)
     for b, a in zip(before, after):
         print(f"{b.run_name} ({b.mode.replace('_', ' ')} replay): " + ", ".join(
             f"{c} fit {b.fits[c].fit_percent:.1f} -> {a.fits[c].fit_percent:.1f} %" for c in a.fits))
@@ -312,7 +320,8 @@ def _parser() -> argparse.ArgumentParser:
     def model_args(p):
         p.add_argument("--model", required=True, help="model level A, B, C or D")
         p.add_argument("--effects", nargs="*", help="effects added to the level")
-        p.add_argument("--params", help="parameter TOML overriding the embedded actuator (initial values)")
+        p.add_argument("--params", nargs="+", help="parameter TOML file(s) overriding the embedded actuator, "
+                       "merged in order (initial values)")
         p.add_argument("--column-map", help="JSON mapping of rig column names to FORMAT names")
         p.add_argument("--mode", default="auto", choices=["auto", "closed_loop", "open_loop"],
                        help="replay: closed loop under the run's controller (auto: when its JSON has one) or "
@@ -326,6 +335,12 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--substeps", type=int, default=4,
                    help="plant steps per sample period (default 4: at 1 kHz data, 1 step leaves a few %% bias)")
     p.add_argument("--global", dest="global_stage", action="store_true", help="differential evolution first")
+    p.add_argument("--max-nfev", type=int, default=100, help="limit of residual evaluations (default 100); when "
+                   "reached, the best result so far is written, flagged not converged")
+    p.add_argument("--time-budget", type=float, help="wall-time limit of the fit [s]; best result written when reached")
+    p.add_argument("--prior-sd", type=float, help="regularise: Gaussian prior on each free parameter at its "
+                   "parameter-file value, relative standard deviation (e.g. 0.3)")
+    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
     model_args(p)
     p.set_defaults(fn=_cmd_identify)
     p = sub.add_parser("residual", help="replay a run through a model; residual analysis JSON and HTML report")
@@ -351,6 +366,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--params", help="parameter TOML overriding the embedded actuator")
     p.add_argument("--save", help="write the linear model to this .npz file")
     p.set_defaults(fn=_cmd_linearize)
+    from .trace.cli import add_parser as _add_trace_parser
+
+    _add_trace_parser(sub)
     return ap
 
 

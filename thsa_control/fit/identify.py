@@ -113,6 +113,9 @@ class IdentificationSettings:
         None: no prior.  It keeps weakly identified parameters at their
         documented values instead of letting them stand in for a missing
         effect (a self-locking screw for a missing no-back).
+    no_prior : tuple of str
+        Free parameters without a prior (an effect being tried, whose file
+        value is only a seed).
     holdout_every : int
         0: every segment is fitted.  k >= 2: every k-th segment is held out of
         the parameter fit; its initial state is fitted afterwards at the
@@ -135,6 +138,7 @@ class IdentificationSettings:
     correlation_threshold: float = 0.95
     time_budget: float | None = None
     prior_relative_sd: float | None = None
+    no_prior: tuple[str, ...] = ()
     holdout_every: int = 0
 
     def validate(self) -> None:
@@ -341,8 +345,12 @@ class IdentificationResult:
         return ParameterSet(tuple(full[n] for n in self.estimates))
 
     def save_parameters(self, path: str | Path) -> Path:
-        """Write :meth:`parameters_toml` to ``path`` (atomically)."""
-        return self._identified_set().save(path)
+        """Write the whole set with the estimates (:meth:`full_parameters_toml`) to ``path`` (atomically).
+
+        It replays the identified model with ``--params`` alone; the
+        identified entries carry an ``identified:`` source.
+        """
+        return self.to_parameter_set().save(path)
 
     def to_dict(self) -> dict:
         """JSON-ready summary (no time series)."""
@@ -683,7 +691,8 @@ class Identifier:
         r = self.settings.prior_relative_sd
         if r is None:
             return {}
-        return {n: (self.params[n].value, float(r * s)) for n, s in zip(self.free, scale)}
+        return {n: (self.params[n].value, float(r * s)) for n, s in zip(self.free, scale)
+                if n not in self.settings.no_prior}
 
     def fit(self, runs: RigRun | Sequence[RigRun], *, progress=None) -> IdentificationResult:
         """Fit the free parameters to ``runs`` together.
@@ -730,7 +739,9 @@ class Identifier:
         nf = len(self.free)
         scale = self._scales()
         priors = self._priors(scale)
-        prior_w = np.array([scale[k] / priors[n][1] for k, n in enumerate(self.free)]) if priors else None
+        # prior rows (scaled decision units); a parameter without a prior gets a zero row
+        prior_w = np.array([scale[k] / priors[n][1] if n in priors else 0.0 for k, n in enumerate(self.free)]) \
+            if priors else None
         p0 = plant.p_vector(self.params)
         lo = np.array([(self.params[n].min - self.params[n].value) / s for n, s in zip(self.free, scale)])
         hi = np.array([(self.params[n].max - self.params[n].value) / s for n, s in zip(self.free, scale)])
@@ -884,7 +895,7 @@ class Identifier:
 
             sol_h = least_squares(lambda zh: residuals(_zh(zh), hold_w)[:n_rows], z[cols],
                                   jac=lambda zh: jacobian(_zh(zh), hold_w)[:n_rows][:, cols],
-                                  method="trf", x_scale="jac", max_nfev=10, ftol=1e-10, xtol=1e-10, gtol=1e-10)
+                                  method="trf", x_scale="jac", max_nfev=30, ftol=1e-10, xtol=1e-10, gtol=1e-10)
             z = _zh(sol_h.x)
 
         # -- statistics

@@ -250,13 +250,16 @@ class ParameterSet(Mapping[str, Parameter]):
         return base.replace_parameters({p.name: p for p in params})
 
 
-def load_parameters(path: str | Path, *, base: ParameterSet | None = None) -> ParameterSet:
-    """Load a parameter TOML file.
+def load_parameters(path, *, base: ParameterSet | None = None) -> ParameterSet:
+    """Load a parameter TOML file, or several merged in order.
 
     Parameters
     ----------
-    path : path
+    path : path or sequence of paths
         TOML file.  A full set, or (with ``base``) overrides of some entries.
+        Several files: each overrides the result of the ones before (the
+        first one over ``base``), so a rig description followed by an
+        identified ``parameters.toml`` replays the identified model.
     base : ParameterSet, optional
         Set that the file overrides; ``default_parameters()`` is typical.
 
@@ -266,6 +269,13 @@ def load_parameters(path: str | Path, *, base: ParameterSet | None = None) -> Pa
         Unreadable file, unknown parameter, value outside bounds; the message
         names the file and the parameter.
     """
+    if isinstance(path, (list, tuple)):
+        if not path:
+            raise ParameterError("<params>", "no parameter file given")
+        out = base
+        for one in path:
+            out = load_parameters(one, base=out)
+        return out
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")

@@ -1,0 +1,59 @@
+"""``thsa trace RUN.csv [RUN2.csv ...] --model A --out DIR``: parser and handler."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(subparsers) -> None:
+    """Register the ``trace`` subcommand."""
+    p = subparsers.add_parser("trace", help="trace a residual to the effect the model lacks (forward selection "
+                                            "over the effect library); trace.json and HTML report")
+    p.add_argument("runs", nargs="+", help="RUN.csv files (RUN.json beside each)")
+    p.add_argument("--model", required=True, help="declared model level A, B, C or D")
+    p.add_argument("--effects", nargs="*", help="effects the model declares beyond the level")
+    p.add_argument("--params", nargs="+", help="parameter TOML file(s) over the embedded actuator, merged in order")
+    p.add_argument("--free", help="comma-separated declared parameters to fit (default: the level's uncertain set)")
+    p.add_argument("--candidates", help="comma-separated candidate effects (default: every library effect not declared)")
+    p.add_argument("--segment", type=float, default=0.05, help="multiple-shooting segment length [s] (default 0.05)")
+    p.add_argument("--max-effects", type=int, default=3, help="stop after adding this many effects")
+    p.add_argument("--max-nfev", type=int, default=40, help="evaluation limit of each fit")
+    p.add_argument("--workers", type=int, default=2, help="parallel candidate fits (default 2)")
+    p.add_argument("--column-map", help="JSON mapping of rig column names to FORMAT names")
+    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p.add_argument("--out", required=True, help="output folder (replaced atomically)")
+    p.set_defaults(fn=run)
+
+
+def run(args) -> int:
+    """Handler of ``thsa trace``."""
+    import json
+
+    from ..data.rigdata import read_run
+    from ..model.params import default_parameters, load_parameters
+    from ..report import atomic_folder
+    from ..report.trace import format_trace_summary, write_trace_folder
+    from .engine import TraceSettings, trace
+
+    params = load_parameters(args.params, base=default_parameters()) if args.params else default_parameters()
+    mapping = json.loads(args.column_map) if args.column_map else None
+    runs = [read_run(p, column_map=mapping) for p in args.runs]
+    split = lambda s: tuple(x.strip() for x in s.split(",") if x.strip()) if s else None  # noqa: E731
+    try:
+        settings = TraceSettings(segment_duration=args.segment, max_effects=args.max_effects, max_nfev=args.max_nfev,
+                                 workers=args.workers, uncertain=split(args.free), candidates=split(args.candidates))
+        settings.validate()
+    except ValueError as exc:
+        from ..errors import ThsaError
+
+        raise ThsaError(str(exc)) from None
+    say = None if args.quiet else (lambda m: print(f"trace: {m}", file=sys.stderr, flush=True))
+    result = trace(runs, args.model, args.effects or (), params=params, settings=settings, progress=say)
+    with atomic_folder(args.out) as tmp:
+        write_trace_folder(tmp, result)
+    print(format_trace_summary(result.to_dict()))
+    print(f"wrote {Path(args.out).resolve()}")
+    return 0
