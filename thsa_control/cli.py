@@ -194,6 +194,9 @@ def _cmd_identify(args) -> int:
                                       global_stage=args.global_stage, max_nfev=args.max_nfev,
                                       time_budget=args.time_budget, prior_relative_sd=args.prior_sd)
     from .fit.progress import stderr_progress
+    from .trace._threads import limit_blas_threads
+
+    limit_blas_threads(1)  # a many-threaded BLAS on a small shared machine is 40x slower per SVD
 
     result = Identifier(args.model, params, free, effects=effects, settings=settings).fit(
         runs, progress=stderr_progress("identify", quiet=args.quiet))
@@ -337,7 +340,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--global", dest="global_stage", action="store_true", help="differential evolution first")
     p.add_argument("--max-nfev", type=int, default=100, help="limit of residual evaluations (default 100); when "
                    "reached, the best result so far is written, flagged not converged")
-    p.add_argument("--time-budget", type=float, help="wall-time limit of the fit [s]; best result written when reached")
+    p.add_argument("--time-budget", type=float, default=180.0,
+                   help="wall-time limit of the fit [s] (default 180); the best result is written when reached")
     p.add_argument("--prior-sd", type=float, help="regularise: Gaussian prior on each free parameter at its "
                    "parameter-file value, relative standard deviation (e.g. 0.3)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
