@@ -56,12 +56,14 @@ def _settings(candidates, **kw):
 
 
 def test_plain_screw_drive_coulomb_then_offset(record, params):
-    """A plain screw drive (level A: no no-back, no load, a P velocity loop in the rig): Coulomb friction and a
+    """A plain screw drive (level A without its ideal no-back, no load cell load, a P velocity loop in the rig): Coulomb friction and a
     constant force offset in the truth, neither declared.  The tracer adds the Coulomb friction first (it
     explains more), then the offset, with values within 10 % of the truth; the error before and after each
     step is in the result."""
-    run = record(("coulomb_friction", "force_offset"), {"drive.coulomb_torque": 0.1, "drive.axial_force_offset": 600.0})
-    res = trace(run, "A", params=params, settings=_settings(("coulomb_friction", "force_offset")))
+    run = record(("coulomb_friction", "force_offset"), {"drive.coulomb_torque": 0.1, "drive.axial_force_offset": 600.0},
+                 level=None)
+    res = trace(run, "A", remove=["noback_ideal"], params=params,
+                settings=_settings(("coulomb_friction", "force_offset")))
     doc = res.to_dict()
     assert res.effects_added == ["coulomb_friction", "force_offset"], doc["rounds"]
     coul = doc["effects_added"][0]["parameters"]["drive.coulomb_torque"]["value"]
@@ -79,8 +81,9 @@ def test_plain_screw_drive_coulomb_then_offset(record, params):
 ])
 def test_candidate_is_found_first_and_halves_its_channel_error(record, params, effect, values, candidates, load,
                                                                temperature):
-    run = record((effect,), values, load=load, temperature=temperature)
-    doc = trace(run, "A", params=params, settings=_settings(candidates, max_effects=1)).to_dict()
+    run = record((effect,), values, load=load, temperature=temperature, level=None)
+    doc = trace(run, "A", remove=["noback_ideal"], params=params,
+                settings=_settings(candidates, max_effects=1)).to_dict()
     assert [e["name"] for e in doc["effects_added"]] == [effect], doc["rounds"]
     assert doc["effects_added"][0]["error_reduction"]["motor_speed"] >= 0.5
 

@@ -40,7 +40,13 @@ identification consume them like the papers' effects.  Every parameter is in
         T_cog = a cos(n theta_m) + b sin(n theta_m)
 
     with ``n = drive.cogging_periods`` periods per motor revolution (the least
-    common multiple of slots and poles for a real motor).
+    common multiple of slots and poles for a real motor).  It acts on the
+    rotors (motor side of the gearbox); the angle is the rigid one (with
+    ``drivetrain_compliance`` the twist is neglected in the angle).
+
+The friction terms act on the gear-output body (the screw side), so the
+structure's gearbox efficiency applies to them like to the load: the motor
+supplies ``T / eta_g`` while it drives them.
 
 All act on the main body (motor shaft); none adds a state.
 """
@@ -106,7 +112,9 @@ def _cogging_torque(a: Assembly) -> None:
     p = a.p
     n = p["drive.cogging_periods"]
     th = n * motor_angle(p, a.x["nut_position"])
-    a.torques.append(("cogging", p["drive.cogging_torque_cos"] * ca.cos(th) + p["drive.cogging_torque_sin"] * ca.sin(th)))
+    # a torque on the rotors (the motor side of the gearbox), like the motor's own
+    a.rotor_torques.append(("cogging", p["drive.cogging_torque_cos"] * ca.cos(th)
+                            + p["drive.cogging_torque_sin"] * ca.sin(th)))
 
 
 DRIVE_EFFECTS: dict[str, Effect] = {

@@ -15,6 +15,8 @@ def add_parser(subparsers) -> None:
     p.add_argument("runs", nargs="+", help="RUN.csv files (RUN.json beside each)")
     p.add_argument("--model", required=True, help="declared model level A, B, C or D")
     p.add_argument("--effects", nargs="*", help="effects the model declares beyond the level")
+    p.add_argument("--remove", nargs="*", help="effects removed from the level (a plain screw drive: --model A "
+                   "--remove noback_ideal)")
     p.add_argument("--params", nargs="+", help="parameter TOML file(s) over the embedded actuator, merged in order")
     p.add_argument("--free", help="comma-separated declared parameters to fit (default: the level's uncertain set)")
     p.add_argument("--candidates", help="comma-separated candidate effects (default: every library effect not declared)")
@@ -51,7 +53,7 @@ def run(args) -> int:
 
         raise ThsaError(str(exc)) from None
     say = None if args.quiet else (lambda m: print(f"trace: {m}", file=sys.stderr, flush=True))
-    result = trace(runs, args.model, args.effects or (), params=params, settings=settings, progress=say)
+    result = trace(runs, args.model, args.effects or (), remove=args.remove or (), params=params, settings=settings, progress=say)
     with atomic_folder(args.out) as tmp:
         write_trace_folder(tmp, result)
     print(format_trace_summary(result.to_dict()))

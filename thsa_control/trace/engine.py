@@ -104,7 +104,7 @@ CANDIDATES: dict[str, CandidateSpec] = {c.name: c for c in (
                   {}, "cold"),
 )}
 #: Effects that are configurations, not candidates.
-NOT_CANDIDATES = ("standby_motor",)
+NOT_CANDIDATES = ("standby_motor", "noback_ideal")
 
 
 @dataclass(frozen=True)
@@ -470,7 +470,7 @@ def _regime_errors(fit: dict, runs: Sequence[RigRun]) -> dict:
 
 # ----------------------------------------------------------------------------- the tracer
 def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Iterable[str] = (), *,
-          params: ParameterSet | None = None, settings: TraceSettings | None = None,
+          remove: Iterable[str] = (), params: ParameterSet | None = None, settings: TraceSettings | None = None,
           progress: Callable[[str], None] | None = None) -> TraceResult:
     """Fit the declared model, then add library effects by forward selection while one is significant.
 
@@ -480,7 +480,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         Need ``motor_current`` and a speed or position channel.  Their
         controller is not used (the replay is driven by the measured current),
         so any rig the parameter file describes can be traced.
-    level, effects : declared model
+    level, effects, remove : declared model (a plain screw drive: ``"A"``
+        with ``remove=["noback_ideal"]``, or ``None`` with its effects)
     params : ParameterSet, optional
         Initial values, bounds and priors (default: the embedded actuator).
     settings : TraceSettings, optional
@@ -503,7 +504,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         raise ThsaError(f"trace: runs must have distinct names, got {names}")
     params = params or default_parameters()
     say = progress or (lambda msg: None)
-    declared = resolve_effects(level, add=effects)
+    declared = resolve_effects(level, add=effects, remove=remove)
     lvl = (level or "A").upper()
     uncertain = tuple(st.uncertain) if st.uncertain is not None else DEFAULT_UNCERTAIN.get(lvl, DEFAULT_UNCERTAIN["A"])
     base_plant = build_plant(None, declared, params=params)
@@ -552,7 +553,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         jobs = []
         for spec in scorable:
             req = [r for r in EFFECTS[spec.name].requires if r not in cur_effects]
-            effs = resolve_effects(None, add=list(cur_effects) + req + [spec.name])
+            replaced = {x for e in req + [spec.name] for x in EFFECTS[e].supersedes}
+            effs = resolve_effects(None, add=[e for e in cur_effects if e not in replaced] + req + [spec.name])
             pset = cur_params.replace({n: v for n, v in spec.seeds.items() if cur_params.value(n) == 0})
             free = tuple(dict.fromkeys(cur_free + spec.free))
             jobs.append(job(spec.name, effs, free, pset, fit_runs))
@@ -633,6 +635,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         "datasets": [{"name": r.name, "csv": str(r.csv_path), "samples": int(len(r.time)),
                       "duration_s": r.duration_s} for r in runs],
         "base_model": lvl if level is not None else None,
+        "removed_effects": list(remove),
         "declared_effects": list(declared),
         "final_effects": list(cur_effects),
         "uncertain_parameters": list(uncertain),
