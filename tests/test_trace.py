@@ -174,3 +174,26 @@ def test_shared_example_names_its_effect(params):
         candidates=("noback_quadrant_friction", "coulomb_friction", "force_offset", "direction_friction"),
         max_effects=1))
     assert res.effects_added == ["noback_quadrant_friction"], res.to_dict()["rounds"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scenario", ["backdrive_bipolar_ramp", "excitation", "triangular_load"])
+def test_nulls_stay_null_on_the_papers_scenarios(tmp_path, rig_1khz, params, scenario, capsys):
+    """Level-A data traced with the level-A model (with its ideal no-back) on the trim-stop, excitation and
+    triangular-load scenarios, over noise seeds: the false-positive rate is printed."""
+    from thsa_control.sim.scenarios import get_scenario
+
+    added = []
+    for seed in (1, 2):
+        inputs = excitation_inputs(4.0, bipolar=True, load=12e3, control_period=1e-3, seed=seed) \
+            if scenario == "excitation" else get_scenario(scenario)
+        stem = tmp_path / f"{scenario}_{seed}"
+        VirtualRig("A", params=params, design=rig_1khz, noise=NOISE, seed=seed).record(inputs, stem)
+        run = read_run(stem.with_suffix(".csv"))
+        res = trace(run, "A", params=params, settings=_settings(
+            ("noback_quadrant_friction", "coulomb_friction", "force_offset", "direction_friction")))
+        added.append(res.effects_added)
+    rate = sum(bool(a) for a in added) / len(added)
+    with capsys.disabled():
+        print(f"\nnull false-positive rate ({scenario}, level A, {len(added)} seeds): {rate:.2f} {added}")
+    assert rate == 0.0, added
