@@ -37,14 +37,17 @@ def record(tmp_path_factory, rig_1khz, params):
     d = tmp_path_factory.mktemp("trace")
     cache = {}
 
-    def _record(effects=(), values=None, seed=1, duration=2.5, load=0.0, temperature=25.0, level="A"):
-        key = (tuple(effects), tuple(sorted((values or {}).items())), seed, duration, load, temperature, level)
+    def _record(effects=(), values=None, seed=1, duration=2.5, load=0.0, temperature=25.0, level="A",
+                p_velocity_loop=False):
+        key = (tuple(effects), tuple(sorted((values or {}).items())), seed, duration, load, temperature, level,
+               p_velocity_loop)
+        design = dataclasses.replace(rig_1khz, velocity_ki=0.0) if p_velocity_loop else rig_1khz
         if key not in cache:
             truth = params.replace(values or {})
             u = excitation_inputs(duration, bipolar=True, load=load, control_period=1e-3, seed=seed,
                                   temperature=temperature)
             stem = d / f"run_{len(cache)}"
-            VirtualRig(level, effects=tuple(effects), params=truth, design=rig_1khz, noise=NOISE, seed=seed).record(u, stem)
+            VirtualRig(level, effects=tuple(effects), params=truth, design=design, noise=NOISE, seed=seed).record(u, stem)
             cache[key] = read_run(stem.with_suffix(".csv"))
         return cache[key]
 
@@ -61,7 +64,8 @@ def test_plain_screw_drive_coulomb_then_offset(record, params):
     explains more), then the offset, with values within 10 % of the truth; the error before and after each
     step is in the result."""
     run = record(("coulomb_friction", "force_offset"), {"drive.coulomb_torque": 0.1, "drive.axial_force_offset": 600.0},
-                 level=None)
+                 level=None, p_velocity_loop=True)
+    assert run.controller.velocity_loop.ki == 0.0  # the rig's velocity loop is P only
     res = trace(run, "A", remove=["noback_ideal"], params=params,
                 settings=_settings(("coulomb_friction", "force_offset")))
     doc = res.to_dict()

@@ -87,7 +87,8 @@ class Design:
         for key, value in checks.items():
             if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
                 raise DesignError(self.source, f"{key} = {value!r} is not a finite number")
-            if value < 0 or (value == 0 and key != "position_loop.kp_per_s"):
+            # a zero position gain opens the position loop; a zero velocity ki is a P velocity loop
+            if value < 0 or (value == 0 and key not in ("position_loop.kp_per_s", "velocity_loop.ki_A_per_rad")):
                 raise DesignError(self.source, f"{key} = {value!r} must be positive")
         if not isinstance(self.bumpless_handover, bool):
             raise DesignError(self.source, f"switching.bumpless_handover = {self.bumpless_handover!r} must be true or false")
