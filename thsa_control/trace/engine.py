@@ -327,26 +327,32 @@ def _channel_errors(fit: dict) -> dict:
 
 
 def _plausibility(fit: dict, spec: CandidateSpec) -> tuple[bool, list[str]]:
-    why = []
-    for n in spec.free:
-        e = fit["estimates"].get(n)
-        if e is None:
-            continue
+    """Plausible: no parameter at a bound, none collapsing to zero, at least one determined by the data.
+
+    A parameter the runs do not excite (undetermined: e.g. the retraction friction of a run that only
+    extends) stays near its file value and does not disqualify the candidate.
+    """
+    why, determined = [], 0
+    est = [(n, fit["estimates"][n]) for n in spec.free if n in fit["estimates"]]
+    pairs = spec.name in ("screw_friction_ripple", "cogging_torque")
+    for n, e in est:
         if e["at_bound"]:
             why.append(f"{n} at its {e['at_bound']} bound")
         sd = e["stderr"]
         if sd is None:
-            why.append(f"{n} not determined by the data")
-        elif abs(e["value"]) < 2 * sd:
+            continue
+        determined += 1
+        if not pairs and abs(e["value"]) < 2 * sd:
             why.append(f"{n} = {e['value']:.3g} collapses to zero (stderr {sd:.2g})")
-    # a ripple or a cogging pair: the amplitude counts, not each component
-    if spec.name in ("screw_friction_ripple", "cogging_torque") and why:
-        a, b = (fit["estimates"][n] for n in spec.free)
+    if pairs and len(est) == 2:
+        (_, a), (_, b) = est
         amp = math.hypot(a["value"], b["value"])
-        sd = math.hypot(a["stderr"] or math.inf, b["stderr"] or math.inf)
-        why = [w for w in why if "bound" in w]
+        sd = math.hypot(a["stderr"] if a["stderr"] is not None else math.inf,
+                        b["stderr"] if b["stderr"] is not None else math.inf)
         if not amp > 2 * sd:
             why.append(f"amplitude {amp:.3g} collapses to zero (stderr {sd:.2g})")
+    if est and determined == 0:
+        why.append("no parameter determined by the data")
     return not why, why
 
 
