@@ -223,11 +223,16 @@ def _check_units(columns, clean, label_of, meta, lead_mm, ratio, problems, warni
                              f"median time step {np.median(dt):.6g} is ~1000x 1/sample_rate_hz "
                              f"({1.0 / nominal:.6g} s): time_s looks like milliseconds"))
             return  # the kinematic checks below integrate over time
-        elif not 0.5 <= r <= 2.0:
-            warnings.append(f"column '{label_of['time_s']}': median time step "
-                            f"{np.median(dt):.6g} s disagrees with sample_rate_hz {nominal:g}")
+        elif abs(r - 1.0) > SAMPLE_RATE_TOLERANCE:
+            problems.append((label_of["time_s"], None,
+                             f"median time step {np.median(dt):.6g} s ({1.0 / np.median(dt):.6g} Hz) contradicts "
+                             f"the JSON's sample_rate_hz {nominal:g} (more than "
+                             f"{SAMPLE_RATE_TOLERANCE:.0%} apart)"))
+            return
+    _check_temperature(columns, clean, label_of, meta, problems)
     if "speed_cmd_mm_s" not in clean:
         return
+    _check_kilonewtons(columns, clean, label_of, lead_mm, ratio, problems)
     cmd = columns["speed_cmd_mm_s"]
     enabled = np.ones(cmd.shape, dtype=bool)
     if "primary_enable" in columns or "standby_enable" in columns:
@@ -274,3 +279,69 @@ def _check_units(columns, clean, label_of, meta, lead_mm, ratio, problems, warni
             warnings.append(f"column '{label}': {what}: sign convention reversed?")
         elif verdict not in ("ok", "undecided"):
             warnings.append(f"column '{label}': {what}: check its unit and the rig kinematics")
+
+
+#: JSON sample_rate_hz and the CSV's median time step may differ by this fraction.
+SAMPLE_RATE_TOLERANCE = 0.1
+#: JSON temperature_C may lie this far outside the range of the CSV's temperature column [K].
+TEMPERATURE_TOLERANCE_K = 10.0
+#: Seed motor torque constant [N m/A] (papers: 1.5 p psi = 1.5 x 3 x 0.072); only its order of
+#: magnitude matters to the kN check, which needs a slope 100..10000x the prediction.
+_SEED_TORQUE_CONSTANT = 0.324
+_KN_MAX_LOAD = 200.0  # [N]: a run in newtons whose largest load is below this is unloaded
+_KN_MIN_R2 = 0.5
+
+
+def _check_temperature(columns, clean, label_of, meta, problems):
+    """JSON temperature_C against the CSV's temperature column (both given)."""
+    temp = _number(meta.get("temperature_C")) if meta else None
+    if temp is None or "temperature_C" not in clean:
+        return
+    col = columns["temperature_C"]
+    col = col[np.isfinite(col)]
+    if not col.size:
+        return
+    lo, hi = float(col.min()), float(col.max())
+    if temp < lo - TEMPERATURE_TOLERANCE_K or temp > hi + TEMPERATURE_TOLERANCE_K:
+        problems.append((label_of["temperature_C"], None,
+                         f"ranges {lo:g} .. {hi:g} degC, which contradicts the JSON's temperature_C = {temp:g} "
+                         f"degC (more than {TEMPERATURE_TOLERANCE_K:g} K apart)"))
+
+
+def _check_kilonewtons(columns, clean, label_of, lead_mm, ratio, problems):
+    """``load_force_N`` in kN: tiny loads that the motor current follows ~1000x too steeply.
+
+    During motion the motor's quadrature current grows with the load by about
+    ``lead / (2 pi N Kt)`` A per N (1e-4 A/N for the seed actuator).  A run
+    whose largest |load| is below 200 "N" but whose current rises with |load|
+    100 to 10000 times faster than that (a linear fit explaining half of the
+    current's variance) carries kilonewtons.  No current column, no motion,
+    constant load or a poor fit: no verdict.
+    """
+    if "load_force_N" not in clean or "motor_current_A" not in clean:
+        return
+    force, current, cmd = columns["load_force_N"], columns["motor_current_A"], columns["speed_cmd_mm_s"]
+    if not np.isfinite(force).all() or float(np.max(np.abs(force))) > _KN_MAX_LOAD:
+        return
+    peak = float(np.max(np.abs(cmd)))
+    if peak <= 0:
+        return
+    moving = (np.abs(cmd) >= 0.25 * peak) & np.isfinite(current)
+    if moving.sum() < _MIN_FIT_SAMPLES:
+        return
+    x, y = np.abs(force[moving]), np.abs(current[moving])
+    x0, y0 = x - x.mean(), y - y.mean()
+    sxx, syy = float(x0 @ x0), float(y0 @ y0)
+    if sxx <= 0.0 or syy <= 0.0:
+        return
+    slope = float(x0 @ y0) / sxx
+    r2 = 1.0 - float(((y0 - slope * x0) ** 2).sum()) / syy
+    expected = lead_mm * 1e-3 / (2.0 * math.pi * ratio * _SEED_TORQUE_CONSTANT)  # [A/N]
+    k = slope / expected
+    if r2 >= _KN_MIN_R2 and 100.0 <= k <= 10000.0:
+        rows = np.flatnonzero(moving)
+        problems.append((label_of["load_force_N"], int(rows[0]) + 1,
+                         f"largest |load| is {float(np.max(np.abs(force))):.3g} but the motor current rises "
+                         f"{slope:.3g} A per unit of load during motion, {k:.0f}x the {expected:.2g} A/N the "
+                         f"kinematics and a ~{_SEED_TORQUE_CONSTANT} N m/A motor predict (fit over {rows.size} "
+                         "samples): load_force_N looks like kN"))

@@ -6,8 +6,11 @@ format of ``shared/rig-data/FORMAT.md``: a run is ``NAME.csv`` (samples, in
 FORMAT units: mm, mm/s, rpm, N, A, degC) plus ``NAME.json`` (metadata).
 Everything downstream receives a :class:`RigRun` whose signals are SI (the one
 exception is ``temperature``, kept in degC as everywhere in the project).  It
-imports numpy, the standard library, :mod:`thsa_control.errors` and
-:mod:`thsa_control.data.units` only; never matplotlib.
+imports numpy, the standard library, :mod:`thsa_control.errors` and its own
+parts only; never matplotlib.  The parts: ``rigformat`` (columns, units, the
+records), ``_csvtable`` (the one-pass chunked CSV reader: time and memory
+linear in rows x columns), ``rigchecks`` (JSON validation, unit heuristics,
+JSON/CSV cross-checks); ``rigsummary`` summarises a run for ``thsa check-data``.
 
 Validation rules (decisions taken where FORMAT.md leaves room)
 -----------------------------------------------------------------
@@ -59,10 +62,18 @@ Unit heuristics (each is skipped, never guessed, when it cannot decide)
   kelvin (error); below -273.15 is impossible (error).
 * ``time_s`` in ms: only with a JSON ``sample_rate_hz``; median dt within 20 %
   of ``1000 / sample_rate_hz`` is an error; any other disagreement by more
-  than a factor 2 is a warning (sampling may be non-uniform).
-* ``load_force_N`` in kN is **not** checked: an unloaded run legitimately reads
-  tens of newtons, and the format carries no torque constant that would let
-  the motor current predict the load.  No heuristic here is robust enough.
+  than 10 % contradicts the JSON and is an error too (the median is robust to
+  a few irregular samples).
+* JSON ``temperature_C`` more than 10 K outside the range of a CSV
+  ``temperature_C`` column contradicts it (error).
+* ``load_force_N`` in kN: when the largest |load| is below 200 and the motor
+  current during motion rises with |load| 100-10000x faster than the rig
+  kinematics and a ~0.324 N m/A motor predict (fit explaining half of the
+  current's variance), an error.  An unloaded run read in newtons shows no
+  such slope; no current column or no motion gives no verdict.
+* The JSON controller's period is checked against the plant (its electrical
+  time constant) where a plant is known: ``thsa residual``/``identify`` and
+  every replay (:func:`thsa_control.loops.design.check_control_period`).
 
 Examples
 --------
