@@ -75,6 +75,9 @@ def _load_json(path: Path, problems: list) -> dict | None:
     except (json.JSONDecodeError, ValueError) as exc:
         problems.append((where, None, f"malformed JSON: {exc}"))
         return None
+    except RecursionError:
+        problems.append((where, None, "malformed JSON: nested too deeply"))
+        return None
     if not isinstance(meta, dict):
         problems.append((where, None, f"top level must be an object, got {type(meta).__name__}"))
         return None
