@@ -1,9 +1,9 @@
 """Compiled-simulator cache (issue #7, item 2): verified before dlopen, rebuilt on mismatch, never poisoned.
 
-Each case runs a short level-A (or B) simulation in a fresh subprocess, as a
+Each case runs a short level-A (or C) simulation in a fresh subprocess, as a
 user's next command would, against a private cache folder, and compares with
 a clean run.  Before this fix: the truncated library killed the process with
-SIGBUS, the foreign one gave level-B numbers for a level-A run with exit 0,
+SIGBUS, a foreign one gave another level's numbers for a level-A run with exit 0,
 the empty file from a broken compiler poisoned every later run, and an
 unwritable cache failed the run after a successful compile.
 """
@@ -46,15 +46,15 @@ def run_probe(level, cache, **env):
 
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory):
-    """Clean compiled runs of levels A and B, and their cache files."""
+    """Clean compiled runs of levels A and C (the foreign model), and their cache files."""
     cache = tmp_path_factory.mktemp("ref_cache")
     a, _ = run_probe("A", cache)
     libs_a = set(cache.glob("*.so"))
-    b, _ = run_probe("B", cache)
-    lib_b, = set(cache.glob("*.so")) - libs_a
-    assert a["compiled"] and b["compiled"] and not a["cached"]
-    assert abs(a["x"] - b["x"]) > 1e-4  # the two models differ visibly: a swap would show
-    return {"A": a, "B": b, "lib_A": libs_a.pop(), "lib_B": lib_b}
+    c, _ = run_probe("C", cache)
+    lib_c, = set(cache.glob("*.so")) - libs_a
+    assert a["compiled"] and c["compiled"] and not a["cached"]
+    assert abs(a["x"] - c["x"]) > 1e-4  # the two models differ visibly: a swap would show
+    return {"A": a, "C": c, "lib_A": libs_a.pop(), "lib_C": lib_c}
 
 
 def _same(r, ref):
@@ -88,18 +88,18 @@ def test_truncated_library_is_rebuilt(tmp_path, reference):
 def test_foreign_library_under_the_right_name_is_rejected(tmp_path, reference, how):
     cache = tmp_path / "c"
     lib = _seed(cache, reference, "A")
-    foreign = reference["lib_B"]
+    foreign = reference["lib_C"]
     shutil.copy(foreign, lib)
     manifest = lib.with_suffix(".json")
     if how == "library_and_manifest":
         shutil.copy(foreign.with_suffix(".json"), manifest)
-    elif how == "forged_manifest":  # the manifest claims level A's source but describes B's library
+    elif how == "forged_manifest":  # the manifest claims level A's source but describes C's library
         meta = json.loads(manifest.read_text())
         meta.update(json.loads(foreign.with_suffix(".json").read_text()),
                     source_sha256=json.loads(manifest.read_text())["source_sha256"])
         manifest.write_text(json.dumps(meta))
     r, _ = run_probe("A", cache)
-    assert not r["cached"] and _same(r, reference["A"])  # level-A numbers, not level B's
+    assert not r["cached"] and _same(r, reference["A"])  # level-A numbers, not level C's
 
 
 def test_compiler_writing_an_empty_file_does_not_poison_the_cache(tmp_path, reference):
