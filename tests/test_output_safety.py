@@ -126,7 +126,8 @@ def test_failure_keeps_old_folder_and_leaves_nothing(tmp_path):
 def test_stale_hidden_folders_of_dead_processes_are_removed(tmp_path):
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
-    stale = [tmp_path / f".out.thsa-tmp-{dead.pid}", tmp_path / f".out.thsa-old-{dead.pid}"]
+    stale = [tmp_path / f".out.thsa-tmp-{dead.pid}", tmp_path / f".out.thsa-old-{dead.pid}",
+             tmp_path / f".out.old.{dead.pid}"]  # the last: left by thsa-control before the marker
     for s in stale:
         s.mkdir()
         (s / "half.png").write_bytes(b"\x89PNG")

@@ -13,8 +13,9 @@ Rules (issue #7, item 1):
   folder untouched and removes the hidden build folder.  The swap itself runs
   with SIGTERM/SIGINT blocked, so a signal leaves either the old or the new
   complete folder.  After a crash (SIGKILL, power loss) the hidden folders
-  ``.NAME.thsa-tmp-PID`` / ``.NAME.thsa-old-PID`` of dead processes are
-  removed by the next run that writes ``NAME``.
+  ``.NAME.thsa-tmp-PID`` / ``.NAME.thsa-old-PID`` of dead processes (and
+  the ``.NAME.old.PID`` of earlier versions) are removed by the next run
+  that writes ``NAME``.
 * Folders and files get the permissions of the user's umask (no 0700).
 
 This module imports the standard library only.
@@ -112,7 +113,8 @@ def _pid_alive(pid: int) -> bool:
 
 
 def _stale_pattern(name: str) -> re.Pattern:
-    return re.compile(r"^\." + re.escape(name) + r"\.thsa-(tmp|old)-(\d+)$")
+    # ours, and the ``.NAME.old.PID`` of thsa-control 0.1.0 before the marker existed
+    return re.compile(r"^\." + re.escape(name) + r"\.(thsa-tmp-|thsa-old-|old\.)(\d+)$")
 
 
 def _remove_stale(parent: Path, name: str) -> None:
