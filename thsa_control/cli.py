@@ -199,7 +199,6 @@ def _cmd_levels(args) -> int:
     results = _run_levels(params, design, scenario, levels, _effects_arg(args.effects), args.output_period, progress)
     progress.phase("writing runs and plots")
     summary = _write_results(args, results, scenario, params, design)
-    progress.done()
     for level, s in summary["levels"].items():
         line = f"level {level}: {s['real_time_factor']:.0f}x real time, peak |I| {s['peak_abs_current_A']:.1f} A"
         if "backdrive" in s:
@@ -207,6 +206,14 @@ def _cmd_levels(args) -> int:
             line += (f", aiding/opposing |I| {b['aiding_to_opposing']:.2f}, breakaway/opposing {b['breakaway_to_opposing']:.2f}, "
                      f"trim-stop back-drive {max(b['stop_backdrive_peak_of_command']) * 100:.0f} % of command")
         print(line)
+    if not getattr(args, "no_ranges", False):
+        from .sim.assumptions import assumption_ranges, format_ranges
+
+        progress.phase("headline numbers over the ranges of the assumed values")
+        ranges = assumption_ranges(design, params, output_period=args.output_period)
+        print("headline numbers over the plausible range of the assumed values that set them:")
+        print(format_ranges(ranges))
+    progress.done()
     print(f"wrote {Path(args.out).resolve()}")
     return 0
 
@@ -449,6 +456,8 @@ def _parser() -> argparse.ArgumentParser:
     p = add("levels", "simulate a scenario at several levels side by side (the main job)", _cmd_levels)
     common(p, False)
     p.add_argument("--levels", default="A,B,C,D")
+    p.add_argument("--no-ranges", action="store_true",
+                   help="skip the headline numbers over the ranges of the assumed values (thsa_control.sim.assumptions)")
     p = add("simulate", "simulate a scenario at one level, write the run (FORMAT.md) and plots", _cmd_simulate)
     common(p, True)
     p = add("check-data", "validate and summarise a rig run (FORMAT.md)", _cmd_check_data)
