@@ -511,9 +511,9 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``thsa`` console script; returns the exit status.
 
-    0 success, 1 requirement failed (``report --check``), 2 input error (one
-    line on stderr), 3 internal error (one line; ``THSA_DEBUG=1`` shows the
-    traceback).
+    0 success, 1 requirement failed (``report --check``), 2 input or
+    environment error (one line on stderr: bad input, disk full, permissions),
+    3 internal error (one line; ``THSA_DEBUG=1`` shows the traceback).
     """
     import os
 
@@ -528,6 +528,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except OSError as exc:  # the environment, not a bug: disk full, permissions, a vanished file
+        where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""
+        print(f"error: {exc.strerror or exc}{where}", file=sys.stderr)
+        return EXIT_USAGE
     except MemoryError:
         print("error: out of memory (a grid, run or period too large for this machine)", file=sys.stderr)
         return EXIT_USAGE

@@ -210,26 +210,29 @@ def atomic_folder(out_dir: str | os.PathLike, *, force: bool = False,
     old = parent / f".{out.name}.thsa-old-{os.getpid()}"
     with _SignalGuard():
         try:
-            if tmp.exists():
-                shutil.rmtree(tmp)
-            os.mkdir(tmp)  # umask-respecting, unlike tempfile.mkdtemp's 0700
-            _write_marker(tmp, command)
+            try:
+                if tmp.exists():
+                    shutil.rmtree(tmp)
+                os.mkdir(tmp)  # umask-respecting, unlike tempfile.mkdtemp's 0700
+                _write_marker(tmp, command)
+            except OSError as exc:
+                raise OutputError(os.fspath(out_dir), f"cannot write into {parent}: {exc.strerror or exc}") from None
             yield tmp
             with _signals_blocked():
                 # re-check: the target may have changed while we computed
                 check_output_folder(out, force=force, inputs=inputs)
-                if out.exists():
-                    os.replace(out, old)
                 try:
-                    os.replace(tmp, out)
-                except BaseException:
-                    if old.exists() and not out.exists():
-                        os.replace(old, out)
-                    raise
+                    if out.exists():
+                        os.replace(out, old)
+                    try:
+                        os.replace(tmp, out)
+                    except BaseException:
+                        if old.exists() and not out.exists():
+                            os.replace(old, out)
+                        raise
+                except OSError as exc:
+                    raise OutputError(os.fspath(out_dir), f"cannot be replaced: {exc.strerror or exc}") from None
                 shutil.rmtree(old, ignore_errors=True)
-        except OSError as exc:
-            raise OutputError(os.fspath(out_dir), f"cannot write: {exc.strerror or exc} "
-                                                  f"({exc.filename or parent})") from None
         finally:
             if tmp.exists():
                 shutil.rmtree(tmp, ignore_errors=True)
