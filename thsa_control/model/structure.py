@@ -77,6 +77,10 @@ INPUTS: tuple[tuple[str, str, str], ...] = (
     ("enable_standby", "-", "1: standby inverter energised (needs standby_motor)"),
     ("load_force", "N", "axial load on the surface/nut, positive compressive (opposes extension)"),
     ("temperature", "degC", "actuator temperature (needs temperature_friction)"),
+    # fault inputs (model/fault_effects.py); 0 is the healthy value, so runs that ignore them are unchanged
+    ("brake", "-", "1: motor brakes engaged (needs motor_brakes)"),
+    ("surface_jam", "-", "1: surface locked where it is (needs surface_jam)"),
+    ("loadpath_failure", "-", "1: primary load path broken at the upper gimbal (needs secondary_load_path)"),
 )
 
 STRUCTURE_STATES: tuple[StateInfo, ...] = (
