@@ -40,9 +40,10 @@ class MonitorSettings:
     discrepancy_threshold : float
         Motor position (motor sensor, integrated, divided by the gear ratio)
         minus RVDT screw angle [rad at the screw] beyond which the drive train
-        is declared slipping or jammed.  Assumed 0.2 rad (1.9 % of a screw
-        turn, 0.38 mm of nut travel): far above the elastic twist of the
-        limiter at the largest normal torque, well below one slip revolution.
+        is declared slipping or jammed.  Assumed 0.5 rad (8 % of a screw
+        turn, 0.95 mm of nut travel): above the elastic twist at the largest
+        normal torque (0.017 rad) and the brief limiter slips of the normal
+        scenarios (up to 0.25 rad), well below one slip revolution.
     discrepancy_confirmation : float
         Time the discrepancy must stay beyond its threshold [s] (assumed 10 ms).
     lvdt_threshold : float
@@ -54,7 +55,8 @@ class MonitorSettings:
     speed_threshold : float
         Motor speed reference minus measured motor speed [rad/s] beyond which
         the active channel is declared failed, while a channel is energised
-        (assumed 60 rad/s = 1.75 mm/s of nut speed).
+        (assumed 100 rad/s = 2.9 mm/s of nut speed; the normal scenarios
+        reach 59 rad/s at a no-back breakaway).
     speed_confirmation : float
         [s] (assumed 5 ms).
     takeover_delay : float
@@ -71,11 +73,11 @@ class MonitorSettings:
         Engage the motor brakes when the actuator is safed (both channels off).
     """
 
-    discrepancy_threshold: float = 0.2
+    discrepancy_threshold: float = 0.5
     discrepancy_confirmation: float = 0.01
     lvdt_threshold: float = 0.5e-3
     lvdt_confirmation: float = 0.005
-    speed_threshold: float = 60.0
+    speed_threshold: float = 100.0
     speed_confirmation: float = 0.005
     takeover_delay: float = 0.005
     speed_rearm: float = 0.3

@@ -146,7 +146,7 @@ class Assembly:
     channels: list = field(default_factory=list)  # FrictionChannel
     lags: dict = field(default_factory=dict)  # state -> (tau, target)
     rates: dict = field(default_factory=dict)  # state -> continuous derivative
-    discrete: dict = field(default_factory=dict)  # state -> fn(x_new: dict, h) -> expr
+    discrete: dict = field(default_factory=dict)  # state -> fn(x_new: dict, h) -> expr (custom; may override velocity/position)
     outputs: dict = field(default_factory=dict)  # name -> (unit, expr | fn(FrictionResolution) -> expr)
     losses: dict = field(default_factory=dict)  # label -> expr | fn(FrictionResolution) -> expr [W]
     stored_energy: dict = field(default_factory=dict)  # label -> expr [J]
@@ -268,6 +268,9 @@ def apply_structure(a: Assembly) -> None:
         ("pawl_clearance_comp", "rad", 0.0), ("pawl_clearance_tens", "rad", 0.0),
     ):
         a.output(name, unit, value)
+    from .fault_effects import neutral_fault_outputs  # signals of the fault effects (issue #10)
+
+    neutral_fault_outputs(a)
 
 
 def finish_structure(a: Assembly) -> None:

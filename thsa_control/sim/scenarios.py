@@ -211,7 +211,7 @@ SCENARIOS: dict[str, Scenario] = {
             "from 1 s; the surface locks at 3.5 s. The motor torque rises until the torque limiter slips, the "
             "motor sensor and the RVDT disagree and the position monitor safes the actuator (motors off, brakes on).",
             5.0, ((0.0, 0.0), (1.0, 15 * _MM)), 30 * _MM, ((0.0, 0.0), (1.0, 0.0), (1.5, 20e3)),
-            required_effects=("loadpath_compliance", "torque_limiter", "surface_jam", "motor_brakes"),
+            required_effects=("loadpath_compliance", "drivetrain_compliance", "torque_limiter", "surface_jam", "motor_brakes"),
             faults=(FaultEvent("surface_jam", 3.5),), monitors=MonitorSettings(),
         ),
         Scenario(
