@@ -121,15 +121,32 @@ def _torque_limiter(a: Assembly) -> None:
     a.lags["limiter_slip_memory"] = (p["limiter.memory_time"], ca.if_else(slipping, slip, 0.0))
     a.rates["drivetrain_twist"] = twist_rate
 
+    target = coupling / k  # twist the spring relaxes to while the disks slip (time constant d/k)
+
+    def relaxation(h):
+        """Twist change over a slipping step of ``h`` (exact exponential)."""
+        return (target - phi) * (1.0 - ca.exp(-h * k / ca.fmax(d, 1e-300)))
+
     def twist_update(new, h):
         stuck = phi + h * (new["rotor_speed"] - new["motor_speed"])
-        target = coupling / k  # twist the spring relaxes to while the disks slip (time constant d/k)
-        relaxed = target + (phi - target) * ca.exp(-h * k / ca.fmax(d, 1e-300))
-        return ca.if_else(slipping, relaxed, stuck)
+        return ca.if_else(slipping, phi + relaxation(h), stuck)
+
+    def damping_loss(res):
+        if res.step is None:  # continuous form: the damper moves with the elastic twist only
+            return d * twist_rate**2
+        # discrete: exactly what the relaxing spring-damper dissipates over the step
+        dphi = relaxation(res.step)
+        relaxed = coupling * dphi - 0.5 * k * ((phi + dphi) ** 2 - phi**2)
+        return ca.if_else(slipping, relaxed / res.step, d * dw**2)
+
+    def slip_loss(res):
+        if res.step is None:
+            return ca.if_else(slipping, coupling * slip, 0.0)
+        return ca.if_else(slipping, coupling * (dw - relaxation(res.step) / res.step), 0.0)
 
     a.discrete["drivetrain_twist"] = twist_update
-    a.losses["drivetrain_damping"] = d * twist_rate**2  # the damper moves with the elastic twist only
-    a.loss("limiter_slip", ca.if_else(slipping, coupling * slip, 0.0))
+    a.losses["drivetrain_damping"] = damping_loss
+    a.loss("limiter_slip", slip_loss)
     a.output("drivetrain_torque", "N m", coupling)
     a.output("limiter_torque", "N m", coupling * N)
     a.output("limiter_slip_torque", "N m", lim * N)

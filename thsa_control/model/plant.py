@@ -244,7 +244,7 @@ def build_plant(level: str | None = "A", effects: Iterable[str] = (), *, remove:
             slip_pos, ca.fmin(c.kinetic_pos, c.static_pos),
             ca.if_else(slip_neg, -ca.fmin(c.kinetic_neg, c.static_neg), t_stick * share),
         )
-    res_d = FrictionResolution(disc, t_fric, ca.if_else(stuck, 1.0, 0.0), w_new)
+    res_d = FrictionResolution(disc, t_fric, ca.if_else(stuck, 1.0, 0.0), w_new, h)
 
     new_vel = {"motor_speed": w_new}
     for s in states:

@@ -116,13 +116,15 @@ class FrictionResolution:
     positive opposing positive motion]; ``total`` is their sum; ``stuck`` is 1
     while the main body is held by stiction (discrete form only); ``speed`` is
     the motor speed the friction acts at [rad/s] (the end-of-step speed in the
-    discrete form).
+    discrete form); ``step`` is the step size of the discrete form (None in the
+    continuous one), for losses an effect integrates exactly over a step.
     """
 
     channel: dict
     total: ca.SX
     stuck: ca.SX
     speed: ca.SX
+    step: ca.SX | None = None  # the discrete step size h [s]; None in the continuous form
 
 
 @dataclass
