@@ -114,6 +114,12 @@ def _write_results(out, results, scenario, params, design):
             fig = plot_run(res, title=f"{scenario.name}, level {level} ({', '.join(res.effects) or 'functional'})")
             fig.savefig(stem.with_suffix(".png"), dpi=110)
             close(fig)
+            if "trip_speed" in res.names:  # a run of the fault loop: torques, slip, sensor speeds, monitor flags
+                from .report.faults import plot_fault_run
+
+                fig = plot_fault_run(res)
+                fig.savefig(stem.with_name(stem.name + "_faults.png"), dpi=110)
+                close(fig)
             summary["levels"][level] = _summary(res)
         if len(results) > 1:
             fig = plot_levels(results)
@@ -353,6 +359,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--params", help="parameter TOML overriding the embedded actuator")
     p.add_argument("--save", help="write the linear model to this .npz file")
     p.set_defaults(fn=_cmd_linearize)
+    from .faults.cli import add_parser as _add_faults  # thsa faults (issue #10)
+    _add_faults(sub)
     return ap
 
 

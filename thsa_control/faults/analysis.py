@@ -37,13 +37,15 @@ from ..sim.simulate import SimulationSettings, Simulator
 from .settings import MonitorSettings
 
 __all__ = [
-    "FAULT_PLANT_EFFECTS", "MONITORS", "FaultCase", "MonitorMargin", "SweepPoint", "FaultAnalysis",
-    "normal_scenarios", "fault_scenarios", "analyse_fault_case", "false_alarm_margins", "sweep_monitors",
+    "FAULT_PLANT_EFFECTS", "RIGID_EFFECTS", "MONITORS", "FaultCase", "MonitorMargin", "SweepPoint", "FaultAnalysis",
+    "normal_scenarios", "fault_scenarios", "analyse_fault_case", "recovery_time", "false_alarm_margins", "sweep_monitors",
     "analyse_faults", "energy_residual", "persisted_peak",
 ]
 
 FAULT_PLANT_EFFECTS = ("standby_motor", "drivetrain_compliance", "torque_limiter", "secondary_load_path", "surface_jam",
                        "motor_brakes", "claw_stops")
+#: a rigid drive train for the switch-over figures (no limiter, no stick-slip limit cycle)
+RIGID_EFFECTS = ("standby_motor", "motor_brakes")
 #: monitor -> (trip signal, monitored signal, threshold field, confirmation field)
 MONITORS = {
     "discrepancy": ("trip_discrepancy", "monitor_discrepancy", "discrepancy_threshold", "discrepancy_confirmation"),
@@ -112,9 +114,11 @@ class FaultCase:
     limiter_slip_rad : float
         Slip angle of the limiter after the onset [rad at the screw].
     recovery_s : float
-        From the onset until |nut speed - nut speed without the fault| stays
-        within ``tolerance`` x |command| (inf: never); nan when the run is
-        safed (no recovery intended).
+        From the onset until the moving average (``smooth_s``) of nut speed
+        minus nut speed without the fault stays within ``tolerance`` x
+        |command| (inf: never); nan when the run is safed (no recovery
+        intended).  The average is needed at level D with the compliant drive
+        train, whose aiding motion is a stick-slip limit cycle.
     peak_speed_error_m_s, peak_position_error_m : float
         Against the run without the fault.
     energy_residual : float
@@ -179,7 +183,14 @@ class SweepPoint:
 
 @dataclass(frozen=True)
 class FaultAnalysis:
-    """Everything ``thsa faults`` reports."""
+    """Everything ``thsa faults`` reports.
+
+    ``cases`` run on the fault plant (``effects``); ``rigid_cases`` are the
+    channel-failure cases on level D with a rigid drive train (standby motor
+    and brakes only), where the aiding motion has no stick-slip limit cycle,
+    plus the papers' fixed 15 ms take-over (``*_papers_15ms``), for the
+    comparison with the papers' switch-over figures.
+    """
 
     level: str
     effects: tuple[str, ...]
@@ -189,6 +200,8 @@ class FaultAnalysis:
     sweep: tuple[SweepPoint, ...]
     normal_energy_residual: float
     tolerance: float
+    smooth_s: float
+    rigid_cases: tuple[FaultCase, ...] = ()
 
     def case(self, scenario: str) -> FaultCase:
         """The case of ``scenario``."""
@@ -202,6 +215,24 @@ class FaultAnalysis:
         return min((m.margin for m in self.margins if m.monitor == monitor), default=math.inf)
 
 
+def recovery_time(time, speed, speed_ref, command, t_fault: float, tolerance: float, smooth_s: float) -> float:
+    """From ``t_fault`` until the ``smooth_s`` moving average of ``speed - speed_ref`` stays within
+    ``tolerance`` x |command| for good [s] (0: never left; inf: never back)."""
+    t = np.asarray(time)
+    err = np.asarray(speed, dtype=float) - np.asarray(speed_ref, dtype=float)
+    dt = float(t[1] - t[0]) if len(t) > 1 else 1.0
+    n = max(int(round(smooth_s / dt)), 1)
+    if n > 1:
+        err = np.convolve(err, np.ones(n) / n, mode="same")  # centred average (no lag)
+    band = tolerance * np.maximum(np.abs(np.asarray(command, dtype=float)), 1e-12)
+    outside = np.flatnonzero((t >= t_fault) & (np.abs(err) > band))
+    if outside.size == 0:
+        return 0.0
+    if outside[-1] >= len(t) - 1:
+        return math.inf
+    return float(t[outside[-1] + 1] - t_fault)
+
+
 def _first(time, mask, t0) -> float:
     idx = np.flatnonzero(np.asarray(mask) > 0.5)
     return float(time[idx[0]] - t0) if idx.size else math.inf
@@ -212,8 +243,8 @@ def _simulator(params, level, effects, output_period):
 
 
 def analyse_fault_case(scenario: Scenario | str, design, params, *, sim: Simulator | None = None,
-                       monitors: MonitorSettings | None = None, tolerance: float = 0.05, level: str = "D",
-                       effects=FAULT_PLANT_EFFECTS) -> FaultCase:
+                       monitors: MonitorSettings | None = None, tolerance: float = 0.05, smooth_s: float = 0.1,
+                       level: str = "D", effects=FAULT_PLANT_EFFECTS) -> FaultCase:
     """Run a fault scenario and the same scenario without its faults; see :class:`FaultCase`.
 
     ``sim`` must have a 1-sample output (``output_period=None``) for the energy
@@ -225,7 +256,9 @@ def analyse_fault_case(scenario: Scenario | str, design, params, *, sim: Simulat
     sim = sim or _simulator(params, level, effects, None)
     settings = monitors or sc.monitors or MonitorSettings()
     run = sim.run(replace(sc, monitors=settings), design, params)
-    ref = sim.run(replace(sc, faults=(), monitors=settings), design, params)
+    # the same run without faults and without scheduled switch-overs
+    ref = sim.run(replace(sc, faults=(), monitors=settings, primary_enable=((0.0, sc.primary_enable[0][1]),),
+                          standby_enable=((0.0, sc.standby_enable[0][1]),)), design, params)
     t = np.asarray(run.time)
     t_f = min(f.time for f in sc.faults)
     after = t >= t_f
@@ -239,12 +272,8 @@ def analyse_fault_case(scenario: Scenario | str, design, params, *, sim: Simulat
     h = run.info["output_period_s"]
     err_v = np.asarray(run["nut_speed"]) - np.asarray(ref["nut_speed"])
     err_x = np.asarray(run["nut_position"]) - np.asarray(ref["nut_position"])
-    if math.isfinite(safed):
-        recovery = math.nan
-    else:
-        band = tolerance * np.maximum(np.abs(np.asarray(ref["speed_cmd"])), 1e-12)
-        outside = np.flatnonzero(after & (np.abs(err_v) > band))
-        recovery = 0.0 if outside.size == 0 else (math.inf if outside[-1] >= len(t) - 1 else float(t[outside[-1] + 1] - t_f))
+    recovery = math.nan if math.isfinite(safed) else recovery_time(
+        t, run["nut_speed"], ref["nut_speed"], ref["speed_cmd"], t_f, tolerance, smooth_s)
     window = (t >= t_f - 0.1) & (t <= t_f + 0.6)
     step = max(int(round(1e-3 / h)), 1)
     keep = np.flatnonzero(window)[::step]
@@ -296,7 +325,7 @@ def _scaled(settings: MonitorSettings, scale: float, delay: float) -> MonitorSet
 
 def sweep_monitors(design, params, *, scales=(0.5, 0.75, 1.0, 1.5, 2.0), delays_s=(0.0, 0.005, 0.01, 0.02),
                    monitors: MonitorSettings | None = None, sim: Simulator | None = None, tolerance: float = 0.05,
-                   level: str = "D", effects=FAULT_PLANT_EFFECTS) -> tuple[SweepPoint, ...]:
+                   smooth_s: float = 0.1, level: str = "D", effects=FAULT_PLANT_EFFECTS) -> tuple[SweepPoint, ...]:
     """Closed-loop sweep of the thresholds (scaled together) and of the take-over delay."""
     base = monitors or MonitorSettings()
     sim = sim or _simulator(params, level, effects, 1e-3)
@@ -319,28 +348,36 @@ def sweep_monitors(design, params, *, scales=(0.5, 0.75, 1.0, 1.5, 2.0), delays_
                 det[s.name] = _first(t, trips_any, t_f)
                 if s in motor:
                     ref = refs[s.name]
-                    err = np.abs(np.asarray(run["nut_speed"]) - np.asarray(ref["nut_speed"]))
-                    band = tolerance * np.maximum(np.abs(np.asarray(ref["speed_cmd"])), 1e-12)
-                    outside = np.flatnonzero((t >= t_f) & (err > band))
-                    rec[s.name] = 0.0 if outside.size == 0 else (
-                        math.inf if outside[-1] >= len(t) - 1 or np.any(np.asarray(run["safed"]) > 0.5)
-                        else float(t[outside[-1] + 1] - t_f))
+                    rec[s.name] = math.nan if np.any(np.asarray(run["safed"]) > 0.5) else recovery_time(
+                        t, run["nut_speed"], ref["nut_speed"], ref["speed_cmd"], t_f, tolerance, smooth_s)
             points.append(SweepPoint(float(scale), float(delay), trips, det, rec))
     return tuple(points)
 
 
 def analyse_faults(design, params, *, monitors: MonitorSettings | None = None, scales=(0.5, 0.75, 1.0, 1.5, 2.0),
-                   delays_s=(0.0, 0.005, 0.01, 0.02), tolerance: float = 0.05, level: str = "D",
-                   effects=FAULT_PLANT_EFFECTS, sweep: bool = True) -> FaultAnalysis:
+                   delays_s=(0.0, 0.005, 0.01, 0.02), tolerance: float = 0.05, smooth_s: float = 0.1,
+                   level: str = "D", effects=FAULT_PLANT_EFFECTS, sweep: bool = True) -> FaultAnalysis:
     """The fault report's numbers: every fault scenario, the margins, the sweep."""
     settings = monitors or MonitorSettings()
     fine = _simulator(params, level, effects, None)
     coarse = _simulator(params, level, effects, 1e-3)
-    cases = tuple(analyse_fault_case(s, design, params, sim=fine, monitors=settings, tolerance=tolerance)
-                  for s in fault_scenarios())
+    cases = tuple(analyse_fault_case(s, design, params, sim=fine, monitors=settings, tolerance=tolerance,
+                                     smooth_s=smooth_s) for s in fault_scenarios())
     margins = false_alarm_margins(design, params, monitors=settings, sim=coarse)
     normal_res = max(abs(energy_residual(fine.run(replace(s, monitors=settings), design, params)))
                      for s in normal_scenarios()[:1])
+    rigid = _simulator(params, level, RIGID_EFFECTS, None)
+    rigid_cases = []
+    for s in fault_scenarios():
+        if not any(f.kind == "channel_failure" for f in s.faults):
+            continue
+        rigid_cases.append(analyse_fault_case(s, design, params, sim=rigid, monitors=settings, tolerance=tolerance,
+                                              smooth_s=smooth_s))
+        t_f = min(f.time for f in s.faults)
+        papers = replace(s, name=f"{s.name}_papers_15ms", standby_enable=((0.0, 0.0), (t_f + 0.015, 1.0)))
+        rigid_cases.append(analyse_fault_case(papers, design, params, sim=rigid, tolerance=tolerance, smooth_s=smooth_s,
+                                              monitors=replace(settings, reconfigure=False)))
     points = sweep_monitors(design, params, scales=scales, delays_s=delays_s, monitors=settings, sim=coarse,
-                            tolerance=tolerance) if sweep else ()
-    return FaultAnalysis(level, tuple(coarse.plant.effects), settings, cases, margins, points, normal_res, tolerance)
+                            tolerance=tolerance, smooth_s=smooth_s) if sweep else ()
+    return FaultAnalysis(level, tuple(coarse.plant.effects), settings, cases, margins, points, normal_res, tolerance,
+                         smooth_s, tuple(rigid_cases))
