@@ -213,7 +213,7 @@ def write_fault_report(analysis, params, out_dir) -> Path:
                  "<h2>Monitor settings</h2>",
                  _table(["setting", "value"], [[k, v] for k, v in m.as_dict().items()]),
                  "<h2 id='table-cases'>Fault cases (fault plant)</h2>", _table(_CASE_HEAD, _case_rows(analysis.cases)),
-                 "<h2 id='table-rigid'>Channel failures on a rigid drive train (papers' comparison)</h2>",
+                 "<h2 id='table-rigid'>Channel failures on a rigid drive train (papers' comparison; recovery without averaging)</h2>",
                  _table(_CASE_HEAD, _case_rows(analysis.rigid_cases)),
                  "<h2 id='table-margins'>False-alarm margins on the normal scenarios</h2>",
                  _table(["scenario", "monitor", "threshold", "level held for the confirmation time", "margin", "tripped"],
