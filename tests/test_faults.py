@@ -274,3 +274,47 @@ def test_scenario_file_errors_name_the_field(tmp_path):
 def test_fault_needs_its_effect(design, params):
     with pytest.raises(ScenarioError, match="surface_jam"):
         Simulator(build_plant("D", params=params)).run(replace(get_scenario("jam"), required_effects=()), design, params)
+
+
+# ---- command line --------------------------------------------------------------------------------
+
+def test_simulate_jam_writes_torques_slip_sensor_speeds_and_flags(tmp_path):
+    import json
+
+    from thsa_control.cli import main
+    from thsa_control.data.rigdata import read_run
+
+    out = tmp_path / "jam"
+    assert main(["simulate", "--scenario", "jam", "--level", "D", "--out", str(out)]) == 0
+    assert (out / "jam_D_faults.png").stat().st_size > 20_000
+    run = read_run(out / "jam_D.csv")
+    for col in ("limiter_torque_Nm", "limiter_slip_speed_rpm", "limiter_slipping", "measured_motor_speed_rpm",
+                "trip_discrepancy", "trip_speed", "trip_lvdt", "safed", "brakes_engaged", "jam_force_N"):
+        assert col in run.extra, col
+    assert max(run.extra["trip_discrepancy"]) == 1.0
+    meta = json.loads((out / "jam_D.json").read_text())
+    assert "torque_limiter" in meta["generator"]["effects"]
+
+
+@pytest.mark.slow
+def test_faults_command_writes_the_report(tmp_path, capsys):
+    import json
+
+    from thsa_control.cli import main
+
+    out = tmp_path / "faults"
+    assert main(["faults", "--no-sweep", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "false-alarm margin speed" in text and "jam: surface_jam at 3.5 s" in text
+    data = json.loads((out / "faults.json").read_text())
+    assert data["format"] == "thsa-faults/1"
+    assert {c["scenario"] for c in data["cases"]} == {s.name for s in fault_scenarios()}
+    assert "fig-case_jam" in (out / "report.html").read_text()
+
+
+def test_faults_command_rejects_bad_sweep(tmp_path, capsys):
+    from thsa_control.cli import main
+
+    assert main(["faults", "--scales", "a,b", "--out", str(tmp_path / "x")]) == 2
+    assert "--scales" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
