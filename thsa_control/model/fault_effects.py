@@ -186,8 +186,9 @@ def _secondary_load_path(a: Assembly) -> None:
     a.output("surface_position", "m", x["surface_position"] + s)
     a.output("surface_speed", "m/s", v_abs)
     a.output("gimbal_displacement", "m", s)
-    a.output("primary_attachment_force", "N", f_att)
-    a.output("secondary_path_force", "N", f_sec)
+    # forces the two attachments carry, compressive positive like the load path (the body pushed towards -s)
+    a.output("primary_attachment_force", "N", -f_att)
+    a.output("secondary_path_force", "N", -f_sec)
     a.output("primary_attachment_broken", "-", broken)
 
 
