@@ -20,7 +20,7 @@ the fault scenarios (detections) run on the same model.
 * :func:`sweep_monitors`: thresholds scaled together and take-over delays
   varied: whether any normal scenario trips (closed-loop runs at each scale,
   exact at the control period) and the detection and recovery times of every
-  fault scenario.
+  fault scenario (channel failures on the rigid drive train in the report).
 """
 
 from __future__ import annotations
@@ -325,13 +325,20 @@ def _scaled(settings: MonitorSettings, scale: float, delay: float) -> MonitorSet
 
 def sweep_monitors(design, params, *, scales=(0.5, 0.75, 1.0, 1.5, 2.0), delays_s=(0.0, 0.005, 0.01, 0.02),
                    monitors: MonitorSettings | None = None, sim: Simulator | None = None, tolerance: float = 0.05,
-                   smooth_s: float = 0.1, level: str = "D", effects=FAULT_PLANT_EFFECTS) -> tuple[SweepPoint, ...]:
-    """Closed-loop sweep of the thresholds (scaled together) and of the take-over delay."""
+                   smooth_s: float = 0.1, level: str = "D", effects=FAULT_PLANT_EFFECTS,
+                   rigid_sim: Simulator | None = None) -> tuple[SweepPoint, ...]:
+    """Closed-loop sweep of the thresholds (scaled together) and of the take-over delay.
+
+    With ``rigid_sim`` the channel-failure scenarios run on it (a rigid drive
+    train: no stick-slip limit cycle, recovery without averaging).
+    """
     base = monitors or MonitorSettings()
     sim = sim or _simulator(params, level, effects, 1e-3)
     normals, faults = normal_scenarios(), fault_scenarios()
     motor = [s for s in faults if any(f.kind == "channel_failure" for f in s.faults)]
-    refs = {s.name: sim.run(replace(s, faults=(), monitors=base), design, params) for s in motor}
+    motor_sim = rigid_sim or sim
+    smooth_motor = 0.0 if rigid_sim is not None else smooth_s
+    refs = {s.name: motor_sim.run(replace(s, faults=(), monitors=base), design, params) for s in motor}
     points = []
     for scale in scales:
         trips = tuple(s.name for s in normals if _tripped(
@@ -341,7 +348,8 @@ def sweep_monitors(design, params, *, scales=(0.5, 0.75, 1.0, 1.5, 2.0), delays_
             for s in faults:
                 if s not in motor and delay != delays_s[0]:
                     continue  # the take-over delay matters only for channel failures
-                run = sim.run(replace(s, monitors=_scaled(base, scale, delay)), design, params)
+                run = (motor_sim if s in motor else sim).run(replace(s, monitors=_scaled(base, scale, delay)), design,
+                                                             params)
                 t = np.asarray(run.time)
                 t_f = min(f.time for f in s.faults)
                 trips_any = np.asarray(run["trip_discrepancy"]) + np.asarray(run["trip_lvdt"]) + np.asarray(run["trip_speed"])
@@ -349,7 +357,7 @@ def sweep_monitors(design, params, *, scales=(0.5, 0.75, 1.0, 1.5, 2.0), delays_
                 if s in motor:
                     ref = refs[s.name]
                     rec[s.name] = math.nan if np.any(np.asarray(run["safed"]) > 0.5) else recovery_time(
-                        t, run["nut_speed"], ref["nut_speed"], ref["speed_cmd"], t_f, tolerance, smooth_s)
+                        t, run["nut_speed"], ref["nut_speed"], ref["speed_cmd"], t_f, tolerance, smooth_motor)
             points.append(SweepPoint(float(scale), float(delay), trips, det, rec))
     return tuple(points)
 
@@ -379,6 +387,7 @@ def analyse_faults(design, params, *, monitors: MonitorSettings | None = None, s
         rigid_cases.append(analyse_fault_case(papers, design, params, sim=rigid, tolerance=tolerance, smooth_s=0.0,
                                               monitors=replace(settings, reconfigure=False)))
     points = sweep_monitors(design, params, scales=scales, delays_s=delays_s, monitors=settings, sim=coarse,
-                            tolerance=tolerance, smooth_s=smooth_s) if sweep else ()
+                            tolerance=tolerance, smooth_s=smooth_s,
+                            rigid_sim=_simulator(params, level, RIGID_EFFECTS, 1e-3)) if sweep else ()
     return FaultAnalysis(level, tuple(coarse.plant.effects), settings, cases, margins, points, normal_res, tolerance,
                          smooth_s, tuple(rigid_cases))

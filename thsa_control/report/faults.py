@@ -118,7 +118,7 @@ def plot_sweep(analysis):
         y = [next((p.recovery_s[n] for p in analysis.sweep if p.delay_s == d and abs(p.scale - 1.0) < 1e-12
                    and n in p.recovery_s), math.nan) for d in delays]
         ax2.plot([d * 1e3 for d in delays], [v if math.isfinite(v) else np.nan for v in y], "o-", label=n)
-    ax2.set_xlabel("take-over delay after detection [ms] (thresholds x 1)")
+    ax2.set_xlabel("take-over delay after detection [ms] (thresholds x 1; rigid drive train)")
     ax2.set_ylabel("recovery time [s]")
     ax2.legend(fontsize=7)
     ax2.grid(True, alpha=0.3)
