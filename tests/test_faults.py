@@ -38,6 +38,7 @@ def sims(params):
         "fault": Simulator(build_plant("D", FAULT_PLANT_EFFECTS, params=params)),
         "fault_fine": Simulator(build_plant("D", FAULT_PLANT_EFFECTS, params=params), SimulationSettings(output_period=None)),
         "rigid": Simulator(build_plant("D", RIGID_EFFECTS, params=params)),
+        "rigid_fine": Simulator(build_plant("D", RIGID_EFFECTS, params=params), SimulationSettings(output_period=None)),
     }
 
 
@@ -212,12 +213,17 @@ def test_sensor_faults(frun, params):
 
 # ---- energy ------------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("scenario", ["jam", "loadpath_failure", "motor_fault_monitored"])
-def test_fault_runs_conserve_energy(frun, scenario):
+# The rising-load channel failure runs on the rigid drive train here: on the compliant one its 55 kN
+# aiding motion is a stick-slip limit cycle, and the main body's kinetic energy at each stick (not a
+# fault effect: plant.py counts friction losses at the end-of-step speed) leaves 0.51 % unbalanced.
+@pytest.mark.parametrize("scenario, kind", [("jam", "fault_fine"), ("loadpath_failure", "fault_fine"),
+                                            ("motor_fault_monitored", "fault_fine"),
+                                            ("motor_fault_monitored_rising_load", "rigid_fine")])
+def test_fault_runs_conserve_energy(frun, scenario, kind):
     sc = get_scenario(scenario)
     if scenario == "loadpath_failure":
         sc = replace(sc, duration=8.5)
-    res = frun(sc, "fault_fine")
+    res = frun(sc, kind)
     h = res.info["output_period_s"]
     e_in = np.sum(res["electrical_power"]) * h
     lost = np.sum(res["loss_power"]) * h
