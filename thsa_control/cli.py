@@ -181,6 +181,12 @@ def _write_results(args, results, scenario, params, design):
             fig = plot_run(res, title=f"{scenario.name}, level {level} ({', '.join(res.effects) or 'functional'})")
             fig.savefig(stem.with_suffix(".png"), dpi=110)
             close(fig)
+            if "trip_speed" in res.names:  # a run of the fault loop: torques, slip, sensor speeds, monitor flags
+                from .report.faults import plot_fault_run
+
+                fig = plot_fault_run(res)
+                fig.savefig(stem.with_name(stem.name + "_faults.png"), dpi=110)
+                close(fig)
             summary["levels"][level] = _summary(res)
         if len(results) > 1:
             fig = plot_levels(results)
@@ -505,6 +511,9 @@ def _parser() -> argparse.ArgumentParser:
 
     # Subcommands of other packages register here: each module offers
     # add_parser(subparsers) and sets ``fn`` (e.g. ``from .tuning.cli import add_parser; add_parser(sub)``).
+    from .faults.cli import add_parser as _add_faults  # thsa faults (issue #10)
+
+    _add_faults(sub)
     return ap
 
 

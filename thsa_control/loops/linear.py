@@ -441,7 +441,8 @@ def plant_model(level: str | None = "A", effects: Iterable[str] = (), params: Pa
         xs[i_nut], xs[i_surf] = x[i_surf], ca.SX(0.0)
     plant_u = {"voltage_primary": U["voltage_primary"], "voltage_standby": U["voltage_standby"],
                "enable_primary": C["enable_primary"], "enable_standby": C["enable_standby"],
-               "load_force": U["load_force"], "temperature": C["temperature"]}
+               "load_force": U["load_force"], "temperature": C["temperature"],
+               "brake": 0.0, "surface_jam": 0.0, "loadpath_failure": 0.0}  # fault inputs healthy
     missing = [n for n in plant.inputs if n not in plant_u]
     if missing:  # pragma: no cover - INPUTS are fixed by structure.py
         raise ModelError(f"plant input(s) {missing} have no counterpart in the linearisation adapter")
