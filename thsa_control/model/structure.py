@@ -354,13 +354,21 @@ def finish_structure(a: Assembly) -> None:
     a.loss("gear_efficiency", lambda res: res.channel["gear_efficiency"] * res.speed)
 
     a.output("axial_force", "N", F)
-    # Monitoring only unless the torque_limiter effect is in the set.
+    # 1 while the torque into the gearbox exceeds the limiter's static slip torque (limiter.* parameters);
+    # the limiter slips only when the torque_limiter effect is in the set.
     a.output("motor_torque", "N m", motor_torque)
     a.output("gearbox_input_torque", "N m", gear_torque)
     a.output(
         "torque_limiter_exceeded", "-",
-        ca.if_else(ca.fabs(gear_torque) * p["gear.ratio"] > p["gear.torque_limiter_threshold"], 1.0, 0.0),
+        ca.if_else(ca.fabs(gear_torque) * p["gear.ratio"] > _limiter_static_torque(p), 1.0, 0.0),
     )
+
+
+def _limiter_static_torque(p: dict):
+    """The torque limiter's static slip torque [N m at the large gear], from the limiter's own law."""
+    from .fault_effects import limiter_slip_torques  # one law for the monitor and the torque_limiter effect
+
+    return limiter_slip_torques(p)[0]
 
 
 def _sum_exprs(terms):
