@@ -360,7 +360,8 @@ def finish_structure(a: Assembly) -> None:
     a.output("gearbox_input_torque", "N m", gear_torque)
     a.output(
         "torque_limiter_exceeded", "-",
-        ca.if_else(ca.fabs(gear_torque) * p["gear.ratio"] > _limiter_static_torque(p), 1.0, 0.0),
+        ca.if_else(ca.fabs(gear_torque) * p["gear.ratio"] > _limiter_static_torque(p), 1.0, 0.0)
+        if "limiter.faces" in p else 0.0,  # a rig described without a limiter
     )
 
 
