@@ -18,6 +18,7 @@ from .fit.virtual_rig import VirtualRig, excitation_inputs
 from .loops.linear import ConditionGrid, OperatingCondition, PlantLinearization, current_driven, linearize_conditions, plant_model
 from .loops.analysis import (AnalysisSettings, DesignAnalysis, LoopAnalysis, analyse_configurations, analyse_design,
                        analyse_loops, check_requirements, describing_functions)
+from .loops.statespace import closed_loop, open_loop
 
 __version__ = "0.1.0"
 
@@ -33,6 +34,6 @@ __all__ = [
     "VirtualRig", "excitation_inputs",
     "ConditionGrid", "OperatingCondition", "PlantLinearization", "current_driven", "linearize_conditions", "plant_model",
     "AnalysisSettings", "DesignAnalysis", "LoopAnalysis", "analyse_configurations", "analyse_design", "analyse_loops",
-    "check_requirements", "describing_functions",
+    "check_requirements", "describing_functions", "open_loop", "closed_loop",
     "__version__",
 ]

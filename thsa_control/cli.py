@@ -228,8 +228,10 @@ def _cmd_residual(args) -> int:
 
 
 def _analysis_effects(args) -> list[str]:
-    # the linear workflow is about temperature: temperature_friction unless --effects says otherwise
-    return ["temperature_friction"] if args.effects is None else _effects_arg(args.effects)
+    # the linear workflow's default effects (loops.linear.DEFAULT_EFFECTS) unless --effects says otherwise
+    from .loops.linear import DEFAULT_EFFECTS
+
+    return list(DEFAULT_EFFECTS) if args.effects is None else _effects_arg(args.effects)
 
 
 def _cmd_report(args) -> int:

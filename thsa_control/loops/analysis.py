@@ -32,6 +32,7 @@ from .loop_analysis import (
 )
 from .requirements import RequirementCheck, RequirementRow, Violation, check_requirements
 from ..model.params import ParameterSet, default_parameters
+from .statespace import closed_loop, open_loop
 
 __all__ = [
     "LOOPS",
@@ -56,6 +57,8 @@ __all__ = [
     "analyse_design",
     "ConfigurationAnalysis",
     "analyse_configurations",
+    "open_loop",
+    "closed_loop",
 ]
 
 

@@ -355,16 +355,26 @@ class PlantModel:
         return f"level {lvl} ({eff}); drifting (excluded): {', '.join(self.named.drifting_states)}"
 
 
-def plant_model(level: str | None = "A", effects: Iterable[str] = (), params: ParameterSet | None = None, *,
-                settings: LinearizationSettings | None = None) -> PlantModel:
+#: Default model level and effects of the linear workflow: :func:`plant_model`, the loop analysis
+#: (``AnalysisSettings``), ``open_loop`` / ``closed_loop``, ``thsa report`` and ``thsa linearize``.
+DEFAULT_LEVEL = "B"
+DEFAULT_EFFECTS: tuple[str, ...] = ("temperature_friction",)
+
+
+def plant_model(level: str | None = DEFAULT_LEVEL, effects: Iterable[str] | None = None,
+                params: ParameterSet | None = None, *, settings: LinearizationSettings | None = None) -> PlantModel:
     """Wrap the plant of ``level`` + ``effects`` as a named model for linearisation.
+
+    The model is in SI units (m, m/s, N, rad/s, A, V; temperature in degC);
+    ``thsa linearize`` takes the speed in mm/s and converts it.
 
     Parameters
     ----------
     level : {'A', 'B', 'C', 'D'} or None
-        Model level.
-    effects : iterable of str
-        Effects added (e.g. ``["temperature_friction", "standby_motor"]``).
+        Model level; default :data:`DEFAULT_LEVEL` (as ``thsa report`` / ``thsa linearize``).
+    effects : iterable of str, optional
+        Effects added (e.g. ``["temperature_friction", "standby_motor"]``); default
+        :data:`DEFAULT_EFFECTS` (as the CLI); ``()`` for none.
     params : ParameterSet, optional
         Actuator; default the embedded one.
     settings : LinearizationSettings, optional
@@ -389,7 +399,8 @@ def plant_model(level: str | None = "A", effects: Iterable[str] = (), params: Pa
     """
     params = params or default_parameters()
     settings = settings or LinearizationSettings()
-    plant = build_plant(level, tuple(effects), params=params)
+    effects = DEFAULT_EFFECTS if effects is None else tuple(effects)
+    plant = build_plant(level, effects, params=params)
     names = plant.state_names
     n_x, n_p = len(names), len(plant.parameters)
     states = tuple("loadpath_deflection" if s == "surface_position" else s for s in names)

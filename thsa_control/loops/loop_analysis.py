@@ -70,6 +70,8 @@ from ._loopmath import (
 from .design import Design
 from ..errors import DesignError
 from .linear import (
+    DEFAULT_EFFECTS,
+    DEFAULT_LEVEL,
     ConditionGrid,
     LinearizationSettings,
     OperatingCondition,
@@ -118,9 +120,10 @@ class AnalysisSettings:
     Parameters
     ----------
     level : str
-        Model level (``'A'`` .. ``'D'``).  Default ``'B'`` (no-back friction).
+        Model level (``'A'`` .. ``'D'``).  Default :data:`~thsa_control.loops.linear.DEFAULT_LEVEL`
+        (``'B'``, no-back friction), as ``thsa report``.
     effects : tuple of str
-        Effects added.  Default ``('temperature_friction',)``.
+        Effects added.  Default :data:`~thsa_control.loops.linear.DEFAULT_EFFECTS`, as ``thsa report``.
     nut_speeds : tuple of float
         Trim nut speeds [m/s] of the grid; 0 is kept to show that a trim stop
         is not linearisable.  Default 0, 0.5, 1, 2, 5, 10, 15 mm/s.
@@ -149,8 +152,8 @@ class AnalysisSettings:
         Validity bands of the linearisation.
     """
 
-    level: str = "B"
-    effects: tuple[str, ...] = ("temperature_friction",)
+    level: str = DEFAULT_LEVEL
+    effects: tuple[str, ...] = DEFAULT_EFFECTS
     nut_speeds: tuple[float, ...] = (0.0, 0.5e-3, 1e-3, 2e-3, 5e-3, 10e-3, 15e-3)
     load_forces: tuple[float, ...] = (-55e3, -20e3, 0.0, 20e3, 55e3)
     temperatures: tuple[float, ...] = (-55.0, -30.0, 0.0, 25.0, 70.0)
