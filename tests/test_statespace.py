@@ -99,5 +99,5 @@ def test_plant_model_and_cli_share_the_default_effects(monkeypatch):
 
     assert inspect.signature(plant_model).parameters["level"].default == DEFAULT_LEVEL
     assert AnalysisSettings().level == DEFAULT_LEVEL and AnalysisSettings().effects == DEFAULT_EFFECTS
-    args = cli._parser().parse_args(["report", "--out", "x"])
-    assert args.level == DEFAULT_LEVEL and tuple(cli._analysis_effects(args)) == DEFAULT_EFFECTS
+    args = cli._parser().parse_args(["linearize", "--level", "B", "--speed", "1", "--load", "0"])
+    assert tuple(cli._analysis_effects(args)) == DEFAULT_EFFECTS

@@ -23,12 +23,14 @@ from .design import Design
 from .linear import ConditionGrid, PlantModel, plant_model
 from .loop_analysis import (
     LOOPS,
+    METRIC_LABELS,
     METRICS,
     AnalysisSettings,
     LoopAnalysis,
     LoopMetrics,
     WorstPoint,
     analyse_loops,
+    metric_unit,
 )
 from .requirements import RequirementCheck, RequirementRow, Violation, check_requirements
 from ..model.params import ParameterSet, default_parameters
@@ -37,6 +39,8 @@ from .statespace import closed_loop, open_loop
 __all__ = [
     "LOOPS",
     "METRICS",
+    "METRIC_LABELS",
+    "metric_unit",
     "AnalysisSettings",
     "MarginSet",
     "loop_margins",
@@ -81,7 +85,8 @@ class ConfigurationAnalysis:
     standby: LoopAnalysis
 
     def rows(self) -> list[dict]:
-        """One row per configuration, loop and point: the margins (nan where the point is not analysed)."""
+        """One row per configuration, loop and point: the margins (nan, and ``stable`` None, where the point
+        is not analysed)."""
         out = []
         for name, a in (("primary active", self.primary), ("standby active", self.standby)):
             for loop, lm in a.loops.items():
@@ -92,8 +97,11 @@ class ConfigurationAnalysis:
                                 "crossover_hz": float(m.crossover_hz[k]) if ok else float("nan"),
                                 "phase_margin_deg": float(m.phase_margin_deg[k]) if ok else float("nan"),
                                 "gain_margin_db": float(m.gain_margin_db[k]) if ok else float("nan"),
+                                "gain_margin_lower_db": float(m.gain_margin_lower_db[k]) if ok else float("nan"),
+                                "gain_margin_upper_db": float(m.gain_margin_upper_db[k]) if ok else float("nan"),
                                 "bandwidth_hz": float(m.bandwidth_hz[k]) if ok else float("nan"),
-                                "ms": float(m.ms[k]) if ok else float("nan"), "stable": bool(lm.stable[k])})
+                                "ms": float(m.ms[k]) if ok else float("nan"),
+                                "stable": bool(lm.stable[k]) if ok else None})
         return out
 
 

@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -68,7 +68,7 @@ from ._loopmath import (
     step_metrics,
 )
 from .design import Design
-from ..errors import DesignError
+from ..errors import DesignError, ThsaError
 from .linear import (
     DEFAULT_EFFECTS,
     DEFAULT_LEVEL,
@@ -85,6 +85,8 @@ from ..model.params import ParameterSet, default_parameters
 __all__ = [
     "LOOPS",
     "METRICS",
+    "METRIC_LABELS",
+    "metric_unit",
     "AnalysisSettings",
     "LoopMetrics",
     "LoopAnalysis",
@@ -100,15 +102,45 @@ METRICS: dict[str, tuple[str, str]] = {
     "crossover_hz": ("Hz", "min"),
     "phase_margin_deg": ("deg", "min"),
     "gain_margin_db": ("dB", "min_abs"),
+    "gain_margin_lower_db": ("dB", "max"),
+    "gain_margin_upper_db": ("dB", "min"),
     "delay_margin_s": ("s", "min"),
     "bandwidth_hz": ("Hz", "min"),
     "ms": ("-", "max"),
     "rise_time_s": ("s", "max"),
     "settling_time_s": ("s", "max"),
     "overshoot_percent": ("%", "max"),
-    "load_step_peak": ("per N", "max_abs"),
+    "load_step_peak": ("m/s of nut speed per N of load (velocity loop), m of nut position per N (position loop)",
+                       "max_abs"),
     "load_step_recovery_s": ("s", "max"),
 }
+
+#: Metric name -> words for tables and plots.
+METRIC_LABELS: dict[str, str] = {
+    "crossover_hz": "gain crossover",
+    "phase_margin_deg": "phase margin",
+    "gain_margin_db": "gain margin (nearest 0 dB)",
+    "gain_margin_lower_db": "lower gain margin",
+    "gain_margin_upper_db": "upper gain margin",
+    "delay_margin_s": "delay margin",
+    "bandwidth_hz": "closed-loop bandwidth",
+    "ms": "sensitivity peak Ms",
+    "rise_time_s": "rise time",
+    "settling_time_s": "settling time",
+    "overshoot_percent": "overshoot",
+    "load_step_peak": "load-step peak",
+    "load_step_recovery_s": "load-step recovery",
+}
+
+#: The unit of the load-step peak of each outer loop.
+LOAD_STEP_UNITS = {"velocity_loop": "m/s of nut speed per N of load", "position_loop": "m of nut position per N of load"}
+
+
+def metric_unit(loop: str, name: str) -> str:
+    """Unit of metric ``name`` of ``loop`` (the load-step peak's depends on the loop)."""
+    if name == "load_step_peak":
+        return LOAD_STEP_UNITS.get(loop, "-")
+    return METRICS[name][0]
 
 # ----------------------------------------------------------------------------------------------------------------
 # settings
@@ -177,6 +209,11 @@ class AnalysisSettings:
         """Raise ``ValueError`` naming the first invalid setting."""
         if not (self.nut_speeds and self.load_forces and self.temperatures):
             raise ValueError("AnalysisSettings: nut_speeds, load_forces and temperatures must not be empty")
+        bad_t = [t for t in self.temperatures if not -55.0 <= t <= 70.0]
+        if bad_t:
+            raise ValueError(f"AnalysisSettings.temperatures: {bad_t[0]:g} degC is outside -55..70 degC")
+        if not all(math.isfinite(v) for v in self.nut_speeds + self.load_forces):
+            raise ValueError("AnalysisSettings: nut_speeds and load_forces must be finite")
         if not (isinstance(self.n_frequencies, int) and self.n_frequencies >= 20):
             raise ValueError(f"AnalysisSettings.n_frequencies = {self.n_frequencies!r} must be an integer >= 20")
         if not (self.f_min > 0 and math.isfinite(self.f_min)):
@@ -190,9 +227,74 @@ class AnalysisSettings:
         if not 0 < self.recovery_fraction < 1:
             raise ValueError(f"AnalysisSettings.recovery_fraction = {self.recovery_fraction!r} must be in (0, 1)")
 
+    @classmethod
+    def from_design(cls, design: Design, **overrides) -> "AnalysisSettings":
+        """Settings from the design's optional ``[analysis]`` table, then ``overrides`` (None: not given).
+
+        The table holds any of ``level``, ``effects`` (list of names), ``nut_speeds_mm_s``,
+        ``loads_kN`` (compressive positive), ``temperatures_C``, ``reference_speed_mm_s`` and
+        ``reference_load_kN`` (the file's units: mm/s, kN, degC); ``overrides`` are keyword
+        arguments of this class in SI units (what ``thsa report --speeds/--loads/--temperatures``
+        gives after conversion).  Command line over design file over defaults.
+
+        Raises
+        ------
+        DesignError
+            For an unknown key or a value of the wrong kind in the table, naming it.
+        ThsaError
+            For an override out of range (e.g. a temperature outside -55..70 degC).
+
+        Examples
+        --------
+        >>> from thsa_control.loops.design import load_design, nominal_design_path
+        >>> s = AnalysisSettings.from_design(load_design(nominal_design_path()), temperatures=(-30.0,))
+        >>> s.temperatures, len(s.nut_speeds) * len(s.load_forces)
+        ((-30.0,), 35)
+        """
+        table = dict(design.analysis or {})
+        scale = {"nut_speeds_mm_s": ("nut_speeds", 1e-3), "loads_kN": ("load_forces", 1e3),
+                 "temperatures_C": ("temperatures", 1.0)}
+        single = {"reference_speed_mm_s": ("reference_speed", 1e-3), "reference_load_kN": ("reference_load", 1e3)}
+        values: dict = {}
+        for key, val in table.items():
+            where = f"[analysis] {key} = {val!r}"
+            if key == "level":
+                if not isinstance(val, str):
+                    raise DesignError(design.source, f"{where}: a level name is a string ('A' .. 'D')")
+                values["level"] = val.upper()
+            elif key == "effects":
+                if not (isinstance(val, list) and all(isinstance(e, str) for e in val)):
+                    raise DesignError(design.source, f"{where}: a list of effect names")
+                values["effects"] = tuple(val)
+            elif key in scale:
+                name, k = scale[key]
+                if not (isinstance(val, list) and val and all(_is_number(v) for v in val)):
+                    raise DesignError(design.source, f"{where}: a non-empty list of numbers")
+                values[name] = tuple(float(v) * k for v in val)
+            elif key in single:
+                name, k = single[key]
+                if not _is_number(val):
+                    raise DesignError(design.source, f"{where}: a number")
+                values[name] = float(val) * k
+            else:
+                raise DesignError(design.source, f"unknown key {key!r} in [analysis]; allowed: "
+                                                 f"{['level', 'effects', *scale, *single]}")
+        try:
+            settings = cls(**values)
+        except ValueError as exc:
+            raise DesignError(design.source, f"[analysis]: {exc}") from None
+        try:
+            return replace(settings, **{k: v for k, v in overrides.items() if v is not None})
+        except ValueError as exc:
+            raise ThsaError(f"analysis grid: {exc}") from None
+
     def grid(self, active: str = "primary") -> ConditionGrid:
         """The condition grid of these settings."""
         return ConditionGrid(self.nut_speeds, self.load_forces, self.temperatures, active)
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -250,7 +352,8 @@ class LoopMetrics:
 
     def metric(self, name: str) -> NDArray[np.float64]:
         """Array of metric ``name`` (a key of :data:`METRICS`)."""
-        if name in ("crossover_hz", "phase_margin_deg", "gain_margin_db", "delay_margin_s", "bandwidth_hz", "ms"):
+        if name in ("crossover_hz", "phase_margin_deg", "gain_margin_db", "gain_margin_lower_db",
+                    "gain_margin_upper_db", "delay_margin_s", "bandwidth_hz", "ms"):
             return getattr(self.margins, name)
         if name in ("rise_time_s", "settling_time_s", "overshoot_percent"):
             return getattr(self.step_info, name)
@@ -358,7 +461,7 @@ def _metrics(loops: _Loops, settings: AnalysisSettings, steps: bool) -> dict[str
         lt = ly = None
         peak, rec, unit = nan, nan, ""
         if name != "current_loop" and steps:
-            out_idx, unit = (2, "m/s per N") if name == "velocity_loop" else (3, "m per N")
+            out_idx, unit = (2 if name == "velocity_loop" else 3), LOAD_STEP_UNITS[name]
             lt, ly = _step(cl, out_idx, 1, h, settings.load_step_horizons[j - 1], settings.step_decimation[j])
             peak, rec = _load_metrics(lt, ly, settings.recovery_fraction)
         out[name] = LoopMetrics(name, m, T, rho < 1 - 1e-12, rho, poles, t, y, info, lt, ly, peak, rec, unit)
@@ -390,10 +493,13 @@ class WorstPoint:
     index: int
     condition: OperatingCondition
     uniform: bool = False
+    note: str = ""
 
     def text(self) -> str:
-        """One line."""
+        """One line (a negative gain margin reads "conditionally stable", with both margins)."""
         where = "the same at every valid point" if self.uniform else f"at {self.condition.label()}"
+        if self.note:
+            return f"{self.loop} {self.metric}: {self.note} {where}"
         return f"{self.loop} {self.metric} = {self.value:.4g} {self.unit} {where}"
 
 
@@ -469,17 +575,24 @@ class LoopAnalysis:
         overshoot, rise or settling time and load-step peak; for the signed
         gain margin, the one closest to 0 dB.
         """
-        unit, how = METRICS[name]
+        unit, how = metric_unit(loop, name), METRICS[name][1]
         vals = np.asarray(self.metric(loop, name), float)
         key = np.abs(vals) if how.endswith("abs") else vals
         key = np.where(self.valid & ~np.isnan(key), key, np.nan)
         if np.all(np.isnan(key)):
             return None
+        if name in ("gain_margin_lower_db", "gain_margin_upper_db") and not np.any(np.isfinite(key)):
+            return None  # no such crossing anywhere
         k = int(np.nanargmin(key) if how.startswith("min") else np.nanargmax(key))
         finite = key[np.isfinite(key)]
         uniform = bool(finite.size == np.count_nonzero(~np.isnan(key)) and finite.size > 1
                        and np.ptp(finite) <= 1e-6 * max(np.max(np.abs(finite)), 1e-300))
-        return WorstPoint(loop, name, float(vals[k]), unit, k, self.conditions[k], uniform)
+        note = ""
+        if name.startswith("gain_margin") and vals[k] < 0:
+            m = self.loops[loop].margins
+            note = (f"conditionally stable (lower gain margin {m.gain_margin_lower_db[k]:.1f} dB, "
+                    f"upper {m.gain_margin_upper_db[k]:+.1f} dB)")
+        return WorstPoint(loop, name, float(vals[k]), unit, k, self.conditions[k], uniform, note)
 
     def worst_points(self) -> tuple[WorstPoint, ...]:
         """Worst point of every metric of every loop (the load-step ones for the outer loops)."""

@@ -61,9 +61,12 @@ def analysis_to_dict(result: DesignAnalysis) -> dict:
             si = lm.step_info
             # no numbers where the linear loop does not exist (they would be silently wrong)
             num = _num if a.valid[k] else (lambda _x: None)
-            row = {"index": k, "valid": bool(a.valid[k]), "stable": bool(lm.stable[k]),
+            row = {"index": k, "valid": bool(a.valid[k]), "stable": bool(lm.stable[k]) if a.valid[k] else None,
                    "crossover_hz": num(m.crossover_hz[k]), "phase_margin_deg": num(m.phase_margin_deg[k]),
-                   "gain_margin_db": num(m.gain_margin_db[k]), "phase_crossover_hz": num(m.phase_crossover_hz[k]),
+                   "gain_margin_db": num(m.gain_margin_db[k]),
+                   "gain_margin_lower_db": num(m.gain_margin_lower_db[k]),
+                   "gain_margin_upper_db": num(m.gain_margin_upper_db[k]),
+                   "phase_crossover_hz": num(m.phase_crossover_hz[k]),
                    "delay_margin_s": num(m.delay_margin_s[k]), "bandwidth_hz": num(m.bandwidth_hz[k]),
                    "ms": num(m.ms[k]), "spectral_radius": num(lm.spectral_radius[k]),
                    "step": {"rise_time_s": num(si.rise_time_s[k]), "settling_time_s": num(si.settling_time_s[k]),
@@ -83,7 +86,7 @@ def analysis_to_dict(result: DesignAnalysis) -> dict:
             w = a.worst(loop, name)
             if w is not None:
                 worst[name] = {"index": w.index, "value": _num(w.value), "unit": w.unit, "uniform": w.uniform,
-                               "condition": _cond(w.condition)}
+                               "condition": _cond(w.condition), "note": w.note}
         loops[loop] = {"points": rows, "worst": worst}
     req = {
         "passed": check.passed, "checked_points": check.checked_points, "skipped_points": check.skipped_points,

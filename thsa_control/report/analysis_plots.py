@@ -10,7 +10,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
 
-from ..loops.analysis import LOOPS, METRICS, LoopAnalysis  # noqa: E402
+from ..loops.analysis import LOOPS, METRIC_LABELS, METRICS, LoopAnalysis  # noqa: E402
 
 __all__ = ["plot_loop_bode", "plot_steps", "plot_margin_maps", "plot_velocity_poles", "plot_friction_slopes",
            "plot_switching"]
@@ -30,8 +30,50 @@ def _hz(w):
 # ----------------------------------------------------------------------------------------------------------------
 # figures
 # ----------------------------------------------------------------------------------------------------------------
+def _phase_branches(L: np.ndarray, f: np.ndarray, crossover_hz: np.ndarray) -> np.ndarray:
+    """Unwrapped phase [deg] of each curve on the branch where its gain-crossover phase is in (-360, 0].
+
+    The last sample (Nyquist, where a sampled response is real) is dropped (nan) when the phase turns by
+    more than 30 deg over the last grid interval: a zero or pole near ``z = -1`` that the log grid does
+    not resolve, which would otherwise draw a vertical jump.
+    """
+    ph = np.degrees(np.unwrap(np.angle(L), axis=1))
+    jc = np.where(np.isfinite(crossover_hz),
+                  np.argmin(np.abs(f[None, :] - np.nan_to_num(crossover_hz)[:, None]), axis=1), f.size - 1)
+    ph -= 360 * np.ceil(ph[np.arange(len(ph)), jc] / 360)[:, None]
+    jump = np.abs(ph[:, -1] - ph[:, -2]) > 30
+    ph[jump, -1] = np.nan
+    return ph
+
+
+def _phase_crossings(L: np.ndarray, f: np.ndarray) -> list[tuple[float, float]]:
+    """``(frequency [Hz], gain margin [dB])`` of every crossing of the negative real axis of one curve.
+
+    Grid resolution (the analysis refines the margins it reports); Nyquist included when ``L`` is
+    negative there.
+    """
+    im, re = L.imag, L.real
+    out = []
+    for j in np.flatnonzero((np.signbit(im[:-2]) != np.signbit(im[1:-1])) & ((re[:-2] < 0) | (re[1:-1] < 0))):
+        t = im[j] / (im[j] - im[j + 1])  # linear interpolation in the grid interval
+        x = L[j] + t * (L[j + 1] - L[j])
+        if x.real < 0:
+            out.append((float(f[j] + t * (f[j + 1] - f[j])), float(-20 * np.log10(abs(x)))))
+    if re[-1] < 0:
+        out.append((float(f[-1]), float(-20 * np.log10(abs(L[-1])))))
+    return out
+
+
 def plot_loop_bode(analysis: LoopAnalysis, loop: str, axes=None):
-    """Open-loop Bode plot of ``loop``: reference point per temperature in colour, all valid points in grey.
+    """Open-loop Bode plot of ``loop`` across the grid, the worst point highlighted.
+
+    Grey: every valid grid point; colour: the reference point at each
+    temperature; black: the point of the worst phase margin, with its gain
+    crossover, its -180 deg crossings and the gain margin at each of them
+    (a negative one, below 0 dB, is a lower gain margin: the loop is
+    conditionally stable there).  The phase is unwrapped along each curve and
+    put on the branch where the phase margin reads as ``phase + 180``; the
+    axis is limited to -405..+45 deg (curves beyond it leave the plot).
 
     Parameters
     ----------
@@ -46,56 +88,77 @@ def plot_loop_bode(analysis: LoopAnalysis, loop: str, axes=None):
     matplotlib.figure.Figure
     """
     if axes is None:
-        fig, axes = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True, constrained_layout=True)
+        fig, axes = plt.subplots(2, 1, figsize=(9, 6.8), sharex=True, constrained_layout=True)
     else:
         fig = axes[0].figure
     ax_m, ax_p = axes
     lm = analysis.loops[loop]
-    f = _hz(lm.margins.omega)
-    L = lm.margins.L
+    mg = lm.margins
+    f = _hz(mg.omega)
+    L = mg.L
     with np.errstate(divide="ignore"):
         mag = 20 * np.log10(np.abs(L))
-    ph = np.degrees(np.unwrap(np.angle(L), axis=1))
-    # one branch per curve: the phase at the gain crossover in (-360, 0], so that it reads PM - 180
-    wc = lm.margins.crossover_hz
-    jc = np.where(np.isfinite(wc), np.argmin(np.abs(f[None, :] - np.nan_to_num(wc)[:, None]), axis=1), f.size - 1)
-    ph -= 360 * np.ceil(ph[np.arange(len(ph)), jc] / 360)[:, None]
+    ph = _phase_branches(L, f, mg.crossover_hz)
     ks = np.flatnonzero(analysis.valid)
-    logf = np.log10(f)
     ax_m.add_collection(LineCollection([np.column_stack([f, mag[k]]) for k in ks], colors="0.82", lw=0.5, zorder=1))
     ax_p.add_collection(LineCollection([np.column_stack([f, ph[k]]) for k in ks], colors="0.82", lw=0.5, zorder=1))
     ax_m.set_xscale("log")
     ax_m.set_xlim(f[0], f[-1] * 1.05)
-    del logf
-    for temp, k in analysis.reference_indices().items():
+    refs = analysis.reference_indices()
+    for temp, k in refs.items():
         c = _tcolor(temp)
-        pm, wc = lm.margins.phase_margin_deg[k], lm.margins.crossover_hz[k]
-        ax_m.semilogx(f, mag[k], color=c, lw=1.6, label=f"{temp:g} degC: PM {pm:.1f} deg at {wc:.3g} Hz", zorder=3)
-        ax_p.semilogx(f, ph[k], color=c, lw=1.6, zorder=3)
+        ax_m.semilogx(f, mag[k], color=c, lw=1.3,
+                      label=f"{temp:g} degC: PM {mg.phase_margin_deg[k]:.1f} deg at {mg.crossover_hz[k]:.3g} Hz",
+                      zorder=3)
+        ax_p.semilogx(f, ph[k], color=c, lw=1.3, zorder=3)
+    # the worst case, highlighted, with its crossings and margins
+    w = analysis.worst(loop, "phase_margin_deg")
+    if w is not None:
+        k = w.index
+        where = "every valid point alike" if w.uniform else w.condition.label()
+        ax_m.semilogx(f, mag[k], color="k", lw=2.2, zorder=5, label=f"worst PM {w.value:.1f} deg: {where}")
+        ax_p.semilogx(f, ph[k], color="k", lw=2.2, zorder=5)
+        wc = mg.crossover_hz[k]
         if np.isfinite(wc):
-            ax_m.plot([wc], [0.0], "o", color=c, ms=4, zorder=4)
+            ax_m.plot([wc], [0.0], "o", color="k", ms=6, zorder=6)
+            ph_c = np.interp(np.log(wc), np.log(f), ph[k])
+            ax_p.plot([wc, wc], [-180 + 360 * round((ph_c + 180) / 360), ph_c], color="tab:green", lw=2.5, zorder=6)
+            ax_p.annotate(f"PM {w.value:.1f} deg", (wc, ph_c), xytext=(6, 6), textcoords="offset points",
+                          fontsize=8, color="tab:green", zorder=8,
+                          bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.85))
+        m_lo = max(np.nanpercentile(mag[ks], 1) - 5, -120) if ks.size else -120
+        for fc, gm in _phase_crossings(L[k], f):
+            if not -gm > m_lo or (fc == f[-1] and np.isnan(ph[k][-1])):
+                continue  # off the magnitude axis (a zero near z = -1), or at an unresolved Nyquist turn
+            ph_x = np.interp(np.log(fc), np.log(f), ph[k])
+            ax_p.plot([fc], [ph_x], "X", color="tab:red", ms=8, zorder=7)
+            m_x = -gm
+            ax_m.plot([fc, fc], [min(m_x, 0.0), max(m_x, 0.0)], color="tab:red", lw=2.5, zorder=6)
+            ax_m.plot([fc], [m_x], "X", color="tab:red", ms=8, zorder=7)
+            kind = " (lower: conditionally stable)" if gm < 0 else ""
+            ax_m.annotate(f"GM {gm:+.1f} dB{kind}", (fc, m_x), xytext=(-8, 8 if gm > 0 else -16),
+                          textcoords="offset points", ha="right", fontsize=8, color="tab:red", zorder=8,
+                          bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.85))
     ax_m.axhline(0, color="k", lw=0.7)
-    ax_p.axhline(-180, color="k", lw=0.7)
-    lo, hi = np.nanpercentile(mag[analysis.valid], [1, 99]) if analysis.valid.any() else (-60, 60)
-    ax_m.set_ylim(max(lo - 5, -120), min(hi + 5, 150))
+    for y in (-180.0, -540.0, 180.0):
+        ax_p.axhline(y, color="k", lw=0.7)
+    ax_p.axvline(f[-1], color="0.5", lw=0.7, ls=":")
+    finite = mag[ks][np.isfinite(mag[ks])] if ks.size else np.array([-60.0, 60.0])
+    lo, hi = np.percentile(finite, [1, 99]) if finite.size else (-60, 60)
+    ax_m.set_ylim(max(lo - 5, -120), min(hi + 10, 150))
     ax_m.set_ylabel("|L| [dB]")
     ax_p.set_ylabel("phase of L [deg]")
-    ax_p.set_xlabel("frequency [Hz] (up to Nyquist)")
-    ax_p.set_ylim(max(np.nanpercentile(ph, 1) - 20, -540), min(np.nanpercentile(ph, 99) + 20, 180))
+    ax_p.set_xlabel("frequency [Hz] (dotted: Nyquist)")
+    ph_ok = ph[ks][np.isfinite(ph[ks])] if ks.size else np.array([-180.0])
+    ax_p.set_ylim(max(np.min(ph_ok) - 15, -405), min(np.max(ph_ok) + 15, 45))
+    ax_p.yaxis.set_major_locator(plt.MultipleLocator(90))
     for a in axes:
         a.grid(True, which="both", alpha=0.3)
-    refs = analysis.reference_indices()
     ref = analysis.conditions[next(iter(refs.values()))] if refs else None
     where = f"{ref.nut_speed * 1e3:g} mm/s, {ref.load_force * 1e-3:g} kN" if ref else "-"
     ax_m.legend(fontsize=7, loc="lower left", title=f"reference point {where}", title_fontsize=7)
-    w = analysis.worst(loop, "phase_margin_deg")
-    if w is None:
-        extra = ""
-    elif w.uniform:
-        extra = "; the same at every valid point"
-    else:
-        extra = f"; worst PM {w.value:.1f} deg at {w.condition.label()}"
-    ax_m.set_title(f"{_LOOP_TITLE[loop]}: open loop L(z), grey: every valid grid point{extra}", fontsize=9)
+    ax_m.set_title(f"{_LOOP_TITLE[loop]}: open loop L(z); grey: every valid grid point; black: worst phase margin; "
+                   "red: -180 deg crossings and gain margins", fontsize=9)
     return fig
 
 
@@ -113,8 +176,9 @@ def plot_steps(analysis: LoopAnalysis):
         lm = analysis.loops[loop]
         ax = axes[0, j]
         s, unit = scale[loop]
-        for temp, k in refs.items():
-            ax.plot(lm.step_time * s, lm.step[k], color=_tcolor(temp), label=f"{temp:g} degC")
+        for temp, k in refs.items():  # the current loop's step drawn as the sampled staircase it is
+            ax.plot(lm.step_time * s, lm.step[k], color=_tcolor(temp), label=f"{temp:g} degC",
+                    drawstyle="steps-post" if loop == "current_loop" else "default")
         ax.set_title(f"{_LOOP_TITLE[loop]}: unit reference step", fontsize=9)
         ax.set_xlabel(f"time [{unit}]")
         ax.grid(True, alpha=0.3)
@@ -195,10 +259,12 @@ def plot_margin_maps(analysis: LoopAnalysis, loop: str = "velocity_loop",
             if i == len(metrics) - 1:
                 ax.set_xlabel("load [kN] (< 0 aids)", fontsize=8)
             if t == 0:
-                ax.set_ylabel(f"{name}\nspeed [mm/s]", fontsize=8)
+                ax.set_ylabel(f"{METRIC_LABELS[name]}\nspeed [mm/s]", fontsize=8)
             if i == 0:
                 ax.set_title(f"{grid.temperatures[t]:g} degC", fontsize=9)
-        fig.colorbar(im, ax=axes[i, :], shrink=0.8, label=f"{name} [{METRICS[name][0]}]")
+        unit = METRICS[name][0]
+        label = f"|{METRIC_LABELS[name]}|" if name == "gain_margin_db" else METRIC_LABELS[name]
+        fig.colorbar(im, ax=axes[i, :], shrink=0.8, label=f"{label} [{unit}]" if unit != "-" else label)
     fig.suptitle(f"{_LOOP_TITLE[loop]} over the grid (hatched: not analysed, see the invalid points; framed: worst point"
                  f"{'; gain margin shown by magnitude' if 'gain_margin_db' in metrics else ''})", fontsize=10)
     return fig

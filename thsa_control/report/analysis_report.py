@@ -39,7 +39,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..loops.analysis import LOOPS, METRICS, DesignAnalysis, check_requirements  # noqa: E402
+from ..loops.analysis import LOOPS, METRIC_LABELS, DesignAnalysis, check_requirements, metric_unit  # noqa: E402
 from .analysis_json import ANALYSIS_FORMAT, analysis_to_dict  # noqa: E402
 from .analysis_plots import (  # noqa: E402
     _LOOP_TITLE,
@@ -84,7 +84,9 @@ text-align:right}th{background:#f0f0f0}td.l,th.l{text-align:left}tr.invalid td{c
 td.fail{background:#f8c9c4}td.worst{font-weight:bold;background:#fff2a8}tr.worstrow td{border-top:2px solid #000;
 border-bottom:2px solid #000}.pass{color:#167a2b;font-weight:bold}.failtxt{color:#b3261e;font-weight:bold}
 figure{margin:0.8em 0}figcaption{font-size:12px;color:#555}img{max-width:100%}
-details{margin:0.5em 0}.note{font-size:12px;color:#555}
+details{margin:0.5em 0}summary{cursor:pointer;font-weight:600}.note{font-size:12px;color:#555}
+.scroll{overflow-x:auto;max-width:100%}th{max-width:11em;white-space:normal;vertical-align:bottom}
+td.why{max-width:28em;white-space:normal;text-align:left;color:#555}
 """
 
 
@@ -110,7 +112,7 @@ def _fmt(x, digits: int = 4) -> str:
 
 def _table(name: str, header, rows, classes=None, caption: str = "") -> str:
     """HTML table; ``rows`` of cells (str), ``classes`` per row: (row class, [cell classes])."""
-    out = [f'<table id="table-{name}">']
+    out = [f'<div class="scroll"><table id="table-{name}">']
     if caption:
         out.append(f"<caption class='note' style='caption-side:top;text-align:left'>{html.escape(caption)}</caption>")
     out.append("<tr>" + "".join(f"<th class='l'>{html.escape(h)}</th>" if i == 0 else f"<th>{html.escape(h)}</th>"
@@ -125,12 +127,23 @@ def _table(name: str, header, rows, classes=None, caption: str = "") -> str:
             attr = f" class='{' '.join(cls)}'" if cls else ""
             cells.append(f"<td{attr}>{cell}</td>")
         out.append(f"<tr class='{rcls}'>" + "".join(cells) + "</tr>")
-    out.append("</table>")
+    out.append("</table></div>")
     return "\n".join(out)
 
 
-_MARGIN_COLUMNS = ("crossover_hz", "phase_margin_deg", "gain_margin_db", "delay_margin_s", "bandwidth_hz", "ms",
-                   "rise_time_s", "settling_time_s", "overshoot_percent", "load_step_peak", "load_step_recovery_s")
+_MARGIN_COLUMNS = ("crossover_hz", "phase_margin_deg", "gain_margin_lower_db", "gain_margin_upper_db",
+                   "delay_margin_s", "bandwidth_hz", "ms", "rise_time_s", "settling_time_s", "overshoot_percent",
+                   "load_step_peak", "load_step_recovery_s")
+
+
+def _details(summary: str, body: str, *, open_: bool = False) -> str:
+    """A collapsible section (long per-point tables)."""
+    return (f"<details{' open' if open_ else ''}><summary>{html.escape(summary)}</summary>\n{body}\n</details>")
+
+
+def _header(loop: str, name: str) -> str:
+    unit = metric_unit(loop, name)
+    return f"{METRIC_LABELS[name]} [{unit}]" if unit != "-" else METRIC_LABELS[name]
 
 
 def _margin_table(result: DesignAnalysis, loop: str) -> str:
@@ -138,19 +151,24 @@ def _margin_table(result: DesignAnalysis, loop: str) -> str:
     lm = a.loops[loop]
     cols = [c for c in _MARGIN_COLUMNS if not (loop == "current_loop" and c.startswith("load_step"))]
     fails: dict[int, set[str]] = {}
+    gm = lm.margins.gain_margin_db
     for v in result.requirements.violations:
         if v.loop == loop:
-            fails.setdefault(v.index, set()).add(v.metric)
+            metric = v.metric
+            if metric == "gain_margin_db":  # the margin nearest 0 dB: the lower one when negative
+                metric = "gain_margin_lower_db" if gm[v.index] < 0 else "gain_margin_upper_db"
+            fails.setdefault(v.index, set()).add(metric)
     worst = {name: a.worst(loop, name) for name in cols}
     worst_pm = worst.get("phase_margin_deg")
     rows, classes = [], []
     for k, c in enumerate(a.conditions):
         row = [html.escape(f"{c.nut_speed * 1e3:g}"), html.escape(f"{c.load_force * 1e-3:g}"),
                html.escape(f"{c.temperature:g}"), "yes" if a.valid[k] else "no",
+               html.escape("; ".join(r.split(":")[0] for r in a.reasons[k])) or "-",
                ("yes" if lm.stable[k] else "NO") if a.valid[k] else "-"]
-        ccls = [""] * 5
+        ccls = ["", "", "", "", "why", ""]
         if not lm.stable[k] and a.valid[k]:
-            ccls[4] = "fail"
+            ccls[5] = "fail"
         for name in cols:
             val = lm.metric(name)[k]
             row.append(_fmt(val) if a.valid[k] else "-")
@@ -163,12 +181,10 @@ def _margin_table(result: DesignAnalysis, loop: str) -> str:
             ccls.append(cl)
         rcls = "invalid" if not a.valid[k] else ("worstrow" if worst_pm is not None and worst_pm.index == k
                                                     and not worst_pm.uniform else "")
-        row.append(html.escape("; ".join(r.split(":")[0] for r in a.reasons[k])))
-        ccls.append("")
         rows.append(row)
         classes.append((rcls, ccls))
-    header = ["speed [mm/s]", "load [kN]", "T [degC]", "valid", "stable"] + [
-        f"{n} [{METRICS[n][0]}]" for n in cols] + ["invalid because"]
+    header = ["speed [mm/s]", "load [kN]", "T [degC]", "valid", "invalid because", "stable"] + [
+        _header(loop, n) for n in cols]
     cap = (f"{_LOOP_TITLE[loop]}: every grid point. Red: requirement not met; bold yellow: worst valid point of the "
            "column; framed row: worst phase margin; grey rows: not analysed (invalid linearisation or saturated "
            "controller; no numbers, not checked).")
@@ -197,20 +213,27 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
     rows, classes = [], []
     for r in check.rows:
         where = "same at every valid point" if r.uniform else (r.worst_condition.label() if r.worst_condition else "-")
-        rows.append([r.loop, html.escape(r.requirement), _fmt(r.limit), _fmt(r.worst_value),
+        worst = _fmt(r.worst_value)
+        if r.metric == "gain_margin_db" and r.worst_value < 0:
+            worst += " (lower: conditionally stable)"
+        rows.append([r.loop, html.escape(r.requirement), _fmt(r.limit), worst,
                      html.escape(where), str(r.n_failed),
                      "PASS" if r.passed else "FAIL"])
         classes.append(("", [""] * 6 + ["" if r.passed else "fail"]))
     parts.append("<h2>Requirements</h2>")
     parts.append(_table("requirements", ["loop", "requirement", "limit", "worst value", "worst point",
                                          "failing points", "result"], rows, classes,
-                        "Gain margins are compared by magnitude (a negative value is the lower gain margin of a "
-                        "conditionally stable loop). A closed-loop-unstable valid point fails every requirement."))
+                        "Gain margins are compared by magnitude: the margin nearest 0 dB of the lower (negative, "
+                        "the loop is conditionally stable) and the upper one. A closed-loop-unstable valid point "
+                        "fails every requirement."))
     # worst points
-    rows = [[w.loop, w.metric, _fmt(w.value), html.escape(w.unit),
-             "same at every valid point" if w.uniform else html.escape(w.condition.label())] for w in a.worst_points()]
+    rows = [[w.loop, html.escape(METRIC_LABELS[w.metric]), _fmt(w.value), html.escape(w.unit),
+             "same at every valid point" if w.uniform else html.escape(w.condition.label()), html.escape(w.note)]
+            for w in a.worst_points()]
     parts.append("<h2>Worst operating point of each metric</h2>")
-    parts.append(_table("worst_points", ["loop", "metric", "value", "unit", "where"], rows))
+    parts.append(_details(f"Table: worst valid point of each metric ({len(rows)} rows)",
+                          _table("worst_points", ["loop", "metric", "value", "unit", "where", "note"], rows),
+                          open_=True))
     # figures
     captions = {
         "bode_current_loop": "Current loop: discrete PI around the ZOH RL plant of the linearisation.",
@@ -246,10 +269,8 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
             parts.append(f"<p class='note' id='fig-{name}'>{name}: not computed (switch-over analysis not run).</p>")
         if name == "margin_maps":
             for loop in LOOPS:
-                parts.append(f"<details {'open' if loop == 'velocity_loop' else ''}><summary>"
-                             f"Table: {_LOOP_TITLE[loop]} at every grid point</summary>")
-                parts.append(_margin_table(result, loop))
-                parts.append("</details>")
+                parts.append(_details(f"Table: {_LOOP_TITLE[loop]} at every grid point ({len(a)} rows; "
+                                      "click to open)", _margin_table(result, loop)))
         if name == "friction_slopes":
             rows = []
             for k in np.flatnonzero(a.valid & (lin.stribeck | (lin.net_damping < 0))):
@@ -258,11 +279,12 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
                              _fmt(lin.net_damping[k] * 1e3), "yes" if lin.net_damping[k] < 0 else "no",
                              _fmt(vl.margins.phase_margin_deg[k]), _fmt(vl.margins.gain_margin_db[k]),
                              _fmt(vl.step_info.overshoot_percent[k])])
-            parts.append(_table("stribeck_points", ["point", "friction slope [mN m s/rad]",
-                                                    "net damping [mN m s/rad]", "unstable mechanical mode",
-                                                    "velocity PM [deg]", "velocity GM [dB]", "velocity overshoot [%]"],
-                                rows, caption=f"{len(rows)} valid points with a negative friction slope or net "
-                                              "damping (destabilising; the velocity loop must stabilise them)."))
+            parts.append(_details(f"Table: Stribeck points ({len(rows)} rows)", _table(
+                "stribeck_points", ["point", "friction slope [mN m s/rad]", "net damping [mN m s/rad]",
+                                    "unstable mechanical mode", "velocity PM [deg]",
+                                    "velocity GM nearest 0 dB [dB]", "velocity overshoot [%]"],
+                rows, caption=f"{len(rows)} valid points with a negative friction slope or net "
+                              "damping (destabilising; the velocity loop must stabilise them).")))
         if name == "switching_transient" and result.switching is not None:
             cases = list(result.switching.cases)
             delays = sorted({c.delay_s for c in cases})
@@ -295,33 +317,39 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
                 for k, c in enumerate(la.conditions):
                     ok = (loop, k) not in bad and bool(lm.stable[k])
                     f = _fmt if la.valid[k] else (lambda _x: "-")
-                    rows.append([html.escape(name), loop, html.escape(c.label()), f(lm.margins.crossover_hz[k]),
-                                 f(lm.margins.phase_margin_deg[k]), f(lm.margins.gain_margin_db[k]),
+                    why = "; ".join(r.split(":")[0] for r in la.reasons[k])
+                    rows.append([html.escape(name), loop, html.escape(c.label()), html.escape(why) or "-",
+                                 f(lm.margins.crossover_hz[k]), f(lm.margins.phase_margin_deg[k]),
+                                 f(lm.margins.gain_margin_lower_db[k]), f(lm.margins.gain_margin_upper_db[k]),
                                  f(lm.margins.bandwidth_hz[k]), f(lm.margins.ms[k]),
-                                 "yes" if lm.stable[k] else "NO",
+                                 ("yes" if lm.stable[k] else "NO") if la.valid[k] else "-",
                                  ("PASS" if ok else "FAIL") if loop in d.requirements and la.valid[k] else "-"])
-                    classes.append(("" if la.valid[k] else "invalid", [""] * 9 + ["" if ok else "fail"]))
-        parts.append(_table("configurations", ["configuration", "loop", "point", "crossover [Hz]", "PM [deg]",
-                                               "GM [dB]", "bandwidth [Hz]", "Ms", "stable", "requirements"],
-                            rows, classes,
-                            caption="Both plants carry two rotors (standby_motor effect): the design, derived for "
-                                    "one rotor, sees about twice the inertia."))
+                    classes.append(("" if la.valid[k] else "invalid",
+                                    ["", "", "", "why"] + [""] * 7 + ["" if ok or not la.valid[k] else "fail"]))
+        parts.append(_details(f"Table: both configurations at every point ({len(rows)} rows)", _table(
+            "configurations", ["configuration", "loop", "point", "invalid because", "gain crossover [Hz]",
+                               "phase margin [deg]", "lower gain margin [dB]", "upper gain margin [dB]",
+                               "closed-loop bandwidth [Hz]", "sensitivity peak Ms", "stable", "requirements"],
+            rows, classes, caption="Both plants carry two rotors (standby_motor effect): the design, derived for "
+                                   "one rotor, sees about twice the inertia.")))
     else:
         parts.append("<p class='note' id='table-configurations'>configurations: not computed.</p>")
     # invalid points
     rows = [[html.escape(c.label()), html.escape(" | ".join(reasons))] for c, reasons in a.invalid_points()]
     parts.append("<h2>Invalid operating points</h2>")
-    parts.append(_table("invalid_points", ["point", "why the linear model is not valid there"], rows,
-                        caption=f"{len(rows)} points: a linear model there would be silently wrong."))
+    parts.append(_details(f"Table: invalid points ({len(rows)} rows)", _table(
+        "invalid_points", ["point", "why the linear model is not valid there"], rows,
+        caption=f"{len(rows)} points: a linear model there would be silently wrong.")))
     # limit cycles
     rows = [[c.loop, c.nonlinearity, html.escape(c.condition.label()), "yes" if c.predicted else "no",
              _fmt(c.amplitude), html.escape(c.amplitude_unit), _fmt(c.frequency_hz), html.escape(c.note)]
             for c in result.limit_cycles]
     parts.append("<h2>Describing functions: predicted limit cycles</h2>")
-    parts.append(_table("limit_cycles", ["loop", "nonlinearity", "condition", "limit cycle", "amplitude", "unit",
-                                         "frequency [Hz]", "note"], rows,
-                        caption="Friction: the plant's set-valued friction vs motor speed around zero speed; "
-                                "backlash: the load-path play (2 x backlash) in the position feedback."))
+    parts.append(_details(f"Table: limit cycles ({len(rows)} rows)", _table(
+        "limit_cycles", ["loop", "nonlinearity", "condition", "limit cycle", "amplitude", "unit", "frequency [Hz]",
+                         "note"], rows,
+        caption="Friction: the plant's set-valued friction vs motor speed around zero speed; "
+                "backlash: the load-path play (2 x backlash) in the position feedback."), open_=True))
     notes = "; ".join(f"{k} {v:.2f} s" for k, v in result.timings.items())
     parts.append(f"<p class='note'>Computed in: {html.escape(notes)}.</p></body></html>")
     return "\n".join(parts)
