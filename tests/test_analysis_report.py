@@ -8,6 +8,7 @@ import re
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from thsa_control.loops.analysis import AnalysisSettings, analyse_design
@@ -145,3 +146,116 @@ def test_cli_report_bad_input_writes_nothing(tmp_path, capsys):
     assert main(["report", "--level", "Z", "--out", str(out)]) == 2
     assert "unknown model level 'Z'" in capsys.readouterr().err
     assert not out.exists()
+
+
+# ------------------------------------------------------------------------------------------------
+# readability (issue 7, item 9)
+# ------------------------------------------------------------------------------------------------
+def test_both_gain_margins_and_conditional_stability_are_reported(nominal_report, nominal_result):
+    doc = json.loads((nominal_report / "analysis.json").read_text())
+    rows = doc["loops"]["velocity_loop"]["points"]
+    worst = doc["loops"]["velocity_loop"]["worst"]
+    k = worst["gain_margin_db"]["index"]
+    # at the cold aiding point the loop is conditionally stable: the lower margin is kept, and the upper one too
+    assert rows[k]["gain_margin_lower_db"] == rows[k]["gain_margin_db"] < 0
+    assert rows[k]["gain_margin_upper_db"] > 20
+    assert worst["gain_margin_db"]["note"].startswith("conditionally stable (lower gain margin -8")
+    m = nominal_result.loops.loops["velocity_loop"].margins
+    assert rows[k]["gain_margin_upper_db"] == pytest.approx(float(m.gain_margin_upper_db[k]))
+    # the current loop has only an upper one (at Nyquist): its lower one is -inf, and not a worst point
+    cur = doc["loops"]["current_loop"]
+    assert all(r["gain_margin_lower_db"] in ("-inf", None) for r in cur["points"])
+    assert "gain_margin_lower_db" not in cur["worst"] and "gain_margin_upper_db" in cur["worst"]
+    assert worst["load_step_peak"]["unit"] == "m/s of nut speed per N of load"
+    assert doc["loops"]["position_loop"]["worst"]["load_step_peak"]["unit"] == "m of nut position per N of load"
+    html = (nominal_report / "report.html").read_text()
+    assert "lower gain margin [dB]" in html and "upper gain margin [dB]" in html
+    assert "sensitivity peak Ms" in html and "ms [-]" not in html
+    assert "-8.116 (lower: conditionally stable)" in html or "(lower: conditionally stable)" in html
+    assert "load-step peak [m/s of nut speed per N of load]" in html
+
+
+def test_invalid_points_never_say_stable(nominal_report):
+    doc = json.loads((nominal_report / "analysis.json").read_text())
+    for loop in ("current_loop", "velocity_loop", "position_loop"):
+        for r in doc["loops"][loop]["points"]:
+            assert (r["stable"] is None) == (not r["valid"])
+    invalid = [r for r in doc["configurations"] if not r["valid"]]
+    assert invalid and all(r["stable"] is None for r in invalid)
+    assert all(isinstance(r["stable"], bool) for r in doc["configurations"] if r["valid"])
+    html = (nominal_report / "report.html").read_text()
+    table = html[html.index('<table id="table-configurations">'):]
+    table = table[:table.index("</table>")]
+    for row in re.findall(r"<tr class='invalid'>(.*?)</tr>", table):
+        assert ">yes<" not in row  # neither 'stable: yes' nor anything else claimed at an invalid point
+
+
+def test_long_tables_are_collapsible_with_the_reason_in_front(nominal_report):
+    html = (nominal_report / "report.html").read_text()
+    for loop in ("current_loop", "velocity_loop", "position_loop"):
+        start = html.index(f'<table id="table-margins_{loop}">')
+        opening = html.rfind("<details", 0, start)
+        assert opening > html.rfind("</details>", 0, start) and not html[opening:start].startswith("<details open")
+        header = html[start:html.index("</tr>", start)]
+        cols = re.findall(r"<th[^>]*>(.*?)</th>", header)
+        assert cols.index("invalid because") == 4 < cols.index("stable")  # before the 12 metric columns
+    for name in ("invalid_points", "configurations"):
+        start = html.index(f'<table id="table-{name}">')
+        assert html.rfind("<details", 0, start) > html.rfind("</details>", 0, start), name
+    assert "overflow-x:auto" in html  # wide tables scroll inside the page
+
+
+def test_bode_phase_is_on_a_readable_branch(nominal_result):
+    from thsa_control.report.analysis_plots import _phase_branches, _phase_crossings, plot_loop_bode
+
+    a = nominal_result.loops
+    for loop in ("current_loop", "velocity_loop", "position_loop"):
+        m = a.loops[loop].margins
+        f = m.omega / (2 * np.pi)
+        ph = _phase_branches(m.L, f, m.crossover_hz)
+        for k in np.flatnonzero(a.valid):
+            # the phase margin reads off the plotted curve as phase + 180 at the crossover
+            pc = np.interp(np.log(m.crossover_hz[k]), np.log(f), ph[k])
+            assert pc + 180 == pytest.approx(m.phase_margin_deg[k], abs=0.5), (loop, k)
+            assert np.nanmax(np.abs(np.diff(ph[k]))) < 30  # no jump, at Nyquist either
+        fig = plot_loop_bode(a, loop)
+        lo, hi = fig.axes[1].get_ylim()
+        assert lo >= -405 and hi <= 45
+        import matplotlib.pyplot as plt
+
+        plt.close(fig)
+    # the worst velocity point has two -180 deg crossings: the lower and the upper gain margin
+    k = a.worst("velocity_loop", "phase_margin_deg").index
+    m = a.loops["velocity_loop"].margins
+    gms = np.array([gm for _, gm in _phase_crossings(m.L[k], m.omega / (2 * np.pi))])
+    assert gms[gms < 0].max() == pytest.approx(m.gain_margin_lower_db[k], abs=0.05)
+    assert gms[gms > 0].min() == pytest.approx(m.gain_margin_upper_db[k], abs=0.05)
+
+
+def test_report_grid_from_the_command_line_and_the_design_file(tmp_path, capsys, design):
+    doc = design.to_toml_dict()
+    doc["analysis"] = {"nut_speeds_mm_s": [2.0, 10.0], "loads_kN": [-55.0, 20.0], "temperatures_C": [25.0]}
+    import tomli_w
+
+    path = tmp_path / "grid.toml"
+    path.write_bytes(tomli_w.dumps(doc).encode())
+    out = tmp_path / "r"
+    assert main(["report", "--design", str(path), "--temperature", "-55", "--no-switching", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "velocity_loop gain_margin_db: conditionally stable (lower gain margin -8.1 dB" in text
+    assert "-8.1 dB at" not in text.replace("lower gain margin -8.1 dB", "")
+    grid = json.loads((out / "analysis.json").read_text())["grid"]
+    assert grid["nut_speeds_mm_s"] == [2.0, 10.0] and grid["load_forces_N"] == [-55e3, 20e3]
+    assert grid["temperatures_C"] == [-55.0] and grid["n_points"] == 4  # the command line wins
+    assert main(["report", "--design", str(path), "--speeds", "5", "--loads=0,20", "--temperatures", "0,70",
+                 "--no-switching", "--out", str(out)]) == 0
+    grid = json.loads((out / "analysis.json").read_text())["grid"]
+    assert grid["nut_speeds_mm_s"] == [5.0] and grid["temperatures_C"] == [0.0, 70.0] and grid["n_points"] == 4
+    capsys.readouterr()
+    doc["analysis"] = {"temperature_C": [25.0]}
+    path.write_bytes(tomli_w.dumps(doc).encode())
+    assert main(["report", "--design", str(path), "--out", str(tmp_path / "bad")]) == 2
+    assert "unknown key 'temperature_C' in [analysis]" in capsys.readouterr().err
+    assert main(["report", "--temperatures", "-60", "--out", str(tmp_path / "bad")]) == 2
+    assert "-60 degC is outside -55..70 degC" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
