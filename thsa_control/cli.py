@@ -238,10 +238,10 @@ def _floats(text, option: str, scale: float):
 
 
 def _analysis_effects(args) -> list[str]:
-    # the linear workflow's default effects (loops.linear.DEFAULT_EFFECTS) unless --effects says otherwise
-    from .loops.linear import DEFAULT_EFFECTS
+    # the plant that exists: temperature_friction and the dragged standby rotor, unless --effects says otherwise
+    from .loops.analysis import DEFAULT_ANALYSIS_EFFECTS
 
-    return list(DEFAULT_EFFECTS) if args.effects is None else _effects_arg(args.effects)
+    return list(DEFAULT_ANALYSIS_EFFECTS) if args.effects is None else _effects_arg(args.effects)
 
 
 def _cmd_report(args) -> int:
@@ -353,7 +353,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--design", help="design TOML (default designs/nominal.toml)")
     p.add_argument("--level", help="model level A, B, C or D (default: the design's [analysis], else B)")
     p.add_argument("--effects", nargs="*", help="effects added to the level (default: the design's [analysis], "
-                                                "else temperature_friction)")
+                                                "else temperature_friction standby_motor)")
     p.add_argument("--params", help="parameter TOML overriding the embedded actuator")
     p.add_argument("--speeds", help="grid trim speeds [mm/s], comma-separated (default 0,0.5,1,2,5,10,15)")
     p.add_argument("--loads", help="grid loads [kN], compressive positive (default -55,-20,0,20,55)")
@@ -368,7 +368,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--speed", type=float, required=True, help="trim nut speed [mm/s], positive extending")
     p.add_argument("--load", type=float, required=True, help="load [N], compressive positive (opposes extension)")
     p.add_argument("--temperature", type=float, default=25.0, help="temperature [degC], -55..70 (default 25)")
-    p.add_argument("--effects", nargs="*", help="effects added to the level (default: temperature_friction)")
+    p.add_argument("--effects", nargs="*", help="effects added to the level (default: temperature_friction standby_motor)")
     p.add_argument("--active", choices=["primary", "standby"], default="primary", help="energised motor channel")
     p.add_argument("--params", help="parameter TOML overriding the embedded actuator")
     p.add_argument("--save", help="write the linear model to this .npz file")

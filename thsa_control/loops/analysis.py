@@ -20,7 +20,7 @@ from dataclasses import dataclass, replace
 from ._loopmath import MarginSet, StepMetrics, loop_margins, step_metrics
 from .describing import LimitCycle, describing_functions, predict_limit_cycles
 from .design import Design
-from .linear import ConditionGrid, PlantModel, plant_model
+from .linear import DEFAULT_EFFECTS, DEFAULT_LEVEL, ConditionGrid, PlantModel, plant_model
 from .loop_analysis import (
     LOOPS,
     METRIC_LABELS,
@@ -37,6 +37,8 @@ from ..model.params import ParameterSet, default_parameters
 from .statespace import closed_loop, open_loop
 
 __all__ = [
+    "DEFAULT_ANALYSIS_EFFECTS",
+    "DEFAULT_LEVEL",
     "LOOPS",
     "METRICS",
     "METRIC_LABELS",
@@ -64,6 +66,10 @@ __all__ = [
     "open_loop",
     "closed_loop",
 ]
+
+#: Effects the analysis adds to its level by default (CLI and API alike): the cold friction law and the
+#: standby motor, whose rotor the primary drags (an alias of ``loops.linear.DEFAULT_EFFECTS``).
+DEFAULT_ANALYSIS_EFFECTS: tuple[str, ...] = DEFAULT_EFFECTS
 
 
 # ----------------------------------------------------------------------------------------------------------------

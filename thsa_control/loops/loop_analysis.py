@@ -155,7 +155,9 @@ class AnalysisSettings:
         Model level (``'A'`` .. ``'D'``).  Default :data:`~thsa_control.loops.linear.DEFAULT_LEVEL`
         (``'B'``, no-back friction), as ``thsa report``.
     effects : tuple of str
-        Effects added.  Default :data:`~thsa_control.loops.linear.DEFAULT_EFFECTS`, as ``thsa report``.
+        Effects added.  Default :data:`~thsa_control.loops.linear.DEFAULT_EFFECTS`, as ``thsa report``:
+        temperature friction and the standby motor, whose rotor is always dragged (the plant that
+        exists: J x 1.89 against one rotor); the primary is active.
     nut_speeds : tuple of float
         Trim nut speeds [m/s] of the grid; 0 is kept to show that a trim stop
         is not linearisable.  Default 0, 0.5, 1, 2, 5, 10, 15 mm/s.
