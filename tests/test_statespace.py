@@ -15,8 +15,8 @@ from thsa_control.errors import DesignError
 from thsa_control.loops.analysis import analyse_loops
 from thsa_control.loops.linear import DEFAULT_EFFECTS, DEFAULT_LEVEL, OperatingCondition, plant_model
 
-# 25 degC mid-grid, and the nominal design's worst point (cold, aiding, conditionally stable velocity loop)
-CONDITIONS = [OperatingCondition(10e-3, 20e3, 25.0), OperatingCondition(2e-3, -55e3, -55.0)]
+# 25 degC mid-grid, and the nominal design's worst point (slow, aiding, conditionally stable velocity loop)
+CONDITIONS = [OperatingCondition(10e-3, 20e3, 25.0), OperatingCondition(2e-3, -55e3, 70.0)]
 
 
 @pytest.fixture(scope="module")
@@ -24,7 +24,7 @@ def model(params):
     return plant_model(DEFAULT_LEVEL, DEFAULT_EFFECTS, params)
 
 
-@pytest.mark.parametrize("cond", CONDITIONS, ids=["25C", "cold_aiding"])
+@pytest.mark.parametrize("cond", CONDITIONS, ids=["25C", "aiding"])
 def test_stability_margins_of_the_statespace_equal_the_analysis(design, params, model, cond):
     a = analyse_loops(design, params, [cond], model=model, steps=False)
     for loop in ("current", "velocity", "position"):
@@ -34,15 +34,16 @@ def test_stability_margins_of_the_statespace_equal_the_analysis(design, params, 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # python-control's fallback from 'poly' to 'frd'
             gm, pm, sm, wpc, wgc, wms = ct.stability_margins(L)
-        assert pm == pytest.approx(m.phase_margin_deg[0], abs=1e-4), loop
-        assert wgc / (2 * math.pi) == pytest.approx(m.crossover_hz[0], rel=1e-6), loop
-        assert 1 / sm == pytest.approx(m.ms[0], rel=1e-6), loop
-        if loop == "current":
+        # python-control's 'frd' fallback interpolates its own frequency grid: a few 1e-6 relative
+        assert pm == pytest.approx(m.phase_margin_deg[0], abs=1e-3), loop
+        assert wgc / (2 * math.pi) == pytest.approx(m.crossover_hz[0], rel=1e-5), loop
+        assert 1 / sm == pytest.approx(m.ms[0], rel=1e-5), loop
+        if loop == "current" and not design.computation_delay_samples:
             # its phase crossover is at Nyquist, z = -1, which python-control's margins skip: evaluate there
             assert m.gain_margin_db[0] == pytest.approx(-20 * math.log10(abs(L(-1.0))), rel=1e-9)
         else:
-            assert 20 * math.log10(gm) == pytest.approx(m.gain_margin_db[0], abs=1e-5), loop
-    if cond.temperature == -55.0:  # conditionally stable: python-control sees the lower gain margin too
+            assert 20 * math.log10(gm) == pytest.approx(m.gain_margin_db[0], abs=1e-4), loop
+    if cond.aiding:  # conditionally stable: python-control sees the lower gain margin too
         assert a.loops["velocity_loop"].margins.gain_margin_db[0] < 0
 
 

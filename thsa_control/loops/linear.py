@@ -392,7 +392,7 @@ def plant_model(level: str | None = DEFAULT_LEVEL, effects: Iterable[str] | None
 
     Examples
     --------
-    >>> m = plant_model("D")
+    >>> m = plant_model("D", ())
     >>> m.named.states[:5]
     ('motor_current', 'motor_speed', 'nut_position', 'loadpath_deflection', 'surface_speed')
     >>> m.named.drifting_states
