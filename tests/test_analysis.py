@@ -324,3 +324,21 @@ def test_linear_model_predicts_the_small_signal_response(design, params, level, 
     # implicit friction), the linear model the exact ZOH of the AD Jacobian: 2 % of the step
     assert np.max(np.abs(sim - lin.step[0])) < 0.02
     assert sim.max() == pytest.approx(lin.step[0].max(), abs=0.01)
+
+
+def test_analyse_design_builds_the_plant_model_once(design, params, monkeypatch):
+    from thsa_control.loops import analysis, describing, linear, loop_analysis
+
+    calls = []
+
+    def counting(*args, **kwargs):
+        calls.append(args[:2])
+        return linear.plant_model(*args, **kwargs)
+
+    for mod in (analysis, describing, loop_analysis):
+        monkeypatch.setattr(mod, "plant_model", counting)
+    settings = AnalysisSettings(nut_speeds=(2e-3,), load_forces=(20e3,), temperatures=(25.0,))
+    assert "standby_motor" in settings.effects  # the default: configurations reuse the grid's model
+    result = analysis.analyse_design(design, params, settings=settings, switching=False)
+    assert len(calls) == 1
+    assert result.configurations.primary.linearization.model is result.loops.linearization.model
