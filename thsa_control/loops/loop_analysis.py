@@ -658,8 +658,8 @@ def analyse_loops(design: Design, params: ParameterSet | None = None, conditions
     >>> from thsa_control.loops.design import load_design, nominal_design_path
     >>> a = analyse_loops(load_design(nominal_design_path()),
     ...                   conditions=[OperatingCondition(10e-3, 20e3, 25.0)])
-    >>> round(float(a.metric("velocity_loop", "crossover_hz")[0]), 1)  # [Hz]
-    27.7
+    >>> round(float(a.metric("velocity_loop", "crossover_hz")[0]), 1)  # [Hz], designed for 30 Hz
+    29.0
     >>> bool(a.loops["velocity_loop"].stable[0]), a.valid.tolist()
     (True, [True])
     """

@@ -152,8 +152,8 @@ def open_loop(loop: str, condition, design: Design | None = None, params: Parame
     >>> L.dt, L.input_labels, L.output_labels
     (0.0001, ['speed_error'], ['motor_speed'])
     >>> gm, pm, sm, wpc, wgc, wms = ct.stability_margins(L, method="frd")
-    >>> round(float(wgc) / (2 * 3.141592653589793), 1)  # crossover [Hz]
-    27.7
+    >>> round(float(wgc) / (2 * 3.141592653589793), 1)  # crossover [Hz]; the design aimed at 30 Hz
+    29.0
     """
     name, cond, design, loops, names = _setup(loop, condition, design, params, level, effects, model)
     inp, out = _ERROR[name]
