@@ -100,6 +100,7 @@ def test_analysis_json_validates_and_holds_every_loop_and_point(nominal_report, 
     assert len(doc["configurations"]) > 0 and len(doc["limit_cycles"]) > 0
 
 
+@pytest.mark.slow
 def test_failing_design_is_reported_with_point_and_value(nominal_result, tmp_path):
     doc = nominal_result.design.to_toml_dict()
     doc["requirements"] = {"velocity_loop": {"max_overshoot_percent": 20.0}}
@@ -232,6 +233,7 @@ def test_bode_phase_is_on_a_readable_branch(nominal_result):
     assert gms[gms > 0].min() == pytest.approx(m.gain_margin_upper_db[k], abs=0.05)
 
 
+@pytest.mark.slow
 def test_report_grid_from_the_command_line_and_the_design_file(tmp_path, capsys, design):
     doc = design.to_toml_dict()
     doc["analysis"] = {"nut_speeds_mm_s": [2.0, 10.0], "loads_kN": [-55.0, 20.0], "temperatures_C": [25.0]}
