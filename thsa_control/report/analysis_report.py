@@ -355,7 +355,8 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
     return "\n".join(parts)
 
 
-def write_analysis_report(result: DesignAnalysis, out_dir: str | Path) -> Path:
+def write_analysis_report(result: DesignAnalysis, out_dir: str | Path, *, force: bool = False,
+                          inputs: tuple | list = ()) -> Path:
     """Write ``report.html`` (figures embedded), ``analysis.json`` and ``figures/*.png`` to ``out_dir``.
 
     The folder is replaced atomically: on failure nothing is written.
@@ -364,6 +365,8 @@ def write_analysis_report(result: DesignAnalysis, out_dir: str | Path) -> Path:
     ----------
     result : DesignAnalysis
     out_dir : path-like
+    force, inputs
+        Passed to :func:`~thsa_control.report.build.atomic_folder` (which folders may be replaced).
 
     Returns
     -------
@@ -384,7 +387,7 @@ def write_analysis_report(result: DesignAnalysis, out_dir: str | Path) -> Path:
         figures["switching_transient"] = _png(plot_switching(result.switching))
     doc = analysis_to_dict(result)
     page = _html(result, figures)
-    with atomic_folder(out_dir) as tmp:
+    with atomic_folder(out_dir, force=force, inputs=inputs, command="thsa report") as tmp:
         (tmp / "figures").mkdir()
         for name, data in figures.items():
             (tmp / "figures" / f"{name}.png").write_bytes(data)
