@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def shared_example() -> Path | None:
-    base = Path(os.environ["THSA_SHARED_DIR"]) if os.environ.get("THSA_SHARED_DIR") else ROOT.parent / "shared"
+    base = Path(os.environ["THSA_SHARED_DIR"]) if os.environ.get("THSA_SHARED_DIR") else ROOT / "tests" / "data"
     path = base / "rig-data" / "examples" / "excitation_tensile_12kN.csv"
     return path if path.exists() else None
 
@@ -123,6 +123,7 @@ def test_interval_coverage(record, params):
     assert hits >= 26, hits
 
 
+@pytest.mark.slow
 def test_intervals_shrink_as_data_grows(record, params):
     """Two runs (multi-experiment) against one: every stderr falls, by about 1/sqrt(2) (0.55..0.85)."""
     free = FREE["A"]
@@ -135,6 +136,7 @@ def test_intervals_shrink_as_data_grows(record, params):
         assert 0.55 < ratio < 0.85, (n, ratio)
 
 
+@pytest.mark.slow
 def test_inseparable_parameters_are_flagged(record, params):
     """Motor-bearing and gear viscous friction act on the same speed: only their sum is seen.  The pair is
     flagged (|rho| > 0.95), its stderr is undetermined, and the sum is recovered (within 3 %)."""
@@ -162,6 +164,7 @@ def test_saved_parameters_load_into_the_models(record, params, tmp_path):
     assert set(d["parameters"]) == set(free) and d["n_free"] == 2
 
 
+@pytest.mark.slow
 def test_global_stage_finds_a_far_start(record, params):
     """Starting 3x off, differential evolution then the local fit land on the truth (within 99 % intervals)."""
     free = ("gear.viscous_friction", "screw.efficiency_inverse")
@@ -229,6 +232,7 @@ def test_shared_example_fit_improves(params):
     assert a.fits["motor_current"].fit_percent > b.fits["motor_current"].fit_percent + 10
 
 
+@pytest.mark.slow
 def test_cli_identify_and_residual(record, params, tmp_path, capsys):
     """`thsa identify` writes result.json, parameters.toml and report.html; `thsa residual` its JSON and HTML;
     an unknown --free name exits 2, names it and writes nothing."""

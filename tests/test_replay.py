@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def shared_example() -> Path | None:
-    base = Path(os.environ["THSA_SHARED_DIR"]) if os.environ.get("THSA_SHARED_DIR") else ROOT.parent / "shared"
+    base = Path(os.environ["THSA_SHARED_DIR"]) if os.environ.get("THSA_SHARED_DIR") else ROOT / "tests" / "data"
     path = base / "rig-data" / "examples" / "excitation_tensile_12kN.csv"
     return path if path.exists() else None
 

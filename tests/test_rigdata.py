@@ -36,9 +36,9 @@ SCREW_RPM_PER_MM_S = 5.0
 
 
 def _shared_rig_data() -> Path:
-    """``shared/rig-data``: from $THSA_SHARED_DIR (the ``shared`` folder) or next to the repo."""
+    """``rig-data``: from $THSA_SHARED_DIR (the ``shared`` folder) when set, else the copy in tests/data."""
     env = os.environ.get("THSA_SHARED_DIR")
-    base = Path(env) if env else Path(__file__).resolve().parents[1].parent / "shared"
+    base = Path(env) if env else Path(__file__).resolve().parent / "data"
     return base / "rig-data"
 
 

@@ -363,6 +363,16 @@ def _cmd_residual(args) -> int:
     return 0
 
 
+def _floats(text, option: str, scale: float):
+    """``--option 1,2,3`` -> SI tuple (None when not given)."""
+    if text is None:
+        return None
+    try:
+        return tuple(float(v) * scale for v in text.split(",") if v.strip())
+    except ValueError:
+        raise ThsaError(f"--{option} {text!r}: give comma-separated numbers") from None
+
+
 def _analysis_effects(args) -> list[str]:
     # the plant that exists: temperature_friction and the dragged standby rotor, unless --effects says otherwise
     from .loops.analysis import DEFAULT_ANALYSIS_EFFECTS
@@ -381,9 +391,14 @@ def _cmd_report(args) -> int:
     params = _load_params(args)
     design = load_design(args.design or nominal_design_path())
     design.check_against(params)
-    effects = _analysis_effects(args)
-    resolve_effects(args.level, add=effects)  # validate names before any work
-    settings = AnalysisSettings(level=args.level.upper(), effects=tuple(effects))
+    grid = {name: _floats(getattr(args, opt), opt, scale) for name, opt, scale in (
+        ("nut_speeds", "speeds", 1e-3), ("load_forces", "loads", 1e3), ("temperatures", "temperatures", 1.0))}
+    if args.temperature is not None:
+        grid["temperatures"] = (args.temperature,)
+    settings = AnalysisSettings.from_design(design, level=args.level and args.level.upper(),
+                                            effects=None if args.effects is None else tuple(_analysis_effects(args)),
+                                            **grid)
+    resolve_effects(settings.level, add=list(settings.effects))  # validate names before any work
     progress.phase(f"linearising level {settings.level} over the grid and analysing the loops"
                    + ("" if args.no_switching else ", then the switch-over transient"))
     result = analyse_design(design, params, settings=settings, switching=not args.no_switching)
@@ -493,9 +508,14 @@ def _parser() -> argparse.ArgumentParser:
     model_args(p)
     p = add("report", "loop analysis of a design over speed, load and temperature: HTML + JSON", _cmd_report)
     p.add_argument("--design", help="design TOML (default designs/nominal.toml)")
-    p.add_argument("--level", default="B", help="model level A, B, C or D (default B)")
-    p.add_argument("--effects", nargs="*", help="effects added to the level (default: temperature_friction standby_motor)")
+    p.add_argument("--level", help="model level A, B, C or D (default: the design's [analysis], else B)")
+    p.add_argument("--effects", nargs="*", help="effects added to the level (default: the design's [analysis], "
+                                                "else temperature_friction standby_motor)")
     p.add_argument("--params", help="parameter TOML overriding the embedded actuator")
+    p.add_argument("--speeds", help="grid trim speeds [mm/s], comma-separated (default 0,0.5,1,2,5,10,15)")
+    p.add_argument("--loads", help="grid loads [kN], compressive positive (default -55,-20,0,20,55)")
+    p.add_argument("--temperatures", help="grid temperatures [degC] (default -55,-30,0,25,70)")
+    p.add_argument("--temperature", type=float, help="analyse at this one temperature [degC] only")
     p.add_argument("--no-switching", action="store_true", help="skip the nonlinear switch-over transient")
     p.add_argument("--check", action="store_true", help="exit with status 1 when a requirement is not met")
     out_arg(p)

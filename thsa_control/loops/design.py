@@ -43,7 +43,7 @@ _TABLES = {
     "position_loop": {"kp_per_s": True, "max_speed_mm_s": False},
 }
 _TOP = {"name", "description", "control_period_s", "computation_delay_samples", "derivation", "requirements",
-        "switching", *_TABLES}
+        "switching", "analysis", *_TABLES}
 
 
 @dataclass(frozen=True)
@@ -55,7 +55,9 @@ class Design:
     current_kp [V/A], current_ki [V/(A s)], voltage_limit [V] (None: V_dc/sqrt(3)),
     velocity_kp [A s/rad], velocity_ki [A/rad], current_limit [A],
     position_kp [1/s], max_speed [m/s], control_period [s],
-    computation_delay_samples (0 or 1), requirements, derivation (dicts as given).
+    computation_delay_samples (0 or 1), requirements, derivation (dicts as given),
+    analysis (the ``[analysis]`` grid of ``thsa report``, checked by
+    ``thsa_control.loops.analysis.AnalysisSettings.from_design``).
     """
 
     name: str
@@ -74,6 +76,7 @@ class Design:
     description: str = ""
     derivation: dict = field(default_factory=dict)
     requirements: dict = field(default_factory=dict)
+    analysis: dict = field(default_factory=dict)
 
     def __post_init__(self):
         checks = {
@@ -134,6 +137,8 @@ class Design:
             doc["requirements"] = dict(self.requirements)
         if self.bumpless_handover:
             doc["switching"] = {"bumpless_handover": True}
+        if self.analysis:
+            doc["analysis"] = dict(self.analysis)
         return doc
 
 
@@ -164,7 +169,7 @@ def parse_design(doc: dict, source: str = "<dict>") -> Design:
                 raise DesignError(source, f"missing {table}.{key}")
     if "control_period_s" not in doc:
         raise DesignError(source, "missing control_period_s")
-    for key in ("derivation", "requirements", "switching"):
+    for key in ("derivation", "requirements", "switching", "analysis"):
         if key in doc and not isinstance(doc[key], dict):
             raise DesignError(source, f"[{key}] must be a table")
     delay = doc.get("computation_delay_samples", 0)
@@ -185,6 +190,7 @@ def parse_design(doc: dict, source: str = "<dict>") -> Design:
         max_speed=max_speed_mm * 1e-3, control_period=doc["control_period_s"],
         computation_delay_samples=delay, bumpless_handover=switching.get("bumpless_handover", False), source=source,
         derivation=dict(doc.get("derivation", {})), requirements=dict(doc.get("requirements", {})),
+        analysis=dict(doc.get("analysis", {})),
     )
 
 
