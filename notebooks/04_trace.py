@@ -24,6 +24,7 @@
 #    independent simulator of the rig, whose description names the effect it holds.
 #
 # Candidates are restricted here to keep the notebook short; `thsa trace` tries every library effect.
+# In a notebook the fits run in the kernel itself (`workers=1`): a forked kernel does not survive.
 
 # %%
 import tempfile
@@ -48,7 +49,8 @@ run = read_run(tmp / "plain.csv")
 
 # %%
 result = trace(run, "A", remove=["noback_ideal"], params=params,
-               settings=TraceSettings(candidates=("coulomb_friction", "force_offset", "cogging_torque"), max_nfev=30),
+               settings=TraceSettings(candidates=("coulomb_friction", "force_offset", "cogging_torque"), max_nfev=30,
+                                      workers=1),
                progress=print)
 print(format_trace_summary(result.to_dict()))
 
@@ -72,7 +74,8 @@ example = shared / "rig-data" / "examples" / "excitation_tensile_12kN.csv"
 if example.exists():
     ex = read_run(example)
     res_ex = trace(ex, "A", params=params, settings=TraceSettings(
-        candidates=("noback_quadrant_friction", "coulomb_friction", "force_offset"), max_effects=1, max_nfev=30),
+        candidates=("noback_quadrant_friction", "coulomb_friction", "force_offset"), max_effects=1, max_nfev=30,
+        workers=1),
         progress=print)
     print(format_trace_summary(res_ex.to_dict()))
 else:

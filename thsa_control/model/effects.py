@@ -413,3 +413,9 @@ from .drive_effects import DRIVE_EFFECT_ORDER, DRIVE_EFFECTS  # noqa: E402
 EFFECTS.update(DRIVE_EFFECTS)
 EFFECT_ORDER = (tuple(e for e in EFFECT_ORDER if not e.startswith("noback")) + DRIVE_EFFECT_ORDER
                 + tuple(e for e in EFFECT_ORDER if e.startswith("noback")))
+
+# Fault effects (model F, issue #10): same API, in their own module, applied after the effects above.
+from .fault_effects import FAULT_EFFECT_ORDER, FAULT_EFFECTS  # noqa: E402
+
+EFFECTS.update(FAULT_EFFECTS)
+EFFECT_ORDER = EFFECT_ORDER + FAULT_EFFECT_ORDER
