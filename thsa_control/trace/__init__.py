@@ -1,6 +1,16 @@
-"""Trace a residual to the effect the model lacks (numerics only; the report is thsa_control.report.trace)."""
+"""Trace a residual to the effect the model lacks (numerics only; the report is thsa_control.report.trace).
 
-from .engine import CANDIDATES, DEFAULT_UNCERTAIN, TRACE_FORMAT, TraceResult, TraceSettings, candidate_specs, trace
+The names are imported lazily, so that ``thsa --help`` (which registers ``thsa trace`` from
+:mod:`thsa_control.trace.cli`) loads no numerics.
+"""
 
 __all__ = ["trace", "TraceSettings", "TraceResult", "CANDIDATES", "DEFAULT_UNCERTAIN", "TRACE_FORMAT",
            "candidate_specs"]
+
+
+def __getattr__(name):
+    if name in __all__:
+        from . import engine
+
+        return getattr(engine, name)
+    raise AttributeError(f"module 'thsa_control.trace' has no attribute {name!r}")
