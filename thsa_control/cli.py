@@ -351,6 +351,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--params", help="parameter TOML overriding the embedded actuator")
     p.add_argument("--save", help="write the linear model to this .npz file")
     p.set_defaults(fn=_cmd_linearize)
+    from .tuning.cli import add_parsers as _tuning_parsers  # thsa tune, thsa check
+    _tuning_parsers(sub)
     return ap
 
 
