@@ -34,13 +34,14 @@ def run(params, design):
     """``run(scenario, level, effects=(), substeps=1, output_period=1e-3, params=None)``, memoised per session."""
     cache = {}
 
-    def _run(scenario, level, effects=(), substeps=1, output_period=1e-3, params_override=None, compiled=True):
+    def _run(scenario, level, effects=(), substeps=1, output_period=1e-3, params_override=None, compiled=True,
+             remove=()):
         p = params_override or params
-        key = (scenario, level, tuple(effects), substeps, output_period, id(params_override), compiled)
+        key = (scenario, level, tuple(effects), substeps, output_period, id(params_override), compiled, tuple(remove))
         if key not in cache:
             sc = get_scenario(scenario) if isinstance(scenario, str) else scenario
             eff = tuple(effects) + tuple(e for e in sc.required_effects if e not in effects)
-            sim = Simulator(build_plant(level, eff, params=p),
+            sim = Simulator(build_plant(level, eff, remove=remove, params=p),
                             SimulationSettings(substeps=substeps, output_period=output_period, compiled=compiled))
             cache[key] = sim.run(sc, design, p)
         return cache[key]

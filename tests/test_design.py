@@ -11,7 +11,7 @@ def test_nominal_gains_follow_from_bandwidths(design, params):
     derived = derive_gains(params, current_bandwidth_hz=d["current_bandwidth_hz"],
                            velocity_crossover_hz=d["velocity_crossover_hz"],
                            velocity_pi_zero_ratio=d["velocity_pi_zero_ratio"],
-                           position_bandwidth_hz=d["position_bandwidth_hz"])
+                           position_bandwidth_hz=d["position_bandwidth_hz"], rotors=d["rotors"])
     # the file rounds to 5 significant digits
     for name in ("current_kp", "current_ki", "velocity_kp", "velocity_ki", "position_kp"):
         assert getattr(design, name) == pytest.approx(getattr(derived, name), rel=2e-4), name

@@ -13,6 +13,8 @@ from thsa_control.errors import ModelError
 from thsa_control.model import EFFECT_ORDER, EFFECTS, LEVELS, build_plant, resolve_effects
 from thsa_control.sim.scenarios import Scenario
 
+from handcalc import hand_current
+
 
 def _u(plant, **kw):
     u = np.zeros(len(plant.inputs))
@@ -37,37 +39,38 @@ def _constant_motion(speed_mm_s, load_N):
 
 
 @pytest.mark.parametrize("level", ["A", "B"])
-@pytest.mark.parametrize("speed_mm_s, load_N", [(5.0, 20e3), (-5.0, 20e3), (8.0, -15e3), (-8.0, -15e3)])
+@pytest.mark.parametrize("speed_mm_s, load_N", [(5.0, 20e3), (-5.0, 20e3), (8.0, -15e3), (-8.0, -15e3),
+                                                (5.0, 29e3), (-5.0, 29e3), (2.0, 1e3), (-2.0, -1e3)])
 def test_steady_current_equals_torque_balance(run, params, level, speed_mm_s, load_N):
-    P = params.value
-    N, lead = P("gear.ratio"), P("screw.lead")
-    r = lead / (2 * math.pi * N)
-    kt = 1.5 * P("motor.pole_pairs") * P("motor.flux_linkage")
-    w = speed_mm_s * 1e-3 / r
-    eta_d = P("gear.efficiency") * P("screw.efficiency_direct")
-    eta_i = P("gear.efficiency") * P("screw.efficiency_inverse")
-    b = P("motor.bearing_viscous_friction") + P("gear.viscous_friction")
-    opposing = load_N * speed_mm_s > 0
-    # motor torque = viscous + load through the efficiency of the power-flow direction (+ no-back)
-    torque = b * w + load_N * r * (1 / eta_d if opposing else eta_i)
-    if level == "B":
-        ws = w / N
-        sfx = "pos" if w > 0 else "neg"
-        normal = P("noback.preload") + (max(load_N, 0) if w < 0 else max(-load_N, 0))
-        mu = P(f"noback.mu_coulomb_{sfx}") + (P(f"noback.mu_static_{sfx}") - P(f"noback.mu_coulomb_{sfx}")) * math.exp(
-            -((ws / P(f"noback.stribeck_speed_{sfx}")) ** 2))
-        torque += math.copysign(mu * normal / N, w)
     res = run(_constant_motion(speed_mm_s, load_N), level)
     m = res.window(2.0, 2.5)
     assert np.mean(res["nut_speed"][m]) == pytest.approx(speed_mm_s * 1e-3, rel=1e-6)
-    # tolerance: the integral action leaves no steady error; 1e-4 covers the discrete ripple
-    assert np.mean(res["motor_current"][m]) == pytest.approx(torque / kt, rel=1e-4)
+    # the integral action leaves no steady error; 1e-3 A covers the discrete ripple
+    assert np.mean(res["motor_current"][m]) == pytest.approx(hand_current(params.value, level, speed_mm_s, load_N), abs=1e-3)
+
+
+def test_light_disk_normal_force_shrinks_with_load(params):
+    # paper 001: the light disk's force "is limited within the spring preload and grows smaller
+    # with the increase in compressive load"; the loaded one sees preload + |F|
+    plant = build_plant("B")
+    p = plant.p_vector(params)
+    pre = params.value("noback.preload")
+    for F in (0.0, 1e3, 2.9e3, 5e3, 29e3, -1e3, -29e3):
+        y = np.asarray(plant.f(plant.initial_state(params), _u(plant, load_force=F, temperature=25), p)[1]).ravel()
+        comp, tens = y[plant.index("output", "noback_normal_force_comp")], y[plant.index("output", "noback_normal_force_tens")]
+        assert comp == pytest.approx(max(pre + F, 0.0)) and tens == pytest.approx(max(pre - F, 0.0))
+        assert max(comp, tens) == pytest.approx(pre + abs(F))
 
 
 def test_levels_are_nested_and_effects_known():
     assert set(EFFECT_ORDER) == set(EFFECTS)
     for lower, upper in zip("ABC", "BCD"):
-        assert set(LEVELS[lower]) < set(LEVELS[upper])
+        superseded = {s for e in LEVELS[upper] for s in EFFECTS[e].supersedes}
+        assert set(LEVELS[lower]) - superseded < set(LEVELS[upper])
+    # the detailed no-back replaces level A's ideal one, never both
+    assert resolve_effects("A", add=["noback_quadrant_friction"]) == resolve_effects("B")
+    with pytest.raises(ModelError, match="same part"):
+        resolve_effects(None, add=["noback_quadrant_friction", "noback_ideal"])
     assert resolve_effects("D", remove=["loadpath_compliance"]) == resolve_effects("C")
     with pytest.raises(ModelError, match="unknown effect 'friction'"):
         resolve_effects("A", add=["friction"])
@@ -105,13 +108,14 @@ def test_stiff_load_path_approaches_level_C(run, params):
     assert np.max(np.abs(d["motor_current"][m] - c["motor_current"][m])) < 0.04
 
 
-def test_noback_holds_a_deenergised_actuator_and_level_A_backdrives(run):
+def test_noback_holds_a_deenergised_actuator_and_reversible_A_backdrives(run):
     hold = Scenario("hold", "motors off, load ramp to 29 kN", 2.0, ((0.0, 0.0),), 0.03,
                     ((0.0, 0.0), (0.5, 29e3)))
-    b = run(hold, "B")
-    assert np.all(b["motor_current"] == 0) and np.all(b["nut_position"] == 0.0)
-    assert np.all(b["stuck"] == 1.0)
-    a = run(hold, "A")
+    for level in "AB":  # level A: the ideal no-back holds too
+        b = run(hold, level)
+        assert np.all(b["motor_current"] == 0) and np.all(b["nut_position"] == 0.0)
+        assert np.all(b["stuck"] == 1.0)
+    a = run(hold, "A", remove=("noback_ideal",))
     assert a["nut_position"][-1] < -1e-3  # a reversible screw with no no-back back-drives
 
 

@@ -228,8 +228,10 @@ def _cmd_residual(args) -> int:
 
 
 def _analysis_effects(args) -> list[str]:
-    # the linear workflow is about temperature: temperature_friction unless --effects says otherwise
-    return ["temperature_friction"] if args.effects is None else _effects_arg(args.effects)
+    # the plant that exists: temperature_friction and the dragged standby rotor, unless --effects says otherwise
+    from .loops.analysis import DEFAULT_ANALYSIS_EFFECTS
+
+    return list(DEFAULT_ANALYSIS_EFFECTS) if args.effects is None else _effects_arg(args.effects)
 
 
 def _cmd_report(args) -> int:
@@ -335,7 +337,7 @@ def _parser() -> argparse.ArgumentParser:
     p = sub.add_parser("report", help="loop analysis of a design over speed, load and temperature: HTML + JSON")
     p.add_argument("--design", help="design TOML (default designs/nominal.toml)")
     p.add_argument("--level", default="B", help="model level A, B, C or D (default B)")
-    p.add_argument("--effects", nargs="*", help="effects added to the level (default: temperature_friction)")
+    p.add_argument("--effects", nargs="*", help="effects added to the level (default: temperature_friction standby_motor)")
     p.add_argument("--params", help="parameter TOML overriding the embedded actuator")
     p.add_argument("--no-switching", action="store_true", help="skip the nonlinear switch-over transient")
     p.add_argument("--check", action="store_true", help="exit with status 1 when a requirement is not met")
@@ -346,7 +348,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--speed", type=float, required=True, help="trim nut speed [mm/s], positive extending")
     p.add_argument("--load", type=float, required=True, help="load [N], compressive positive (opposes extension)")
     p.add_argument("--temperature", type=float, default=25.0, help="temperature [degC], -55..70 (default 25)")
-    p.add_argument("--effects", nargs="*", help="effects added to the level (default: temperature_friction)")
+    p.add_argument("--effects", nargs="*", help="effects added to the level (default: temperature_friction standby_motor)")
     p.add_argument("--active", choices=["primary", "standby"], default="primary", help="energised motor channel")
     p.add_argument("--params", help="parameter TOML overriding the embedded actuator")
     p.add_argument("--save", help="write the linear model to this .npz file")

@@ -162,6 +162,11 @@ assert set(_REQUIREMENTS) == set(REQUIREMENT_KEYS)  # noqa: S101 - import-time c
 # ----------------------------------------------------------------------------------------------------------------
 # settings
 # ----------------------------------------------------------------------------------------------------------------
+#: Effects the analysis adds to its level by default (CLI and API alike): the
+#: cold friction law and the standby motor, whose rotor the primary drags.
+DEFAULT_ANALYSIS_EFFECTS: tuple[str, ...] = ("temperature_friction", "standby_motor")
+
+
 @dataclass(frozen=True)
 class AnalysisSettings:
     """What the loop analysis covers (SI units).
@@ -171,7 +176,9 @@ class AnalysisSettings:
     level : str
         Model level (``'A'`` .. ``'D'``).  Default ``'B'`` (no-back friction).
     effects : tuple of str
-        Effects added.  Default ``('temperature_friction',)``.
+        Effects added.  Default ``DEFAULT_ANALYSIS_EFFECTS``: temperature
+        friction and the standby motor, whose rotor is always dragged (the
+        plant that exists: J x 1.89 against one rotor); the primary is active.
     nut_speeds : tuple of float
         Trim nut speeds [m/s] of the grid; 0 is kept to show that a trim stop
         is not linearisable.  Default 0, 0.5, 1, 2, 5, 10, 15 mm/s.
@@ -201,7 +208,7 @@ class AnalysisSettings:
     """
 
     level: str = "B"
-    effects: tuple[str, ...] = ("temperature_friction",)
+    effects: tuple[str, ...] = ("temperature_friction", "standby_motor")
     nut_speeds: tuple[float, ...] = (0.0, 0.5e-3, 1e-3, 2e-3, 5e-3, 10e-3, 15e-3)
     load_forces: tuple[float, ...] = (-55e3, -20e3, 0.0, 20e3, 55e3)
     temperatures: tuple[float, ...] = (-55.0, -30.0, 0.0, 25.0, 70.0)

@@ -291,8 +291,9 @@ def reflected_inertia(params: ParameterSet, level: str = "A", effects=()) -> flo
 
 def derive_gains(params: ParameterSet, *, current_bandwidth_hz: float, velocity_crossover_hz: float,
                  velocity_pi_zero_ratio: float, position_bandwidth_hz: float, name: str = "derived",
-                 control_period_s: float = 1e-4, current_limit_A: float | None = None, **extra) -> Design:
-    """Gains of the cascade from loop bandwidths at 25 degC (level-A plant, one motor).
+                 control_period_s: float = 1e-4, current_limit_A: float | None = None, rotors: int = 2,
+                 computation_delay_samples: int = 0, **extra) -> Design:
+    """Gains of the cascade from loop bandwidths at 25 degC (level-A plant, ``rotors`` rotors).
 
     Parameters
     ----------
@@ -306,12 +307,19 @@ def derive_gains(params: ParameterSet, *, current_bandwidth_hz: float, velocity_
         Crossover / PI zero [-].
     position_bandwidth_hz : float
         Position-loop bandwidth [Hz].
+    rotors : {1, 2}
+        Rotors on the shaft: 2 (default) is the actuator as built, the
+        standby rotor dragged by the active motor (J x 1.89); 1 the primary
+        alone.
+    computation_delay_samples : {0, 1}
+        Stored in the design; the bandwidths must leave room for it (the
+        current loop's phase margin is 90 deg - w_c (1.5 h) with one sample).
 
     Examples
     --------
     >>> from thsa_control.model.params import default_parameters
     >>> d = derive_gains(default_parameters(), current_bandwidth_hz=1000, velocity_crossover_hz=30,
-    ...                  velocity_pi_zero_ratio=5, position_bandwidth_hz=2)
+    ...                  velocity_pi_zero_ratio=5, position_bandwidth_hz=2, rotors=1)
     >>> round(d.current_kp, 3), round(d.current_ki, 1)
     (14.137, 7728.3)
     """
@@ -320,14 +328,17 @@ def derive_gains(params: ParameterSet, *, current_bandwidth_hz: float, velocity_
     from ..model.structure import torque_constant
 
     kt = torque_constant({n: params.value(n) for n in params})
-    j = reflected_inertia(params)
+    if rotors not in (1, 2):
+        raise DesignError("derivation", f"rotors = {rotors!r} must be 1 or 2")
+    j = reflected_inertia(params, "A", ("standby_motor",) if rotors == 2 else ())
     kpv = j * wv / kt
     derivation = dict(current_bandwidth_hz=current_bandwidth_hz, velocity_crossover_hz=velocity_crossover_hz,
                       velocity_pi_zero_ratio=velocity_pi_zero_ratio, position_bandwidth_hz=position_bandwidth_hz,
-                      **extra)
+                      rotors=rotors, **extra)
     return Design(
         name=name, current_kp=params.value("motor.inductance") * wc, current_ki=params.value("motor.resistance") * wc,
         velocity_kp=kpv, velocity_ki=kpv * wv / velocity_pi_zero_ratio,
         current_limit=current_limit_A if current_limit_A is not None else params.value("motor.max_current"),
         position_kp=2 * math.pi * position_bandwidth_hz, control_period=control_period_s, derivation=derivation,
+        computation_delay_samples=computation_delay_samples,
     )

@@ -424,7 +424,14 @@ def plant_model(level: str | None = "A", effects: Iterable[str] = (), params: Pa
     i_w, i_i = names.index("motor_speed"), names.index("motor_current")
     pidx = {n: k for k, n in enumerate(plant.parameters)}
     kt = 1.5 * pp[pidx["motor.pole_pairs"]] * pp[pidx["motor.flux_linkage"]]
-    inv_j = ca.jacobian(xdot[i_w], x[i_i]) / kt  # 1/J from the plant's own speed balance
+    if "drivetrain_twist" in names:
+        # compliant drive train: the disturbance acts on the gear-output body; 1/J of that body from
+        # its own balance (the spring torque k * twist enters it with unit gain)
+        k_dt = 1.0 / (1.0 / pp[pidx["gear.torsional_stiffness"]] + 1.0 / pp[pidx["screw.torsional_stiffness"]])
+        k_dt = k_dt / pp[pidx["gear.ratio"]] ** 2
+        inv_j = ca.jacobian(xdot[i_w], x[names.index("drivetrain_twist")]) / k_dt
+    else:
+        inv_j = ca.jacobian(xdot[i_w], x[i_i]) / kt  # 1/J from the plant's own speed balance
     xdot[i_w] = xdot[i_w] + inv_j * U["disturbance_torque"]
     f = ca.Function("thsa_linear_adapter", [x, u, p], [ca.vertcat(*xdot), y], ["x", "u", "p"], ["xdot", "y"])
     drifting = ("nut_position",) + tuple(s for s in _PAWLS if s in names)
@@ -490,6 +497,11 @@ def _spec(model: PlantModel, c: OperatingCondition) -> OperatingPointSpec:
     v_off = "voltage_standby" if c.active == "primary" else "voltage_primary"
     i_guess = c.load_force * r / kt
     guess_x = {i_active: i_guess}
+    if "rotor_speed" in named.states:
+        p_ = model.params
+        k_dt = 1.0 / (1.0 / p_.value("gear.torsional_stiffness") + 1.0 / p_.value("screw.torsional_stiffness"))
+        guess_x["rotor_speed"] = w
+        guess_x["drivetrain_twist"] = kt * i_guess / (k_dt / p_.value("gear.ratio") ** 2)
     # The speed is held as a state, not solved for through the output nut_speed: the
     # solver then never steps across w = 0, where the friction of the continuous form jumps.
     states = {"nut_position": 0.0, "motor_speed": w}

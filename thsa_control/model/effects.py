@@ -30,11 +30,27 @@ Effects (the papers' incremental modelling):
     The compressive-side wheel is locked by its pawl against retraction, the
     tensile-side wheel against extension; the other direction is free, so the
     wheel turns with the screw and its disks do not slip.  Normal forces:
-    ``N_comp = preload + max(F, 0)``, ``N_tens = preload + max(-F, 0)``.  So when
+    the loaded disk ``preload + |F|``, the light one ``max(preload - |F|, 0)``,
+    i.e. ``N_comp = max(preload + F, 0)``, ``N_tens = max(preload - F, 0)``
+    (``F`` the force through the no-back: the load-path force at level D).  So when
     the load aids the motion the loaded disk slips (large friction) and when it
     opposes, the preload-only disk slips (small friction); with the motors off
     the loaded disk holds the load by stiction.  Disk law per rotation
     direction: ``T = (mu_c + (mu_s - mu_c) exp(-(ws/ws_t)^2)) N sgn(ws) + fs ws``.
+``noback_ideal``
+    Level A's no-back (paper 001, basic model (a); paper 000's "ideal"
+    no-back): a Coulomb torque ``Tb = F_L / TF`` (the load torque at the
+    screw, ``F r`` at the motor shaft) against motion in the direction the
+    load pushes.  Irreversible: the de-energised actuator holds, the motor
+    drives an aiding load with ``(1 - eta_i) F r``.  Removed (``remove=
+    ["noback_ideal"]``) it leaves the reversible functional model; the
+    detailed ``noback_quadrant_friction`` supersedes it.
+``drivetrain_compliance``
+    The motor rotors become a body of their own, joined to the gear output by
+    the gearbox stiffness and damping (paper 000, Figure 6) in series with the
+    screw's torsional stiffness.  The motor speed sensor reads the rotors;
+    ``screw_speed`` the gear output.  Removing it gives the rigid model
+    exactly; a stiff spring approaches it.
 ``noback_backlash``
     The ratchet/pawl clearance: a wheel turned in its free direction lets its
     pawl drop behind each tooth, so the clearance to the locking face grows
@@ -44,9 +60,10 @@ Effects (the papers' incremental modelling):
 
 Simplifications stated here once: the ratchet wheels' inertia is counted with
 the screw at all times (0.7 % of the reflected inertia; the impact of a wheel
-stopped by its pawl is not modelled); gear efficiency is applied to the load
-torque only, not to the no-back torque; there is no secondary load path, no
-d-axis current, no torque-limiter slip (its threshold is monitored only).
+stopped by its pawl is not modelled); the gearbox efficiency acts on the
+torque entering the gearbox by the direction of power flow there (see
+``structure.finish_structure``); i_d is held at zero (the d voltage only
+takes its share of the voltage circle).
 """
 
 from __future__ import annotations
@@ -80,6 +97,9 @@ class Effect:
         Effects that must be in the same set.
     apply : callable
         ``apply(assembly)`` adds the terms.
+    supersedes : tuple of str
+        Effects it replaces when both are asked for (the detailed no-back
+        replaces level A's ideal one).
     """
 
     name: str
@@ -88,19 +108,21 @@ class Effect:
     parameters: tuple[str, ...]
     requires: tuple[str, ...]
     apply: Callable[[Assembly], None]
+    supersedes: tuple[str, ...] = ()
 
 
 def _standby_motor(a: Assembly) -> None:
     x, u, p = a.x, a.u, a.p
-    w = x["motor_speed"]
+    w = a.rotor_speed
     i = x["standby_current"]
-    tau, target, v_applied, copper = motor_lag(a, i, u["voltage_standby"], u["enable_standby"], w)
+    tau, target, v_applied, v_d, copper = motor_lag(a, i, u["voltage_standby"], u["enable_standby"], w)
     a.lags["standby_current"] = (tau, target)
-    a.torques.append(("motor_standby", torque_constant(p) * i))
-    a.inertia.append(p["motor.rotor_inertia"])  # the standby rotor is always dragged
+    a.rotor_torques.append(("motor_standby", torque_constant(p) * i))
+    a.rotor_inertia.append(p["motor.rotor_inertia"])  # the standby rotor is always dragged
     b = p["motor.bearing_viscous_friction"]
-    a.torques.append(("viscous_standby", -b * w))
+    a.rotor_torques.append(("viscous_standby", -b * w))
     a.loss("viscous_standby", b * w**2)
+    a.output("standby_voltage_d", "V", v_d)
     a.loss("copper_standby", copper)
     a.stored_energy["magnetic_standby"] = 0.75 * p["motor.inductance"] * i**2
     a.output("standby_current", "A", i)
@@ -208,9 +230,12 @@ def _noback_quadrant_friction(a: Assembly) -> None:
     N = p["gear.ratio"]
     ws = w / N
     F = a.axial_force
-    pre = p["noback.preload"]
-    n_comp = pre + ca.fmax(F, 0.0)
-    n_tens = pre + ca.fmax(-F, 0.0)
+    pre = noback_preload(a)
+    # the loaded disk sees preload + |F|; the light one what the load leaves of
+    # the preload, max(preload - |F|, 0) (paper 001: "limited within the spring
+    # preload and grows smaller with the increase in compressive load")
+    n_comp = ca.fmax(pre + F, 0.0)
+    n_tens = ca.fmax(pre - F, 0.0)
     g_comp = a.pawl_engaged.get("comp", 1.0)
     g_tens = a.pawl_engaged.get("tens", 1.0)
     a.inertia.append(2.0 * p["noback.ratchet_inertia"] / N**2)
@@ -233,6 +258,60 @@ def _noback_quadrant_friction(a: Assembly) -> None:
     a.output("pawl_comp_engaged", "-", g_comp)
     a.output("pawl_tens_engaged", "-", g_tens)
     a.output("pawl_engaged", "-", ca.if_else(F >= 0, g_comp, g_tens))
+
+
+def noback_preload(a: Assembly):
+    """No-back disk-spring preload [N]; with ``temperature_friction`` it dilates with temperature.
+
+    Paper 000 (temperature section) names the preload change by thermal
+    dilation but gives no value: ``preload (1 + k_T (T_ref - T))`` with an
+    assumed ``friction.preload_temperature_coefficient`` (see the parameter
+    file for its reason and range).
+    """
+    pre = a.p["noback.preload"]
+    if a.has("temperature_friction"):
+        dT = a.p["friction.reference_temperature"] - a.u["temperature"]
+        pre = pre * ca.fmax(1.0 + a.p["friction.preload_temperature_coefficient"] * dT, 0.0)
+    return pre
+
+
+def _noback_ideal(a: Assembly) -> None:
+    # Paper 001 basic model (a): the no-back as a Coulomb torque Tb = F_L / TF
+    # (the load torque at the screw, no efficiency) against motion in the
+    # direction the load pushes; nothing against the other direction.  Since
+    # Tb exceeds what the load can back-drive through the screw (F r eta_i),
+    # the de-energised actuator holds by stiction and the motor needs only
+    # (1 - eta_i) F r (plus drag) to move with an aiding load.
+    r = kinematic_ratio(a.p)
+    F = a.axial_force
+    against_neg = ca.fmax(F, 0.0) * r  # compressive load pushes towards retraction
+    against_pos = ca.fmax(-F, 0.0) * r
+    a.channels.append(FrictionChannel("noback_ideal", against_pos, against_neg, against_pos, against_neg))
+    a.loss("noback_ideal", lambda res: res.channel["noback_ideal"] * res.speed)
+    a.output("noback_torque", "N m", lambda res: res.channel["noback_ideal"] * a.p["gear.ratio"])
+
+
+def _drivetrain_compliance(a: Assembly) -> None:
+    # Paper 000, Figure 6: gearbox stiffness k_g and damping d_g between the
+    # motor rotors and the gear output; the screw's torsional compliance in
+    # series (no inertia between them: the screw inertia sits at the nut end
+    # with the no-back).  Referred to the motor shaft: k / N^2, d / N^2.
+    x, p = a.x, a.p
+    N2 = p["gear.ratio"] ** 2
+    k_eq = 1.0 / (1.0 / p["gear.torsional_stiffness"] + 1.0 / p["screw.torsional_stiffness"])
+    k, d = k_eq / N2, p["gear.torsional_damping"] / N2
+    twist = x["drivetrain_twist"]
+
+    def coupling(wr, w):
+        return k * twist + d * (wr - w)
+
+    a.coupling = coupling
+    wr, w = x["rotor_speed"], x["motor_speed"]
+    a.rates["drivetrain_twist"] = wr - w
+    a.stored_energy["drivetrain_spring"] = 0.5 * k * twist**2
+    a.loss("drivetrain_damping", d * (wr - w) ** 2)
+    a.output("drivetrain_twist", "rad", twist)
+    a.output("drivetrain_torque", "N m", coupling(wr, w))
 
 
 def _noback_backlash(a: Assembly) -> None:
@@ -302,7 +381,20 @@ EFFECTS: dict[str, Effect] = {
         ),
         Effect(
             "noback_quadrant_friction", "no-back friction disks with load- and quadrant-dependent normal force",
-            (), _NOBACK, (), _noback_quadrant_friction,
+            (), _NOBACK, (), _noback_quadrant_friction, supersedes=("noback_ideal",),
+        ),
+        Effect(
+            "noback_ideal", "ideal irreversible no-back (level A): Coulomb torque F r against load-aided motion",
+            (), (), (), _noback_ideal,
+        ),
+        Effect(
+            "drivetrain_compliance", "gearbox and screw torsional compliance between the motor rotors and the gear output",
+            (
+                StateInfo("rotor_speed", "rad/s", "velocity", "speed of the motor rotors (gearbox input), the motor sensor"),
+                StateInfo("drivetrain_twist", "rad", "position", "rotor angle minus gear-output angle, at the motor shaft"),
+            ),
+            ("gear.torsional_stiffness", "screw.torsional_stiffness", "gear.torsional_damping"), (),
+            _drivetrain_compliance,
         ),
     )
 }
@@ -310,5 +402,6 @@ EFFECTS: dict[str, Effect] = {
 #: Order in which effects are applied: those that change the axial force or
 #: gate the pawls come before those that read them.
 EFFECT_ORDER: tuple[str, ...] = (
-    "standby_motor", "loadpath_compliance", "temperature_friction", "noback_backlash", "noback_quadrant_friction",
+    "standby_motor", "drivetrain_compliance", "loadpath_compliance", "temperature_friction", "noback_backlash",
+    "noback_quadrant_friction", "noback_ideal",
 )

@@ -1,13 +1,17 @@
 """Model levels: named sets of effects over the one functional structure.
 
-``A`` is the functional model (efficiencies, linear friction); each level adds
-effects to the one below.  ``temperature_friction`` (the papers' model G) and
+``A`` is the functional model (efficiencies, linear friction, the ideal
+irreversible no-back); each level adds effects to the one below (B replaces
+the ideal no-back by the friction disks).  ``resolve_effects("A",
+remove=["noback_ideal"])`` is the reversible functional model.  ``temperature_friction`` (the papers' model G) and
 ``standby_motor`` may be added to any set.
 
 Examples
 --------
 >>> resolve_effects("C")
 ('noback_backlash', 'noback_quadrant_friction')
+>>> resolve_effects("A", add=["noback_quadrant_friction"])
+('noback_quadrant_friction',)
 >>> resolve_effects("B", add=["temperature_friction"])
 ('temperature_friction', 'noback_quadrant_friction')
 """
@@ -22,7 +26,7 @@ from .effects import EFFECT_ORDER, EFFECTS
 __all__ = ["LEVELS", "resolve_effects"]
 
 LEVELS: dict[str, tuple[str, ...]] = {
-    "A": (),
+    "A": ("noback_ideal",),
     "B": ("noback_quadrant_friction",),
     "C": ("noback_quadrant_friction", "noback_backlash"),
     "D": ("noback_quadrant_friction", "noback_backlash", "loadpath_compliance"),
@@ -56,6 +60,12 @@ def resolve_effects(level: str | None = "A", add: Iterable[str] = (), remove: It
         if name not in EFFECTS:
             raise ModelError(f"unknown effect {name!r}; effects are {', '.join(EFFECT_ORDER)}")
     chosen = (set(base) | set(add)) - set(remove)
+    for name in list(chosen):
+        chosen -= set(EFFECTS[name].supersedes) - set(add)
+    for name in chosen:
+        clash = set(EFFECTS[name].supersedes) & chosen
+        if clash:
+            raise ModelError(f"effects {name!r} and {sorted(clash)[0]!r} model the same part; choose one")
     for name in chosen:
         for req in EFFECTS[name].requires:
             if req not in chosen:

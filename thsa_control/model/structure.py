@@ -134,8 +134,11 @@ class Assembly:
     u: dict
     p: dict
     effects: tuple[str, ...]
-    inertia: list = field(default_factory=list)  # [N m s^2/rad] at the motor shaft
-    torques: list = field(default_factory=list)  # (label, expr) smooth torques at the motor shaft
+    inertia: list = field(default_factory=list)  # [N m s^2/rad] of the main body, at the motor shaft
+    torques: list = field(default_factory=list)  # (label, expr) smooth torques on the main body, at the motor shaft
+    rotor_inertia: list = field(default_factory=list)  # motor rotors (the gearbox input)
+    rotor_torques: list = field(default_factory=list)  # (label, expr) motor and bearing torques on the rotors
+    coupling: object = None  # fn(rotor_speed, main_speed) -> torque from rotors to main body; None: rigid
     channels: list = field(default_factory=list)  # FrictionChannel
     lags: dict = field(default_factory=dict)  # state -> (tau, target)
     rates: dict = field(default_factory=dict)  # state -> continuous derivative
@@ -147,6 +150,11 @@ class Assembly:
     translating_mass: ca.SX | None = None  # [kg] moving rigidly with the nut
     pawl_engaged: dict = field(default_factory=dict)  # "comp"/"tens" -> expr (1 engaged)
     initial: dict = field(default_factory=dict)  # state -> fn(load_force) -> expr (static equilibrium)
+
+    @property
+    def rotor_speed(self):
+        """Speed of the motor rotors [rad/s]: the main body's unless the drive train is compliant."""
+        return self.x["rotor_speed"] if "rotor_speed" in self.x else self.x["motor_speed"]
 
     def output(self, name: str, unit: str, expr) -> None:
         """Define (or redefine) an output signal."""
@@ -177,11 +185,19 @@ def motor_lag(a: Assembly, current, voltage, enable, speed):
     ``L di/dt = clamp(v) - R i - p psi w`` while energised; with the inverter
     off the current decays with ``motor.off_current_time_constant``.  Written
     as ``di/dt = (target - i) / tau`` so that the discrete map can integrate it
-    exactly over a step with the speed frozen.
+    exactly over a step with the speed frozen.  The q voltage is clamped to
+    what the dq voltage circle leaves it: ``vq_max = sqrt(Vmax^2 - (w_e L i_q)^2)``
+    with ``Vmax = V_dc / sqrt(3)`` (i_d = 0 control; the d voltage follows).
+    Returns ``(tau, target, v_q, v_d, copper_loss)``.
     """
     p = a.p
     vmax = p["inverter.dc_bus_voltage"] / math.sqrt(3.0)
-    v = ca.fmin(ca.fmax(voltage, -vmax), vmax)
+    # The inverter limits the dq voltage vector to V_dc/sqrt(3).  With i_d held
+    # at zero the d-axis voltage the current controller must apply is
+    # v_d = -w_e L i_q, so the q axis gets what is left of the circle.
+    v_d = -p["motor.pole_pairs"] * speed * p["motor.inductance"] * current
+    vq_max = ca.sqrt(ca.fmax(vmax**2 - v_d**2, 0.0))
+    v = ca.fmin(ca.fmax(voltage, -vq_max), vq_max)
     back_emf = p["motor.pole_pairs"] * p["motor.flux_linkage"] * speed
     on = enable > 0.5
     tau = ca.if_else(on, p["motor.inductance"] / p["motor.resistance"], p["motor.off_current_time_constant"])
@@ -190,36 +206,43 @@ def motor_lag(a: Assembly, current, voltage, enable, speed):
     loss = ca.if_else(
         on, 1.5 * p["motor.resistance"], 1.5 * p["motor.inductance"] / p["motor.off_current_time_constant"]
     ) * current**2
-    return tau, target, v, loss
+    v_d = ca.if_else(on, v_d, 0.0)
+    return tau, target, v, v_d, loss
 
 
 def apply_structure(a: Assembly) -> None:
     """The functional structure (level A): one motor, rigid transmission, efficiencies, viscous drag."""
     x, u, p = a.x, a.u, a.p
     w = x["motor_speed"]
+    wr = a.rotor_speed
     N = p["gear.ratio"]
     r = kinematic_ratio(p)
     kt = torque_constant(p)
 
-    tau, target, v_applied, copper = motor_lag(a, x["motor_current"], u["voltage_primary"], u["enable_primary"], w)
+    tau, target, v_applied, v_d, copper = motor_lag(a, x["motor_current"], u["voltage_primary"], u["enable_primary"], wr)
     a.lags["motor_current"] = (tau, target)
-    a.torques.append(("motor_primary", kt * x["motor_current"]))
+    a.rotor_torques.append(("motor_primary", kt * x["motor_current"]))
     a.loss("copper_primary", copper)
     a.stored_energy["magnetic_primary"] = 0.75 * p["motor.inductance"] * x["motor_current"] ** 2
 
-    a.inertia += [p["motor.rotor_inertia"], p["screw.inertia"] / N**2]
+    a.rotor_inertia.append(p["motor.rotor_inertia"])
+    a.inertia.append(p["screw.inertia"] / N**2)
     a.translating_mass = p["loadpath.mass"] + p["surface.mass"]
     a.axial_force = u["load_force"]
 
-    b = p["motor.bearing_viscous_friction"] + p["gear.viscous_friction"]
+    b_m = p["motor.bearing_viscous_friction"]
+    a.rotor_torques.append(("viscous_bearing", -b_m * wr))
+    a.loss("viscous_bearing", b_m * wr**2)
+    b = p["gear.viscous_friction"]
     a.torques.append(("viscous", -b * w))
     a.loss("viscous", b * w**2)
 
     a.rates["nut_position"] = r * w
 
     a.output("motor_voltage", "V", v_applied)
+    a.output("motor_voltage_d", "V", v_d)
     a.output("motor_current", "A", x["motor_current"])
-    a.output("motor_speed", "rad/s", w)
+    a.output("motor_speed", "rad/s", wr)
     a.output("screw_speed", "rad/s", w / N)
     a.output("nut_position", "m", x["nut_position"])
     a.output("nut_speed", "m/s", r * w)
@@ -229,7 +252,8 @@ def apply_structure(a: Assembly) -> None:
     # Signals of effects, at their neutral value when the effect is absent, so
     # that every effect set has the same outputs (effects redefine them).
     for name, unit, value in (
-        ("standby_current", "A", 0.0), ("standby_voltage", "V", 0.0), ("standby_energised", "-", 0.0),
+        ("standby_current", "A", 0.0), ("standby_voltage", "V", 0.0), ("standby_voltage_d", "V", 0.0),
+        ("standby_energised", "-", 0.0), ("drivetrain_twist", "rad", 0.0), ("drivetrain_torque", "N m", 0.0),
         ("surface_position", "m", x["nut_position"]), ("surface_speed", "m/s", r * w),
         ("loadpath_force", "N", u["load_force"]), ("loadpath_deflection", "m", 0.0),
         ("temperature_drag_torque", "N m", 0.0),
@@ -248,8 +272,8 @@ def finish_structure(a: Assembly) -> None:
     w = x["motor_speed"]
     r = kinematic_ratio(p)
     a.inertia.append(a.translating_mass * r**2)
-    eta_d = p["gear.efficiency"] * p["screw.efficiency_direct"]
-    eta_i = p["gear.efficiency"] * p["screw.efficiency_inverse"]
+    eta_d = p["screw.efficiency_direct"]
+    eta_i = p["screw.efficiency_inverse"]
     c0 = 0.5 * (1.0 / eta_d + eta_i)
     c1 = 0.5 * (1.0 / eta_d - eta_i)
     F = a.axial_force
@@ -258,16 +282,57 @@ def finish_structure(a: Assembly) -> None:
     a.channels.append(FrictionChannel("efficiency", limit, limit, limit, limit))
 
     def efficiency_loss(res: FrictionResolution):
-        # power into the load path is F r w; what the motor gives beyond it is lost
+        # power into the load path is F r w; what the screw takes beyond it is lost
         return F * r * res.speed * (c0 - 1.0) + res.channel["efficiency"] * res.speed
 
     a.loss("efficiency", efficiency_loss)
-    a.stored_energy["kinetic_main"] = 0.5 * sum(a.inertia) * w**2
+
+    motor_torque = _sum_exprs(expr for label, expr in a.rotor_torques if label.startswith("motor_"))
+    rotor_drag = _sum_exprs(expr for label, expr in a.rotor_torques if not label.startswith("motor_"))
+    if a.coupling is None:
+        # rigid gearbox input: the rotors are part of the main body
+        a.inertia += a.rotor_inertia
+        a.torques += a.rotor_torques
+        gear_torque = motor_torque
+        a.stored_energy["kinetic_main"] = 0.5 * _sum_exprs(a.inertia) * w**2
+    else:
+        wr = a.rotor_speed
+        coupling = a.coupling(wr, w)
+        j_rotor = _sum_exprs(a.rotor_inertia)
+        a.rates["rotor_speed"] = (motor_torque + rotor_drag - coupling) / j_rotor
+        a.torques.append(("drivetrain", coupling))
+        gear_torque = coupling
+        a.stored_energy["kinetic_main"] = 0.5 * _sum_exprs(a.inertia) * w**2
+        a.stored_energy["kinetic_rotors"] = 0.5 * j_rotor * wr**2
+
+    # Gearbox efficiency by the power flow at the gearbox: the torque T_g that
+    # enters the gearbox from the motor side (motor torque, or the drive-train
+    # spring torque when compliant) drives the gear when T_g w > 0 and loses
+    # (1 - eta) |T_g|; when the screw side drives the motor (T_g w < 0) it
+    # loses (1 - eta)/eta |T_g|.  Written as a friction channel on the main
+    # body, so it applies to everything the screw side demands (load, no-back
+    # disks, drag) and acts against the motion.  Neglected: the rotor inertia
+    # torque inside T_g in the rigid case (transients only).
+    eta_g = p["gear.efficiency"]
+    mag = ca.fabs(gear_torque)
+    drive_loss, back_loss = (1.0 - eta_g) * mag, (1.0 - eta_g) / eta_g * mag
+    g_pos = ca.if_else(gear_torque > 0, drive_loss, back_loss)
+    g_neg = ca.if_else(gear_torque < 0, drive_loss, back_loss)
+    a.channels.append(FrictionChannel("gear_efficiency", g_pos, g_neg, g_pos, g_neg))
+    a.loss("gear_efficiency", lambda res: res.channel["gear_efficiency"] * res.speed)
+
     a.output("axial_force", "N", F)
-    # Monitoring only: the torque limiter does not slip in this model.
-    motor_torque = sum(expr for label, expr in a.torques if label.startswith("motor_"))
+    # Monitoring only unless the torque_limiter effect is in the set.
     a.output("motor_torque", "N m", motor_torque)
+    a.output("gearbox_input_torque", "N m", gear_torque)
     a.output(
         "torque_limiter_exceeded", "-",
-        ca.if_else(ca.fabs(motor_torque) * p["gear.ratio"] > p["gear.torque_limiter_threshold"], 1.0, 0.0),
+        ca.if_else(ca.fabs(gear_torque) * p["gear.ratio"] > p["gear.torque_limiter_threshold"], 1.0, 0.0),
     )
+
+
+def _sum_exprs(terms):
+    total = ca.SX(0.0)
+    for t in terms:
+        total = total + t
+    return total

@@ -160,19 +160,30 @@ SCENARIOS: dict[str, Scenario] = {
         ),
         Scenario(
             "cold_ramp",
-            "Cold operation at -30 degC: ramp to +9 mm/s at 30 mm/s^2 from 0.5 s against a 55 kN opposing "
-            "(compressive) load applied with the motion (0.5 s ramp), stop from 2.5 s.",
+            "Cold operation at -30 degC, loaded start from standstill: the 55 kN opposing (compressive) load is "
+            "ramped on from 0 to 0.4 s with the motors off (the no-back holds it), then the actuator ramps to "
+            "+9 mm/s at 30 mm/s^2 from 0.5 s; stop from 2.5 s.",
             3.0, ((0.0, 0.0), (0.5, 9 * _MM), (2.5, 0.0)), 30 * _MM,
-            ((0.0, 0.0), (0.5, 0.0), (1.0, 55e3)), temperature=-30.0,
+            ((0.0, 0.0), (0.4, 55e3)), temperature=-30.0,
         ),
         Scenario(
             "motor_fault_switch",
-            "Active/standby switch-over: -5 mm/s at 20 mm/s^2 from 0.5 s; aiding load (compressive, the papers' "
-            "tensile) ramped to 20 kN by 1 s, then rising 40 kN/s (held at 55 kN); primary disabled at 1.8 s, "
-            "standby enabled 15 ms later.",
+            "Paper 000's active/standby switch-over: -5 mm/s at 20 mm/s^2 from 0.5 s under a constant aiding "
+            "load of 20 kN (compressive here, the papers' tensile; ramped on from 0 to 0.4 s); primary channel "
+            "disabled at 1.8 s, standby enabled 15 ms later.",
             3.0, ((0.0, 0.0), (0.5, -5 * _MM)), 20 * _MM,
-            ((0.0, 0.0), (0.5, 0.0), (1.0, 20e3), (1.875, 55e3)),
+            ((0.0, 0.0), (0.4, 20e3)),
             primary_enable=((0.0, 1.0), (1.8, 0.0)), standby_enable=((0.0, 0.0), (1.815, 1.0)),
+            required_effects=("standby_motor",),
+        ),
+        Scenario(
+            "motor_fault_switch_rising_load",
+            "Paper 000's second switch-over test: -5 mm/s at 20 mm/s^2 from 0.5 s, aiding load 20 kN (ramped on "
+            "from 0 to 0.4 s), primary disabled at 1.35 s and standby enabled 15 ms later; from the fault the "
+            "load rises 40 kN/s (20 kN + 40 kN/s), held at 55 kN from 2.225 s.",
+            3.0, ((0.0, 0.0), (0.5, -5 * _MM)), 20 * _MM,
+            ((0.0, 0.0), (0.4, 20e3), (1.35, 20e3), (2.225, 55e3)),
+            primary_enable=((0.0, 1.0), (1.35, 0.0)), standby_enable=((0.0, 0.0), (1.365, 1.0)),
             required_effects=("standby_motor",),
         ),
     )
