@@ -21,6 +21,7 @@ from pathlib import Path
 import tomli_w
 
 from ..errors import DesignError
+from ..loops.analysis import DEFAULT_ANALYSIS_EFFECTS
 from ..loops.design import Design, parse_design
 from ..model.params import ParameterSet
 from .robust import ROBUST_REQUIREMENTS, exact_margins
@@ -44,7 +45,7 @@ _METRIC_OF = {
 def validation_limits(design: Design) -> dict[str, tuple[float, str]]:
     """Limit and origin (``design`` or ``default``) of every validation requirement checked."""
     out = {k: (v, "default") for k, v in DEFAULT_VALIDATION_REQUIREMENTS.items()}
-    out["max_current_peak_A"] = (design.current_limit, "default: the current clamp")
+    out["max_current_peak_A"] = (design.current_limit, "default: the clamp")
     out.update({k: (float(v), "design") for k, v in design.validation.items()})
     return out
 
@@ -102,7 +103,7 @@ class CheckReport:
 
 
 def suite_metrics(design: Design, params: ParameterSet, level: str, temperature: float, *,
-                  scenarios=VALIDATION_SUITE, effects=("temperature_friction",)) -> dict:
+                  scenarios=VALIDATION_SUITE, effects=DEFAULT_ANALYSIS_EFFECTS) -> dict:
     """Metrics of every run of the suite at one level and temperature (compiled simulator)."""
     from ..model import build_plant
     from ..sim.simulate import SimulationSettings, Simulator
@@ -117,7 +118,7 @@ def suite_metrics(design: Design, params: ParameterSet, level: str, temperature:
 
 def check_design(design: Design, params: ParameterSet, *, levels=("A", "B", "C", "D"),
                  temperatures=(-55.0, -30.0, 25.0, 70.0), scenarios=VALIDATION_SUITE,
-                 effects=("temperature_friction",), progress=None) -> CheckReport:
+                 effects=DEFAULT_ANALYSIS_EFFECTS, progress=None) -> CheckReport:
     """Run the validation suite and the margin check at every level and temperature."""
     limits = validation_limits(design)
     margin_req = {k: v for k, v in design.requirements.get("velocity_loop", {}).items() if k in ROBUST_REQUIREMENTS}

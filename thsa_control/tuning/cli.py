@@ -2,7 +2,7 @@
 
 ::
 
-    thsa tune  --design designs/nominal.toml --scenario cold_ramp [--scenario cold_start ...]
+    thsa tune  --design designs/nominal.toml --scenario cold_ramp [--scenario low_speed ...]
                --temperature -30 [--robust-temperatures -55,-30,25,70] [--level B] [--effects E ...]
                [--require min_phase_margin_deg=50 ...] --out designs/NAME.toml
     thsa check --design FILE [--levels A,B,C,D] [--temperatures -55,-30,25,70] [--scenarios a,b]
@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 
 from ..errors import DesignError, SolverError
+from ..loops.analysis import DEFAULT_ANALYSIS_EFFECTS
 
 __all__ = ["add_parsers", "tune_command", "check_command", "provenance"]
 
@@ -131,7 +132,7 @@ def tune_command(args) -> int:
 
     _check_requirements(requirements, "--require")
     source = replace(design, requirements=requirements)
-    effects = tuple(e for v in (args.effects or ["temperature_friction"]) for e in v.split(",") if e)
+    effects = tuple(e for v in (args.effects or DEFAULT_ANALYSIS_EFFECTS) for e in v.split(",") if e)
     settings = TuneSettings(
         temperature=args.temperature, robust_temperatures=_floats(args.robust_temperatures, "--robust-temperatures"),
         level=args.level, effects=effects, bound_factor=args.bound_factor, max_iter=args.max_iter,
@@ -176,7 +177,7 @@ def check_command(args) -> int:
     levels = tuple(v.strip().upper() for v in args.levels.split(",") if v.strip())
     temps = _floats(args.temperatures, "--temperatures")
     scen = tuple(v.strip() for v in args.scenarios.split(",")) if args.scenarios else VALIDATION_SUITE
-    effects = tuple(e for v in (args.effects or ["temperature_friction"]) for e in v.split(",") if e)
+    effects = tuple(e for v in (args.effects or DEFAULT_ANALYSIS_EFFECTS) for e in v.split(",") if e)
     report = check_design(design, params, levels=levels, temperatures=temps, scenarios=scen, effects=effects,
                           progress=lambda m: print(m, file=sys.stderr, flush=True))
     print(f"design {design.source} ({design.name})")
@@ -192,7 +193,7 @@ def add_parsers(sub) -> None:
     p.add_argument("--temperature", type=float, default=-30.0, help="temperature of the runs [degC] (default -30)")
     p.add_argument("--robust-temperatures", default="-55,-30,25,70", help="margin constraints at these [degC]")
     p.add_argument("--level", default="B", help="model level (default B)")
-    p.add_argument("--effects", nargs="*", help="effects added (default temperature_friction)")
+    p.add_argument("--effects", nargs="*", help="effects added (default temperature_friction standby_motor)")
     p.add_argument("--params", help="parameter TOML overriding the embedded actuator")
     p.add_argument("--require", action="append",
                    help="override a velocity-loop requirement, e.g. min_phase_margin_deg=50 (repeatable)")
@@ -208,5 +209,5 @@ def add_parsers(sub) -> None:
     p.add_argument("--levels", default="A,B,C,D")
     p.add_argument("--temperatures", default="-55,-30,25,70")
     p.add_argument("--scenarios", help="comma-separated runs (default: the validation suite)")
-    p.add_argument("--effects", nargs="*", help="effects added (default temperature_friction)")
+    p.add_argument("--effects", nargs="*", help="effects added (default temperature_friction standby_motor)")
     p.set_defaults(fn=check_command)

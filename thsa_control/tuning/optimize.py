@@ -26,6 +26,7 @@ import casadi as ca
 import numpy as np
 
 from ..errors import SolverError, ThsaError
+from ..loops.analysis import DEFAULT_ANALYSIS_EFFECTS
 from ..loops.design import Design, derive_gains
 from ..model.params import ParameterSet
 from .objective import Objective, ObjectiveSettings, design_with_gains, gains_of
@@ -54,13 +55,20 @@ class TuneSettings:
         Temperature of the objective's runs [degC].
     robust_temperatures : tuple of float
         Temperatures of the margin constraints [degC].
-    level, effects : the plant (default level B + temperature_friction).
+    level, effects : the plant (default level B + temperature_friction + standby_motor, the two-rotor plant).
     tuned : tuple of str
         Velocity gains varied.
     bound_factor : float
         Gains stay within this factor of the source design's.
     excess_tolerance : float
         Allowed integral of the squared current above the clamp [A^2 s].
+    constraint_level : str or None
+        The peak-current constraint also covers the runs at this level (the
+        no-back backlash of level C makes the loaded breakaway's current
+        spike: the velocity PI saturates and the current loop overshoots the
+        clamp) ...
+    constraint_temperatures : tuple of float or None
+        ... at these temperatures (None: the coldest robust temperature).
     max_iter, tol : IPOPT's iteration limit and tolerance.
     objective : ObjectiveSettings
     progress : bool
@@ -70,10 +78,12 @@ class TuneSettings:
     temperature: float = -30.0
     robust_temperatures: tuple[float, ...] = (-55.0, -30.0, 25.0, 70.0)
     level: str = "B"
-    effects: tuple[str, ...] = ("temperature_friction",)
+    effects: tuple[str, ...] = DEFAULT_ANALYSIS_EFFECTS
     tuned: tuple[str, ...] = ("velocity_kp", "velocity_ki")
     bound_factor: float = 4.0
     excess_tolerance: float = 1e-6
+    constraint_level: str | None = "C"
+    constraint_temperatures: tuple[float, ...] | None = None
     max_iter: int = 60
     tol: float = 1e-7
     objective: ObjectiveSettings = field(default_factory=ObjectiveSettings)
@@ -130,6 +140,7 @@ class TuningResult:
     settings : TuneSettings
     wall_s : float
     evaluations : dict
+        Objective evaluations (counts, seconds).
     """
 
     design: Design
@@ -157,8 +168,10 @@ class TuningResult:
 class _Cache:
     """Value and gradient of the objective and current excess, computed together, cached by q."""
 
-    def __init__(self, objective: Objective, g0: np.ndarray, J0: float, progress: bool, label: str):
+    def __init__(self, objective: Objective, g0: np.ndarray, J0: float, progress: bool, label: str,
+                 extra: Objective | None = None):
         self.obj, self.g0, self.J0, self.progress, self.label = objective, g0, J0, progress, label
+        self.extra = extra
         self.key = None
         self.val = None
         self.jac = None
@@ -171,6 +184,9 @@ class _Cache:
         k = np.asarray(q, float).tobytes()
         if self.key != k:
             J, dJ, ex, dex = self.obj.value_and_gradient(self.gains(q))
+            if self.extra is not None:
+                _, _, ex2, dex2 = self.extra.value_and_gradient(self.gains(q))
+                ex, dex = ex + ex2, dex + dex2
             g = self.gains(q)
             self.key, self.val = k, np.array([J / self.J0, ex])
             self.jac = np.vstack([dJ * g / self.J0, dex * g])
@@ -246,7 +262,8 @@ def default_starts(design: Design, params: ParameterSet) -> dict[str, Design]:
     wc = float(der.get("velocity_crossover_hz", 30.0)) * 1.5
     rules = derive_gains(params, current_bandwidth_hz=float(der.get("current_bandwidth_hz", 1000.0)),
                          velocity_crossover_hz=wc, velocity_pi_zero_ratio=3.0,
-                         position_bandwidth_hz=float(der.get("position_bandwidth_hz", 2.0)))
+                         position_bandwidth_hz=float(der.get("position_bandwidth_hz", 2.0)),
+                         rotors=int(der.get("rotors", 2)), computation_delay_samples=design.computation_delay_samples)
     return {"source": design, f"rules ({wc:g} Hz, zero ratio 3)": design_with_gains(
         design, ("velocity_kp", "velocity_ki"), (rules.velocity_kp, rules.velocity_ki))}
 
@@ -282,6 +299,15 @@ def tune(design: Design, params: ParameterSet, scenarios, settings: TuneSettings
     objective.stage_functions()
     g_src = gains_of(design, settings.tuned)
     J0 = objective.value(g_src)
+    extra = None
+    if settings.constraint_level:
+        temps = settings.constraint_temperatures or (min(settings.robust_temperatures),)
+        cplant = build_plant(settings.constraint_level, settings.effects, params=params)
+        extra = Objective(Simulator(cplant), params, design, [s.with_temperature(t) for t in temps for s in scenarios],
+                          tuned=settings.tuned, settings=settings.objective)
+        _say(settings, f"tune: peak-current constraint also on the runs at level {settings.constraint_level}, "
+                       f"{', '.join(f'{t:g}' for t in temps)} degC")
+        extra.stage_functions()
     _say(settings, f"tune: source objective J0 = {J0:.6g}; linearising at {', '.join(f'{t:g}' for t in settings.robust_temperatures)} degC ...")
     robust = RobustConstraints(design, params, settings.robust_temperatures, level=settings.level,
                                effects=settings.effects)
@@ -296,7 +322,7 @@ def tune(design: Design, params: ParameterSet, scenarios, settings: TuneSettings
     lb = math.log(1.0 / settings.bound_factor)
     results = []
     for label, start in starts.items():
-        cache = _Cache(objective, g_src, J0, settings.progress, label)
+        cache = _Cache(objective, g_src, J0, settings.progress, label, extra)
         sim = _Sim(cache, n)
         simq = sim(q)
         nlp = {"x": q, "f": simq[0], "g": ca.vertcat(simq[1] / settings.excess_tolerance, g_rob)}
@@ -339,12 +365,23 @@ def tune(design: Design, params: ParameterSet, scenarios, settings: TuneSettings
     _say(settings, "tune: checking on the exact compiled simulator and the loop analysis ...")
     T_before = objective.reference_terms(g_src)
     T_after = objective.reference_terms(np.array(best.gains))
+    if extra is not None:
+        ex_after = float(np.sum(extra.reference_terms(np.array(best.gains))[:, 3]))
+        if ex_after > settings.excess_tolerance * (1 + 1e-3):
+            _say(settings, f"tune: warning: the current exceeds the clamp in the constraint runs by {ex_after:.3g} A^2 s")
     w = settings.objective.weights
     m_before = exact_margins(design, params, settings.robust_temperatures, level=settings.level, effects=settings.effects)
     m_after = exact_margins(tuned, params, settings.robust_temperatures, level=settings.level, effects=settings.effects)
     return TuningResult(tuned, design, tuple(r for r, _ in results), best, settings.tuned, T_before, T_after,
                         float(np.sum(T_before @ w)), float(np.sum(T_after @ w)), tuple(s.name for s in scen),
-                        m_before, m_after, settings, time.perf_counter() - t_all, dict(objective.evaluations))
+                        m_before, m_after, settings, time.perf_counter() - t_all, _evaluations(objective, extra))
+
+
+def _evaluations(objective: Objective, extra: Objective | None) -> dict:
+    out = dict(objective.evaluations)
+    if extra is not None:
+        out["constraint_runs"] = dict(extra.evaluations)
+    return out
 
 
 def _shortfall(name: str, design: Design, params, settings: TuneSettings, robust: RobustConstraints) -> str:

@@ -35,7 +35,7 @@ import numpy as np
 
 from ..errors import DesignError
 from ..loops._loopmath import _freq, _frequency_grid
-from ..loops.analysis import AnalysisSettings, _build, _saturation, analyse_loops
+from ..loops.analysis import DEFAULT_ANALYSIS_EFFECTS, AnalysisSettings, _build, _saturation, analyse_loops
 from ..loops.design import Design
 from ..loops.linear import linearize_conditions, plant_model
 from ..model.params import ParameterSet
@@ -72,7 +72,8 @@ class RobustConstraints:
     requirements : mapping
         Limits (keys of :data:`ROBUST_REQUIREMENTS`); default the design's
         ``[requirements.velocity_loop]``.
-    level, effects : the plant of the linearisation (default level B + temperature_friction).
+    level, effects : the plant of the linearisation (default level B + the analysis' default effects:
+        temperature_friction, standby_motor).
     rho : float
         Sharpness of the soft minimum.
     sigma : float
@@ -81,7 +82,7 @@ class RobustConstraints:
     """
 
     def __init__(self, design: Design, params: ParameterSet, temperatures, requirements=None, *, level: str = "B",
-                 effects=("temperature_friction",), rho: float = 100.0, sigma: float = 0.15,
+                 effects=DEFAULT_ANALYSIS_EFFECTS, rho: float = 100.0, sigma: float = 0.15,
                  n_frequencies: int = 300, f_min: float = 0.5):
         req = dict(design.requirements.get("velocity_loop", {}) if requirements is None else requirements)
         self.requirements = {k: float(req[k]) for k in ROBUST_REQUIREMENTS if k in req}
@@ -201,7 +202,7 @@ class MarginSummary:
 
 
 def exact_margins(design: Design, params: ParameterSet, temperatures, *, level: str = "B",
-                  effects=("temperature_friction",), requirements=None) -> list[MarginSummary]:
+                  effects=DEFAULT_ANALYSIS_EFFECTS, requirements=None) -> list[MarginSummary]:
     """Velocity-loop margins from the loop analysis (bisection-refined), per temperature."""
     from ..loops.analysis import check_requirements
 
