@@ -71,8 +71,12 @@ def provenance(result, scenarios, design_path: str) -> dict:
         "effects": list(s.effects),
         "tuned": list(result.tuned),
         "bound_factor": s.bound_factor,
-        "constraints": ("current above the clamp <= %g A^2 s; velocity-loop [requirements] phase margin, gain "
-                        "margin, Ms at every robust temperature (smooth, frequency-response)" % s.excess_tolerance),
+        "constraints": ("int (|i| - clamp)+^2 dt <= %g A^2 s and int (overshoot above %g %%)+^2 dt <= %g (mm/s)^2 s "
+                        "on the runs and on the runs at level %s at %s degC; velocity-loop [requirements] phase "
+                        "margin, gain margin, Ms at every robust temperature (smooth, frequency-response)"
+                        % (s.excess_tolerance, 100 * s.objective.overshoot_limit, s.excess_tolerance,
+                           s.constraint_level, ", ".join(f"{t:g}" for t in (s.constraint_temperatures or (
+                               min(s.robust_temperatures), 25.0))))),
         "solver": "ipopt via casadi nlpsol, limited-memory Hessian",
         "status": best.status,
         "iterations": best.iterations,
@@ -136,7 +140,12 @@ def tune_command(args) -> int:
     settings = TuneSettings(
         temperature=args.temperature, robust_temperatures=_floats(args.robust_temperatures, "--robust-temperatures"),
         level=args.level, effects=effects, bound_factor=args.bound_factor, max_iter=args.max_iter,
-        objective=ObjectiveSettings(current_weight=args.current_weight, rate_weight=args.rate_weight))
+        objective=ObjectiveSettings(current_weight=args.current_weight, rate_weight=args.rate_weight,
+                                    overshoot_limit=0.9 * design.validation.get(
+                                        "max_overshoot_percent",
+                                        DEFAULT_VALIDATION_REQUIREMENTS["max_overshoot_percent"]) / 100.0))
+    # 0.9: the constraint keeps 10 % of the check's overshoot limit in reserve for the levels and
+    # temperatures the constraint runs do not cover
     try:
         result = tune(source, params, scenarios, settings)
     except SolverError as exc:
@@ -199,7 +208,7 @@ def add_parsers(sub) -> None:
                    help="override a velocity-loop requirement, e.g. min_phase_margin_deg=50 (repeatable)")
     p.add_argument("--current-weight", type=float, default=1e-6, help="weight of int i^2 dt")
     p.add_argument("--rate-weight", type=float, default=0.05, help="weight of int (di/dt / 1 kA/s)^2 dt")
-    p.add_argument("--bound-factor", type=float, default=4.0, help="gains stay within this factor of the source")
+    p.add_argument("--bound-factor", type=float, default=10.0, help="gains stay within this factor of the source")
     p.add_argument("--max-iter", type=int, default=60, help="IPOPT iteration limit")
     p.add_argument("--out", required=True, help="design TOML to write (only replaces a file thsa tune wrote)")
     p.set_defaults(fn=tune_command)

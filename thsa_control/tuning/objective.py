@@ -17,8 +17,9 @@ Objective of a set of runs, for gains ``g``::
 
     J(g) = sum_runs  ISE + current_weight * int i^2 dt + rate_weight * int (di/dt / 1 kA/s)^2 dt
 
-and the peak-current constraint ``int max(0, |i| - I_clamp)^2 dt <= 0`` (a
-smooth measure of the current above the clamp, zero when the peak is within).
+and the constraints ``int max(0, |i| - I_clamp)^2 dt <= tol`` (a smooth
+measure of the current above the clamp, zero when the peak is within) and
+the same for the nut speed above the allowed overshoot on plateaus.
 
 One deviation from the reference simulator: an infinite jerk limit (no
 acceleration limit in the shaper) is replaced by 1e12 m/s^3 in the objective,
@@ -87,12 +88,19 @@ class ObjectiveSettings:
         Control periods per compiled ``mapaccum`` block.
     compiled : bool
         Compile the blocks to C (cached); False runs casadi's virtual machine.
+    overshoot_limit : float
+        Overshoot allowed on plateaus before ``overshoot_excess`` counts [-] (0.1: 10 %).
+    current_fraction : float
+        ``current_excess`` counts the current above this fraction of the clamp
+        (0.99: a 1 % reserve, as the integral constraint tolerates brief excursions).
     """
 
     current_weight: float = 1e-6
     rate_weight: float = 0.05
     block: int = 1000
     compiled: bool = True
+    overshoot_limit: float = 0.1
+    current_fraction: float = 0.99
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad field."""
@@ -105,8 +113,8 @@ class ObjectiveSettings:
 
     @property
     def weights(self) -> np.ndarray:
-        """Weights of :data:`COST_TERMS` in J (the excess is a constraint, weight 0)."""
-        return np.array([1.0, self.current_weight, self.rate_weight, 0.0])
+        """Weights of :data:`COST_TERMS` in J (the excesses are constraints, weight 0)."""
+        return np.array([1.0, self.current_weight, self.rate_weight, 0.0, 0.0])
 
 
 def _compile_functions(functions: list[ca.Function], tag: str):
@@ -206,9 +214,14 @@ class Objective:
         if "standby_current" in names:
             i = i + y[outs.index("standby_current")]
             i_next = i_next + z_next[names.index("standby_current")]
-        lim = th[n_p + CONTROLLER_PARAMETERS.index("current_limit")]
+        lim = self.settings.current_fraction * th[n_p + CONTROLLER_PARAMETERS.index("current_limit")]
         excess = ca.fmax(ca.fabs(i) - lim, 0.0)
-        c_next = c + h * ca.vertcat(e ** 2, i ** 2, ((i_next - i) / h / RATE_SCALE) ** 2, excess ** 2)
+        cmd = y[outs.index("speed_cmd")]
+        cmd_next = z_next[len(names) + CONTROLLER_STATES.index("shaped_speed")]
+        plateau = ca.logic_and(cmd_next == cmd, cmd != 0)
+        over = ca.if_else(plateau, ca.fmax(ca.sign(cmd) * (y[outs.index("nut_speed")] - cmd)
+                                           - self.settings.overshoot_limit * ca.fabs(cmd), 0.0), 0.0) * 1e3
+        c_next = c + h * ca.vertcat(e ** 2, i ** 2, ((i_next - i) / h / RATE_SCALE) ** 2, excess ** 2, over ** 2)
         s_next = ca.vertcat(z_next, c_next)
         S = ca.SX.sym("S", (nz + nc) * ng)
         Sm = ca.reshape(S, nz + nc, ng)
@@ -306,12 +319,12 @@ class Objective:
         return float(np.sum(self.terms(gains) @ self.settings.weights))
 
     def value_and_gradient(self, gains):
-        """``J(g)``, ``dJ/dg`` and the current excess with its gradient."""
+        """``J(g)``, ``dJ/dg``, the excesses (current, overshoot) and their gradients (2 x n_gains)."""
         T, dT = self.terms(gains, gradient=True)
         w = self.settings.weights
         J = float(np.sum(T @ w))
         dJ = np.einsum("rcg,c->g", dT, w)
-        return J, dJ, float(np.sum(T[:, 3])), dT[:, 3, :].sum(axis=0)
+        return J, dJ, T[:, 3:].sum(axis=0), dT[:, 3:, :].sum(axis=0)
 
     # ---- reference
     def reference_terms(self, gains) -> np.ndarray:
@@ -322,6 +335,8 @@ class Objective:
         out = []
         for run in self.runs():
             res = sim.run(run.inputs, design, self.params)
-            terms = cost_terms(res, design.current_limit, self.simulator.plant.state_names)
+            terms = cost_terms(res, self.settings.current_fraction * design.current_limit,
+                               self.simulator.plant.state_names,
+                               self.settings.overshoot_limit)
             out.append([terms[k] for k in COST_TERMS])
         return np.array(out)

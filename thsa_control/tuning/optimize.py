@@ -7,7 +7,9 @@ design (``q = ln(g / g_source)``, well scaled, bounded to a factor
 forward sensitivities through the simulator's step), handed to IPOPT as a
 casadi ``Callback`` that computes value and gradient in one pass and caches
 them by ``q``.  Constraints: the current above the clamp (integral of the
-squared excess, <= ``excess_tolerance``) and the smooth margin constraints of
+squared excess, <= ``excess_tolerance``; the same for the nut speed above the
+allowed overshoot on plateaus; on the objective's runs and on the same runs at
+``constraint_level`` and ``constraint_temperatures``) and the smooth margin constraints of
 :class:`~.robust.RobustConstraints` at every temperature of the robust set
 (plain casadi expressions).  Hessian: limited-memory BFGS.
 
@@ -61,14 +63,15 @@ class TuneSettings:
     bound_factor : float
         Gains stay within this factor of the source design's.
     excess_tolerance : float
-        Allowed integral of the squared current above the clamp [A^2 s].
+        Allowed integral of the squared current above the clamp [A^2 s] and of
+        the squared speed above the allowed overshoot [(mm/s)^2 s].
     constraint_level : str or None
-        The peak-current constraint also covers the runs at this level (the
-        no-back backlash of level C makes the loaded breakaway's current
-        spike: the velocity PI saturates and the current loop overshoots the
-        clamp) ...
+        The peak-current and overshoot constraints also cover the runs at
+        this level (the no-back backlash of levels C/D makes the loaded
+        breakaway's current spike, the velocity PI saturating and the current
+        loop overshooting the clamp, and the low-speed plateau overshoot) ...
     constraint_temperatures : tuple of float or None
-        ... at these temperatures (None: the coldest robust temperature).
+        ... at these temperatures (None: the coldest robust temperature and 25 degC).
     max_iter, tol : IPOPT's iteration limit and tolerance.
     objective : ObjectiveSettings
     progress : bool
@@ -80,9 +83,9 @@ class TuneSettings:
     level: str = "B"
     effects: tuple[str, ...] = DEFAULT_ANALYSIS_EFFECTS
     tuned: tuple[str, ...] = ("velocity_kp", "velocity_ki")
-    bound_factor: float = 4.0
-    excess_tolerance: float = 1e-6
-    constraint_level: str | None = "C"
+    bound_factor: float = 10.0
+    excess_tolerance: float = 1e-8
+    constraint_level: str | None = "D"
     constraint_temperatures: tuple[float, ...] | None = None
     max_iter: int = 60
     tol: float = 1e-7
@@ -166,7 +169,7 @@ class TuningResult:
 
 
 class _Cache:
-    """Value and gradient of the objective and current excess, computed together, cached by q."""
+    """Value and gradient of the objective and the excesses, computed together, cached by q."""
 
     def __init__(self, objective: Objective, g0: np.ndarray, J0: float, progress: bool, label: str,
                  extra: Objective | None = None):
@@ -188,13 +191,16 @@ class _Cache:
                 _, _, ex2, dex2 = self.extra.value_and_gradient(self.gains(q))
                 ex, dex = ex + ex2, dex + dex2
             g = self.gains(q)
-            self.key, self.val = k, np.array([J / self.J0, ex])
-            self.jac = np.vstack([dJ * g / self.J0, dex * g])
+            self.key, self.val = k, np.concatenate([[J / self.J0], ex])
+            self.jac = np.vstack([dJ * g / self.J0, dex * g[None, :]])
             self.n_jac += 1
             if self.progress:
                 gs = " ".join(f"{n}={v:.5g}" for n, v in zip(self.obj.tuned, g))
                 print(f"  [{self.label}] eval {self.n_jac:3d}: J/J0 = {J / self.J0:.6f}  {gs}", file=sys.stderr, flush=True)
         return self.val, self.jac
+
+
+_NOUT = 3  # J / J0, current above the clamp, speed above the allowed overshoot
 
 
 class _Jac(ca.Callback):
@@ -210,10 +216,10 @@ class _Jac(ca.Callback):
         return 1
 
     def get_sparsity_in(self, i):
-        return ca.Sparsity.dense(self.n, 1) if i == 0 else ca.Sparsity.dense(2, 1)
+        return ca.Sparsity.dense(self.n, 1) if i == 0 else ca.Sparsity.dense(_NOUT, 1)
 
     def get_sparsity_out(self, i):
-        return ca.Sparsity.dense(2, self.n)
+        return ca.Sparsity.dense(_NOUT, self.n)
 
     def eval(self, arg):
         return [ca.DM(self.cache.value(np.asarray(arg[0]))[1])]
@@ -236,7 +242,7 @@ class _Sim(ca.Callback):
         return ca.Sparsity.dense(self.n, 1)
 
     def get_sparsity_out(self, i):
-        return ca.Sparsity.dense(2, 1)
+        return ca.Sparsity.dense(_NOUT, 1)
 
     def eval(self, arg):
         return [ca.DM(self.cache.value(np.asarray(arg[0]))[0])]
@@ -247,7 +253,7 @@ class _Sim(ca.Callback):
     def get_jacobian(self, name, inames, onames, opts):
         self._jac = _Jac(self.cache, self.n, {})
         x = ca.MX.sym(inames[0], self.n)
-        out = ca.MX.sym(inames[1], 2)
+        out = ca.MX.sym(inames[1], _NOUT)
         return ca.Function(name, [x, out], [self._jac(x, out)], inames, onames, opts)
 
 
@@ -255,16 +261,16 @@ def default_starts(design: Design, params: ParameterSet) -> dict[str, Design]:
     """Starts of the optimisation: the source design, and the linear design rules for a stiffer cold loop.
 
     The rule start is :func:`~thsa_control.loops.design.derive_gains` with
-    1.5 x the source's velocity crossover and the PI zero at crossover / 3
+    1.2 x the source's velocity crossover and the PI zero at crossover / 4
     (more integral action against the cold drag).
     """
     der = design.derivation
-    wc = float(der.get("velocity_crossover_hz", 30.0)) * 1.5
+    wc = float(der.get("velocity_crossover_hz", 30.0)) * 1.2
     rules = derive_gains(params, current_bandwidth_hz=float(der.get("current_bandwidth_hz", 1000.0)),
-                         velocity_crossover_hz=wc, velocity_pi_zero_ratio=3.0,
+                         velocity_crossover_hz=wc, velocity_pi_zero_ratio=4.0,
                          position_bandwidth_hz=float(der.get("position_bandwidth_hz", 2.0)),
                          rotors=int(der.get("rotors", 2)), computation_delay_samples=design.computation_delay_samples)
-    return {"source": design, f"rules ({wc:g} Hz, zero ratio 3)": design_with_gains(
+    return {"source": design, f"rules ({wc:g} Hz, zero ratio 4)": design_with_gains(
         design, ("velocity_kp", "velocity_ki"), (rules.velocity_kp, rules.velocity_ki))}
 
 
@@ -301,11 +307,11 @@ def tune(design: Design, params: ParameterSet, scenarios, settings: TuneSettings
     J0 = objective.value(g_src)
     extra = None
     if settings.constraint_level:
-        temps = settings.constraint_temperatures or (min(settings.robust_temperatures),)
+        temps = settings.constraint_temperatures or tuple(dict.fromkeys((min(settings.robust_temperatures), 25.0)))
         cplant = build_plant(settings.constraint_level, settings.effects, params=params)
         extra = Objective(Simulator(cplant), params, design, [s.with_temperature(t) for t in temps for s in scenarios],
                           tuned=settings.tuned, settings=settings.objective)
-        _say(settings, f"tune: peak-current constraint also on the runs at level {settings.constraint_level}, "
+        _say(settings, f"tune: peak-current and overshoot constraints also on the runs at level {settings.constraint_level}, "
                        f"{', '.join(f'{t:g}' for t in temps)} degC")
         extra.stage_functions()
     _say(settings, f"tune: source objective J0 = {J0:.6g}; linearising at {', '.join(f'{t:g}' for t in settings.robust_temperatures)} degC ...")
@@ -325,7 +331,8 @@ def tune(design: Design, params: ParameterSet, scenarios, settings: TuneSettings
         cache = _Cache(objective, g_src, J0, settings.progress, label, extra)
         sim = _Sim(cache, n)
         simq = sim(q)
-        nlp = {"x": q, "f": simq[0], "g": ca.vertcat(simq[1] / settings.excess_tolerance, g_rob)}
+        # sqrt(1 + excess / tol) <= sqrt(2): smooth, and it grows like sqrt far from feasibility (better scaled)
+        nlp = {"x": q, "f": simq[0], "g": ca.vertcat(ca.sqrt(1.0 + simq[1:] / settings.excess_tolerance), g_rob)}
         opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
                 "ipopt.hessian_approximation": "limited-memory", "ipopt.max_iter": settings.max_iter,
                 "ipopt.tol": settings.tol, "ipopt.acceptable_tol": 1e-5, "error_on_fail": False}
@@ -333,14 +340,14 @@ def tune(design: Design, params: ParameterSet, scenarios, settings: TuneSettings
         x0 = np.log(np.clip(gains_of(start, settings.tuned) / g_src, 1.0 / settings.bound_factor, settings.bound_factor))
         _say(settings, f"tune: start '{label}' from {', '.join(f'{v:.5g}' for v in g_src * np.exp(x0))}")
         t0 = time.perf_counter()
-        sol = solver(x0=x0, lbx=[lb] * n, ubx=[-lb] * n, lbg=[-np.inf] + [0.0] * g_rob.size1(),
-                     ubg=[1.0] + [np.inf] * g_rob.size1())
+        sol = solver(x0=x0, lbx=[lb] * n, ubx=[-lb] * n, lbg=[-np.inf, -np.inf] + [0.0] * g_rob.size1(),
+                     ubg=[math.sqrt(2.0)] * 2 + [np.inf] * g_rob.size1())
         wall = time.perf_counter() - t0
         stats = solver.stats()
         qf = np.asarray(sol["x"], float).ravel()
         gvals = np.asarray(sol["g"], float).ravel()
-        cons = np.concatenate([[1.0 - gvals[0]], gvals[1:]])
-        names = ("current above the clamp",) + robust.names
+        cons = np.concatenate([1.0 - (gvals[:2] ** 2 - 1.0), gvals[2:]])
+        names = ("current above the clamp", "speed above the allowed overshoot") + robust.names
         k = int(np.argmin(cons))
         res = StartResult(label, tuple(float(v) for v in g_src * np.exp(x0)), tuple(float(v) for v in g_src * np.exp(qf)),
                           float(sol["f"]), str(stats.get("return_status")), bool(stats.get("success")),
@@ -366,9 +373,9 @@ def tune(design: Design, params: ParameterSet, scenarios, settings: TuneSettings
     T_before = objective.reference_terms(g_src)
     T_after = objective.reference_terms(np.array(best.gains))
     if extra is not None:
-        ex_after = float(np.sum(extra.reference_terms(np.array(best.gains))[:, 3]))
-        if ex_after > settings.excess_tolerance * (1 + 1e-3):
-            _say(settings, f"tune: warning: the current exceeds the clamp in the constraint runs by {ex_after:.3g} A^2 s")
+        ex_after = extra.reference_terms(np.array(best.gains))[:, 3:].sum(axis=0)
+        if np.any(ex_after > settings.excess_tolerance * (1 + 1e-3)):
+            _say(settings, f"tune: warning: constraint runs exceed the clamp / overshoot by {ex_after.tolist()}")
     w = settings.objective.weights
     m_before = exact_margins(design, params, settings.robust_temperatures, level=settings.level, effects=settings.effects)
     m_after = exact_margins(tuned, params, settings.robust_temperatures, level=settings.level, effects=settings.effects)
@@ -388,6 +395,9 @@ def _shortfall(name: str, design: Design, params, settings: TuneSettings, robust
     """By how much the best point misses constraint ``name``, in the requirement's units."""
     if name.startswith("current"):
         return "the current exceeds the clamp in the validation runs at every reachable gain"
+    if name.startswith("speed above"):
+        return (f"the nut speed overshoots the command by more than {100 * settings.objective.overshoot_limit:g} % "
+                "on a plateau of the validation runs at every reachable gain")
     key, _, rest = name.partition(" at ")
     T = float(rest.split()[0])
     limit = robust.requirements[key]

@@ -91,7 +91,7 @@ DEFAULT_VALIDATION_REQUIREMENTS: dict[str, float] = {
 }
 
 #: The integrals of the tuning objective, in this order (see :func:`cost_terms`).
-COST_TERMS: tuple[str, ...] = ("ise", "current_square", "current_rate_square", "current_excess")
+COST_TERMS: tuple[str, ...] = ("ise", "current_square", "current_rate_square", "current_excess", "overshoot_excess")
 #: Scale of the current rate in the objective [A/s]: the rate term is the integral of (di/dt / RATE_SCALE)^2.
 RATE_SCALE = 1e3
 
@@ -194,14 +194,17 @@ def run_metrics(result, *, settle_band: float = 0.05) -> RunMetrics:
                       float(np.max(np.abs(i))), float(np.max(rate)), worst)
 
 
-def cost_terms(result, current_limit: float, state_names) -> dict[str, float]:
+def cost_terms(result, current_limit: float, state_names, overshoot_limit: float = 0.1) -> dict[str, float]:
     """The objective's integrals from a run sampled every control period.
 
     ``ise`` = h sum e_k^2 [(mm/s)^2 s], ``current_square`` = h sum i_k^2 [A^2 s],
     ``current_rate_square`` = h sum ((i_{k+1} - i_k) / h / RATE_SCALE)^2 [s],
     ``current_excess`` = h sum max(0, |i_k| - current_limit)^2 [A^2 s]; ``e_k`` and
     ``i_k`` are the signals at the start of period k, ``i_N`` the final state
-    (``state_names``: the plant's state names, to read it).
+    (``state_names``: the plant's state names, to read it);
+    ``overshoot_excess`` = h sum over plateau periods (command constant and
+    non-zero from k to k+1) of max(0, sgn(c_k) (v_k - c_k) - overshoot_limit |c_k|)^2
+    [(mm/s)^2 s]: the speed above the allowed overshoot.
     """
     h = float(result.info["control_period_s"])
     if abs(float(result.info["output_period_s"]) - h) > 1e-12 * h:
@@ -213,9 +216,15 @@ def cost_terms(result, current_limit: float, state_names) -> dict[str, float]:
     i_last = zf[plant_states.index("motor_current")] + (
         zf[plant_states.index("standby_current")] if "standby_current" in plant_states else 0.0)
     i_next = np.append(i[1:], i_last)
+    c = np.asarray(result["speed_cmd"], float)
+    v = np.asarray(result["nut_speed"], float)
+    c_next = np.append(c[1:], zf[len(plant_states)])  # the shaper's state after the last period
+    plateau = (c_next == c) & (c != 0)
+    over = np.where(plateau, np.maximum(np.sign(c) * (v - c) - overshoot_limit * np.abs(c), 0.0), 0.0) * 1e3
     return {
         "ise": float(h * np.sum(e ** 2)),
         "current_square": float(h * np.sum(i ** 2)),
         "current_rate_square": float(h * np.sum(((i_next - i) / h / RATE_SCALE) ** 2)),
         "current_excess": float(h * np.sum(np.maximum(np.abs(i) - current_limit, 0.0) ** 2)),
+        "overshoot_excess": float(h * np.sum(over ** 2)),
     }
