@@ -158,7 +158,7 @@ def tune_command(args) -> int:
     tuned = replace(result.design, name=out.stem, source=str(out),
                     description=(f"velocity loop tuned by thsa tune for {', '.join(names)} at {args.temperature:g} degC, "
                                  f"margins kept at {args.robust_temperatures} degC (from {design.name})"),
-                    validation=validation, tuning=prov)
+                    validation=validation, tuning=prov, derivation={})  # the source's bandwidths no longer hold
     write_design(tuned, out)
     print(f"tuned {', '.join(result.tuned)}: "
           + ", ".join(f"{n} {getattr(design, n):.5g} -> {getattr(tuned, n):.5g}" for n in result.tuned))
@@ -216,7 +216,7 @@ def add_parsers(sub) -> None:
     p.add_argument("--design", help="design TOML (default designs/nominal.toml)")
     p.add_argument("--params", help="parameter TOML overriding the embedded actuator")
     p.add_argument("--levels", default="A,B,C,D")
-    p.add_argument("--temperatures", default="-55,-30,25,70")
+    p.add_argument("--temperatures", default="-55,-30,25,70", help="[degC], e.g. --temperatures=-55,25 (with =)")
     p.add_argument("--scenarios", help="comma-separated runs (default: the validation suite)")
     p.add_argument("--effects", nargs="*", help="effects added (default temperature_friction standby_motor)")
     p.set_defaults(fn=check_command)
