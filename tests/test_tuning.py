@@ -191,3 +191,15 @@ def test_run_metrics_on_a_hand_made_run():
     assert m.current_peak_A == 3.0 and m.current_rate_peak_A_per_s == pytest.approx(3000.0)
     assert m.ise == pytest.approx(((0.3e-3 * 1e3) ** 2 * 0.05 + (0.02e-3 * 1e3) ** 2 * (n + 1 - 50) * 1e-3), rel=1e-6)
     assert VALIDATION_SUITE[0] == "cold_ramp" and math.isfinite(m.ise)
+
+
+def test_report_section_of_a_tuned_design(design):
+    from thsa_control.report.tuning_report import tuning_section
+
+    assert tuning_section(design) == ""
+    cold = load_design(COLD)
+    page = tuning_section(cold)
+    for tid in ("tuning_starts", "tuning_metrics", "tuning_margins"):
+        assert f'id="table-{tid}"' in page
+    assert f"{cold.tuning['reduction_percent']:.4g} % lower" in page
+    assert "weaker than the source" in page

@@ -43,8 +43,13 @@ def _common(args):
     return params, design
 
 
-def provenance(result, scenarios, design_path: str) -> dict:
-    """The ``[tuning]`` table of a tuned design: objective, runs, solver statistics, before/after numbers."""
+def provenance(result, scenarios, design_path: str, metrics_before: dict | None = None,
+               metrics_after: dict | None = None) -> dict:
+    """The ``[tuning]`` table of a tuned design: objective, runs, solver statistics, before/after numbers.
+
+    ``metrics_before``/``metrics_after``: run name -> :class:`~.validation.RunMetrics` of the source
+    and tuned designs at the tuning temperature and level.
+    """
     from .check import PROVENANCE_MARKER
     from .validation import COST_TERMS
 
@@ -97,6 +102,8 @@ def provenance(result, scenarios, design_path: str) -> dict:
         "terms_after": [list(map(float, row)) for row in result.terms_after],
         "margins_before": margins(result.margins_before),
         "margins_after": margins(result.margins_after),
+        "metrics_before": {k: m.as_dict() for k, m in (metrics_before or {}).items()},
+        "metrics_after": {k: m.as_dict() for k, m in (metrics_after or {}).items()},
     }
 
 
@@ -154,7 +161,12 @@ def tune_command(args) -> int:
     validation = dict(DEFAULT_VALIDATION_REQUIREMENTS)
     validation["max_current_peak_A"] = design.current_limit
     validation.update(design.validation)
-    prov = provenance(result, names, str(args.design or "designs/nominal.toml"))
+    from .check import suite_metrics
+
+    before = suite_metrics(source, params, settings.level, settings.temperature, scenarios=names, effects=effects)
+    after = suite_metrics(result.design, params, settings.level, settings.temperature, scenarios=names,
+                          effects=effects)
+    prov = provenance(result, names, str(args.design or "designs/nominal.toml"), before, after)
     tuned = replace(result.design, name=out.stem, source=str(out),
                     description=(f"velocity loop tuned by thsa tune for {', '.join(names)} at {args.temperature:g} degC, "
                                  f"margins kept at {args.robust_temperatures} degC (from {design.name})"),
@@ -170,6 +182,11 @@ def tune_command(args) -> int:
               + ", ".join(f"{v:.5g}" for v in r.gains))
     for name, b, a in zip(result.run_names, result.terms_before, result.terms_after):
         print(f"  {name}: ISE {b[0]:.4g} -> {a[0]:.4g} (mm/s)^2 s, int (di/dt)^2 {b[2]:.4g} -> {a[2]:.4g}")
+    for name in names:
+        b, a = before[name], after[name]
+        print(f"  {name}: speed error {b.speed_error_percent:.3g} -> {a.speed_error_percent:.3g} %, overshoot "
+              f"{b.overshoot_percent:.3g} -> {a.overshoot_percent:.3g} %, settling {b.settling_time_s:.3g} -> "
+              f"{a.settling_time_s:.3g} s, current peak {b.current_peak_A:.3g} -> {a.current_peak_A:.3g} A")
     for mb, ma in zip(result.margins_before, result.margins_after):
         print(f"  {ma.temperature:6.1f} degC: PM {mb.phase_margin_deg:.1f} -> {ma.phase_margin_deg:.1f} deg, "
               f"GM {mb.gain_margin_db:.1f} -> {ma.gain_margin_db:.1f} dB, Ms {mb.ms:.3f} -> {ma.ms:.3f}")

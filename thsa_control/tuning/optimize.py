@@ -404,10 +404,10 @@ def _shortfall(name: str, design: Design, params, settings: TuneSettings, robust
     m = exact_margins(design, params, [T], level=settings.level, effects=settings.effects,
                       requirements=robust.requirements)[0]
     if key == "min_phase_margin_deg":
-        return (f"the best reachable phase margin at {T:g} degC is {m.phase_margin_deg:.3g} deg ({m.phase_margin_at}), "
+        return (f"at the least-infeasible point IPOPT reached, the phase margin at {T:g} degC is {m.phase_margin_deg:.3g} deg ({m.phase_margin_at}), "
                 f"{limit - m.phase_margin_deg:.3g} deg short of the required {limit:g} deg")
     if key == "min_gain_margin_db":
-        return (f"the best reachable gain margin at {T:g} degC is {m.gain_margin_db:.3g} dB ({m.gain_margin_at}), "
+        return (f"at the least-infeasible point IPOPT reached, the gain margin at {T:g} degC is {m.gain_margin_db:.3g} dB ({m.gain_margin_at}), "
                 f"{limit - m.gain_margin_db:.3g} dB short of the required {limit:g} dB")
-    return (f"the best reachable sensitivity peak at {T:g} degC is {m.ms:.4g} ({m.ms_at}), "
+    return (f"at the least-infeasible point IPOPT reached, the sensitivity peak at {T:g} degC is {m.ms:.4g} ({m.ms_at}), "
             f"{m.ms - limit:.3g} above the allowed {limit:g}")
