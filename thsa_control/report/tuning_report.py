@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import html
 
-__all__ = ["tuning_section"]
+__all__ = ["tuning_section", "plot_before_after"]
 
 _METRICS = (("speed_error_percent", "speed error [%]"), ("ise", "ISE [(mm/s)^2 s]"),
             ("overshoot_percent", "overshoot [%]"), ("settling_time_s", "settling [s]"),
@@ -78,3 +78,35 @@ def tuning_section(design) -> str:
         parts.append("<p class='note'>Where the tuned design is weaker than the source: "
                      + html.escape("; ".join(weaker)) + ".</p>")
     return "\n".join(parts)
+
+
+def plot_before_after(before, after, *, signals=("nut_speed", "motor_current"), axes=None):
+    """Runs of the source and tuned designs over each other: the speed against its command, the current.
+
+    ``before``/``after``: sequences of :class:`~thsa_control.sim.simulate.SimulationResult` of the same runs.
+    Returns the figure.
+    """
+    import matplotlib.pyplot as plt
+
+    n = len(before)
+    if axes is None:
+        fig, axes = plt.subplots(len(signals), n, figsize=(4.2 * n, 2.6 * len(signals)), squeeze=False,
+                                 constrained_layout=True)
+    else:
+        fig = axes[0][0].figure
+    for j, (b, a) in enumerate(zip(before, after)):
+        for i, sig in enumerate(signals):
+            ax = axes[i][j]
+            scale, unit = (1e3, "mm/s") if sig.endswith("speed") else (1.0, b.units.get(sig, ""))
+            if sig == "nut_speed":
+                ax.plot(b.time, b["speed_cmd"] * scale, "k--", lw=0.8, label="command")
+            ax.plot(b.time, b[sig] * scale, lw=1.0, label=f"source ({b.design.name})")
+            ax.plot(a.time, a[sig] * scale, lw=1.0, label=f"tuned ({a.design.name})")
+            ax.set_ylabel(f"{sig} [{unit}]")
+            if i == 0:
+                ax.set_title(b.name)
+            if i == len(signals) - 1:
+                ax.set_xlabel("time [s]")
+            ax.grid(True, alpha=0.3)
+    axes[0][0].legend(fontsize=7)
+    return fig
