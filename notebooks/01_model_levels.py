@@ -58,9 +58,11 @@ fig = plot_levels(results)
 # %% [markdown]
 # What the levels show:
 #
-# * **A** has no no-back: in the trim stop (grey, motors off) the 29 kN load
-#   back-drives the reversible screw, and re-energising at that speed saturates
-#   the drive.  In the aiding phase the motor brakes (current against the speed).
+# * **A** is the functional model with the papers' ideal no-back (paper 001,
+#   model (a)): in the trim stops (grey, motors off) it holds the load; in the
+#   aiding phase the motor drives with little current (the no-back takes the
+#   load torque).  `thsa.build_plant("A", remove=["noback_ideal"])` is the
+#   reversible screw, which back-drives in the stops.
 # * **B** holds the load by stiction in the stops; in the aiding phase the motor
 #   must drive against the loaded disk (current with the speed), with a breakaway
 #   peak when it starts.
@@ -83,3 +85,25 @@ d_minus = thsa.build_plant("D", remove=["loadpath_compliance"])
 print(d_minus.effects == plants["C"].effects)
 same = thsa.Simulator(d_minus).run(scenario, design, params)
 print(float(np.max(np.abs(same["motor_current"] - results["C"]["motor_current"]))))
+
+# %% [markdown]
+# Two headline numbers are set by values the papers do not give: the level-D
+# overshoot by the disk-spring damping, the level-C back-drive by where the
+# ratchets stopped before the run.  Over their plausible ranges:
+
+# %%
+from thsa_control.sim.assumptions import assumption_ranges, format_ranges
+
+print(format_ranges(assumption_ranges(design, params)))
+
+# %% [markdown]
+# The drive train is rigid unless `drivetrain_compliance` is added: the motor
+# rotors then sit on the gearbox and screw torsional spring (assumed stiffness,
+# see the parameter file), and the motor sensor and the screw disagree by the
+# twist rate.
+
+# %%
+soft = thsa.Simulator(thsa.build_plant("B", ["drivetrain_compliance"])).run(scenario, design, params)
+gap = soft["motor_speed"] - params.value("gear.ratio") * soft["screw_speed"]
+print(f"peak twist {1e3 * np.max(np.abs(soft['drivetrain_twist'])):.2f} mrad at the motor shaft, "
+      f"peak motor-sensor minus screw speed {np.max(np.abs(gap)):.2f} rad/s")

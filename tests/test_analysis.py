@@ -113,6 +113,8 @@ def test_loops_match_python_control(design, params, cond):
     # unobservable pole at z = 1 of the current and velocity loops)
     pi = lambda kp, ki: ct.ss([[1.0]], [[1.0]], [[ki * h]], [[kp]], h)  # noqa: E731 - kp + ki h / (z - 1)
     Kc, Kv = pi(design.current_kp, design.current_ki), pi(design.velocity_kp, design.velocity_ki)
+    if design.computation_delay_samples:  # the voltage is applied one period after the sample: z^-1
+        Kc = ct.series(Kc, ct.ss([[0.0]], [[1.0]], [[1.0]], [[0.0]], h))
     Kx = ct.ss([[0.0]], [[1.0]], [[design.position_kp / r]], [[0.0]], h)  # kp / r z^-1
     ii = lm.states.index("motor_current")
     RL = ct.c2d(ct.ss(lm.A[ii:ii + 1, ii:ii + 1], lm.B[ii:ii + 1, :1], [[1.0]], 0), h, "zoh")
@@ -135,7 +137,8 @@ def test_loops_match_python_control(design, params, cond):
         assert m.phase_margin_deg[0] == pytest.approx(pm, abs=1e-5), name
         ms_grid = np.max(1 / np.abs(1 + resp.complex.ravel()))
         assert ms_grid * (1 - 1e-6) <= m.ms[0] <= ms_grid * (1 + 1e-3), name
-        if name != "current_loop":  # python-control's frd grid stops below Nyquist, where the current loop's GM is
+        # python-control's frd grid stops below Nyquist, where the current loop's GM is without a delay
+        if name != "current_loop" or design.computation_delay_samples:
             assert m.gain_margin_db[0] == pytest.approx(20 * math.log10(gm), abs=1e-5), name
         T = ct.feedback(L, 1)
         horizon = {"current_loop": 0.004, "velocity_loop": 0.3, "position_loop": 2.0}[name]
@@ -149,17 +152,21 @@ def test_loops_match_python_control(design, params, cond):
         # the closed-loop poles are python-control's
         np.testing.assert_allclose(np.sort(np.abs(a.loops[name].poles[0])), np.sort(np.abs(T.poles())),
                                    rtol=1e-6, atol=1e-9)
-    # at Nyquist the current loop's gain margin is -1 / L(-1)
-    L_ny = loops["current_loop"](-1.0)
-    assert a.loops["current_loop"].margins.gain_margin_db[0] == pytest.approx(-20 * math.log10(abs(L_ny)), rel=1e-9)
+    # without a delay the current loop's phase reaches -180 deg only at Nyquist: its gain margin is -1 / L(-1)
+    nodelay = analyse_loops(replace(design, computation_delay_samples=0), params, [cond], steps=False)
+    L_ny = ct.series(pi(design.current_kp, design.current_ki), RL)(-1.0)
+    assert nodelay.loops["current_loop"].margins.gain_margin_db[0] == pytest.approx(-20 * math.log10(abs(L_ny)),
+                                                                                    rel=1e-9)
 
 
 def test_computation_delay_costs_phase_at_crossover(design, params):
     cond = [OperatingCondition(10e-3, 20e3, 25.0)]
-    a0 = analyse_loops(design, params, cond, steps=False)
-    a1 = analyse_loops(replace(design, computation_delay_samples=1), params, cond, steps=False)
+    assert design.computation_delay_samples == 1  # the nominal design declares the real controller's delay
+    a0 = analyse_loops(replace(design, computation_delay_samples=0), params, cond, steps=False)
+    a1 = analyse_loops(design, params, cond, steps=False)
     m0, m1 = a0.loops["current_loop"].margins, a1.loops["current_loop"].margins
-    # z^-1 lags by w h: 360 f_c h deg = 35.6 deg at 988 Hz; the crossover moves a little, so 3 deg
+    # z^-1 lags by w h: 360 f_c h deg (about 21 deg at the 600 Hz design's crossover); the crossover moves a
+    # little, so 3 deg
     assert m0.phase_margin_deg[0] - m1.phase_margin_deg[0] == pytest.approx(360 * m0.crossover_hz[0] * 1e-4, abs=3.0)
     assert m1.gain_margin_db[0] < m0.gain_margin_db[0]
 
@@ -171,20 +178,22 @@ def test_grid_worst_points_validity_and_saturation(grid_analysis):
     a = grid_analysis
     assert len(a) == 36 and a.grid is not None
     speeds = np.array([c.nut_speed for c in a.conditions])
-    # zero speed: 9 points; 1 mm/s against the no-back under 55 kN aiding needs > 15 A: 3 points
+    # zero speed: 9 points; against the no-back under 55 kN aiding the steady motion needs > 15 A at 1 mm/s
+    # (15.7 A at 25 degC, the gearbox efficiency acting on the disk torque too) and at 2 mm/s when cold
+    # (15.2 A at -55 degC, the preload dilated): 4 points
     assert np.all(~a.valid[speeds == 0.0])
     sat = [c.label() for c in np.array(a.conditions)[a.saturated]]
-    assert sat == ["1 mm/s, -55 kN (aiding), -55 degC", "1 mm/s, -55 kN (aiding), 25 degC",
-                   "1 mm/s, -55 kN (aiding), 70 degC"]
+    assert sat == ["1 mm/s, -55 kN (aiding), -55 degC", "2 mm/s, -55 kN (aiding), -55 degC",
+                   "1 mm/s, -55 kN (aiding), 25 degC", "1 mm/s, -55 kN (aiding), 70 degC"]
     assert all("current limit 15 A" in r[0] for c, r in a.invalid_points() if c.nut_speed != 0)
-    assert a.valid.sum() == 36 - 9 - 3
+    assert a.valid.sum() == 36 - 9 - 4
     # every metric has a named worst point, and it is a valid one
     worst = {(w.loop, w.metric): w for w in a.worst_points()}
     assert len(worst) == 3 * 9 + 2 * 2
     assert all(a.valid[w.index] for w in worst.values())
     pm = worst[("velocity_loop", "phase_margin_deg")]
-    assert pm.condition.label() == "2 mm/s, -55 kN (aiding), -55 degC"
-    assert 50 < pm.value < 60
+    assert pm.condition.label() == "2 mm/s, -55 kN (aiding), 70 degC"  # the loaded disk's Stribeck drop
+    assert 60 < pm.value < 75
     gm = worst[("velocity_loop", "gain_margin_db")]
     assert gm.value < 0 and gm.condition == pm.condition  # conditionally stable: a lower gain margin
     assert worst[("current_loop", "phase_margin_deg")].uniform  # R and L do not depend on the point
@@ -194,7 +203,7 @@ def test_grid_worst_points_validity_and_saturation(grid_analysis):
 def test_nominal_design_meets_its_requirements(grid_analysis):
     check = check_requirements(grid_analysis)
     assert check.passed, check.summary()
-    assert check.checked_points == 24 and check.skipped_points == 12
+    assert check.checked_points == 23 and check.skipped_points == 13
     assert {r.loop for r in check.rows} == set(LOOPS)
 
 
@@ -208,7 +217,7 @@ def test_violated_requirement_names_point_and_value(grid_analysis, design):
     worst_os = grid_analysis.worst("velocity_loop", "overshoot_percent")
     v = next(v for v in check.violations if v.requirement == "max_overshoot_percent" and v.index == worst_os.index)
     assert v.value == pytest.approx(worst_os.value) and v.value > 20
-    assert "2 mm/s, -55 kN (aiding), -55 degC" in v.text() and f"{v.value:.4g}" in v.text()
+    assert worst_os.condition.label() in v.text() and f"{v.value:.4g}" in v.text()
     row = next(r for r in check.rows if r.requirement == "min_bandwidth_hz")
     assert not row.passed and row.n_failed == check.checked_points  # 2 Hz design vs 5 Hz asked
     assert "FAIL" in check.summary() and "velocity_loop.max_overshoot_percent = 20" in check.summary()
@@ -259,9 +268,10 @@ def test_active_and_standby_configurations(design, params):
     for loop in LOOPS:
         assert p.loops[loop].margins.phase_margin_deg[0] == pytest.approx(s.loops[loop].margins.phase_margin_deg[0],
                                                                           rel=1e-9)
-    # the design assumed one rotor: the second one nearly doubles the inertia and, the velocity loop
-    # crossing over on the integrator Kt / (J s), its crossover drops roughly as 1 / J
-    single = analyse_loops(design, params, [OperatingCondition(10e-3, 20e3, 25.0)], settings=SMALL, steps=False)
+    # without the dragged standby rotor the inertia nearly halves and, the velocity loop crossing over on
+    # the integrator Kt / (J s), its crossover rises roughly as 1 / J
+    one_rotor = replace(SMALL, effects=tuple(e for e in SMALL.effects if e != "standby_motor"))
+    single = analyse_loops(design, params, [OperatingCondition(10e-3, 20e3, 25.0)], settings=one_rotor, steps=False)
     ratio = single.linearization.inertia[0] / p.linearization.inertia[0]
     assert ratio == pytest.approx(0.53, abs=0.01)
     fc1 = single.loops["velocity_loop"].margins.crossover_hz[0]

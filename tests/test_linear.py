@@ -41,19 +41,26 @@ def model_b_temp(params):
 
 
 def _hand(params):
-    """Kt, J_total, b and r of the level-A plant (structure.py balances)."""
+    """Kt, J, b and r of the level-A plant seen from the motor while it drives the gearbox.
+
+    The gearbox passes eta_g of the torque that enters it, so everything on its
+    output side (screw and nut inertia, gear drag) weighs 1/eta_g at the motor:
+    J = J_rotor + J_out / eta_g, b = b_bearing + b_gear / eta_g.
+    """
     v = params.value
     n = v("gear.ratio")
     r = v("screw.lead") / (2 * math.pi * n)
     kt = 1.5 * v("motor.pole_pairs") * v("motor.flux_linkage")
-    j = v("motor.rotor_inertia") + v("screw.inertia") / n**2 + (v("loadpath.mass") + v("surface.mass")) * r**2
-    b = v("motor.bearing_viscous_friction") + v("gear.viscous_friction")
+    eta = v("gear.efficiency")
+    j = v("motor.rotor_inertia") + (v("screw.inertia") / n**2 + (v("loadpath.mass") + v("surface.mass")) * r**2) / eta
+    b = v("motor.bearing_viscous_friction") + v("gear.viscous_friction") / eta
     return kt, j, b, r
 
 
-# Level A has linear (viscous) friction; the efficiency channel |F| r c1 is a Coulomb torque whose
-# slope is zero away from zero speed, and the load torque F r c0 does not depend on speed.  So the
-# current -> speed transfer function is Kt / (J s + b) at every speed and load, opposing or aiding.
+# Level A has linear (viscous) friction; the efficiency channel |F| r c1 and the ideal no-back are
+# Coulomb torques whose slope is zero away from zero speed, and the load torque F r c0 does not depend
+# on speed.  At level A the motor drives the gearbox at every point (the ideal no-back takes an aiding
+# load), so the current -> speed transfer function is Kt / (J s + b) with the driving-gear J and b.
 @pytest.mark.parametrize("speed, load", [(5e-3, 20e3), (15e-3, -55e3), (-2e-3, 30e3), (0.5e-3, 0.0)])
 def test_level_a_current_to_speed_is_kt_over_js_plus_b(model_a, params, speed, load):
     kt, j, b, r = _hand(params)
@@ -146,10 +153,12 @@ def test_temperature_friction_changes_the_plant_monotonically(model_a_temp, para
     v = params.value
     kt, j, b25, r = _hand(params)
     # above the cold Stribeck speed (10 mm/s = 343 rad/s >> 50 rad/s) the law is viscous:
-    # b(T) = b_bearing + b_gear exp(a_v (25 - T)), rising as it gets colder
+    # b(T) = b_bearing + b_gear exp(a_v (25 - T)) / eta_g (the gear drag is on the gearbox's output side),
+    # rising as it gets colder
+    eta = v("gear.efficiency")
     fast = linearize_conditions(model_a_temp, [OperatingCondition(10e-3, 20e3, t) for t in temps])
     expected = v("motor.bearing_viscous_friction") + v("gear.viscous_friction") * np.exp(
-        v("friction.viscous_temperature_coefficient") * (25.0 - np.array(temps)))
+        v("friction.viscous_temperature_coefficient") * (25.0 - np.array(temps))) / eta
     np.testing.assert_allclose(fast.net_damping, expected, rtol=1e-9)
     assert np.all(np.diff(fast.net_damping) > 0)  # more damping when cold
     dc = np.array([current_driven(fast[k]).transfer_function("motor_current", "motor_speed").dcgain()
@@ -164,8 +173,10 @@ def test_temperature_friction_changes_the_plant_monotonically(model_a_temp, para
                                                      * np.maximum(25.0 - np.array(temps), 0.0)) - 1.0)
     ws = v("friction.cold_stribeck_speed")
     slope = tc * v("friction.cold_stribeck_ratio") * np.exp(-(w / ws) ** 2) * (-2 * w / ws**2)
-    np.testing.assert_allclose(slow.friction_slope, slope, rtol=1e-9, atol=1e-15)
-    assert slow.friction_slope[0] == 0.0 and np.all(np.diff(slow.friction_slope[1:]) < 0)
+    b_slow = v("motor.bearing_viscous_friction") + (v("gear.viscous_friction") * np.exp(
+        v("friction.viscous_temperature_coefficient") * (25.0 - np.array(temps))) + slope) / eta
+    np.testing.assert_allclose(slow.net_damping, b_slow, rtol=1e-9)
+    assert np.all(np.diff(slow.friction_slope[1:]) < 0)
     assert slow.stribeck.tolist() == [False, False, True, True, True]
 
 
@@ -181,7 +192,11 @@ def test_stribeck_slope_of_the_noback_disk_is_reported_as_destabilising(model_b_
     normal = v("noback.preload") + 55e3
     slope = (v("noback.mu_static_pos") - v("noback.mu_coulomb_pos")) * math.exp(-(ws / wst) ** 2) * (
         -2 * ws / wst**2) / n * normal / n
-    assert lin.friction_slope[0] == pytest.approx(slope, rel=1e-9)
+    # the motor drives the gearbox here: the disk's slope and the gear drag weigh 1/eta_g at the motor
+    eta = v("gear.efficiency")
+    net = v("motor.bearing_viscous_friction") + (v("gear.viscous_friction") + slope) / eta
+    assert lin.net_damping[0] == pytest.approx(net, rel=1e-9)
+    assert lin.friction_slope[0] < 0
     assert lin.valid[0] and lin.stribeck[0] and lin.net_damping[0] < 0
     assert any(note.startswith("Stribeck region") for note in lin.notes[0])
     assert any("unstable" in note for note in lin.notes[0])
@@ -206,7 +221,9 @@ def test_standby_configuration_uses_the_standby_channel(params):
     assert lin.inertia[0] == pytest.approx(lin.inertia[1], rel=1e-12)
     kt, j, b, r = _hand(params)
     ratchets = 2 * params.value("noback.ratchet_inertia") / params.value("gear.ratio") ** 2
-    assert lin.inertia[0] == pytest.approx(j + params.value("motor.rotor_inertia") + ratchets, rel=1e-9)
+    # two rotors on the motor side; the ratchets on the gearbox's output side (1/eta_g while driving)
+    assert lin.inertia[0] == pytest.approx(j + params.value("motor.rotor_inertia")
+                                           + ratchets / params.value("gear.efficiency"), rel=1e-9)
     with pytest.raises(Exception, match="standby_motor"):
         linearize_condition(plant_model("A", (), params), OperatingCondition(5e-3, 0.0, 25.0, "standby"))
 
@@ -228,7 +245,8 @@ def test_cli_linearize_prints_and_saves(tmp_path, capsys):
                   "5 mm/s, 20 kN (opposing), -30 degC"):
         assert piece in text
     lm = LinearModel.load(out)
-    assert lm.states == ("motor_current", "motor_speed") and lm.valid
+    # the default effects: temperature friction and the dragged standby rotor (its current a state)
+    assert lm.states == ("motor_current", "motor_speed", "standby_current") and lm.valid
     assert lm.operating_point.output("nut_speed") == pytest.approx(5e-3)
 
 

@@ -136,6 +136,11 @@ def _cmd_levels(args) -> int:
             line += (f", aiding/opposing |I| {b['aiding_to_opposing']:.2f}, breakaway/opposing {b['breakaway_to_opposing']:.2f}, "
                      f"trim-stop back-drive {max(b['stop_backdrive_peak_of_command']) * 100:.0f} % of command")
         print(line)
+    if not getattr(args, "no_ranges", False):
+        from .sim.assumptions import assumption_ranges, format_ranges
+
+        print("headline numbers over the plausible range of the assumed values that set them:")
+        print(format_ranges(assumption_ranges(design, params, output_period=args.output_period)))
     print(f"wrote {Path(args.out).resolve()}")
     return 0
 
@@ -302,6 +307,8 @@ def _parser() -> argparse.ArgumentParser:
     p = sub.add_parser("levels", help="simulate a scenario at several levels side by side (the main job)")
     common(p, False)
     p.add_argument("--levels", default="A,B,C,D")
+    p.add_argument("--no-ranges", action="store_true",
+                   help="skip the headline numbers over the ranges of the assumed values (thsa_control.sim.assumptions)")
     p.set_defaults(fn=_cmd_levels)
     p = sub.add_parser("simulate", help="simulate a scenario at one level, write the run (FORMAT.md) and plots")
     common(p, True)

@@ -352,7 +352,39 @@ class PlantModel:
         """One line: level, effects, drifting states."""
         lvl = self.level if self.level is not None else "-"
         eff = ", ".join(self.effects) or "functional"
-        return f"level {lvl} ({eff}); drifting (excluded): {', '.join(self.named.drifting_states)}"
+        rotors = ("two rotors: the active motor drags the standby rotor" if "standby_motor" in self.effects
+                  else "one rotor (the standby rotor left out)")
+        line = f"level {lvl} ({eff}); {rotors}"
+        if "drivetrain_compliance" in self.effects:
+            P = self.params.value
+            k = 1.0 / (1.0 / P("gear.torsional_stiffness") + 1.0 / P("screw.torsional_stiffness")) / P("gear.ratio") ** 2
+            j_r = P("motor.rotor_inertia") * (2 if "standby_motor" in self.effects else 1)
+            j_m = self.params_inertia_load()
+            f = math.sqrt(k * (1 / j_r + P("gear.efficiency") / j_m)) / (2 * math.pi)  # motor driving
+            line += f"; compliant drive train, rotor/screw torsional resonance near {f:.0f} Hz (assumed stiffness)"
+        return line + f"; drifting (excluded): {', '.join(self.named.drifting_states)}"
+
+    def params_inertia_load(self) -> float:
+        """Inertia of the gear-output side at the motor shaft [kg m^2], from the plant's own balance.
+
+        ``1 / J = d(dw/dt) / d(k twist)`` at rest (drive-train compliance), or
+        ``Kt / (d(dw/dt) / di)`` for the rigid drive (then the rotors included).
+        """
+        plant, P = self.plant, self.params
+        x = plant.initial_state(P)
+        u = np.zeros(len(plant.inputs))
+        u[plant.index("input", "enable_primary")] = 1.0
+        u[plant.index("input", "temperature")] = P.value("friction.reference_temperature")
+        p = plant.p_vector(P)
+        iw = plant.index("state", "motor_speed")
+        base = float(plant.f(x, u, p)[0][iw])
+        if "drivetrain_twist" in plant.state_names:
+            k = 1.0 / (1.0 / P.value("gear.torsional_stiffness") + 1.0 / P.value("screw.torsional_stiffness"))
+            k /= P.value("gear.ratio") ** 2
+            x[plant.index("state", "drivetrain_twist")] = 1e-6
+            return k * 1e-6 / (float(plant.f(x, u, p)[0][iw]) - base)
+        x[plant.index("state", "motor_current")] = 1.0
+        return self.torque_constant / (float(plant.f(x, u, p)[0][iw]) - base)
 
 
 def plant_model(level: str | None = "A", effects: Iterable[str] = (), params: ParameterSet | None = None, *,

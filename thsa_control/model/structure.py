@@ -289,12 +289,46 @@ def finish_structure(a: Assembly) -> None:
 
     motor_torque = _sum_exprs(expr for label, expr in a.rotor_torques if label.startswith("motor_"))
     rotor_drag = _sum_exprs(expr for label, expr in a.rotor_torques if not label.startswith("motor_"))
+    eta_g = p["gear.efficiency"]
+    c_drive, c_back = 1.0 - eta_g, (1.0 - eta_g) / eta_g
+
+    # Gearbox efficiency by the power flow at the gearbox.  T_g, the torque
+    # the motor side puts into the gearbox, drives it when T_g w > 0 and then
+    # (1 - eta) |T_g| is lost; when the screw side drives the motors
+    # (T_g w < 0) the loss is (1 - eta)/eta |T_g|.  Written as a friction
+    # channel on the gear-output body, it applies to everything the screw
+    # side demands (load, no-back disks, drag, its inertia) and always acts
+    # against the motion.
     if a.coupling is None:
-        # rigid gearbox input: the rotors are part of the main body
+        # Rigid input: the rotors are part of the main body, and T_g is the
+        # motor torque less what accelerates the rotors, T_g = T_m + D_r - J_r dw/dt.
+        # With dw/dt = (T_smooth - F_other - G) / J and G = c |T_g| against the
+        # motion, T_g solves in closed form per direction of motion s:
+        #   a_s = T_m + D_r - rho (T_smooth - s F_other,s),  rho = J_r / J,
+        #   |T_g| = |a_s| / (1 - rho c s sgn(a_s)),  c by the sign of s a_s.
+        # At standstill (stick) dw/dt = 0 and T_g = T_m + D_r.
         a.inertia += a.rotor_inertia
         a.torques += a.rotor_torques
-        gear_torque = motor_torque
-        a.stored_energy["kinetic_main"] = 0.5 * _sum_exprs(a.inertia) * w**2
+        j_total = _sum_exprs(a.inertia)
+        rho = _sum_exprs(a.rotor_inertia) / j_total
+        t_smooth = _sum_exprs(expr for _, expr in a.torques)
+        f_pos = _sum_exprs(c.kinetic_pos for c in a.channels)
+        f_neg = _sum_exprs(c.kinetic_neg for c in a.channels)
+
+        def loss_moving(s, a_s):
+            drive = s * a_s > 0
+            c = ca.if_else(drive, c_drive, c_back)
+            return c * ca.fabs(a_s) / (1.0 - rho * c * ca.if_else(drive, 1.0, -1.0))
+
+        a_pos = motor_torque + rotor_drag - rho * (t_smooth - f_pos)
+        a_neg = motor_torque + rotor_drag - rho * (t_smooth + f_neg)
+        t_g0 = motor_torque + rotor_drag
+        g_static_pos = ca.if_else(t_g0 > 0, c_drive, c_back) * ca.fabs(t_g0)
+        g_static_neg = ca.if_else(t_g0 < 0, c_drive, c_back) * ca.fabs(t_g0)
+        a.channels.append(FrictionChannel("gear_efficiency", g_static_pos, g_static_neg,
+                                          loss_moving(1.0, a_pos), loss_moving(-1.0, a_neg)))
+        a.stored_energy["kinetic_main"] = 0.5 * j_total * w**2
+        gear_torque = t_g0  # quasi-static (the output signal)
     else:
         wr = a.rotor_speed
         coupling = a.coupling(wr, w)
@@ -302,23 +336,12 @@ def finish_structure(a: Assembly) -> None:
         a.rates["rotor_speed"] = (motor_torque + rotor_drag - coupling) / j_rotor
         a.torques.append(("drivetrain", coupling))
         gear_torque = coupling
+        mag = ca.fabs(gear_torque)
+        g_pos = ca.if_else(gear_torque > 0, c_drive, c_back) * mag
+        g_neg = ca.if_else(gear_torque < 0, c_drive, c_back) * mag
+        a.channels.append(FrictionChannel("gear_efficiency", g_pos, g_neg, g_pos, g_neg))
         a.stored_energy["kinetic_main"] = 0.5 * _sum_exprs(a.inertia) * w**2
         a.stored_energy["kinetic_rotors"] = 0.5 * j_rotor * wr**2
-
-    # Gearbox efficiency by the power flow at the gearbox: the torque T_g that
-    # enters the gearbox from the motor side (motor torque, or the drive-train
-    # spring torque when compliant) drives the gear when T_g w > 0 and loses
-    # (1 - eta) |T_g|; when the screw side drives the motor (T_g w < 0) it
-    # loses (1 - eta)/eta |T_g|.  Written as a friction channel on the main
-    # body, so it applies to everything the screw side demands (load, no-back
-    # disks, drag) and acts against the motion.  Neglected: the rotor inertia
-    # torque inside T_g in the rigid case (transients only).
-    eta_g = p["gear.efficiency"]
-    mag = ca.fabs(gear_torque)
-    drive_loss, back_loss = (1.0 - eta_g) * mag, (1.0 - eta_g) / eta_g * mag
-    g_pos = ca.if_else(gear_torque > 0, drive_loss, back_loss)
-    g_neg = ca.if_else(gear_torque < 0, drive_loss, back_loss)
-    a.channels.append(FrictionChannel("gear_efficiency", g_pos, g_neg, g_pos, g_neg))
     a.loss("gear_efficiency", lambda res: res.channel["gear_efficiency"] * res.speed)
 
     a.output("axial_force", "N", F)
