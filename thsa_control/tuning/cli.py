@@ -114,7 +114,7 @@ def tune_command(args) -> int:
     from .check import PROVENANCE_MARKER, write_design
     from .objective import ObjectiveSettings
     from .optimize import TuneSettings, tune
-    from .validation import DEFAULT_VALIDATION_REQUIREMENTS, get_validation_scenario, run_metrics
+    from .validation import DEFAULT_VALIDATION_REQUIREMENTS, get_validation_scenario
 
     params, design = _common(args)
     out = Path(args.out)

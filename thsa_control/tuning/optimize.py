@@ -324,7 +324,6 @@ def tune(design: Design, params: ParameterSet, scenarios, settings: TuneSettings
     kp = gains_sym[settings.tuned.index("velocity_kp")] if "velocity_kp" in settings.tuned else design.velocity_kp
     ki = gains_sym[settings.tuned.index("velocity_ki")] if "velocity_ki" in settings.tuned else design.velocity_ki
     g_rob = robust.casadi_constraints(kp, ki)
-    rob_fn = ca.Function("robust", [q], [g_rob])
     lb = math.log(1.0 / settings.bound_factor)
     results = []
     for label, start in starts.items():
