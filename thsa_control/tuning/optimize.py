@@ -179,6 +179,7 @@ class _Cache:
         self.val = None
         self.jac = None
         self.n_jac = 0
+        self.history = []  # (q, (value, jacobian)) of every evaluation
 
     def gains(self, q):
         return self.g0 * np.exp(np.asarray(q, float).ravel())
@@ -194,6 +195,7 @@ class _Cache:
             self.key, self.val = k, np.concatenate([[J / self.J0], ex])
             self.jac = np.vstack([dJ * g / self.J0, dex * g[None, :]])
             self.n_jac += 1
+            self.history.append((np.asarray(q, float).ravel().copy(), (self.val, self.jac)))
             if self.progress:
                 gs = " ".join(f"{n}={v:.5g}" for n, v in zip(self.obj.tuned, g))
                 print(f"  [{self.label}] eval {self.n_jac:3d}: J/J0 = {J / self.J0:.6f}  {gs}", file=sys.stderr, flush=True)
@@ -326,8 +328,15 @@ def tune(design: Design, params: ParameterSet, scenarios, settings: TuneSettings
     g_rob = robust.casadi_constraints(kp, ki)
     lb = math.log(1.0 / settings.bound_factor)
     results = []
-    for label, start in starts.items():
-        cache = _Cache(objective, g_src, J0, settings.progress, label, extra)
+    rob_fn = ca.Function("robust", [q], [g_rob])
+    names = ("current above the clamp", "speed above the allowed overshoot") + robust.names
+
+    def margins_of(qv, sim_val):
+        """Constraint values (>= 0 feasible) at q from the cached simulation values."""
+        ex = np.asarray(sim_val[1:], float) / settings.excess_tolerance
+        return np.concatenate([1.0 - ex, np.asarray(rob_fn(qv), float).ravel()])
+
+    def solve(cache, x0, lo, hi):
         sim = _Sim(cache, n)
         simq = sim(q)
         # sqrt(1 + excess / tol) <= sqrt(2): smooth, and it grows like sqrt far from feasibility (better scaled)
@@ -336,26 +345,55 @@ def tune(design: Design, params: ParameterSet, scenarios, settings: TuneSettings
                 "ipopt.hessian_approximation": "limited-memory", "ipopt.max_iter": settings.max_iter,
                 "ipopt.tol": settings.tol, "ipopt.acceptable_tol": 1e-5, "error_on_fail": False}
         solver = ca.nlpsol(f"tune_{len(results)}", "ipopt", nlp, opts)
+        sol = solver(x0=x0, lbx=lo, ubx=hi, lbg=[-np.inf, -np.inf] + [0.0] * g_rob.size1(),
+                     ubg=[math.sqrt(2.0)] * 2 + [np.inf] * g_rob.size1())
+        stats = solver.stats()
+        qf = np.asarray(sol["x"], float).ravel()
+        return qf, float(sol["f"]), margins_of(qf, cache.value(qf)[0]), stats
+
+    ok_status = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+    for label, start in starts.items():
+        cache = _Cache(objective, g_src, J0, settings.progress, label, extra)
         x0 = np.log(np.clip(gains_of(start, settings.tuned) / g_src, 1.0 / settings.bound_factor, settings.bound_factor))
         _say(settings, f"tune: start '{label}' from {', '.join(f'{v:.5g}' for v in g_src * np.exp(x0))}")
         t0 = time.perf_counter()
-        sol = solver(x0=x0, lbx=[lb] * n, ubx=[-lb] * n, lbg=[-np.inf, -np.inf] + [0.0] * g_rob.size1(),
-                     ubg=[math.sqrt(2.0)] * 2 + [np.inf] * g_rob.size1())
+        qf, fval, cons, stats = solve(cache, x0, [lb] * n, [-lb] * n)
+        status = str(stats.get("return_status"))
+        iters = int(stats.get("iter_count", -1))
+        if status not in ok_status or cons.min() < -1e-6:
+            # safeguard: IPOPT lost its way (the excess constraints are steep); restart from the best feasible
+            # point evaluated so far, in a trust region of x1.5 around it, while that keeps improving
+            first, tr = status, math.log(1.5)
+            for _ in range(6):
+                hist = [(v[0][0], qq) for qq, v in cache.history if margins_of(qq, v[0]).min() >= -1e-6]
+                if not hist:
+                    break
+                fb, qb = min(hist, key=lambda h: h[0])
+                _say(settings, f"tune: start '{label}': {status}; restarting from the best feasible iterate "
+                               f"{', '.join(f'{v:.5g}' for v in g_src * np.exp(qb))} within x1.5")
+                lo, hi = np.maximum(qb - tr, lb), np.minimum(qb + tr, -lb)
+                qf2, f2, cons2, stats2 = solve(cache, qb, lo, hi)
+                iters += int(stats2.get("iter_count", -1))
+                st2 = str(stats2.get("return_status"))
+                if cons2.min() >= -1e-6 and f2 <= fb:
+                    qf, fval, cons, stats, status = qf2, f2, cons2, stats2, st2
+                else:
+                    qf, fval, cons, status = qb, fb, margins_of(qb, cache.value(qb)[0]), "Maximum_Iterations_Exceeded"
+                on_edge = np.any((np.abs(qf - lo) < 1e-6) & (lo > lb + 1e-9)) or np.any(
+                    (np.abs(qf - hi) < 1e-6) & (hi < -lb - 1e-9))
+                if status in ok_status and not on_edge:
+                    break
+            status = f"{status} (restarted from feasible iterates after {first})"
         wall = time.perf_counter() - t0
-        stats = solver.stats()
-        qf = np.asarray(sol["x"], float).ravel()
-        gvals = np.asarray(sol["g"], float).ravel()
-        cons = np.concatenate([1.0 - (gvals[:2] ** 2 - 1.0), gvals[2:]])
-        names = ("current above the clamp", "speed above the allowed overshoot") + robust.names
         k = int(np.argmin(cons))
+        success = status.startswith(ok_status) and cons.min() >= -1e-6
         res = StartResult(label, tuple(float(v) for v in g_src * np.exp(x0)), tuple(float(v) for v in g_src * np.exp(qf)),
-                          float(sol["f"]), str(stats.get("return_status")), bool(stats.get("success")),
-                          int(stats.get("iter_count", -1)), wall, float(cons[k]), names[k])
+                          fval, status, success, iters, wall, float(cons[k]), names[k])
         _say(settings, f"tune: start '{label}': {res.status} after {res.iterations} iterations, {wall:.1f} s, "
                        f"J/J0 = {res.objective:.6f}, worst constraint {res.worst_constraint} = {res.constraint_min:.3g}")
         results.append((res, stats))
-    feasible = [r for r, _ in results if r.constraint_min >= -1e-6 and r.status in (
-        "Solve_Succeeded", "Solved_To_Acceptable_Level", "Maximum_Iterations_Exceeded")]
+    feasible = [r for r, _ in results if r.constraint_min >= -1e-6 and r.status.startswith(
+        ("Solve_Succeeded", "Solved_To_Acceptable_Level", "Maximum_Iterations_Exceeded"))]
     if not feasible:
         r, stats = min(results, key=lambda rs: -rs[0].constraint_min)
         gains = np.array(r.gains)
