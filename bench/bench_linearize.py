@@ -117,7 +117,10 @@ def main(argv=None) -> int:
     points = []
     for k, c in enumerate(grid.conditions()):
         x = ops.X[:, k]
-        u = np.array([ops.U[0, k], 0.0, 1.0, 0.0, c.load_force, c.temperature])  # plant inputs, structure.INPUTS
+        u = np.zeros(len(plant.inputs))  # plant inputs by name; fault inputs healthy (0)
+        for name, value in (("voltage_primary", ops.U[0, k]), ("enable_primary", 1.0), ("load_force", c.load_force),
+                            ("temperature", c.temperature)):
+            u[plant.index("input", name)] = value
         points.append((x, u))
     m = 40 if args.quick else n
     omega = a.loops["velocity_loop"].margins.omega

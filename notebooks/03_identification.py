@@ -37,7 +37,7 @@ from thsa_control.fit.residuals import format_residual_report
 from thsa_control.data.rigdata import read_run
 from thsa_control.fit.virtual_rig import VirtualRig, excitation_inputs
 
-truth = thsa.default_parameters().replace({"noback.mu_coulomb_pos": 0.0055, "screw.efficiency_inverse": 0.80})
+truth = thsa.default_parameters().replace({"noback.mu_coulomb_neg": 0.0050, "screw.efficiency_direct": 0.87})
 work = Path(tempfile.mkdtemp())
 
 # %% [markdown]
@@ -55,7 +55,7 @@ rig = VirtualRig("B", params=truth, design=design, noise={"motor_speed_rpm": 2.0
 csv_path, _ = rig.record(excitation_inputs(6.0, bipolar=True, load=12e3, control_period=1e-3), work / "excitation")
 run = read_run(csv_path)
 print(run.metadata["description"])
-print("truth:", {n: run.metadata["truth"]["parameters"][n] for n in ("noback.mu_coulomb_pos", "screw.efficiency_inverse")})
+print("truth:", {n: run.metadata["truth"]["parameters"][n] for n in ("noback.mu_coulomb_neg", "screw.efficiency_direct")})
 
 # %% [markdown]
 # ## 2. Replay with the default parameters
@@ -72,12 +72,15 @@ for c, f in before.fits.items():
 # %% [markdown]
 # ## 3. Identify
 #
-# Five parameters of level B.  The result reports each value with its standard error, flags pairs
-# correlated above 0.95, and saves as a parameter TOML the models load.
+# Three parameters of level B.  Which ones the run can tell is physics: the 12 kN load exceeds the
+# 3 kN no-back preload, so the light (tensile-side) disk carries max(preload - |F|, 0) = 0 and the (+)
+# disk coefficient acts nowhere in this run; under a constant load the aided current is
+# mu (preload + |F|) / N - |F| r eta_i, so the (-) disk coefficient and the inverse efficiency are
+# collinear.  The result reports each value with its standard error, flags pairs correlated above 0.95,
+# and saves as a parameter TOML the models load.
 
 # %%
-free = ["motor.rotor_inertia", "screw.efficiency_direct", "screw.efficiency_inverse", "noback.mu_coulomb_pos",
-        "noback.mu_coulomb_neg"]
+free = ["motor.rotor_inertia", "screw.efficiency_direct", "noback.mu_coulomb_neg"]
 result = Identifier("B", start, free, settings=IdentificationSettings(channels=("motor_speed", "nut_position"))).fit(run)
 print(result.fit_report())
 

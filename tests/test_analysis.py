@@ -84,6 +84,17 @@ def test_conditionally_stable_loop_reports_the_lower_gain_margin():
     assert m.phase_margin_deg[0] == pytest.approx(pm, abs=1e-6)
     assert m.crossover_hz[0] * 2 * math.pi == pytest.approx(wgc, rel=1e-6)
     assert m.phase_crossover_hz[0] * 2 * math.pi == pytest.approx(wpc, rel=1e-6)
+    # both margins are kept: the lower one above, and the upper one at the crossing near Nyquist
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        gms = ct.stability_margins((resp.magnitude.ravel(), np.degrees(resp.phase.ravel()), w), returnall=True)[0]
+    db = 20 * np.log10(np.asarray(gms))
+    assert m.gain_margin_lower_db[0] == pytest.approx(db[db < 0].max(), abs=1e-6) == m.gain_margin_db[0]
+    if np.any(db > 0):
+        assert m.gain_margin_upper_db[0] == pytest.approx(db[db > 0].min(), abs=1e-6)
+    else:  # python-control's grid stops below Nyquist, where this loop's upper crossing is
+        assert m.gain_margin_upper_db[0] == pytest.approx(-20 * math.log10(abs(L(-1.0))), abs=1e-9)
+    assert m.gain_margin_upper_db[0] > 0
 
 
 def test_step_metrics_of_a_first_order_lag():
@@ -189,13 +200,22 @@ def test_grid_worst_points_validity_and_saturation(grid_analysis):
     assert a.valid.sum() == 36 - 9 - 4
     # every metric has a named worst point, and it is a valid one
     worst = {(w.loop, w.metric): w for w in a.worst_points()}
-    assert len(worst) == 3 * 9 + 2 * 2
+    # 9 metrics per loop, the upper gain margin of each, the lower one only where a loop is conditionally
+    # stable (the velocity loop, aiding at 2 mm/s), and the 2 load-step metrics of the outer loops
+    assert len(worst) == 3 * 10 + 1 + 2 * 2
+    assert {m for (lp, m) in worst if m == "gain_margin_lower_db"} and ("current_loop", "gain_margin_lower_db") \
+        not in worst and ("position_loop", "gain_margin_lower_db") not in worst
     assert all(a.valid[w.index] for w in worst.values())
     pm = worst[("velocity_loop", "phase_margin_deg")]
     assert pm.condition.label() == "2 mm/s, -55 kN (aiding), 70 degC"  # the loaded disk's Stribeck drop
     assert 60 < pm.value < 75
     gm = worst[("velocity_loop", "gain_margin_db")]
     assert gm.value < 0 and gm.condition == pm.condition  # conditionally stable: a lower gain margin
+    assert gm.text().startswith("velocity_loop gain_margin_db: conditionally stable (lower gain margin -13")
+    lower = worst[("velocity_loop", "gain_margin_lower_db")]
+    assert lower.value == gm.value and lower.index == gm.index
+    upper = a.loops["velocity_loop"].margins.gain_margin_upper_db
+    assert np.all(upper[a.valid] > 20)  # the upper one, near Nyquist, is far away everywhere
     assert worst[("current_loop", "phase_margin_deg")].uniform  # R and L do not depend on the point
     assert all(np.all(a.loops[loop].stable[a.valid]) for loop in LOOPS)
 
@@ -308,3 +328,21 @@ def test_linear_model_predicts_the_small_signal_response(design, params, level, 
     # implicit friction), the linear model the exact ZOH of the AD Jacobian: 2 % of the step
     assert np.max(np.abs(sim - lin.step[0])) < 0.02
     assert sim.max() == pytest.approx(lin.step[0].max(), abs=0.01)
+
+
+def test_analyse_design_builds_the_plant_model_once(design, params, monkeypatch):
+    from thsa_control.loops import analysis, describing, linear, loop_analysis
+
+    calls = []
+
+    def counting(*args, **kwargs):
+        calls.append(args[:2])
+        return linear.plant_model(*args, **kwargs)
+
+    for mod in (analysis, describing, loop_analysis):
+        monkeypatch.setattr(mod, "plant_model", counting)
+    settings = AnalysisSettings(nut_speeds=(2e-3,), load_forces=(20e3,), temperatures=(25.0,))
+    assert "standby_motor" in settings.effects  # the default: configurations reuse the grid's model
+    result = analysis.analyse_design(design, params, settings=settings, switching=False)
+    assert len(calls) == 1
+    assert result.configurations.primary.linearization.model is result.loops.linearization.model

@@ -28,6 +28,7 @@ def test_simulate_writes_run_and_plot(tmp_path, capsys):
     assert meta["generator"]["effects"] == ["temperature_friction", "noback_quadrant_friction"]
 
 
+@pytest.mark.slow
 def test_main_job_levels(tmp_path):
     out = tmp_path / "levels"
     assert main(["levels", "--levels", "B,C", "--out", str(out)]) == 0

@@ -154,23 +154,25 @@ def test_energy_balance_with_drivetrain_compliance(run):
 def test_resonance_lowers_the_velocity_margins(design, params):
     cond = [OperatingCondition(5e-3, 20e3, 25.0)]
     base = AnalysisSettings()
+    soft_settings = replace(base, effects=base.effects + ("drivetrain_compliance",))
     rigid = analyse_loops(design, params, cond, settings=base, steps=False)
-    soft = analyse_loops(design, params, cond, settings=replace(base, effects=base.effects + ("drivetrain_compliance",)),
-                         steps=False)
+    soft = analyse_loops(design, params, cond, settings=soft_settings, steps=False)
     r, s = rigid.loops["velocity_loop"].margins, soft.loops["velocity_loop"].margins
     print(f"velocity loop, rigid: PM {r.phase_margin_deg[0]:.1f} deg, GM {r.gain_margin_db[0]:.1f} dB; "
           f"compliant: PM {s.phase_margin_deg[0]:.1f} deg, GM {s.gain_margin_db[0]:.1f} dB")
-    # the open loop of the compliant plant has the resonance peak the rigid one lacks
+    assert abs(s.gain_margin_db[0]) < abs(r.gain_margin_db[0])
+    # the load side is light against the two rotors (J_load / J_rotors = 0.06): the anti-resonance sits
+    # 3 % below the resonance and the motor sensor sees a narrow dip-peak pair.  Lightly damped (2 N m s/rad
+    # instead of the assumed 20) it stands out of the rigid open loop at the hand-computed frequency
+    light = params.replace({"gear.torsional_damping": 2.0})
+    s2 = analyse_loops(design, light, cond, settings=soft_settings, steps=False).loops["velocity_loop"].margins
     k, j_r, j_m = _two_mass(params.value, 2)
     w_res = math.sqrt(k * (1 / j_r + params.value("gear.efficiency") / j_m))
-    ratio = np.abs(s.L[0]) / np.abs(r.L[0])
+    ratio = np.abs(s2.L[0]) / np.abs(r.L[0])
     peak = np.argmax(ratio)
-    print(f"open-loop peak over the rigid one: x{ratio[peak]:.1f} at {s.omega[peak] / 2 / math.pi:.1f} Hz "
+    print(f"open-loop peak over the rigid one: x{ratio[peak]:.1f} at {s2.omega[peak] / 2 / math.pi:.1f} Hz "
           f"(hand resonance {w_res / 2 / math.pi:.1f} Hz)")
-    # the load side is light against the two rotors (J_load / J_rotors = 0.06), so the anti-resonance
-    # sits 3 % below the resonance and the motor sensor sees a narrow dip-peak pair, not a tall peak
-    assert ratio[peak] > 1.2 and s.omega[peak] == pytest.approx(w_res, rel=0.05)
-    assert abs(s.gain_margin_db[0]) < abs(r.gain_margin_db[0])
+    assert ratio[peak] > 1.5 and s2.omega[peak] == pytest.approx(w_res, rel=0.05)
 
 
 # ---------------------------------------------------------------- two rotors, computation delay
@@ -229,3 +231,18 @@ def test_noback_preload_dilates_with_temperature(params):
         expected = pre * (1 + k * (params.value("friction.reference_temperature") - T))
         assert y[plant.index("output", "noback_normal_force_comp")] == pytest.approx(expected, rel=1e-12)
     assert expected < pre  # 70 degC: below the 25 degC preload
+
+
+def test_stick_slip_of_the_compliant_drive_depends_on_the_assumed_damping(run, params):
+    # the loaded no-back disk's Stribeck drop drives the rotor/screw torsional mode: with light damping the
+    # model predicts a stick-slip limit cycle at -5 mm/s under 20 kN aiding; the assumed 20 N m s/rad
+    # (chosen because the papers' traces there are smooth) suppresses it
+    sc = Scenario("aided", "-5 mm/s under 20 kN aiding", 2.5, ((0.0, 0.0), (0.5, -5e-3)), 20e-3,
+                  ((0.0, 0.0), (0.4, 20e3)))
+    light = params.replace({"gear.torsional_damping": 5.0})
+    for p, chatter in ((light, True), (params, False)):
+        res = run(sc, "B", ("drivetrain_compliance",), params_override=p, output_period=None)
+        m = res.window(2.0, 2.5)
+        pp = np.ptp(res["nut_speed"][m])
+        print(f"damping {p.value('gear.torsional_damping'):g} N m s/rad: nut speed {pp * 1e3:.2f} mm/s peak to peak")
+        assert (pp > 5e-3) == chatter

@@ -99,6 +99,7 @@ def test_surface_overshoot_where_the_load_path_backlash_is_crossed(run):
     assert abs(res["load_force"][worst]) < 3e3
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("level, scenario", [("C", "backdrive_bipolar_ramp"), ("D", "backdrive_bipolar_ramp"),
                                              ("D", "triangular_load")])
 def test_converges_under_step_halving(run, level, scenario):

@@ -17,6 +17,8 @@ __all__ = [
     "RigDataError",
     "SolverError",
     "SignalError",
+    "OutputError",
+    "UsageError",
 ]
 
 
@@ -125,3 +127,23 @@ class SignalError(ThsaError, ValueError):
     def __init__(self, signal: str, message: str):
         self.signal = signal
         super().__init__(f"signal '{signal}': {message}")
+
+
+class OutputError(ThsaError, ValueError):
+    """An output folder may not be written (foreign, a file, holds an input, not writable).
+
+    Parameters
+    ----------
+    path : str
+        The output path as given.
+    message : str
+        Why it is refused.
+    """
+
+    def __init__(self, path: str, message: str):
+        self.path = path
+        super().__init__(f"output folder '{path}' {message}")
+
+
+class UsageError(ThsaError, ValueError):
+    """A command-line option has a value that cannot work (names the option and the reason)."""

@@ -74,6 +74,8 @@ def rig_metadata(result: SimulationResult, *, level: str | None = None) -> dict:
             "current_loop": {"kp_V_per_A": d.current_kp, "ki_V_per_A_s": d.current_ki,
                              "voltage_limit_V": d.voltage_limit if d.voltage_limit is not None else vmax},
             "control_period_s": d.control_period,
+            # free metadata (FORMAT.md): samples between the measurement and the voltage it produces
+            "computation_delay_samples": d.computation_delay_samples,
         },
         "motor_disabled_when_cmd_zero": bool(result.inputs.motor_off_at_zero),
         "rig": {"screw_lead_mm": result.params.value("screw.lead") * 1e3, "gear_ratio": result.params.value("gear.ratio"),

@@ -6,8 +6,11 @@ format of ``shared/rig-data/FORMAT.md``: a run is ``NAME.csv`` (samples, in
 FORMAT units: mm, mm/s, rpm, N, A, degC) plus ``NAME.json`` (metadata).
 Everything downstream receives a :class:`RigRun` whose signals are SI (the one
 exception is ``temperature``, kept in degC as everywhere in the project).  It
-imports numpy, the standard library, :mod:`thsa_control.errors` and
-:mod:`thsa_control.data.units` only; never matplotlib.
+imports numpy, the standard library, :mod:`thsa_control.errors` and its own
+parts only; never matplotlib.  The parts: ``rigformat`` (columns, units, the
+records), ``_csvtable`` (the one-pass chunked CSV reader: time and memory
+linear in rows x columns), ``rigchecks`` (JSON validation, unit heuristics,
+JSON/CSV cross-checks); ``rigsummary`` summarises a run for ``thsa check-data``.
 
 Validation rules (decisions taken where FORMAT.md leaves room)
 -----------------------------------------------------------------
@@ -59,10 +62,18 @@ Unit heuristics (each is skipped, never guessed, when it cannot decide)
   kelvin (error); below -273.15 is impossible (error).
 * ``time_s`` in ms: only with a JSON ``sample_rate_hz``; median dt within 20 %
   of ``1000 / sample_rate_hz`` is an error; any other disagreement by more
-  than a factor 2 is a warning (sampling may be non-uniform).
-* ``load_force_N`` in kN is **not** checked: an unloaded run legitimately reads
-  tens of newtons, and the format carries no torque constant that would let
-  the motor current predict the load.  No heuristic here is robust enough.
+  than 10 % contradicts the JSON and is an error too (the median is robust to
+  a few irregular samples).
+* JSON ``temperature_C`` more than 10 K outside the range of a CSV
+  ``temperature_C`` column contradicts it (error).
+* ``load_force_N`` in kN: when the largest |load| is below 200 and the motor
+  current during motion rises with |load| 100-10000x faster than the rig
+  kinematics and a ~0.324 N m/A motor predict (fit explaining half of the
+  current's variance), an error.  An unloaded run read in newtons shows no
+  such slope; no current column or no motion gives no verdict.
+* The JSON controller's period is checked against the plant (its electrical
+  time constant) where a plant is known: ``thsa residual``/``identify`` and
+  every replay (:func:`thsa_control.loops.design.check_control_period`).
 
 Examples
 --------
@@ -81,24 +92,40 @@ Examples
 [('aiding', 'extend')]
 """
 
-from __future__ import annotations
-
-import csv
-import io
 import json
-import math
 import os
 import shutil
 import tempfile
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from thsa_control.errors import RigDataError
-from thsa_control.data.units import m_to_mm, mm_to_m, rad_s_to_rpm, rpm_to_rad_s
+from thsa_control.data import _csvtable
+from thsa_control.data.rigchecks import _check_gaps, _check_metadata, _check_units, _load_json
+from thsa_control.data.rigformat import (  # noqa: F401  (re-exported: the public names live here)
+    _BY_SIGNAL,
+    _MAX_TEMPERATURE_C,
+    _MIN_ROWS,
+    _SPECS,
+    _SPEED_COLUMNS,
+    COLUMNS,
+    DEFAULT_GEAR_RATIO,
+    DEFAULT_SCREW_LEAD_MM,
+    FORMAT_TAG,
+    MAX_ROWS_LISTED,
+    ColumnSpec,
+    CurrentLoopGains,
+    RigController,
+    RigRun,
+    VelocityLoopGains,
+    _add_rows,
+    _number,
+    _runs,
+)
+from thsa_control.data.units import mm_to_m
 
 __all__ = [
     "FORMAT_TAG",
@@ -113,431 +140,23 @@ __all__ = [
     "to_columns",
 ]
 
-FORMAT_TAG = "thsa-rig-run/1"
-#: Seed kinematics of FORMAT.md, used when the JSON has no ``rig`` block.
-DEFAULT_SCREW_LEAD_MM = 12.0
-DEFAULT_GEAR_RATIO = 65.61
-#: How many rows of one repeated problem are listed before they are counted.
-MAX_ROWS_LISTED = 10
-_MIN_ROWS = 2
-_MIN_FIT_SAMPLES = 20
-_MIN_R2 = 0.9
-_MAX_TEMPERATURE_C = 150.0
-_RAD_S_PER_RPM = float(rpm_to_rad_s(1.0))
-
-
-def _identity(x):
-    return np.asarray(x, dtype=float)
-
-
-@dataclass(frozen=True)
-class ColumnSpec:
-    """One standard column of ``thsa-rig-run/1``.
-
-    Parameters
-    ----------
-    column : str
-        CSV column name of FORMAT.md.
-    signal : str
-        Canonical signal name in :attr:`RigRun.signals`.
-    unit : str
-        Unit in the CSV.
-    si_unit : str
-        Unit in :attr:`RigRun.signals`.
-    role : str
-        ``time``, ``required``, ``measured``, ``command`` or ``enable``.
-    to_si, from_si : callable
-        Conversions CSV unit <-> SI unit (from :mod:`thsa_control.data.units`).
-    default : float or None
-        Value of an absent enable flag.
-    """
-
-    column: str
-    signal: str
-    unit: str
-    si_unit: str
-    role: str
-    to_si: Callable = _identity
-    from_si: Callable = _identity
-    default: float | None = None
-
-
-_SPECS = (
-    ColumnSpec("time_s", "time", "s", "s", "time"),
-    ColumnSpec("speed_cmd_mm_s", "speed_cmd", "mm/s", "m/s", "required", mm_to_m, m_to_mm),
-    ColumnSpec("load_force_N", "load_force", "N", "N", "required"),
-    ColumnSpec("motor_speed_rpm", "motor_speed", "rpm", "rad/s", "measured",
-               rpm_to_rad_s, rad_s_to_rpm),
-    ColumnSpec("motor_current_A", "motor_current", "A", "A", "measured"),
-    ColumnSpec("nut_position_mm", "nut_position", "mm", "m", "measured", mm_to_m, m_to_mm),
-    ColumnSpec("screw_speed_rpm", "screw_speed", "rpm", "rad/s", "measured",
-               rpm_to_rad_s, rad_s_to_rpm),
-    ColumnSpec("temperature_C", "temperature", "degC", "degC", "measured"),
-    ColumnSpec("position_cmd_mm", "position_cmd", "mm", "m", "command", mm_to_m, m_to_mm),
-    ColumnSpec("primary_enable", "primary_enable", "0/1", "0/1", "enable", default=1.0),
-    ColumnSpec("standby_enable", "standby_enable", "0/1", "0/1", "enable", default=0.0),
-)
-#: Standard columns by CSV name, in FORMAT.md order.
-COLUMNS: dict[str, ColumnSpec] = {s.column: s for s in _SPECS}
-_BY_SIGNAL = {s.signal: s for s in _SPECS}
-_SPEED_COLUMNS = ("motor_speed_rpm", "screw_speed_rpm")
-
-
-# --------------------------------------------------------------------- results
-@dataclass(frozen=True)
-class VelocityLoopGains:
-    """Velocity PI of the rig (on motor speed, output current reference).
-
-    Parameters
-    ----------
-    kp : float
-        Proportional gain [A/(rad/s)], >= 0.
-    ki : float
-        Integral gain [A/rad], >= 0.
-    current_limit : float
-        Clamp of the current reference [A], > 0.
-    extra : dict
-        Unknown keys of the JSON block, kept.
-    """
-
-    kp: float
-    ki: float
-    current_limit: float
-    extra: dict[str, Any] = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class CurrentLoopGains:
-    """Current PI of the rig (on quadrature current, output motor voltage).
-
-    Parameters
-    ----------
-    kp : float
-        Proportional gain [V/A], >= 0.
-    ki : float
-        Integral gain [V/(A s)], >= 0.
-    voltage_limit : float
-        Clamp of the voltage [V], > 0.
-    extra : dict
-        Unknown keys of the JSON block, kept.
-    """
-
-    kp: float
-    ki: float
-    voltage_limit: float
-    extra: dict[str, Any] = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class RigController:
-    """The rig's cascade as it ran (JSON ``controller`` block).
-
-    Parameters
-    ----------
-    velocity_loop : VelocityLoopGains
-    current_loop : CurrentLoopGains
-    control_period : float
-        Controller sample period [s], > 0.
-    extra : dict
-        Unknown keys of the block, kept.
-    """
-
-    velocity_loop: VelocityLoopGains
-    current_loop: CurrentLoopGains
-    control_period: float
-    extra: dict[str, Any] = field(default_factory=dict)
-
-
-@dataclass(frozen=True, eq=False)
-class RigRun:
-    """One validated rig run, in SI.
-
-    Parameters
-    ----------
-    name : str
-        JSON ``name``, else the file stem.
-    csv_path, json_path : Path
-        The two files read.
-    metadata : dict
-        The whole JSON object, unknown keys included.
-    time : ndarray
-        Sample times [s], strictly increasing.
-    signals : dict of str to ndarray
-        Canonical signals: ``speed_cmd`` [m/s], ``load_force`` [N, > 0
-        compressive], ``motor_speed`` [rad/s], ``motor_current`` [A],
-        ``nut_position`` [m], ``screw_speed`` [rad/s], ``temperature`` [degC,
-        the one non-SI signal; constant from the JSON when the CSV has no
-        column], ``position_cmd`` [m], ``primary_enable`` and
-        ``standby_enable`` [0/1, default 1 and 0 when absent].  Speeds and
-        positions are positive when the actuator extends.  An isolated missing
-        sample of a measured signal is NaN (see :attr:`warnings`).
-    extra : dict of str to ndarray
-        Unknown CSV columns by their CSV names, raw.
-    controller : RigController or None
-        The JSON ``controller`` block, or None when absent.
-    motor_disabled_when_cmd_zero : bool
-        Motors de-energised while the speed command is exactly 0.
-    warnings : tuple of str
-        Non-fatal findings (isolated gaps, undecided unit checks).
-    screw_lead : float
-        Screw lead [m] used for the kinematic checks.
-    gear_ratio : float
-        Motor-to-screw gear ratio [-].
-    source_columns : dict of str to str
-        Canonical signal -> CSV column it was read from (original name).
-
-    Notes
-    -----
-    Arrays are read-only.  Instances compare by identity.
-    """
-
-    name: str
-    csv_path: Path
-    json_path: Path
-    metadata: dict[str, Any]
-    time: np.ndarray
-    signals: dict[str, np.ndarray]
-    extra: dict[str, np.ndarray] = field(default_factory=dict)
-    controller: RigController | None = None
-    motor_disabled_when_cmd_zero: bool = False
-    warnings: tuple[str, ...] = ()
-    screw_lead: float = mm_to_m(DEFAULT_SCREW_LEAD_MM)
-    gear_ratio: float = DEFAULT_GEAR_RATIO
-    source_columns: dict[str, str] = field(default_factory=dict)
-
-    @property
-    def sample_rate_hz(self) -> float:
-        """Nominal sample rate [Hz]: JSON ``sample_rate_hz``, else 1 / median dt."""
-        nominal = _number(self.metadata.get("sample_rate_hz"))
-        if nominal is not None and nominal > 0:
-            return nominal
-        return 1.0 / float(np.median(np.diff(self.time)))
-
-    @property
-    def duration_s(self) -> float:
-        """Time from the first to the last sample [s]."""
-        return float(self.time[-1] - self.time[0])
-
-    def has(self, name: str) -> bool:
-        """True when ``name`` is a signal (defaults included) or an extra column."""
-        return name in self.signals or name in self.extra
-
-
-# --------------------------------------------------------------------- helpers
-def _number(value: Any) -> float | None:
-    """A finite JSON number as float, else None (booleans are not numbers)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        return None
-    value = float(value)
-    return value if math.isfinite(value) else None
-
-
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """Maximal runs of True as (start, stop) with stop exclusive."""
-    edges = np.diff(np.concatenate(([0], mask.astype(np.int8), [0])))
-    return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist()))
-
-
-def _add_rows(problems: list, label: str, rows: np.ndarray, message: Callable[[int], str]) -> None:
-    """One problem per 0-based row index, the first MAX_ROWS_LISTED listed."""
-    rows = np.asarray(rows, dtype=int)
-    for i in rows[:MAX_ROWS_LISTED]:
-        problems.append((label, int(i) + 1, message(int(i))))
-    if rows.size > MAX_ROWS_LISTED:
-        rest = rows[MAX_ROWS_LISTED:]
-        problems.append((label, int(rest[0]) + 1,
-                         f"... and {rest.size} more row(s) with the same problem "
-                         f"(rows {rest[0] + 1} to {rest[-1] + 1})"))
-
-
-def _parse_cells(cells: list[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Strings -> (values, stripped strings, empty mask, not-a-number mask)."""
-    text = np.char.strip(np.asarray(cells, dtype=str))
-    empty = text == ""
-    invalid = np.zeros(text.shape, dtype=bool)
-    values = np.full(text.shape, np.nan)
-    filled = ~empty
-    try:
-        values[filled] = text[filled].astype(np.float64)
-    except ValueError:
-        for i in np.flatnonzero(filled):
-            try:
-                values[i] = float(text[i])
-            except ValueError:
-                invalid[i] = True
-    invalid |= filled & (np.char.find(text, "_") >= 0)  # float() accepts 1_000; we do not
-    values[invalid] = np.nan
-    return values, text, empty, invalid
-
-
-def _fit_scale(measured: np.ndarray, expected: np.ndarray) -> tuple[float, float]:
-    """Least-squares ``measured ~ k expected`` through 0: (k, explained fraction)."""
-    sxx = float(expected @ expected)
-    syy = float(measured @ measured)
-    if sxx <= 0.0 or syy <= 0.0:
-        return math.nan, 0.0
-    k = float(measured @ expected) / sxx
-    resid = measured - k * expected
-    return k, 1.0 - float(resid @ resid) / syy
-
-
-def _verdict(k: float, r2: float, tol: float) -> str:
-    """Classify a kinematic ratio: ok, rad_s, metre, x1000, sign, other, undecided."""
-    if not math.isfinite(k) or r2 < _MIN_R2:
-        return "undecided"
-    for name, target in (("ok", 1.0), ("x1000", 1000.0), ("sign", -1.0),
-                         ("rad_s", _RAD_S_PER_RPM), ("metre", 1e-3)):
-        if abs(k / target - 1.0) <= tol:
-            return name
-    return "other"
-
-
-# ------------------------------------------------------------------------ JSON
-def _load_json(path: Path, problems: list) -> dict | None:
-    where = path.name
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        problems.append((where, None, f"JSON file not found: {path}"))
-        return None
-    except (OSError, UnicodeDecodeError) as exc:
-        problems.append((where, None, f"cannot read JSON file: {exc}"))
-        return None
-    try:
-        meta = json.loads(text, parse_constant=_reject_constant)
-    except (json.JSONDecodeError, ValueError) as exc:
-        problems.append((where, None, f"malformed JSON: {exc}"))
-        return None
-    if not isinstance(meta, dict):
-        problems.append((where, None, f"top level must be an object, got {type(meta).__name__}"))
-        return None
-    return meta
-
-
-def _reject_constant(name: str):
-    raise ValueError(f"{name} is not valid JSON")
-
-
-def _check_metadata(meta: dict, where: str, has_temperature_column: bool, problems: list):
-    """Validate the JSON object; return (controller, motor_disabled, lead_mm, ratio)."""
-    def bad(key: str, message: str) -> None:
-        problems.append((f"{where}:{key}", None, message))
-
-    fmt = meta.get("format")
-    if "format" not in meta:
-        bad("format", f"missing; must be '{FORMAT_TAG}'")
-    elif fmt != FORMAT_TAG:
-        bad("format", f"is {fmt!r}, expected '{FORMAT_TAG}'")
-    if "name" in meta and not isinstance(meta["name"], str):
-        bad("name", "must be a string")
-    if "temperature_C" in meta:
-        temp = _number(meta["temperature_C"])
-        if temp is None:
-            bad("temperature_C", f"must be a finite number [degC], got {meta['temperature_C']!r}")
-        elif temp > _MAX_TEMPERATURE_C:
-            bad("temperature_C", f"{temp:g} degC is above {_MAX_TEMPERATURE_C:g} degC: "
-                                 "looks like kelvin")
-        elif temp < -273.15:
-            bad("temperature_C", f"{temp:g} degC is below absolute zero")
-    elif not has_temperature_column:
-        bad("temperature_C", "missing; required when the CSV has no temperature_C column")
-    if "sample_rate_hz" in meta:
-        rate = _number(meta["sample_rate_hz"])
-        if rate is None or rate <= 0:
-            bad("sample_rate_hz", f"must be a positive number [Hz], got {meta['sample_rate_hz']!r}")
-    disabled = meta.get("motor_disabled_when_cmd_zero", False)
-    if not isinstance(disabled, bool):
-        bad("motor_disabled_when_cmd_zero", f"must be true or false, got {disabled!r}")
-        disabled = False
-    lead_mm, ratio = DEFAULT_SCREW_LEAD_MM, DEFAULT_GEAR_RATIO
-    rig = meta.get("rig")
-    if rig is not None and not isinstance(rig, dict):
-        bad("rig", "must be an object")
-    elif isinstance(rig, dict):
-        for key in ("screw_lead_mm", "gear_ratio"):
-            if key in rig:
-                value = _number(rig[key])
-                if value is None or value <= 0:
-                    bad(f"rig.{key}", f"must be a positive number, got {rig[key]!r}")
-                elif key == "screw_lead_mm":
-                    lead_mm = value
-                else:
-                    ratio = value
-    controller = _parse_controller(meta["controller"], bad) if "controller" in meta else None
-    return controller, disabled, lead_mm, ratio
-
-
-_LOOPS = {
-    "velocity_loop": (VelocityLoopGains, (("kp_A_per_rad_s", "kp", False),
-                                          ("ki_A_per_rad", "ki", False),
-                                          ("current_limit_A", "current_limit", True))),
-    "current_loop": (CurrentLoopGains, (("kp_V_per_A", "kp", False),
-                                        ("ki_V_per_A_s", "ki", False),
-                                        ("voltage_limit_V", "voltage_limit", True))),
-}
-
-
-def _parse_controller(block: Any, bad: Callable[[str, str], None]) -> RigController | None:
-    if not isinstance(block, dict):
-        bad("controller", "must be an object")
-        return None
-    loops, ok = {}, True
-    for loop, (cls, keys) in _LOOPS.items():
-        sub = block.get(loop)
-        if not isinstance(sub, dict):
-            bad(f"controller.{loop}", "missing or not an object")
-            ok = False
-            continue
-        values = {}
-        for key, attr, strictly_positive in keys:
-            value = _number(sub.get(key))
-            if key not in sub:
-                bad(f"controller.{loop}.{key}", "missing")
-            elif value is None:
-                bad(f"controller.{loop}.{key}", f"must be a finite number, got {sub[key]!r}")
-            elif value < 0 or (strictly_positive and value == 0):
-                bad(f"controller.{loop}.{key}",
-                    f"must be {'> 0' if strictly_positive else '>= 0'}, got {value:g}")
-            else:
-                values[attr] = value
-                continue
-            ok = False
-        known = {k for k, _, _ in keys}
-        loops[loop] = cls(**values, extra={k: v for k, v in sub.items() if k not in known}) \
-            if len(values) == 3 else None
-    period = _number(block.get("control_period_s"))
-    if period is None or period <= 0:
-        bad("controller.control_period_s",
-            f"must be a positive number [s], got {block.get('control_period_s', 'nothing')!r}")
-        ok = False
-    if not ok:
-        return None
-    extra = {k: v for k, v in block.items()
-             if k not in ("velocity_loop", "current_loop", "control_period_s")}
-    return RigController(loops["velocity_loop"], loops["current_loop"], period, extra)
-
-
 # ------------------------------------------------------------------------- CSV
-def _load_csv(path: Path, problems: list) -> tuple[list[str], list[list[str]]] | None:
+def _load_csv(path: Path, problems: list) -> "_csvtable.Table | None":
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        table = _csvtable.read_table(path)
     except FileNotFoundError:
         problems.append((None, None, f"CSV file not found: {path}"))
         return None
     except (OSError, UnicodeDecodeError) as exc:
         problems.append((None, None, f"cannot read CSV file: {exc}"))
         return None
-    try:
-        rows = list(csv.reader(io.StringIO(text, newline="")))
-    except csv.Error as exc:
-        problems.append((None, None, f"not a readable CSV file: {exc}"))
+    except _csvtable.TableError as exc:
+        problems.append((None, exc.row, str(exc)))
         return None
-    while rows and rows[-1] == []:  # trailing blank lines only
-        rows.pop()
-    if not rows:
+    if table is None:
         problems.append((None, 0, "empty file: no header line"))
         return None
-    return [c.strip() for c in rows[0]], rows[1:]
+    return table
 
 
 def _map_header(header: list[str], column_map: Mapping[str, str], problems: list):
@@ -623,7 +242,7 @@ def read_run(csv_path: str | os.PathLike, *, column_map: Mapping[str, str] | Non
     meta = _load_json(json_path, json_problems)
     names: list[str] = []
     if table is not None:
-        names, labels = _map_header(table[0], column_map, csv_problems)
+        names, labels = _map_header(table.header, column_map, csv_problems)
     parsed = None
     if meta is not None:
         parsed = _check_metadata(meta, json_path.name, "temperature_C" in names, json_problems)
@@ -659,21 +278,15 @@ def read_run(csv_path: str | os.PathLike, *, column_map: Mapping[str, str] | Non
 
 
 def _check_table(table, names, labels, meta, lead_mm, ratio, problems, warnings):
-    """Parse and check every column; return (standard columns, extras, sources)."""
-    header, rows = table
+    """Check every column of the table; return (standard columns, extras, sources)."""
+    header, n_rows = table.header, table.n_rows
     width = len(header)
-    if len(rows) < _MIN_ROWS:
-        problems.append((None, None, f"{len(rows)} data row(s); at least {_MIN_ROWS} needed"))
-    ragged = np.zeros(len(rows), dtype=bool)
-    for i, row in enumerate(rows):
-        if len(row) != width:
-            ragged[i] = True
-    _add_rows(problems, None, np.flatnonzero(ragged),
-              lambda i: f"has {len(rows[i])} field(s), the header has {width}")
-    if not ragged.any():
-        cells = [list(c) for c in zip(*rows)] if rows else [[] for _ in header]
-    else:
-        cells = [[r[j] if j < len(r) else "" for r in rows] for j in range(width)]
+    if n_rows < _MIN_ROWS:
+        problems.append((None, None, f"{n_rows} data row(s); at least {_MIN_ROWS} needed"))
+    ragged = np.zeros(n_rows, dtype=bool)
+    ragged[table.ragged_rows] = True
+    _add_rows(problems, None, table.ragged_rows,
+              lambda i: f"has {table.ragged.get(i, '?')} field(s), the header has {width}")
 
     label_of = dict(zip(names, labels))
     for column in ("time_s", "speed_cmd_mm_s", "load_force_N"):
@@ -683,25 +296,31 @@ def _check_table(table, names, labels, meta, lead_mm, ratio, problems, warnings)
         problems.append((_SPEED_COLUMNS[0], 0,
                          f"missing: one of {', '.join(_SPEED_COLUMNS)} is required"))
 
+    counts: dict[str, int] = {}
+    for name in names:
+        counts[name] = counts.get(name, 0) + 1
     columns, extra, source, clean = {}, {}, {}, set()
+    text_extras = []
     for j, name in enumerate(names):
-        if names.count(name) > 1 or not name:
+        if counts[name] > 1 or not name:
             continue
-        values, text, empty, invalid = _parse_cells(cells[j])
-        empty &= ~ragged
-        invalid &= ~ragged  # a ragged row is reported once, not per cell
+        values = table.values[:, j]
+        texts = table.texts[j]
+        empty = np.zeros(n_rows, dtype=bool)
+        empty[table.empty[j]] = True
+        invalid_rows = table.invalid[j]
         if name not in COLUMNS:  # unknown column: kept, not validated
-            if invalid.any():
-                extra[header[j]] = text
+            if invalid_rows.size:
+                text_extras.append(j)
             else:
                 extra[header[j]] = values
             continue
         spec, label, before = COLUMNS[name], labels[j], len(problems)
-        _add_rows(problems, label, np.flatnonzero(invalid),
-                  lambda i: f"not a number: {str(text[i])!r}")
-        nonfinite = ~empty & ~invalid & ~ragged & ~np.isfinite(values)
-        _add_rows(problems, label, np.flatnonzero(nonfinite),
-                  lambda i: f"{str(text[i])!r} is not allowed (a missing value is an empty cell)")
+        _add_rows(problems, label, invalid_rows, lambda i: f"not a number: {texts.get(i, '?')!r}")
+        nonfinite = np.flatnonzero(~np.isfinite(values) & ~empty & ~ragged)
+        nonfinite = np.setdiff1d(nonfinite, invalid_rows, assume_unique=True)
+        _add_rows(problems, label, nonfinite,
+                  lambda i: f"{texts.get(i, '?')!r} is not allowed (a missing value is an empty cell)")
         _check_gaps(spec, label, empty, problems, warnings)
         finite = np.isfinite(values)
         if spec.role == "time":
@@ -713,7 +332,7 @@ def _check_table(table, names, labels, meta, lead_mm, ratio, problems, warnings)
                                 f"(row {idx[np.searchsorted(idx, i) - 1] + 1})")
         elif spec.role == "enable":
             _add_rows(problems, label, np.flatnonzero(finite & (values != 0) & (values != 1)),
-                      lambda i: f"enable flag must be 0 or 1, got {text[i]}")
+                      lambda i: f"enable flag must be 0 or 1, got {values[i]:.9g}")
         elif name == "temperature_C":
             hot = np.flatnonzero(finite & (values > _MAX_TEMPERATURE_C))
             if hot.size and hot.size == finite.sum():
@@ -731,101 +350,13 @@ def _check_table(table, names, labels, meta, lead_mm, ratio, problems, warnings)
         source[spec.signal] = header[j]
         if len(problems) == before:
             clean.add(name)
-    if not ragged.any() and len(rows) >= _MIN_ROWS:
+    if text_extras:
+        full = _csvtable.column_texts(table.path, text_extras)
+        for j in text_extras:
+            extra[header[j]] = full[j]
+    if not ragged.any() and n_rows >= _MIN_ROWS:
         _check_units(columns, clean, label_of, meta, lead_mm, ratio, problems, warnings)
     return columns, extra, source
-
-
-def _check_gaps(spec: ColumnSpec, label: str, empty: np.ndarray, problems: list,
-                warnings: list) -> None:
-    singles, listed = [], []
-    for start, stop in _runs(empty):
-        if stop - start == 1 and spec.role == "measured":
-            singles.append(start)
-        elif stop - start == 1:
-            listed.append((start, "missing value (empty cell)"))
-        else:
-            listed.append((start, f"gap of {stop - start} samples (rows {start + 1} to {stop}); "
-                                  "at most one isolated missing sample is tolerated, and only "
-                                  "in a measured column"))
-    messages = dict(listed)
-    _add_rows(problems, label, np.array([s for s, _ in listed], dtype=int), messages.__getitem__)
-    for start in singles[:MAX_ROWS_LISTED]:
-        warnings.append(f"column '{label}', row {start + 1}: single missing sample, "
-                        "kept as NaN (not interpolated)")
-    if len(singles) > MAX_ROWS_LISTED:
-        warnings.append(f"column '{label}': {len(singles) - MAX_ROWS_LISTED} more single "
-                        "missing samples, kept as NaN")
-
-
-def _check_units(columns, clean, label_of, meta, lead_mm, ratio, problems, warnings):
-    """Kinematic and range heuristics of the module docstring.
-
-    Speed checks need a clean speed command and column only; the time-base and
-    position checks also need a clean ``time_s``.
-    """
-    time_ok = "time_s" in clean
-    t = columns.get("time_s")
-    dt = np.diff(t) if time_ok else None
-    nominal = _number(meta.get("sample_rate_hz")) if meta else None
-    if nominal and time_ok:
-        r = float(np.median(dt)) * nominal
-        if abs(r / 1000.0 - 1.0) <= 0.2:
-            problems.append((label_of["time_s"], 2,
-                             f"median time step {np.median(dt):.6g} is ~1000x 1/sample_rate_hz "
-                             f"({1.0 / nominal:.6g} s): time_s looks like milliseconds"))
-            return  # the kinematic checks below integrate over time
-        elif not 0.5 <= r <= 2.0:
-            warnings.append(f"column '{label_of['time_s']}': median time step "
-                            f"{np.median(dt):.6g} s disagrees with sample_rate_hz {nominal:g}")
-    if "speed_cmd_mm_s" not in clean:
-        return
-    cmd = columns["speed_cmd_mm_s"]
-    enabled = np.ones(cmd.shape, dtype=bool)
-    if "primary_enable" in columns or "standby_enable" in columns:
-        enabled = (columns.get("primary_enable", np.ones(cmd.shape)) == 1) | \
-                  (columns.get("standby_enable", np.zeros(cmd.shape)) == 1)
-    peak = float(np.max(np.abs(cmd)))
-    verdicts: dict[str, tuple[str, float, np.ndarray]] = {}
-    screw_rpm_per_mm_s = 60.0 / lead_mm
-    for column, gain in (("motor_speed_rpm", screw_rpm_per_mm_s * ratio),
-                         ("screw_speed_rpm", screw_rpm_per_mm_s)):
-        if column not in clean or peak <= 0:
-            continue
-        meas = columns[column]
-        moving = (np.abs(cmd) >= 0.25 * peak) & enabled & np.isfinite(meas)
-        if moving.sum() >= _MIN_FIT_SAMPLES:
-            k, r2 = _fit_scale(meas[moving], gain * cmd[moving])
-            verdicts[column] = (_verdict(k, r2, 0.25), k, np.flatnonzero(moving))
-    if "nut_position_mm" in clean and time_ok and t.size >= _MIN_FIT_SAMPLES:
-        pos = columns["nut_position_mm"]
-        ok = np.isfinite(pos)
-        travel = np.concatenate(([0.0], np.cumsum(0.5 * (cmd[1:] + cmd[:-1]) * dt)))
-        x, y = travel[ok] - travel[ok].mean(), pos[ok] - pos[ok].mean()
-        k, r2 = _fit_scale(y, x)
-        verdicts["nut_position_mm"] = (_verdict(k, r2, 0.3), k, np.flatnonzero(ok))
-    kinds = {v[0] for v in verdicts.values()}
-    if "x1000" in kinds and "ok" not in kinds:
-        first = min(int(v[2][0]) for v in verdicts.values() if v[0] == "x1000")
-        problems.append((label_of["speed_cmd_mm_s"], first + 1,
-                         "measured speeds/position are ~1000x the kinematic prediction: "
-                         "speed_cmd_mm_s looks like m/s"))
-        return
-    expected = {"motor_speed_rpm": f"{screw_rpm_per_mm_s * ratio:g} rpm per mm/s",
-                "screw_speed_rpm": f"{screw_rpm_per_mm_s:g} rpm per mm/s",
-                "nut_position_mm": "1 mm per mm of integrated speed command"}
-    for column, (verdict, k, rows) in verdicts.items():
-        label = label_of[column]
-        what = (f"{k:.4g} x the kinematic prediction ({expected[column]}, least-squares fit "
-                f"over {rows.size} samples, rows {rows[0] + 1} to {rows[-1] + 1})")
-        if verdict == "rad_s" and column != "nut_position_mm":
-            problems.append((label, int(rows[0]) + 1, f"{what}: looks like rad/s, not rpm"))
-        elif verdict == "metre" and column == "nut_position_mm":
-            problems.append((label, int(rows[0]) + 1, f"{what}: looks like metres, not mm"))
-        elif verdict == "sign":
-            warnings.append(f"column '{label}': {what}: sign convention reversed?")
-        elif verdict not in ("ok", "undecided"):
-            warnings.append(f"column '{label}': {what}: check its unit and the rig kinematics")
 
 
 # ---------------------------------------------------------------------- writer

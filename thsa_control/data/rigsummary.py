@@ -292,7 +292,8 @@ def format_summary(summary: RunSummary) -> str:
                 "extra": "  (extra column, kept)"}.get(c.source, "")
         missing = f"  [{c.n_missing} missing]" if c.n_missing else ""
         lines.append(f"    {c.column:<{width}}  {c.unit:<5} {span}{note}{missing}")
-    text_extras = [e for e in s.extra_columns if e not in {c.column for c in s.channels}]
+    numeric = {c.column for c in s.channels}
+    text_extras = [e for e in s.extra_columns if e not in numeric]
     if text_extras:
         lines.append(f"  text extra columns (kept): {', '.join(text_extras)}")
     lines.append("  gaps: " + ("none" if not s.gaps else "; ".join(

@@ -225,7 +225,9 @@ def run_design(run: RigRun, *, name: str | None = None) -> Design:
     """The rig's cascade of ``run`` (its JSON ``controller`` block) as a :class:`Design`.
 
     The position loop is not part of the format; it is set open
-    (``position_kp = 0``): a replay feeds the recorded speed command.
+    (``position_kp = 0``): a replay feeds the recorded speed command.  The
+    controller block's free key ``computation_delay_samples`` (0 or 1, written
+    by the workbench) is honoured; absent, no delay.
 
     Raises
     ------
@@ -240,7 +242,16 @@ def run_design(run: RigRun, *, name: str | None = None) -> Design:
                   current_ki=c.current_loop.ki, voltage_limit=c.current_loop.voltage_limit,
                   velocity_kp=c.velocity_loop.kp, velocity_ki=c.velocity_loop.ki,
                   current_limit=c.velocity_loop.current_limit, position_kp=0.0,
-                  control_period=c.control_period, source=str(run.json_path))
+                  control_period=c.control_period, source=str(run.json_path),
+                  computation_delay_samples=_delay_samples(c.extra.get("computation_delay_samples", 0), run))
+
+
+def _delay_samples(value, run: RigRun) -> int:
+    """``controller.computation_delay_samples`` of the run's JSON (free metadata; 0 when absent)."""
+    if isinstance(value, bool) or value not in (0, 1):
+        raise RigDataError(str(run.json_path), [(f"{run.json_path.name}:controller.computation_delay_samples", None,
+                                                 f"must be 0 or 1, got {value!r}")])
+    return int(value)
 
 
 def _fill_single_gaps(t: np.ndarray, y: np.ndarray) -> np.ndarray:

@@ -226,8 +226,12 @@ class MarginSet:
         Loop frequency response.
     crossover_hz : gain crossover of the phase margin kept [Hz] (nan: none).
     phase_margin_deg : [deg] (inf: no gain crossover).
-    gain_margin_db : [dB], signed (inf: no phase crossover).
-    phase_crossover_hz : [Hz] (nan: none).
+    gain_margin_db : [dB], signed: the phase crossing closest to 0 dB (inf: no phase crossover).
+    phase_crossover_hz : [Hz] of that crossing (nan: none).
+    gain_margin_lower_db : [dB], <= 0: how far the gain may fall before a phase crossing where
+        ``|L| > 1`` reaches -1 (a conditionally stable loop); -inf: no such crossing.
+    gain_margin_upper_db : [dB], >= 0: how far the gain may rise before a crossing where
+        ``|L| < 1`` reaches -1; inf: no such crossing.
     delay_margin_s : [s] (inf: no gain crossover; 0 when a crossover has no phase margin).
     ms : sensitivity peak ``max |1 / (1 + L)|`` [-].
     ms_hz : frequency of the peak [Hz].
@@ -244,6 +248,8 @@ class MarginSet:
     ms: NDArray[np.float64]
     ms_hz: NDArray[np.float64]
     bandwidth_hz: NDArray[np.float64]
+    gain_margin_lower_db: NDArray[np.float64]
+    gain_margin_upper_db: NDArray[np.float64]
 
 
 def _bisect(f, idx: np.ndarray, lo: np.ndarray, hi: np.ndarray, iters: int = 48) -> np.ndarray:
@@ -311,6 +317,11 @@ def _margins(evaluate, omega: np.ndarray, L: np.ndarray, dc_T: np.ndarray) -> Ma
         k = k_p[q]
         if not np.isfinite(wpc_out[k]):
             gm_out[k], wpc_out[k] = gm_db[q], wp[q]
+    lower = np.full(N, -np.inf)
+    upper = np.full(N, np.inf)
+    neg = gm_db < 0
+    np.maximum.at(lower, k_p[neg], gm_db[neg])
+    np.minimum.at(upper, k_p[~neg], gm_db[~neg])
     # --- sensitivity peak, refined by golden-section search around the grid maximum
     with np.errstate(divide="ignore", invalid="ignore"):
         S = np.abs(1.0 / (1.0 + L))
@@ -357,7 +368,7 @@ def _margins(evaluate, omega: np.ndarray, L: np.ndarray, dc_T: np.ndarray) -> Ma
         bw[kb] = _bisect(t_excess, kb, omega[first[kb] - 1], omega[first[kb]])
     return MarginSet(omega=omega, L=L, crossover_hz=wc_out / two_pi, phase_margin_deg=pm_out, gain_margin_db=gm_out,
                      phase_crossover_hz=wpc_out / two_pi, delay_margin_s=dm_out, ms=ms, ms_hz=ms_w / two_pi,
-                     bandwidth_hz=bw / two_pi)
+                     bandwidth_hz=bw / two_pi, gain_margin_lower_db=lower, gain_margin_upper_db=upper)
 
 
 def _frequency_grid(h: float, f_min: float, n: int) -> np.ndarray:

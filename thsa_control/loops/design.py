@@ -40,8 +40,8 @@ import numpy as np
 from ..errors import DesignError
 from ..model.params import ParameterSet
 
-__all__ = ["Design", "load_design", "parse_design", "derive_gains", "reflected_inertia", "nominal_design_path",
-           "VALIDATION_KEYS"]
+__all__ = ["Design", "load_design", "parse_design", "check_control_period", "derive_gains", "reflected_inertia",
+           "nominal_design_path", "VALIDATION_KEYS"]
 
 _TABLES = {
     "current_loop": {"kp_V_per_A": True, "ki_V_per_A_s": True, "voltage_limit_V": False},
@@ -49,7 +49,7 @@ _TABLES = {
     "position_loop": {"kp_per_s": True, "max_speed_mm_s": False},
 }
 _TOP = {"name", "description", "control_period_s", "computation_delay_samples", "derivation", "requirements",
-        "switching", "validation", "tuning", *_TABLES}
+        "switching", "analysis", "validation", "tuning", *_TABLES}
 
 
 @dataclass(frozen=True)
@@ -61,7 +61,9 @@ class Design:
     current_kp [V/A], current_ki [V/(A s)], voltage_limit [V] (None: V_dc/sqrt(3)),
     velocity_kp [A s/rad], velocity_ki [A/rad], current_limit [A],
     position_kp [1/s], max_speed [m/s], control_period [s],
-    computation_delay_samples (0 or 1), requirements, derivation (dicts as given).
+    computation_delay_samples (0 or 1), requirements, derivation (dicts as given),
+    analysis (the ``[analysis]`` grid of ``thsa report``, checked by
+    ``thsa_control.loops.analysis.AnalysisSettings.from_design``).
     """
 
     name: str
@@ -82,6 +84,7 @@ class Design:
     requirements: dict = field(default_factory=dict)
     validation: dict = field(default_factory=dict)
     tuning: dict = field(default_factory=dict)
+    analysis: dict = field(default_factory=dict)
 
     def __post_init__(self):
         checks = {
@@ -104,6 +107,7 @@ class Design:
 
     def check_against(self, params: ParameterSet) -> None:
         """Raise :class:`DesignError` if the design asks more than the actuator has."""
+        check_control_period(self.control_period, params, self.source, "control_period_s")
         imax = params.value("motor.max_current")
         if self.current_limit > imax * (1 + 1e-9):
             raise DesignError(self.source, f"velocity_loop.current_limit_A = {self.current_limit:g} exceeds motor.max_current = {imax:g} A")
@@ -145,6 +149,8 @@ class Design:
             doc["tuning"] = dict(self.tuning)
         if self.bumpless_handover:
             doc["switching"] = {"bumpless_handover": True}
+        if self.analysis:
+            doc["analysis"] = dict(self.analysis)
         return doc
 
 
@@ -175,7 +181,7 @@ def parse_design(doc: dict, source: str = "<dict>") -> Design:
                 raise DesignError(source, f"missing {table}.{key}")
     if "control_period_s" not in doc:
         raise DesignError(source, "missing control_period_s")
-    for key in ("derivation", "requirements", "switching", "validation", "tuning"):
+    for key in ("derivation", "requirements", "switching", "analysis", "validation", "tuning"):
         if key in doc and not isinstance(doc[key], dict):
             raise DesignError(source, f"[{key}] must be a table")
     delay = doc.get("computation_delay_samples", 0)
@@ -198,6 +204,7 @@ def parse_design(doc: dict, source: str = "<dict>") -> Design:
         computation_delay_samples=delay, bumpless_handover=switching.get("bumpless_handover", False), source=source,
         derivation=dict(doc.get("derivation", {})), requirements=dict(doc.get("requirements", {})),
         validation=dict(doc.get("validation", {})), tuning=dict(doc.get("tuning", {})),
+        analysis=dict(doc.get("analysis", {})),
     )
 
 
@@ -254,6 +261,38 @@ def nominal_design_path() -> Path:
                       "or pass a design file")
 
 
+#: Fastest admissible control period [s]: 1 MHz, above any inverter's current sampling.
+MIN_CONTROL_PERIOD = 1e-6
+#: At least this many control periods per electrical time constant L/R of the motor.
+MIN_SAMPLES_PER_ELECTRICAL_TAU = 1.0
+
+
+def check_control_period(period: float, params: ParameterSet, source: str, key: str = "control_period_s") -> None:
+    """Refuse a control period [s] that the plant's electrical time constant L/R cannot live with.
+
+    A sampled current loop needs at least one sample per L/R (1.83 ms for
+    the default motor; the rig runs of the tests use 1 ms); below 1 us no
+    inverter samples its current (and a simulation would need billions of
+    steps).
+
+    Raises
+    ------
+    DesignError
+        Naming ``source`` and ``key``, with the reason.
+    """
+    tau_e = params.value("motor.inductance") / params.value("motor.resistance")
+    upper = tau_e / MIN_SAMPLES_PER_ELECTRICAL_TAU
+    if not (isinstance(period, (int, float)) and not isinstance(period, bool) and math.isfinite(period)):
+        raise DesignError(source, f"{key} = {period!r} is not a finite number")
+    if period < MIN_CONTROL_PERIOD:
+        raise DesignError(source, f"{key} = {period:g} s is below {MIN_CONTROL_PERIOD:g} s (1 MHz): "
+                                  "no inverter samples its current that fast")
+    if period > upper:
+        raise DesignError(source, f"{key} = {period:g} s is longer than the motor's electrical time constant "
+                                  f"L/R = {tau_e * 1e3:.3g} ms: a sampled current loop needs at least one sample "
+                                  f"per L/R (at most {upper:.3g} s)")
+
+
 def load_design(path: str | Path) -> Design:
     """Load and validate a design file; errors name the file and the key."""
     path = Path(path)
@@ -261,6 +300,10 @@ def load_design(path: str | Path) -> Design:
         doc = tomllib.loads(path.read_text(encoding="utf-8"))
     except OSError as exc:
         raise DesignError(str(path), f"cannot read: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise DesignError(str(path), f"not UTF-8 text (byte {exc.start}: {exc.reason})") from None
+    except RecursionError:
+        raise DesignError(str(path), "nested too deeply") from None
     except tomllib.TOMLDecodeError as exc:
         raise DesignError(str(path), f"not valid TOML: {exc}") from None
     return parse_design(doc, source=str(path))

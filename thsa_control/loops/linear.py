@@ -387,16 +387,27 @@ class PlantModel:
         return self.torque_constant / (float(plant.f(x, u, p)[0][iw]) - base)
 
 
-def plant_model(level: str | None = "A", effects: Iterable[str] = (), params: ParameterSet | None = None, *,
-                settings: LinearizationSettings | None = None) -> PlantModel:
+#: Default model level and effects of the linear workflow: :func:`plant_model`, the loop analysis
+#: (``AnalysisSettings``), ``open_loop`` / ``closed_loop``, ``thsa report`` and ``thsa linearize``.
+DEFAULT_LEVEL = "B"
+#: The cold friction law and the standby motor, whose rotor the primary drags (the plant that exists).
+DEFAULT_EFFECTS: tuple[str, ...] = ("temperature_friction", "standby_motor")
+
+
+def plant_model(level: str | None = DEFAULT_LEVEL, effects: Iterable[str] | None = None,
+                params: ParameterSet | None = None, *, settings: LinearizationSettings | None = None) -> PlantModel:
     """Wrap the plant of ``level`` + ``effects`` as a named model for linearisation.
+
+    The model is in SI units (m, m/s, N, rad/s, A, V; temperature in degC);
+    ``thsa linearize`` takes the speed in mm/s and converts it.
 
     Parameters
     ----------
     level : {'A', 'B', 'C', 'D'} or None
-        Model level.
-    effects : iterable of str
-        Effects added (e.g. ``["temperature_friction", "standby_motor"]``).
+        Model level; default :data:`DEFAULT_LEVEL` (as ``thsa report`` / ``thsa linearize``).
+    effects : iterable of str, optional
+        Effects added (e.g. ``["temperature_friction", "standby_motor"]``); default
+        :data:`DEFAULT_EFFECTS` (as the CLI); ``()`` for none.
     params : ParameterSet, optional
         Actuator; default the embedded one.
     settings : LinearizationSettings, optional
@@ -413,7 +424,7 @@ def plant_model(level: str | None = "A", effects: Iterable[str] = (), params: Pa
 
     Examples
     --------
-    >>> m = plant_model("D")
+    >>> m = plant_model("D", ())
     >>> m.named.states[:5]
     ('motor_current', 'motor_speed', 'nut_position', 'loadpath_deflection', 'surface_speed')
     >>> m.named.drifting_states
@@ -421,7 +432,8 @@ def plant_model(level: str | None = "A", effects: Iterable[str] = (), params: Pa
     """
     params = params or default_parameters()
     settings = settings or LinearizationSettings()
-    plant = build_plant(level, tuple(effects), params=params)
+    effects = DEFAULT_EFFECTS if effects is None else tuple(effects)
+    plant = build_plant(level, effects, params=params)
     names = plant.state_names
     n_x, n_p = len(names), len(plant.parameters)
     states = tuple("loadpath_deflection" if s == "surface_position" else s for s in names)
@@ -441,7 +453,8 @@ def plant_model(level: str | None = "A", effects: Iterable[str] = (), params: Pa
         xs[i_nut], xs[i_surf] = x[i_surf], ca.SX(0.0)
     plant_u = {"voltage_primary": U["voltage_primary"], "voltage_standby": U["voltage_standby"],
                "enable_primary": C["enable_primary"], "enable_standby": C["enable_standby"],
-               "load_force": U["load_force"], "temperature": C["temperature"]}
+               "load_force": U["load_force"], "temperature": C["temperature"],
+               "brake": 0.0, "surface_jam": 0.0, "loadpath_failure": 0.0}  # fault inputs healthy
     missing = [n for n in plant.inputs if n not in plant_u]
     if missing:  # pragma: no cover - INPUTS are fixed by structure.py
         raise ModelError(f"plant input(s) {missing} have no counterpart in the linearisation adapter")

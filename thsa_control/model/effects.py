@@ -405,3 +405,9 @@ EFFECT_ORDER: tuple[str, ...] = (
     "standby_motor", "drivetrain_compliance", "loadpath_compliance", "temperature_friction", "noback_backlash",
     "noback_quadrant_friction", "noback_ideal",
 )
+
+# Fault effects (model F, issue #10): same API, in their own module, applied after the effects above.
+from .fault_effects import FAULT_EFFECT_ORDER, FAULT_EFFECTS  # noqa: E402
+
+EFFECTS.update(FAULT_EFFECTS)
+EFFECT_ORDER = EFFECT_ORDER + FAULT_EFFECT_ORDER

@@ -32,9 +32,50 @@ import tomli_w
 
 from ..errors import ParameterError
 
-__all__ = ["Parameter", "ParameterSet", "default_parameters", "load_parameters"]
+__all__ = ["Parameter", "ParameterSet", "default_parameters", "load_parameters", "convert_unit", "UNIT_CONVERSIONS"]
 
-_FIELDS = {"value", "unit", "min", "max", "source", "vary", "description"}
+_FIELDS = {"value", "unit", "min", "max", "source", "vary", "description", "integer"}
+
+#: Units a parameter file may use instead of the parameter's own unit: unit -> (unit, factor),
+#: value_in_unit * factor = value in the parameter's unit.  Anything else is refused.
+UNIT_CONVERSIONS: dict[str, tuple[str, float]] = {
+    "mOhm": ("Ohm", 1e-3), "kOhm": ("Ohm", 1e3),
+    "mH": ("H", 1e-3), "uH": ("H", 1e-6),
+    "mWb": ("Wb", 1e-3),
+    "mA": ("A", 1e-3), "kV": ("V", 1e3), "mV": ("V", 1e-3),
+    "mN m": ("N m", 1e-3), "N mm": ("N m", 1e-3),
+    "kN": ("N", 1e3),
+    "mm": ("m", 1e-3), "um": ("m", 1e-6),
+    "g": ("kg", 1e-3), "t": ("kg", 1e3),
+    "g cm^2": ("kg m^2", 1e-7), "kg cm^2": ("kg m^2", 1e-4), "kg mm^2": ("kg m^2", 1e-6),
+    "N/mm": ("N/m", 1e3), "kN/mm": ("N/m", 1e6), "kN/m": ("N/m", 1e3), "N s/mm": ("N s/m", 1e3),
+    "deg": ("rad", math.pi / 180.0),
+    "rpm": ("rad/s", math.pi / 30.0),
+    "ms": ("s", 1e-3), "us": ("s", 1e-6),
+    "%": ("-", 1e-2),
+}
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+
+
+def convert_unit(name: str, value, unit: str, target: str, source_name: str = "<string>") -> float:
+    """``value`` given in ``unit`` -> the parameter's ``target`` unit, or ParameterError.
+
+    Examples
+    --------
+    >>> convert_unit("motor.resistance", 1230.0, "mOhm", "Ohm")
+    1.23
+    """
+    if unit == target:
+        return value
+    conv = UNIT_CONVERSIONS.get(unit)
+    if conv is None or conv[0] != target:
+        known = sorted(u for u, (t, _) in UNIT_CONVERSIONS.items() if t == target)
+        raise ParameterError(name, f"unit {unit!r} in {source_name} is not {target!r} and cannot be converted to it"
+                                   + (f" (convertible: {', '.join(known)})" if known else ""))
+    return float(value) * conv[1]
 
 
 @dataclass(frozen=True)
@@ -57,6 +98,12 @@ class Parameter:
         Default for identification: free (True) or held (False).
     description : str
         One line, with the sign convention where one applies.
+    integer : bool
+        The value must be a whole number (``motor.pole_pairs``).
+    hard_min, hard_max : float
+        Physical bounds that no override may move (efficiency <= 1, masses
+        >= 0, ...); default ``min`` / ``max``.  ``min`` / ``max`` are the
+        adjustable (search) bounds and must lie inside them.
     """
 
     name: str
@@ -67,23 +114,44 @@ class Parameter:
     max: float = math.inf
     vary: bool = False
     description: str = ""
+    integer: bool = False
+    hard_min: float = math.nan
+    hard_max: float = math.nan
 
     def __post_init__(self):
-        try:
-            value = float(self.value)
-        except (TypeError, ValueError):
-            raise ParameterError(self.name, f"value {self.value!r} is not a number") from None
-        object.__setattr__(self, "value", value)
-        object.__setattr__(self, "min", float(self.min))
-        object.__setattr__(self, "max", float(self.max))
+        for key in ("value", "min", "max", "hard_min", "hard_max"):
+            v = getattr(self, key)
+            if not _is_number(v):
+                raise ParameterError(self.name, f"{key} {v!r} is not a number ({type(v).__name__})")
+            object.__setattr__(self, key, float(v))
+        for key in ("unit", "source", "description"):
+            if not isinstance(getattr(self, key), str):
+                raise ParameterError(self.name, f"{key} {getattr(self, key)!r} must be a string")
+        for key in ("vary", "integer"):
+            if not isinstance(getattr(self, key), (bool, np.bool_)):
+                raise ParameterError(self.name, f"{key} {getattr(self, key)!r} must be true or false")
+            object.__setattr__(self, key, bool(getattr(self, key)))
+        value = self.value
+        if math.isnan(self.hard_min):
+            object.__setattr__(self, "hard_min", self.min)
+        if math.isnan(self.hard_max):
+            object.__setattr__(self, "hard_max", self.max)
         if not math.isfinite(value):
             raise ParameterError(self.name, f"value {value!r} is not finite")
+        if math.isnan(self.min) or math.isnan(self.max):
+            raise ParameterError(self.name, "min/max must not be NaN")
         if self.min > self.max:
             raise ParameterError(self.name, f"min {self.min} > max {self.max}")
+        if self.min < self.hard_min or self.max > self.hard_max:
+            raise ParameterError(self.name, f"bounds [{self.min:g}, {self.max:g}] would widen the physical bounds "
+                                            f"[{self.hard_min:g}, {self.hard_max:g}] {self.unit} (an override may "
+                                            "only narrow them)")
         if not (self.min <= value <= self.max):
             raise ParameterError(
                 self.name, f"value {value:g} {self.unit} outside its bounds [{self.min:g}, {self.max:g}]"
             )
+        if self.integer and value != round(value):
+            raise ParameterError(self.name, f"value {value:g} must be a whole number")
         src = str(self.source).strip()
         if not src:
             raise ParameterError(self.name, "has no source (give a paper table or 'assumed: <reason>')")
@@ -178,6 +246,8 @@ class ParameterSet(Mapping[str, Parameter]):
                 entry["max"] = p.max
             if p.vary:
                 entry["vary"] = True
+            if p.integer:
+                entry["integer"] = True
             if p.description:
                 entry["description"] = p.description
             target = doc
@@ -207,6 +277,8 @@ class ParameterSet(Mapping[str, Parameter]):
             doc = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
             raise ParameterError(source_name, f"not valid TOML: {exc}") from None
+        except RecursionError:
+            raise ParameterError(source_name, "not valid TOML: nested too deeply") from None
         flat: dict[str, object] = {}
 
         def walk(prefix: str, table: dict):
@@ -227,9 +299,22 @@ class ParameterSet(Mapping[str, Parameter]):
                 unknown = set(entry) - _FIELDS
                 if unknown:
                     raise ParameterError(name, f"unknown field(s) {sorted(unknown)} in {source_name}")
+                entry = dict(entry)
+                if "integer" in entry and entry["integer"] != old.integer:
+                    raise ParameterError(name, f"'integer' cannot be changed by an override in {source_name}")
+                if "unit" in entry:
+                    unit = entry.pop("unit")
+                    if not isinstance(unit, str):
+                        raise ParameterError(name, f"unit {unit!r} in {source_name} must be a string")
+                    for key in ("value", "min", "max"):
+                        if key in entry:
+                            if not _is_number(entry[key]):
+                                raise ParameterError(name, f"{key} {entry[key]!r} in {source_name} is not a number")
+                            entry[key] = convert_unit(name, entry[key], unit.strip(), old.unit, source_name)
                 merged = {
                     "value": old.value, "unit": old.unit, "source": old.source, "min": old.min,
-                    "max": old.max, "vary": old.vary, "description": old.description,
+                    "max": old.max, "vary": old.vary, "description": old.description, "integer": old.integer,
+                    "hard_min": old.hard_min, "hard_max": old.hard_max,
                 }
                 merged.update(entry)
                 params.append(Parameter(name=name, **merged))
@@ -271,6 +356,8 @@ def load_parameters(path: str | Path, *, base: ParameterSet | None = None) -> Pa
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ParameterError(str(path), f"cannot read: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise ParameterError(str(path), f"not UTF-8 text (byte {exc.start}: {exc.reason})") from None
     return ParameterSet.from_toml(text, source_name=str(path), base=base)
 
 

@@ -244,12 +244,14 @@ def build_plant(level: str | None = "A", effects: Iterable[str] = (), *, remove:
             slip_pos, ca.fmin(c.kinetic_pos, c.static_pos),
             ca.if_else(slip_neg, -ca.fmin(c.kinetic_neg, c.static_neg), t_stick * share),
         )
-    res_d = FrictionResolution(disc, t_fric, ca.if_else(stuck, 1.0, 0.0), w_new)
+    res_d = FrictionResolution(disc, t_fric, ca.if_else(stuck, 1.0, 0.0), w_new, h)
 
     new_vel = {"motor_speed": w_new}
     for s in states:
         if s.kind == "velocity":
             new_vel[s.name] = x[s.name] + h * a.rates[s.name]
+            if s.name in a.discrete:  # an effect's own update (e.g. a brake holding a body), given the explicit one
+                new_vel[s.name] = a.discrete[s.name](dict(new_vel), h)
     old_syms = ca.vertcat(*(x[n] for n in new_vel))
     new_vals = ca.vertcat(*new_vel.values())
     x_next = []
@@ -259,6 +261,8 @@ def build_plant(level: str | None = "A", effects: Iterable[str] = (), *, remove:
             x_next.append(target + (x[s.name] - target) * ca.exp(-h / tau))
         elif s.kind in ("speed", "velocity"):
             x_next.append(new_vel[s.name])
+        elif s.kind == "position" and s.name in a.discrete:  # e.g. a twist limited by a slipping clutch
+            x_next.append(a.discrete[s.name](new_vel, h))
         elif s.kind == "position":
             x_next.append(x[s.name] + h * ca.substitute(a.rates[s.name], old_syms, new_vals))
         elif s.kind == "custom":

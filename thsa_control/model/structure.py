@@ -77,6 +77,10 @@ INPUTS: tuple[tuple[str, str, str], ...] = (
     ("enable_standby", "-", "1: standby inverter energised (needs standby_motor)"),
     ("load_force", "N", "axial load on the surface/nut, positive compressive (opposes extension)"),
     ("temperature", "degC", "actuator temperature (needs temperature_friction)"),
+    # fault inputs (model/fault_effects.py); 0 is the healthy value, so runs that ignore them are unchanged
+    ("brake", "-", "1: motor brakes engaged (needs motor_brakes)"),
+    ("surface_jam", "-", "1: surface locked where it is (needs surface_jam)"),
+    ("loadpath_failure", "-", "1: primary load path broken at the upper gimbal (needs secondary_load_path)"),
 )
 
 STRUCTURE_STATES: tuple[StateInfo, ...] = (
@@ -112,13 +116,15 @@ class FrictionResolution:
     positive opposing positive motion]; ``total`` is their sum; ``stuck`` is 1
     while the main body is held by stiction (discrete form only); ``speed`` is
     the motor speed the friction acts at [rad/s] (the end-of-step speed in the
-    discrete form).
+    discrete form); ``step`` is the step size of the discrete form (None in the
+    continuous one), for losses an effect integrates exactly over a step.
     """
 
     channel: dict
     total: ca.SX
     stuck: ca.SX
     speed: ca.SX
+    step: ca.SX | None = None  # the discrete step size h [s]; None in the continuous form
 
 
 @dataclass
@@ -142,7 +148,7 @@ class Assembly:
     channels: list = field(default_factory=list)  # FrictionChannel
     lags: dict = field(default_factory=dict)  # state -> (tau, target)
     rates: dict = field(default_factory=dict)  # state -> continuous derivative
-    discrete: dict = field(default_factory=dict)  # state -> fn(x_new: dict, h) -> expr
+    discrete: dict = field(default_factory=dict)  # state -> fn(x_new: dict, h) -> expr (custom; may override velocity/position)
     outputs: dict = field(default_factory=dict)  # name -> (unit, expr | fn(FrictionResolution) -> expr)
     losses: dict = field(default_factory=dict)  # label -> expr | fn(FrictionResolution) -> expr [W]
     stored_energy: dict = field(default_factory=dict)  # label -> expr [J]
@@ -264,6 +270,9 @@ def apply_structure(a: Assembly) -> None:
         ("pawl_clearance_comp", "rad", 0.0), ("pawl_clearance_tens", "rad", 0.0),
     ):
         a.output(name, unit, value)
+    from .fault_effects import neutral_fault_outputs  # signals of the fault effects (issue #10)
+
+    neutral_fault_outputs(a)
 
 
 def finish_structure(a: Assembly) -> None:
@@ -345,13 +354,22 @@ def finish_structure(a: Assembly) -> None:
     a.loss("gear_efficiency", lambda res: res.channel["gear_efficiency"] * res.speed)
 
     a.output("axial_force", "N", F)
-    # Monitoring only unless the torque_limiter effect is in the set.
+    # 1 while the torque into the gearbox exceeds the limiter's static slip torque (limiter.* parameters);
+    # the limiter slips only when the torque_limiter effect is in the set.
     a.output("motor_torque", "N m", motor_torque)
     a.output("gearbox_input_torque", "N m", gear_torque)
     a.output(
         "torque_limiter_exceeded", "-",
-        ca.if_else(ca.fabs(gear_torque) * p["gear.ratio"] > p["gear.torque_limiter_threshold"], 1.0, 0.0),
+        ca.if_else(ca.fabs(gear_torque) * p["gear.ratio"] > _limiter_static_torque(p), 1.0, 0.0)
+        if "limiter.faces" in p else 0.0,  # a rig described without a limiter
     )
+
+
+def _limiter_static_torque(p: dict):
+    """The torque limiter's static slip torque [N m at the large gear], from the limiter's own law."""
+    from .fault_effects import limiter_slip_torques  # one law for the monitor and the torque_limiter effect
+
+    return limiter_slip_torques(p)[0]
 
 
 def _sum_exprs(terms):

@@ -1,22 +1,39 @@
-"""Compile the simulator's casadi Functions to C, cached on disk.
+"""Compile the simulator's casadi Functions to C, cached on disk, and verify what is loaded.
 
 casadi generates the C source of one control period (``sample``, with
 outputs, and ``sample_x``, the state update alone); a small C driver added
 here loops over the periods in place (no copies between periods) and writes
-one output column per output period.  The source is hashed and the shared
-library built once per hash with the system C compiler, then reused by every
-later process.  The cache lives in ``$THSA_CACHE_DIR`` or
-``~/.cache/thsa-control``.  Without a C compiler :func:`compile_run_loop`
-returns None and the simulator falls back to casadi's virtual machine.
+one output column per output period.  The library is built once per source
+hash with the system C compiler and reused by every later process.  The cache
+lives in ``$THSA_CACHE_DIR`` or ``~/.cache/thsa-control``.
+
+The cache is never trusted blindly (issue #7, item 2):
+
+* next to ``thsa_run_<hash>.so`` lies ``thsa_run_<hash>.json`` with the
+  SHA-256 of the generated C source and of the library; both are checked
+  before ``dlopen`` (a truncated file would otherwise kill the process with
+  SIGBUS), and the library itself reports the source hash it was built from
+  (``thsa_source_sha256()``), checked after loading, so a library of another
+  model under the right name is rejected;
+* any mismatch or load failure rebuilds; a fresh build is loaded and checked
+  from its private build folder before it is published, so a compiler that
+  writes an empty or broken file never poisons the cache;
+* files are published atomically (temporary name + ``os.replace``);
+* an unwritable cache falls back to a per-process temporary folder, and a
+  missing or broken C compiler to casadi's interpreter (about 20x slower);
+  each fallback is said once per process on stderr.
 """
 
 from __future__ import annotations
 
+import atexit
 import ctypes
 import hashlib
+import json
 import os
 import shutil
 import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -25,6 +42,16 @@ import casadi as ca
 import numpy as np
 
 __all__ = ["cache_dir", "compile_run_loop", "RunLoop"]
+
+_NOTED: set[str] = set()  # fallbacks already reported in this process (said once)
+_PRIVATE_DIR: list[Path] = []  # per-process fallback cache, removed at exit
+
+
+def _note_once(key: str, message: str) -> None:
+    if key not in _NOTED:
+        _NOTED.add(key)
+        print(f"note: {message}", file=sys.stderr)
+
 
 _DRIVER = r"""
 #include <stdlib.h>
@@ -70,12 +97,67 @@ done:
 
 
 def cache_dir() -> Path:
-    """Directory of the compiled-library cache (created on demand)."""
+    """Directory of the compiled-library cache (created on demand; may raise OSError)."""
     root = os.environ.get("THSA_CACHE_DIR") or os.path.join(
         os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "thsa-control")
     path = Path(root)
     path.mkdir(parents=True, exist_ok=True)
     return path
+
+
+def _private_dir() -> Path:
+    if not _PRIVATE_DIR:
+        d = Path(tempfile.mkdtemp(prefix="thsa-cache-"))
+        _PRIVATE_DIR.append(d)
+        atexit.register(shutil.rmtree, d, True)
+    return _PRIVATE_DIR[0]
+
+
+def _sha256_file(path: Path) -> str | None:
+    try:
+        h = hashlib.sha256()
+        with open(path, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+        return h.hexdigest()
+    except OSError:
+        return None
+
+
+def _verified(lib: Path, manifest: Path, source_sha: str) -> bool:
+    """True when the manifest matches the source and the library's bytes (checked before dlopen)."""
+    try:
+        meta = json.loads(manifest.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    if not isinstance(meta, dict) or meta.get("source_sha256") != source_sha:
+        return False
+    try:
+        if lib.stat().st_size != meta.get("library_size"):
+            return False
+    except OSError:
+        return False
+    return _sha256_file(lib) == meta.get("library_sha256")
+
+
+def _load(lib: Path, source_sha: str, dims) -> "RunLoop | None":
+    """dlopen and check the library's own source hash; None when it does not load or is another model's."""
+    try:
+        loop = RunLoop(str(lib), *dims)
+    except (OSError, AttributeError):
+        return None
+    if loop.source_sha256() != source_sha:
+        return None
+    return loop
+
+
+def _publish(src: Path, target: Path) -> None:
+    staged = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+    try:
+        shutil.copyfile(src, staged)
+        os.replace(staged, target)
+    finally:
+        staged.unlink(missing_ok=True)
 
 
 class RunLoop:
@@ -91,6 +173,13 @@ class RunLoop:
         self._fn.argtypes = [dp, dp, dp, ctypes.c_longlong, ctypes.c_longlong, dp]
         self._fn.restype = ctypes.c_int
         self.nz, self.nw, self.ny = nz, nw, ny
+        self._sha = self._lib.thsa_source_sha256
+        self._sha.argtypes = []
+        self._sha.restype = ctypes.c_char_p
+
+    def source_sha256(self) -> str:
+        """SHA-256 of the C source this library was built from (embedded at build time)."""
+        return self._sha().decode("ascii", "replace")
 
     def __call__(self, z0: np.ndarray, W: np.ndarray, theta: np.ndarray, decimation: int):
         z = np.array(z0, dtype=float, order="C").copy()
@@ -109,46 +198,93 @@ class RunLoop:
 
 
 def compile_run_loop(sample: ca.Function, sample_x: ca.Function, *, flags: tuple[str, ...] = ("-O2",)):
-    """Generate, compile (or find in the cache) and load the run loop.
+    """Generate, compile (or find in the cache, verified) and load the run loop.
 
     Returns
     -------
     loop : RunLoop or None
-        None when no C compiler is available or compilation failed.
+        None when no working C compiler is available (the caller then uses
+        casadi's interpreter; a note says so once on stderr).
     info : dict
-        ``{"compiled", "cached", "codegen_s", "compile_s", "path", "error"?}``.
+        ``{"compiled", "cached", "codegen_s", "compile_s", "path", "cache", "error"?}``;
+        ``cache`` is ``"shared"``, ``"private"`` (unwritable cache) or ``""``.
     """
     cc = shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
     t0 = time.perf_counter()
     f1 = ca.Function("thsa_sample", sample.sx_in(), sample.call(sample.sx_in()))
     f2 = ca.Function("thsa_sample_x", sample_x.sx_in(), sample_x.call(sample_x.sx_in()))
-    with tempfile.TemporaryDirectory() as tmp:
+    dims = (sample.size1_in(0), sample.size1_in(1), sample.size1_out(1))
+    with tempfile.TemporaryDirectory(prefix="thsa-build-") as tmp:
         cg = ca.CodeGenerator("thsa_run.c", {"with_header": False})
         cg.add(f1)
         cg.add(f2)
         src_path = Path(cg.generate(tmp + os.sep))
         source = src_path.read_text() + _DRIVER
+        source_sha = hashlib.sha256((source + " ".join(flags) + ca.__version__).encode()).hexdigest()
+        source += f'\nconst char* thsa_source_sha256(void) {{ return "{source_sha}"; }}\n'
         src_path.write_text(source)
         codegen_s = time.perf_counter() - t0
-        info = {"compiled": False, "cached": False, "codegen_s": codegen_s, "compile_s": 0.0, "path": ""}
+        info = {"compiled": False, "cached": False, "codegen_s": codegen_s, "compile_s": 0.0, "path": "", "cache": ""}
+        stem = f"thsa_run_{source_sha[:24]}"
+        try:
+            shared = cache_dir()
+        except OSError as exc:
+            shared = None
+            _note_once("cache-unwritable", f"compiled-simulator cache folder cannot be created ({exc}): "
+                                           "using a temporary folder for this run")
+        for where in ("shared", "private"):
+            folder = shared if where == "shared" else _private_dir()
+            if folder is None:
+                continue
+            lib, manifest = folder / f"{stem}.so", folder / f"{stem}.json"
+            if lib.exists() and _verified(lib, manifest, source_sha):
+                loop = _load(lib, source_sha, dims)
+                if loop is not None:
+                    info.update(compiled=True, cached=True, path=str(lib), cache=where)
+                    return loop, info
         if cc is None:
             info["error"] = "no C compiler found (set CC)"
+            _note_once("no-cc", "no C compiler found (set CC): simulating with casadi's interpreter, "
+                                "about 20x slower")
             return None, info
-        digest = hashlib.sha256((source + " ".join(flags) + ca.__version__).encode()).hexdigest()[:24]
-        lib = cache_dir() / f"thsa_run_{digest}.so"
-        info["cached"] = lib.exists()
-        if not info["cached"]:
-            t1 = time.perf_counter()
-            tmp_lib = Path(tmp) / lib.name
-            proc = subprocess.run([cc, *flags, "-fPIC", "-shared", str(src_path), "-o", str(tmp_lib), "-lm"],
+        t1 = time.perf_counter()
+        built = Path(tmp) / f"{stem}.so"
+        try:
+            proc = subprocess.run([cc, *flags, "-fPIC", "-shared", str(src_path), "-o", str(built), "-lm"],
                                   capture_output=True, text=True)
-            if proc.returncode != 0:
-                info["error"] = proc.stderr[-2000:]
-                return None, info
-            staged = lib.with_name(f"{lib.name}.{os.getpid()}.tmp")
-            shutil.copyfile(tmp_lib, staged)
-            os.replace(staged, lib)  # atomic publish; racing processes write identical files
-            info["compile_s"] = time.perf_counter() - t1
-    info["compiled"] = True
-    info["path"] = str(lib)
-    return RunLoop(str(lib), sample.size1_in(0), sample.size1_in(1), sample.size1_out(1)), info
+            failed = proc.returncode != 0
+            error = proc.stderr[-2000:]
+        except OSError as exc:
+            failed, error = True, str(exc)
+        loop = None if failed or not built.is_file() else _load(built, source_sha, dims)
+        if loop is None:
+            info["error"] = error or f"{cc} wrote no loadable library"
+            _note_once(f"bad-cc-{cc}", f"the C compiler {cc} did not build a loadable simulator "
+                                       f"({(error.strip().splitlines() or ['empty or broken output'])[-1][:200]}): "
+                                       "simulating with casadi's interpreter, about 20x slower")
+            return None, info
+        info["compile_s"] = time.perf_counter() - t1
+        lib_sha = _sha256_file(built)
+        meta = json.dumps({"source_sha256": source_sha, "library_sha256": lib_sha,
+                           "library_size": built.stat().st_size, "casadi": ca.__version__,
+                           "compiler": cc, "flags": list(flags)}, indent=1)
+        (Path(tmp) / f"{stem}.json").write_text(meta, encoding="utf-8")
+        for where in ("shared", "private"):
+            folder = shared if where == "shared" else _private_dir()
+            if folder is None:
+                continue
+            lib, manifest = folder / f"{stem}.so", folder / f"{stem}.json"
+            try:
+                _publish(built, lib)  # library first: a manifest never names a missing library
+                _publish(Path(tmp) / f"{stem}.json", manifest)
+            except OSError as exc:
+                if where == "shared":
+                    _note_once("cache-unwritable", f"compiled-simulator cache {folder} is not writable "
+                                                   f"({exc.strerror}): using a temporary folder for this run")
+                continue
+            loaded = _load(lib, source_sha, dims)
+            if loaded is not None:
+                info.update(compiled=True, path=str(lib), cache=where)
+                return loaded, info
+        info.update(compiled=True, path=str(built), cache="")
+        return loop, info  # loaded from the build folder; the file stays mapped after the folder goes

@@ -25,6 +25,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..errors import ScenarioError
+from ..faults.events import FaultEvent
+from ..faults.settings import MonitorSettings
 
 __all__ = ["Scenario", "SCENARIOS", "get_scenario", "TEMPERATURE_RANGE"]
 
@@ -74,6 +76,11 @@ class Scenario:
         Effects the scenario needs (e.g. ``standby_motor``).
     motor_off_at_zero : bool
         De-energise the motors while the shaped command is exactly zero.
+    faults : tuple of FaultEvent
+        Scheduled faults (``thsa_control.faults.events``).
+    monitors : MonitorSettings or None
+        Run the monitors and reconfiguration logic in the loop (None: no
+        monitors; faults then act unmonitored).
     """
 
     name: str
@@ -89,8 +96,19 @@ class Scenario:
     position_cmd: Breakpoints | None = None
     required_effects: tuple[str, ...] = ()
     motor_off_at_zero: bool = True
+    faults: tuple[FaultEvent, ...] = ()
+    monitors: MonitorSettings | None = None
 
     def __post_init__(self):
+        if not all(isinstance(f, FaultEvent) for f in self.faults):
+            raise ScenarioError(f"scenario {self.name!r}: faults must be FaultEvent records")
+        if self.monitors is not None:
+            if not isinstance(self.monitors, MonitorSettings):
+                raise ScenarioError(f"scenario {self.name!r}: monitors must be MonitorSettings or None")
+            try:
+                self.monitors.validate()
+            except ValueError as exc:
+                raise ScenarioError(f"scenario {self.name!r}: {exc}") from None
         if not (self.duration > 0 and math.isfinite(self.duration)):
             raise ScenarioError(f"scenario {self.name!r}: duration {self.duration!r} must be positive")
         if not self.accel_limit > 0:
@@ -186,12 +204,55 @@ SCENARIOS: dict[str, Scenario] = {
             primary_enable=((0.0, 1.0), (1.35, 0.0)), standby_enable=((0.0, 0.0), (1.365, 1.0)),
             required_effects=("standby_motor",),
         ),
+        # ---- fault cases (papers' model F, issue #10): monitors in the loop
+        Scenario(
+            "jam",
+            "Papers' jam: +15 mm/s trapezoid (30 mm/s^2) from 1 s against a compressive load ramped to 20 kN "
+            "from 1 s; the surface locks at 3.5 s. The motor torque rises until the torque limiter slips, the "
+            "motor sensor and the RVDT disagree and the position monitor safes the actuator (motors off, brakes on).",
+            5.0, ((0.0, 0.0), (1.0, 15 * _MM)), 30 * _MM, ((0.0, 0.0), (1.0, 0.0), (1.5, 20e3)),
+            required_effects=("loadpath_compliance", "drivetrain_compliance", "torque_limiter", "surface_jam", "motor_brakes"),
+            faults=(FaultEvent("surface_jam", 3.5),), monitors=MonitorSettings(),
+        ),
+        Scenario(
+            "loadpath_failure",
+            "Papers' primary load-path failure: the back-drive profile (+15 mm/s from 1 s, -15 mm/s from 6 s, "
+            "29 kN compressive from 1.5 s); the upper gimbal of the primary path breaks at 7.5 s, the actuator "
+            "body moves until the secondary path's clearance is taken up, the LVDT monitor trips and both motors "
+            "are shut down with the brakes on.",
+            10.0, ((0.0, 0.0), (1.0, 15 * _MM), (3.5, 0.0), (6.0, -15 * _MM), (8.5, 0.0)), 30 * _MM,
+            ((0.0, 0.0), (1.0, 0.0), (1.5, 29e3)),
+            required_effects=("loadpath_compliance", "secondary_load_path", "motor_brakes"),
+            faults=(FaultEvent("loadpath_failure", 7.5),), monitors=MonitorSettings(),
+        ),
+        Scenario(
+            "motor_fault_monitored",
+            "motor_fault_switch with the monitors in the loop: -5 mm/s under a constant 20 kN aiding load; the "
+            "primary channel fails at 1.8 s (its inverter stops); the speed-tracking monitor detects it and the "
+            "reconfiguration logic enables the standby channel after its take-over delay (papers: 15 ms).",
+            3.0, ((0.0, 0.0), (0.5, -5 * _MM)), 20 * _MM, ((0.0, 0.0), (0.4, 20e3)),
+            required_effects=("standby_motor",),
+            faults=(FaultEvent("channel_failure", 1.8, channel="primary"),), monitors=MonitorSettings(),
+        ),
+        Scenario(
+            "motor_fault_monitored_rising_load",
+            "motor_fault_switch_rising_load with the monitors in the loop: the primary channel fails at 1.35 s, "
+            "the load rises 40 kN/s from the fault (held at 55 kN from 2.225 s); the monitors switch to standby.",
+            3.0, ((0.0, 0.0), (0.5, -5 * _MM)), 20 * _MM, ((0.0, 0.0), (0.4, 20e3), (1.35, 20e3), (2.225, 55e3)),
+            required_effects=("standby_motor",),
+            faults=(FaultEvent("channel_failure", 1.35, channel="primary"),), monitors=MonitorSettings(),
+        ),
     )
 }
 
 
 def get_scenario(name: str) -> Scenario:
-    """The scenario called ``name``; :class:`ScenarioError` lists the known ones otherwise."""
+    """The scenario called ``name``, or read from ``name`` if it ends in ``.toml``
+    (``thsa_control.faults.scenario_file``); :class:`ScenarioError` lists the known ones otherwise."""
+    if str(name).lower().endswith(".toml"):
+        from ..faults.scenario_file import load_scenario_file
+
+        return load_scenario_file(name)
     try:
         return SCENARIOS[name]
     except KeyError:

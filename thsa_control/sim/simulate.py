@@ -42,7 +42,7 @@ from ..model.plant import Plant
 from ..model.params import ParameterSet
 from .scenarios import TEMPERATURE_RANGE, Scenario
 
-__all__ = ["SimulationSettings", "InputSeries", "SimulationResult", "Simulator", "simulate"]
+__all__ = ["SimulationSettings", "InputSeries", "SimulationResult", "Simulator", "simulate", "plant_input_vector"]
 
 #: Per-sample inputs of a run: the controller's references, then load and temperature.
 RUN_INPUTS = REFERENCE_INPUTS + ("load_force", "temperature")
@@ -174,6 +174,17 @@ class SimulationResult:
         return (self.time >= t0) & (self.time < t1)
 
 
+def plant_input_vector(plant: Plant, u_ctrl, load_force, temperature, **faults):
+    """The plant's input vector, by name: the controller's four outputs, load, temperature,
+    fault inputs (``faults``, by name) and every other input at its healthy value 0."""
+    values = dict(zip(("voltage_primary", "voltage_standby", "enable_primary", "enable_standby"), ca.vertsplit(u_ctrl)))
+    values.update(load_force=load_force, temperature=temperature, **faults)
+    unknown = set(values) - set(plant.inputs)
+    if unknown:
+        raise ThsaError(f"no plant input(s) {sorted(unknown)}; inputs are {', '.join(plant.inputs)}")
+    return ca.vertcat(*(values.get(n, ca.SX(0.0)) for n in plant.inputs))
+
+
 class Simulator:
     """Closed-loop simulator of one plant (effect set).
 
@@ -219,7 +230,7 @@ class Simulator:
         meas = ca.vertcat(x[names.index(speed_sensor)], x[names.index("motor_current")], standby,
                           x[names.index("nut_position")])
         xc_next, u_ctrl, sig = build_controller()(xc, w[:len(REFERENCE_INPUTS)], meas, k, h)
-        u = ca.vertcat(u_ctrl, w[RUN_INPUTS.index("load_force")], w[RUN_INPUTS.index("temperature")])
+        u = plant_input_vector(plant, u_ctrl, w[RUN_INPUTS.index("load_force")], w[RUN_INPUTS.index("temperature")])
         hs = h / self.settings.substeps
         x_next, y = plant.step(x, u, p, hs)
         for _ in range(self.settings.substeps - 1):
@@ -301,6 +312,9 @@ class Simulator:
             The design asks more than the actuator has.
         """
         h = design.control_period
+        if isinstance(inputs, Scenario) and (inputs.faults or inputs.monitors is not None):
+            from ..faults.loop import run_fault_loop  # faults and monitors in the loop (issue #10)
+            return run_fault_loop(self, inputs, design, params, x0=x0)
         if isinstance(inputs, Scenario):
             inputs = InputSeries.from_scenario(inputs, h)
         missing = [e for e in inputs.required_effects if e not in self.plant.effects]

@@ -35,7 +35,8 @@ import numpy as np
 
 from ..errors import DesignError
 from ..loops._loopmath import _freq, _frequency_grid
-from ..loops.analysis import DEFAULT_ANALYSIS_EFFECTS, AnalysisSettings, _build, _saturation, analyse_loops
+from ..loops.analysis import DEFAULT_ANALYSIS_EFFECTS
+from ..loops.loop_analysis import AnalysisSettings, _build, _saturation, analyse_loops
 from ..loops.design import Design
 from ..loops.linear import linearize_conditions, plant_model
 from ..model.params import ParameterSet
@@ -204,7 +205,7 @@ class MarginSummary:
 def exact_margins(design: Design, params: ParameterSet, temperatures, *, level: str = "B",
                   effects=DEFAULT_ANALYSIS_EFFECTS, requirements=None) -> list[MarginSummary]:
     """Velocity-loop margins from the loop analysis (bisection-refined), per temperature."""
-    from ..loops.analysis import check_requirements
+    from ..loops.requirements import check_requirements
 
     req = dict(design.requirements.get("velocity_loop", {}) if requirements is None else requirements)
     req = {k: v for k, v in req.items() if k in ROBUST_REQUIREMENTS}

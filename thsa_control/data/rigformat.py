@@ -1,0 +1,259 @@
+"""The ``thsa-rig-run/1`` format as data: columns, units, and the run records (for ``rigdata``).
+
+Column specifications (FORMAT.md names, canonical signal names, units and
+conversions to SI), the frozen records :class:`RigRun` and
+:class:`RigController`, and small helpers shared by the reader, its checks and
+the summary.  Imports numpy, the standard library and
+:mod:`thsa_control.data.units` only.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from thsa_control.data.units import m_to_mm, mm_to_m, rad_s_to_rpm, rpm_to_rad_s
+
+__all__ = ["FORMAT_TAG", "ColumnSpec", "COLUMNS", "VelocityLoopGains", "CurrentLoopGains", "RigController",
+           "RigRun", "DEFAULT_SCREW_LEAD_MM", "DEFAULT_GEAR_RATIO", "MAX_ROWS_LISTED"]
+
+FORMAT_TAG = "thsa-rig-run/1"
+#: Seed kinematics of FORMAT.md, used when the JSON has no ``rig`` block.
+DEFAULT_SCREW_LEAD_MM = 12.0
+DEFAULT_GEAR_RATIO = 65.61
+#: How many rows of one repeated problem are listed before they are counted.
+MAX_ROWS_LISTED = 10
+_MIN_ROWS = 2
+_MIN_FIT_SAMPLES = 20
+_MIN_R2 = 0.9
+_MAX_TEMPERATURE_C = 150.0
+_RAD_S_PER_RPM = float(rpm_to_rad_s(1.0))
+
+
+def _identity(x):
+    return np.asarray(x, dtype=float)
+
+
+@dataclass(frozen=True)
+class ColumnSpec:
+    """One standard column of ``thsa-rig-run/1``.
+
+    Parameters
+    ----------
+    column : str
+        CSV column name of FORMAT.md.
+    signal : str
+        Canonical signal name in :attr:`RigRun.signals`.
+    unit : str
+        Unit in the CSV.
+    si_unit : str
+        Unit in :attr:`RigRun.signals`.
+    role : str
+        ``time``, ``required``, ``measured``, ``command`` or ``enable``.
+    to_si, from_si : callable
+        Conversions CSV unit <-> SI unit (from :mod:`thsa_control.data.units`).
+    default : float or None
+        Value of an absent enable flag.
+    """
+
+    column: str
+    signal: str
+    unit: str
+    si_unit: str
+    role: str
+    to_si: Callable = _identity
+    from_si: Callable = _identity
+    default: float | None = None
+
+
+_SPECS = (
+    ColumnSpec("time_s", "time", "s", "s", "time"),
+    ColumnSpec("speed_cmd_mm_s", "speed_cmd", "mm/s", "m/s", "required", mm_to_m, m_to_mm),
+    ColumnSpec("load_force_N", "load_force", "N", "N", "required"),
+    ColumnSpec("motor_speed_rpm", "motor_speed", "rpm", "rad/s", "measured",
+               rpm_to_rad_s, rad_s_to_rpm),
+    ColumnSpec("motor_current_A", "motor_current", "A", "A", "measured"),
+    ColumnSpec("nut_position_mm", "nut_position", "mm", "m", "measured", mm_to_m, m_to_mm),
+    ColumnSpec("screw_speed_rpm", "screw_speed", "rpm", "rad/s", "measured",
+               rpm_to_rad_s, rad_s_to_rpm),
+    ColumnSpec("temperature_C", "temperature", "degC", "degC", "measured"),
+    ColumnSpec("position_cmd_mm", "position_cmd", "mm", "m", "command", mm_to_m, m_to_mm),
+    ColumnSpec("primary_enable", "primary_enable", "0/1", "0/1", "enable", default=1.0),
+    ColumnSpec("standby_enable", "standby_enable", "0/1", "0/1", "enable", default=0.0),
+)
+#: Standard columns by CSV name, in FORMAT.md order.
+COLUMNS: dict[str, ColumnSpec] = {s.column: s for s in _SPECS}
+_BY_SIGNAL = {s.signal: s for s in _SPECS}
+_SPEED_COLUMNS = ("motor_speed_rpm", "screw_speed_rpm")
+
+
+# --------------------------------------------------------------------- results
+@dataclass(frozen=True)
+class VelocityLoopGains:
+    """Velocity PI of the rig (on motor speed, output current reference).
+
+    Parameters
+    ----------
+    kp : float
+        Proportional gain [A/(rad/s)], >= 0.
+    ki : float
+        Integral gain [A/rad], >= 0.
+    current_limit : float
+        Clamp of the current reference [A], > 0.
+    extra : dict
+        Unknown keys of the JSON block, kept.
+    """
+
+    kp: float
+    ki: float
+    current_limit: float
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class CurrentLoopGains:
+    """Current PI of the rig (on quadrature current, output motor voltage).
+
+    Parameters
+    ----------
+    kp : float
+        Proportional gain [V/A], >= 0.
+    ki : float
+        Integral gain [V/(A s)], >= 0.
+    voltage_limit : float
+        Clamp of the voltage [V], > 0.
+    extra : dict
+        Unknown keys of the JSON block, kept.
+    """
+
+    kp: float
+    ki: float
+    voltage_limit: float
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class RigController:
+    """The rig's cascade as it ran (JSON ``controller`` block).
+
+    Parameters
+    ----------
+    velocity_loop : VelocityLoopGains
+    current_loop : CurrentLoopGains
+    control_period : float
+        Controller sample period [s], > 0.
+    extra : dict
+        Unknown keys of the block, kept.
+    """
+
+    velocity_loop: VelocityLoopGains
+    current_loop: CurrentLoopGains
+    control_period: float
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, eq=False)
+class RigRun:
+    """One validated rig run, in SI.
+
+    Parameters
+    ----------
+    name : str
+        JSON ``name``, else the file stem.
+    csv_path, json_path : Path
+        The two files read.
+    metadata : dict
+        The whole JSON object, unknown keys included.
+    time : ndarray
+        Sample times [s], strictly increasing.
+    signals : dict of str to ndarray
+        Canonical signals: ``speed_cmd`` [m/s], ``load_force`` [N, > 0
+        compressive], ``motor_speed`` [rad/s], ``motor_current`` [A],
+        ``nut_position`` [m], ``screw_speed`` [rad/s], ``temperature`` [degC,
+        the one non-SI signal; constant from the JSON when the CSV has no
+        column], ``position_cmd`` [m], ``primary_enable`` and
+        ``standby_enable`` [0/1, default 1 and 0 when absent].  Speeds and
+        positions are positive when the actuator extends.  An isolated missing
+        sample of a measured signal is NaN (see :attr:`warnings`).
+    extra : dict of str to ndarray
+        Unknown CSV columns by their CSV names, raw.
+    controller : RigController or None
+        The JSON ``controller`` block, or None when absent.
+    motor_disabled_when_cmd_zero : bool
+        Motors de-energised while the speed command is exactly 0.
+    warnings : tuple of str
+        Non-fatal findings (isolated gaps, undecided unit checks).
+    screw_lead : float
+        Screw lead [m] used for the kinematic checks.
+    gear_ratio : float
+        Motor-to-screw gear ratio [-].
+    source_columns : dict of str to str
+        Canonical signal -> CSV column it was read from (original name).
+
+    Notes
+    -----
+    Arrays are read-only.  Instances compare by identity.
+    """
+
+    name: str
+    csv_path: Path
+    json_path: Path
+    metadata: dict[str, Any]
+    time: np.ndarray
+    signals: dict[str, np.ndarray]
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+    controller: RigController | None = None
+    motor_disabled_when_cmd_zero: bool = False
+    warnings: tuple[str, ...] = ()
+    screw_lead: float = mm_to_m(DEFAULT_SCREW_LEAD_MM)
+    gear_ratio: float = DEFAULT_GEAR_RATIO
+    source_columns: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def sample_rate_hz(self) -> float:
+        """Nominal sample rate [Hz]: JSON ``sample_rate_hz``, else 1 / median dt."""
+        nominal = _number(self.metadata.get("sample_rate_hz"))
+        if nominal is not None and nominal > 0:
+            return nominal
+        return 1.0 / float(np.median(np.diff(self.time)))
+
+    @property
+    def duration_s(self) -> float:
+        """Time from the first to the last sample [s]."""
+        return float(self.time[-1] - self.time[0])
+
+    def has(self, name: str) -> bool:
+        """True when ``name`` is a signal (defaults included) or an extra column."""
+        return name in self.signals or name in self.extra
+
+
+# --------------------------------------------------------------------- helpers
+def _number(value: Any) -> float | None:
+    """A finite JSON number as float, else None (booleans are not numbers)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        return None
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """Maximal runs of True as (start, stop) with stop exclusive."""
+    edges = np.diff(np.concatenate(([0], mask.astype(np.int8), [0])))
+    return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist()))
+
+
+def _add_rows(problems: list, label: str, rows: np.ndarray, message: Callable[[int], str]) -> None:
+    """One problem per 0-based row index, the first MAX_ROWS_LISTED listed."""
+    rows = np.asarray(rows, dtype=int)
+    for i in rows[:MAX_ROWS_LISTED]:
+        problems.append((label, int(i) + 1, message(int(i))))
+    if rows.size > MAX_ROWS_LISTED:
+        rest = rows[MAX_ROWS_LISTED:]
+        problems.append((label, int(rest[0]) + 1,
+                         f"... and {rest.size} more row(s) with the same problem "
+                         f"(rows {rest[0] + 1} to {rest[-1] + 1})"))

@@ -1,0 +1,237 @@
+"""Figures and the report of faults and monitoring (issue #10).
+
+Draws :class:`~thsa_control.faults.analysis.FaultAnalysis` and fault runs;
+computes no physics.  ``write_fault_report`` builds ``faults.json``,
+``report.html`` (self-contained) and one PNG per figure in a temporary folder
+renamed at the end (nothing half-written).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import math
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from .build import atomic_folder, write_json  # noqa: E402
+from .identification import figure_png  # noqa: E402
+
+__all__ = ["plot_fault_run", "plot_fault_case", "plot_sweep", "fault_analysis_to_dict", "write_fault_report"]
+
+_FLAGS = (("trip_discrepancy", "discrepancy trip"), ("trip_lvdt", "LVDT trip"), ("trip_speed", "speed trip"),
+          ("standby_active", "standby active"), ("safed", "safed"), ("brakes_engaged", "brakes on"),
+          ("limiter_slipping", "limiter slipping"))
+
+
+def _panels(t, get, r, N, title, fault_times=()):
+    fig, axes = plt.subplots(5, 1, figsize=(10, 12), sharex=True, constrained_layout=True)
+    ax = axes[0]
+    ax.plot(t, get("speed_cmd") * 1e3, "k--", lw=1, label="command")
+    ax.plot(t, get("measured_motor_speed") * r * 1e3, label="motor sensor (x lead/2 pi N)")
+    ax.plot(t, get("screw_speed") * N * r * 1e3, lw=0.9, label="RVDT (screw, x lead/2 pi)")
+    ax.plot(t, get("surface_speed") * 1e3, lw=0.8, label="surface")
+    ax.set_ylabel("speed [mm/s]")
+    ax = axes[1]
+    ax.plot(t, get("motor_torque") * N, label="motor torque x N")
+    ax.plot(t, get("limiter_torque"), label="limiter (transmitted)")
+    slip_t = get("limiter_slip_torque")
+    if np.any(slip_t > 0):
+        ax.plot(t, slip_t, "r:", lw=1, label="limiter slip torque")
+        ax.plot(t, -slip_t, "r:", lw=1)
+    ax.set_ylabel("torque at screw [N m]")
+    ax = axes[2]
+    ax.plot(t, get("loadpath_force") * 1e-3, label="primary load path")
+    ax.plot(t, get("primary_attachment_force") * 1e-3, lw=0.9, label="upper gimbal (primary)")
+    ax.plot(t, get("secondary_path_force") * 1e-3, lw=0.9, label="secondary path")
+    ax.plot(t, get("jam_force") * 1e-3, lw=0.9, label="jam")
+    ax.set_ylabel("force [kN]")
+    ax = axes[3]
+    ax.plot(t, get("monitor_discrepancy"), label="motor - RVDT [rad at screw]")
+    ax.plot(t, get("gimbal_displacement") * 1e3, label="LVDT [mm]")
+    ax.plot(t, get("monitor_speed_error") / 100.0, lw=0.8, label="speed error [100 rad/s]")
+    ax.set_ylabel("monitored")
+    ax = axes[4]
+    for k, (sig, label) in enumerate(_FLAGS):
+        ax.step(t, get(sig) * 0.8 + k, where="post", label=label)
+    ax.set_yticks(range(len(_FLAGS)), [lab for _, lab in _FLAGS], fontsize=8)
+    ax.set_xlabel("time [s]")
+    for a in axes:
+        for tf in fault_times:
+            a.axvline(tf, color="k", lw=0.8, alpha=0.5)
+        a.grid(True, alpha=0.3)
+        if a is not axes[4]:
+            a.legend(loc="upper left", fontsize=7)
+    fig.suptitle(title)
+    return fig
+
+
+def plot_fault_run(result, *, title: str | None = None):
+    """Speeds (command, motor sensor, RVDT, surface), torques, path forces, monitored quantities and flags.
+
+    ``result`` is a run of the fault loop (it has the monitor signals).
+    """
+    p = result.params
+    N = p.value("gear.ratio")
+    r = p.value("screw.lead") / (2 * math.pi * N)
+    faults = [float(s.rsplit(" at ", 1)[1].split()[0]) for s in result.info.get("faults", [])]
+    return _panels(np.asarray(result.time), lambda n: np.asarray(result[n]), r, N,
+                   title or f"{result.name}: faults {', '.join(result.info.get('faults', [])) or 'none'}", faults)
+
+
+def plot_fault_case(case, params):
+    """The figure of one :class:`FaultCase` (from 0.1 s before the fault to 0.6 s after)."""
+    N = params.value("gear.ratio")
+    r = params.value("screw.lead") / (2 * math.pi * N)
+    s = case.series
+    fig = _panels(s["time"], lambda n: np.asarray(s[n]) if n in s else np.zeros_like(s["time"]), r, N,
+                  f"{case.scenario}: {', '.join(case.faults)} at {case.fault_time_s:g} s", (case.fault_time_s,))
+    fig.axes[0].plot(s["time"], s["nut_speed_no_fault"] * 1e3, color="0.5", lw=0.8, label="nut, no fault")
+    fig.axes[0].legend(loc="upper left", fontsize=7)
+    return fig
+
+
+def plot_sweep(analysis):
+    """Detection time of each fault scenario vs threshold scale (false alarms marked); recovery vs take-over delay."""
+    pts = list(analysis.sweep)  # detection does not depend on the take-over delay: any point of the scale
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
+    names = sorted({n for p in pts for n in p.detection_s})
+    scales = sorted({p.scale for p in pts})
+    for n in names:
+        y = [next((p.detection_s.get(n, math.nan) for p in pts if p.scale == s and n in p.detection_s), math.nan)
+             for s in scales]
+        ax.semilogy(scales, [v * 1e3 if math.isfinite(v) else np.nan for v in y], "o-", label=n)
+    for s in scales:
+        if any(p.normal_trips for p in pts if p.scale == s):
+            ax.axvspan(s - 0.05, s + 0.05, color="tab:red", alpha=0.2)
+    ax.set_xlabel("thresholds x scale (red: a normal scenario trips)")
+    ax.set_ylabel("first trip after the fault [ms] (gap: missed)")
+    ax.legend(fontsize=7)
+    ax.grid(True, alpha=0.3)
+    delays = sorted({p.delay_s for p in analysis.sweep})
+    for n in sorted({n for p in analysis.sweep for n in p.recovery_s}):
+        y = [next((p.recovery_s[n] for p in analysis.sweep if p.delay_s == d and abs(p.scale - 1.0) < 1e-12
+                   and n in p.recovery_s), math.nan) for d in delays]
+        ax2.plot([d * 1e3 for d in delays], [v if math.isfinite(v) else np.nan for v in y], "o-", label=n)
+    ax2.set_xlabel("take-over delay after detection [ms] (thresholds x 1; rigid drive train)")
+    ax2.set_ylabel("recovery time [s]")
+    ax2.legend(fontsize=7)
+    ax2.grid(True, alpha=0.3)
+    return fig
+
+
+def _num(v):
+    if isinstance(v, float) and not math.isfinite(v):
+        return None if math.isnan(v) else ("inf" if v > 0 else "-inf")
+    return v
+
+
+def _case_dict(c):
+    return {"scenario": c.scenario, "faults": list(c.faults), "fault_time_s": c.fault_time_s,
+            "detection_s": {k: _num(v) for k, v in c.detection_s.items()}, "first_monitor": c.first_monitor,
+            "takeover_s": _num(c.takeover_s), "safed_s": _num(c.safed_s),
+            "peaks_after_fault": c.peaks, "peaks_before_fault": c.peaks_before,
+            "surface_displacement_m": c.surface_displacement_m, "surface_excursion_m": c.surface_excursion_m,
+            "limiter_slip_rad": c.limiter_slip_rad, "recovery_s": _num(c.recovery_s),
+            "peak_speed_error_m_s": c.peak_speed_error_m_s, "peak_position_error_m": c.peak_position_error_m,
+            "energy_residual": c.energy_residual, "final_motor_speed_rad_s": c.final_motor_speed}
+
+
+def fault_analysis_to_dict(a) -> dict:
+    """JSON-able numbers of a :class:`FaultAnalysis` (inf as ``"inf"``, nan as null)."""
+    return {
+        "format": "thsa-faults/1", "level": a.level, "effects": list(a.effects), "monitors": a.monitors.as_dict(),
+        "recovery_tolerance": a.tolerance, "recovery_smoothing_s": a.smooth_s,
+        "cases": [_case_dict(c) for c in a.cases], "rigid_drive_train_cases": [_case_dict(c) for c in a.rigid_cases],
+        "false_alarm_margins": [{"scenario": m.scenario, "monitor": m.monitor, "threshold": m.threshold,
+                                 "persisted_level": m.persisted, "margin": _num(m.margin), "tripped": m.tripped}
+                                for m in a.margins],
+        "min_margin": {m: _num(a.min_margin(m)) for m in sorted({x.monitor for x in a.margins})},
+        "sweep": [{"scale": p.scale, "takeover_delay_s": p.delay_s, "normal_trips": list(p.normal_trips),
+                   "detection_s": {k: _num(v) for k, v in p.detection_s.items()},
+                   "recovery_s": {k: _num(v) for k, v in p.recovery_s.items()}} for p in a.sweep],
+        "normal_energy_residual": a.normal_energy_residual,
+    }
+
+
+def _ms(v):
+    return "-" if not math.isfinite(v) else f"{v * 1e3:.1f}"
+
+
+def _table(head, rows):
+    out = ["<table border='1' cellspacing='0' cellpadding='3'><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>"]
+    for row in rows:
+        out.append("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in row) + "</tr>")
+    return "\n".join(out) + "</table>"
+
+
+def _case_rows(cases):
+    rows = []
+    for c in cases:
+        rows.append([c.scenario, ", ".join(c.faults), f"{c.fault_time_s:g}", _ms(c.detection_s["discrepancy"]),
+                     _ms(c.detection_s["lvdt"]), _ms(c.detection_s["speed"]), _ms(c.takeover_s), _ms(c.safed_s),
+                     f"{c.peaks['loadpath'] / 1e3:.1f}", f"{c.peaks['primary_attachment'] / 1e3:.1f}",
+                     f"{c.peaks['secondary_path'] / 1e3:.1f}", f"{c.peaks['jam'] / 1e3:.1f}",
+                     f"{c.peaks['limiter_torque']:.0f}", f"{c.limiter_slip_rad:.3f}",
+                     f"{c.surface_displacement_m * 1e3:.2f}", "-" if math.isnan(c.recovery_s) else _ms(c.recovery_s),
+                     f"{c.energy_residual * 100:.3f}"])
+    return rows
+
+
+_CASE_HEAD = ["scenario", "faults", "onset [s]", "discrepancy trip [ms]", "LVDT trip [ms]", "speed trip [ms]",
+              "take-over [ms]", "safed [ms]", "load path [kN]", "upper gimbal [kN]", "secondary [kN]", "jam [kN]",
+              "limiter [N m]", "limiter slip [rad]", "surface displacement [mm]", "recovery [ms]", "energy residual [%]"]
+
+
+def write_fault_report(analysis, params, out_dir, **folder_options) -> Path:
+    """Write ``faults.json``, ``report.html`` and the figures (PNG) to ``out_dir`` (atomically).
+
+    ``folder_options`` go to :func:`~thsa_control.report.build.atomic_folder` (``force``, ``inputs``).
+    """
+    with atomic_folder(out_dir, **folder_options) as tmp:
+        figs = []
+        for c in analysis.cases + analysis.rigid_cases:
+            fig = plot_fault_case(c, params)
+            name = f"case_{c.scenario}{'_rigid' if c in analysis.rigid_cases else ''}.png"
+            fig.savefig(tmp / name, dpi=100)
+            figs.append((name, fig, f"{c.scenario}: {', '.join(c.faults)}"))
+        if analysis.sweep:
+            fig = plot_sweep(analysis)
+            fig.savefig(tmp / "sweep.png", dpi=100)
+            figs.append(("sweep.png", fig, "monitor sweep"))
+        write_json(tmp / "faults.json", fault_analysis_to_dict(analysis))
+        m = analysis.monitors
+        parts = ["<!DOCTYPE html><html><head><meta charset='utf-8'><title>Faults and monitoring</title>",
+                 "<style>body{font-family:sans-serif;max-width:1200px;margin:auto} td,th{font-size:12px}</style></head><body>",
+                 "<h1>Faults and monitoring (model F)</h1>",
+                 f"<p>Plant: level {html.escape(analysis.level)} + {html.escape(', '.join(analysis.effects))}. "
+                 "Monitors in the closed loop at the control period. Times from the fault onset. "
+                 f"Recovery: centred {analysis.smooth_s * 1e3:.0f} ms average of the nut-speed error against the run "
+                 f"without the fault within {analysis.tolerance * 100:.0f} % of the command.</p>",
+                 "<h2>Monitor settings</h2>",
+                 _table(["setting", "value"], [[k, v] for k, v in m.as_dict().items()]),
+                 "<h2 id='table-cases'>Fault cases (fault plant)</h2>", _table(_CASE_HEAD, _case_rows(analysis.cases)),
+                 "<h2 id='table-rigid'>Channel failures on a rigid drive train (papers' comparison; recovery without averaging)</h2>",
+                 _table(_CASE_HEAD, _case_rows(analysis.rigid_cases)),
+                 "<h2 id='table-margins'>False-alarm margins on the normal scenarios</h2>",
+                 _table(["scenario", "monitor", "threshold", "level held for the confirmation time", "margin", "tripped"],
+                        [[x.scenario, x.monitor, f"{x.threshold:g}", f"{x.persisted:.4g}",
+                          "inf" if not math.isfinite(x.margin) else f"{x.margin:.2f}", x.tripped] for x in analysis.margins]),
+                 "<h2 id='table-sweep'>Sweep</h2>",
+                 _table(["scale", "take-over delay [ms]", "normal scenarios tripping", "first trip [ms]", "recovery [ms]"],
+                        [[f"{p.scale:g}", f"{p.delay_s * 1e3:g}", ", ".join(p.normal_trips) or "none",
+                          "; ".join(f"{k}: {_ms(v)}" for k, v in p.detection_s.items()),
+                          "; ".join(f"{k}: {_ms(v)}" for k, v in p.recovery_s.items())] for p in analysis.sweep])]
+        for name, fig, caption in figs:
+            data = base64.b64encode(figure_png(fig)).decode()
+            parts.append(f"<figure id='fig-{html.escape(name[:-4])}'><img alt='{html.escape(caption)}' "
+                         f"src='data:image/png;base64,{data}'><figcaption>{html.escape(caption)}</figcaption></figure>")
+            plt.close(fig)
+        parts.append("</body></html>\n")
+        (tmp / "report.html").write_text("\n".join(parts), encoding="utf-8")
+    return Path(out_dir)
