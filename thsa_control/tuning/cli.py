@@ -19,7 +19,6 @@ import sys
 from pathlib import Path
 
 from ..errors import DesignError, SolverError
-from ..loops.analysis import DEFAULT_ANALYSIS_EFFECTS
 
 __all__ = ["add_parsers", "tune_command", "check_command", "provenance"]
 
@@ -143,6 +142,8 @@ def tune_command(args) -> int:
 
     _check_requirements(requirements, "--require")
     source = replace(design, requirements=requirements)
+    from ..loops.analysis import DEFAULT_ANALYSIS_EFFECTS
+
     effects = tuple(e for v in (args.effects or DEFAULT_ANALYSIS_EFFECTS) for e in v.split(",") if e)
     settings = TuneSettings(
         temperature=args.temperature, robust_temperatures=_floats(args.robust_temperatures, "--robust-temperatures"),
@@ -203,6 +204,8 @@ def check_command(args) -> int:
     levels = tuple(v.strip().upper() for v in args.levels.split(",") if v.strip())
     temps = _floats(args.temperatures, "--temperatures")
     scen = tuple(v.strip() for v in args.scenarios.split(",")) if args.scenarios else VALIDATION_SUITE
+    from ..loops.analysis import DEFAULT_ANALYSIS_EFFECTS
+
     effects = tuple(e for v in (args.effects or DEFAULT_ANALYSIS_EFFECTS) for e in v.split(",") if e)
     report = check_design(design, params, levels=levels, temperatures=temps, scenarios=scen, effects=effects,
                           progress=lambda m: print(m, file=sys.stderr, flush=True))
