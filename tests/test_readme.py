@@ -4,7 +4,7 @@ The README's fenced blocks are parsed at collection time: each ``thsa ...``
 command (also after ``&&``, comments after ``#`` dropped) becomes one test
 case, so a command added to the README is tested without touching this file,
 and fails here if it cannot be run.  Each runs as ``python -m thsa_control.cli``
-in a fresh temporary folder holding a copy of ``designs/`` and the example rig
+in a fresh temporary folder holding a copy of ``designs/``, ``examples/`` and the example rig
 run, after two explicit steps:
 
 * :data:`PLACEHOLDERS`: the README's placeholder words (``RUN.csv``, ``DIR``,
@@ -114,6 +114,7 @@ def _env() -> dict:
 
 def _workspace(tmp: Path, identify: bool) -> None:
     shutil.copytree(ROOT / "designs", tmp / "designs")
+    shutil.copytree(ROOT / "examples", tmp / "examples")  # scenario files the README names
     for name in ("run", "run2"):
         shutil.copy(EXAMPLE.with_suffix(".json"), tmp / f"{name}.json")
         if identify:  # the first IDENTIFY_ROWS samples

@@ -553,6 +553,9 @@ def _parser() -> argparse.ArgumentParser:
 
     _add_faults(sub)
     _add_trace(sub)
+    from .tuning.cli import add_parsers as _tuning_parsers  # thsa tune, thsa check (issue #9)
+
+    _tuning_parsers(sub)
     return ap
 
 

@@ -14,6 +14,11 @@ in the units the rig uses::
     [derivation]    the loop bandwidths the gains come from (optional)
     [requirements.<loop>]  what the analysis checks (optional; <loop> is current_loop,
                     velocity_loop or position_loop; keys in REQUIREMENT_KEYS, see analysis.py)
+    [validation]    what `thsa check` asks of the nonlinear validation runs (optional; keys in
+                    VALIDATION_KEYS: max_speed_error_percent, max_overshoot_percent,
+                    max_settling_time_s, max_current_peak_A, max_current_rate_A_per_s)
+    [tuning]        provenance written by `thsa tune` (optional; kept as data, never read back
+                    as gains)
 
 Gains are derived from stated bandwidths by :func:`derive_gains`: the current
 PI cancels the stator pole (``kp = L wc``, ``ki = R wc``, a first-order closed
@@ -35,7 +40,8 @@ import numpy as np
 from ..errors import DesignError
 from ..model.params import ParameterSet
 
-__all__ = ["Design", "load_design", "parse_design", "check_control_period", "derive_gains", "reflected_inertia", "nominal_design_path"]
+__all__ = ["Design", "load_design", "parse_design", "check_control_period", "derive_gains", "reflected_inertia",
+           "nominal_design_path", "VALIDATION_KEYS"]
 
 _TABLES = {
     "current_loop": {"kp_V_per_A": True, "ki_V_per_A_s": True, "voltage_limit_V": False},
@@ -43,7 +49,7 @@ _TABLES = {
     "position_loop": {"kp_per_s": True, "max_speed_mm_s": False},
 }
 _TOP = {"name", "description", "control_period_s", "computation_delay_samples", "derivation", "requirements",
-        "switching", "analysis", *_TABLES}
+        "switching", "analysis", "validation", "tuning", *_TABLES}
 
 
 @dataclass(frozen=True)
@@ -76,6 +82,8 @@ class Design:
     description: str = ""
     derivation: dict = field(default_factory=dict)
     requirements: dict = field(default_factory=dict)
+    validation: dict = field(default_factory=dict)
+    tuning: dict = field(default_factory=dict)
     analysis: dict = field(default_factory=dict)
 
     def __post_init__(self):
@@ -136,6 +144,10 @@ class Design:
             doc["derivation"] = dict(self.derivation)
         if self.requirements:
             doc["requirements"] = dict(self.requirements)
+        if self.validation:
+            doc["validation"] = dict(self.validation)
+        if self.tuning:
+            doc["tuning"] = dict(self.tuning)
         if self.bumpless_handover:
             doc["switching"] = {"bumpless_handover": True}
         if self.analysis:
@@ -170,11 +182,12 @@ def parse_design(doc: dict, source: str = "<dict>") -> Design:
                 raise DesignError(source, f"missing {table}.{key}")
     if "control_period_s" not in doc:
         raise DesignError(source, "missing control_period_s")
-    for key in ("derivation", "requirements", "switching", "analysis"):
+    for key in ("derivation", "requirements", "switching", "analysis", "validation", "tuning"):
         if key in doc and not isinstance(doc[key], dict):
             raise DesignError(source, f"[{key}] must be a table")
     delay = doc.get("computation_delay_samples", 0)
     _check_requirements(doc.get("requirements", {}), source)
+    _check_validation(doc.get("validation", {}), source)
     switching = doc.get("switching", {})
     extra = set(switching) - {"bumpless_handover"}
     if extra:
@@ -191,6 +204,7 @@ def parse_design(doc: dict, source: str = "<dict>") -> Design:
         max_speed=max_speed_mm * 1e-3, control_period=doc["control_period_s"],
         computation_delay_samples=delay, bumpless_handover=switching.get("bumpless_handover", False), source=source,
         derivation=dict(doc.get("derivation", {})), requirements=dict(doc.get("requirements", {})),
+        validation=dict(doc.get("validation", {})), tuning=dict(doc.get("tuning", {})),
         analysis=dict(doc.get("analysis", {})),
     )
 
@@ -214,6 +228,21 @@ def _check_requirements(req: dict, source: str) -> None:
                 raise DesignError(source, f"unknown key {key!r} in [requirements.{loop}]; allowed: {list(REQUIREMENT_KEYS)}")
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
                 raise DesignError(source, f"requirements.{loop}.{key} = {value!r} must be a finite number >= 0")
+
+
+#: ``[validation]`` keys: limits on the nonlinear validation runs of ``thsa check``
+#: (``thsa_control.tuning.validation``); speed error in % as the papers define it.
+VALIDATION_KEYS = ("max_speed_error_percent", "max_overshoot_percent", "max_settling_time_s",
+                   "max_current_peak_A", "max_current_rate_A_per_s")
+
+
+def _check_validation(table: dict, source: str) -> None:
+    """Raise :class:`DesignError` naming an unknown ``[validation]`` key or a bad value."""
+    for key, value in table.items():
+        if key not in VALIDATION_KEYS:
+            raise DesignError(source, f"unknown key {key!r} in [validation]; allowed: {list(VALIDATION_KEYS)}")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+            raise DesignError(source, f"validation.{key} = {value!r} must be a finite number > 0")
 
 
 def nominal_design_path() -> Path:

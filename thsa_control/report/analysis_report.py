@@ -350,6 +350,8 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
                          "note"], rows,
         caption="Friction: the plant's set-valued friction vs motor speed around zero speed; "
                 "backlash: the load-path play (2 x backlash) in the position feedback."), open_=True))
+    from .tuning_report import tuning_section  # before/after of a tuned design (issue #9)
+    parts.append(tuning_section(d))
     notes = "; ".join(f"{k} {v:.2f} s" for k, v in result.timings.items())
     parts.append(f"<p class='note'>Computed in: {html.escape(notes)}.</p></body></html>")
     return "\n".join(parts)

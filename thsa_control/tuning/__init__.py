@@ -1,0 +1,6 @@
+"""Gain tuning against nonlinear validation runs (casadi/IPOPT) and the validation check of designs.
+
+validation.py (runs and metrics), objective.py (closed-loop cost with casadi
+gradients), robust.py (margin constraints over temperature), optimize.py
+(IPOPT multi-start), check.py (``thsa check``), cli.py (``thsa tune``/``check``).
+"""
