@@ -28,7 +28,7 @@ import numpy as np
 from ..errors import ScenarioError, ThsaError
 from ..loops.controllers import CONTROLLER_PARAMETERS, CONTROLLER_SIGNALS, CONTROLLER_STATES, REFERENCE_INPUTS, build_controller
 from ..sim._compile import compile_run_loop
-from ..sim.simulate import RUN_INPUTS, InputSeries, SimulationResult, plant_input_vector
+from ..sim.simulate import RUN_INPUTS, InputSeries, SimulationResult, output_decimation, plant_input_vector
 from .events import FAULT_INPUTS, effects_for_faults, fault_signals
 from .monitors import MONITOR_CONTEXT, MONITOR_SENSORS, MONITOR_SIGNALS, MONITOR_STATES, MONITOR_UNITS, build_monitor
 from .settings import MONITOR_PARAMETERS, MonitorSettings
@@ -141,10 +141,7 @@ def run_fault_loop(sim, scenario, design, params, *, x0=None, monitors: MonitorS
     inputs = InputSeries.from_scenario(scenario, h)
     faults = fault_signals(scenario.faults, inputs.time)
     W = np.vstack([inputs.matrix()] + [faults[n] for n in FAULT_INPUTS])
-    out_period = sim.settings.output_period if sim.settings.output_period is not None else h
-    decimation = int(round(out_period / h))
-    if decimation < 1 or abs(decimation * h - out_period) > 1e-9 * out_period:
-        raise ValueError(f"output_period {out_period:g} s is not a multiple of the control period {h:g} s")
+    out_period, decimation = output_decimation(sim.settings.output_period, h)
     k = design.controller_vector(params, accel_limit=inputs.accel_limit, jerk_limit=inputs.jerk_limit,
                                  motor_off_at_zero=inputs.motor_off_at_zero)
     p = plant.p_vector(params)

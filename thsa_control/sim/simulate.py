@@ -185,6 +185,18 @@ def plant_input_vector(plant: Plant, u_ctrl, load_force, temperature, **faults):
     return ca.vertcat(*(values.get(n, ca.SX(0.0)) for n in plant.inputs))
 
 
+def output_decimation(output_period: float | None, h: float) -> tuple[float, int]:
+    """``(output period, control periods per output sample)``; None means every control period.
+
+    Raises ``ValueError`` when the output period is not a whole multiple of ``h``.
+    """
+    out_period = output_period if output_period is not None else h
+    decimation = int(round(out_period / h))
+    if decimation < 1 or abs(decimation * h - out_period) > 1e-9 * out_period:
+        raise ValueError(f"output_period {out_period:g} s is not a multiple of the control period {h:g} s")
+    return out_period, decimation
+
+
 class Simulator:
     """Closed-loop simulator of one plant (effect set).
 
@@ -322,10 +334,7 @@ class Simulator:
             raise ScenarioError(f"run {inputs.name!r} needs effect(s) {missing}; the plant has {list(self.plant.effects)}")
         if len(inputs.time) > 1 and not np.allclose(np.diff(inputs.time), h, rtol=1e-6, atol=1e-12):
             raise ScenarioError(f"inputs {inputs.name!r} are not sampled at the control period {h:g} s")
-        out_period = self.settings.output_period if self.settings.output_period is not None else h
-        decimation = int(round(out_period / h))
-        if decimation < 1 or abs(decimation * h - out_period) > 1e-9 * out_period:
-            raise ValueError(f"output_period {out_period:g} s is not a multiple of the control period {h:g} s")
+        out_period, decimation = output_decimation(self.settings.output_period, h)
         k = design.controller_vector(params, accel_limit=inputs.accel_limit, jerk_limit=inputs.jerk_limit,
                                      motor_off_at_zero=inputs.motor_off_at_zero)
         theta = np.concatenate([self.plant.p_vector(params), k, [h]])
