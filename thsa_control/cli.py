@@ -509,7 +509,9 @@ def _parser() -> argparse.ArgumentParser:
     p = add("identify", "fit parameters to rig runs; JSON, parameter TOML and HTML report", _cmd_identify)
     p.add_argument("runs", nargs="+", help="RUN.csv files (RUN.json beside each)")
     p.add_argument("--free", required=True, help="comma-separated parameters to fit, e.g. gear.viscous_friction")
-    p.add_argument("--segment", type=float, default=0.25, help="multiple-shooting segment length [s]")
+    p.add_argument("--segment", type=float, default=0.05,
+                   help="multiple-shooting segment length [s] (default 0.05: longer segments of a low-inertia drive "
+                        "driven by the measured current drift off the data before the fit can pull them back)")
     p.add_argument("--substeps", type=int, default=4,
                    help="plant steps per sample period (default 4: at 1 kHz data, 1 step leaves a few %% bias)")
     p.add_argument("--global", dest="global_stage", action="store_true", help="differential evolution first")
