@@ -95,16 +95,24 @@ def _check_run_length(duration: float, control_period: float, what: str) -> None
                          f"more than {MAX_CONTROL_PERIODS:.0e}; use a longer control period or a shorter run")
 
 
-def _load_common(args):
+def load_params_design(args):
+    """``(params, design)`` from ``--params`` (over the embedded actuator) and ``--design`` (default nominal),
+    the design checked against the actuator; shared by every subcommand that takes them."""
     from .loops.design import load_design, nominal_design_path
     from .model.params import default_parameters, load_parameters
-    from .sim.scenarios import get_scenario
 
     params = default_parameters()
-    if args.params:
+    if getattr(args, "params", None):
         params = load_parameters(args.params, base=params)
-    design = load_design(args.design or nominal_design_path())
+    design = load_design(getattr(args, "design", None) or nominal_design_path())
     design.check_against(params)
+    return params, design
+
+
+def _load_common(args):
+    from .sim.scenarios import get_scenario
+
+    params, design = load_params_design(args)
     scenario = get_scenario(args.scenario)
     if args.temperature is not None:
         scenario = scenario.with_temperature(args.temperature)

@@ -8,7 +8,6 @@ writes the report (``report/faults.py``) and prints the key numbers.
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 from pathlib import Path
 
 __all__ = ["add_parser", "run"]
@@ -48,17 +47,15 @@ def _ms(v: float) -> str:
 
 def run(args) -> int:
     """Handler of ``thsa faults``; returns the exit status."""
-    from ..loops.design import load_design, nominal_design_path
-    from ..model.params import default_parameters, load_parameters
     from ..report.faults import write_fault_report
     from .analysis import analyse_faults
 
     from ..cli import _out_options, _preflight_out
 
     _preflight_out(args)  # refuse a foreign output folder before the long computation
-    params = load_parameters(args.params, base=default_parameters()) if args.params else default_parameters()
-    design = load_design(args.design or nominal_design_path())
-    design.check_against(params)
+    from ..cli import load_params_design
+
+    params, design = load_params_design(args)
     scales = _floats(args.scales, "scales")
     delays = tuple(d * 1e-3 for d in _floats(args.delays, "delays"))
     a = analyse_faults(design, params, scales=scales, delays_s=delays, sweep=not args.no_sweep)

@@ -31,15 +31,9 @@ def _floats(text: str, what: str) -> tuple[float, ...]:
 
 
 def _common(args):
-    from ..loops.design import load_design, nominal_design_path
-    from ..model.params import default_parameters, load_parameters
+    from ..cli import load_params_design
 
-    params = default_parameters()
-    if args.params:
-        params = load_parameters(args.params, base=params)
-    design = load_design(args.design or nominal_design_path())
-    design.check_against(params)
-    return params, design
+    return load_params_design(args)
 
 
 def provenance(result, scenarios, design_path: str, metrics_before: dict | None = None,
