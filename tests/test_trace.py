@@ -185,7 +185,7 @@ def test_cli_trace_writes_json_and_report(record, params, tmp_path, capsys):
 
 
 def _shared_example() -> Path | None:
-    base = Path(os.environ["THSA_SHARED_DIR"]) if os.environ.get("THSA_SHARED_DIR") else ROOT.parent / "shared"
+    base = Path(os.environ["THSA_SHARED_DIR"]) if os.environ.get("THSA_SHARED_DIR") else ROOT / "tests" / "data"
     p = base / "rig-data" / "examples" / "excitation_tensile_12kN.csv"
     return p if p.exists() else None
 
