@@ -1,6 +1,17 @@
-"""Hand-written torque balances, independent of the model code (shared by the tests)."""
+"""Helpers shared by the tests: hand-written torque balances (independent of the model code) and
+the plant input vector by name."""
 
 import math
+
+import numpy as np
+
+
+def plant_inputs(plant, **kw):
+    """The plant input vector, zero except the named inputs."""
+    u = np.zeros(len(plant.inputs))
+    for k, v in kw.items():
+        u[plant.index("input", k)] = v
+    return u
 
 
 def hand_current(P, level, speed_mm_s, load_N):

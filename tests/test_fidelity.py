@@ -13,14 +13,10 @@ import pytest
 from thsa_control.loops.analysis import AnalysisSettings, analyse_loops, check_requirements
 from thsa_control.loops.linear import OperatingCondition, current_driven, linearize_condition, plant_model
 from thsa_control.model import build_plant
+from thsa_control.sim.metrics import energy_residual
 from thsa_control.sim.scenarios import Scenario
 
-
-def _u(plant, **kw):
-    u = np.zeros(len(plant.inputs))
-    for k, v in kw.items():
-        u[plant.index("input", k)] = v
-    return u
+from handcalc import plant_inputs
 
 
 def _r(P):
@@ -36,7 +32,7 @@ def test_q_voltage_limit_is_what_the_dq_circle_leaves(params):
     w = 15e-3 / _r(P)
     x[plant.index("state", "motor_speed")] = w
     x[plant.index("state", "motor_current")] = 15.0
-    y = np.asarray(plant.f(x, _u(plant, voltage_primary=400.0, enable_primary=1, temperature=25),
+    y = np.asarray(plant.f(x, plant_inputs(plant, voltage_primary=400.0, enable_primary=1, temperature=25),
                            plant.p_vector(params))[1]).ravel()
     vmax = P("inverter.dc_bus_voltage") / math.sqrt(3)
     vd = P("motor.pole_pairs") * w * P("motor.inductance") * 15.0
@@ -63,13 +59,7 @@ def test_power_balance_in_all_four_quadrants(run, level):
     # losses (incl. gear and screw efficiency, no-back disks) + work on the load + stored energy
     for scenario in ("backdrive_bipolar_ramp", "unipolar_speed_bipolar_load"):
         res = run(scenario, level, output_period=None)
-        h = res.info["control_period_s"]
-        e_in = np.sum(res["electrical_power"]) * h
-        lost = np.sum(res["loss_power"]) * h
-        to_load = np.sum(res["load_power"]) * h
-        stored = res["stored_energy"][-1] - res["stored_energy"][0]
-        scale = np.sum(np.abs(res["electrical_power"])) * h
-        assert abs(e_in - lost - to_load - stored) < 5e-3 * scale, scenario
+        assert abs(energy_residual(res)) < 5e-3, scenario
 
 
 def test_gear_efficiency_applies_to_the_noback_torque(params):
@@ -144,11 +134,7 @@ def test_removing_drivetrain_compliance_gives_the_level_exactly(run):
 
 def test_energy_balance_with_drivetrain_compliance(run):
     res = run("unipolar_speed_bipolar_load", "D", ("drivetrain_compliance",), output_period=None)
-    h = res.info["control_period_s"]
-    e_in = np.sum(res["electrical_power"]) * h
-    balance = e_in - np.sum(res["loss_power"]) * h - np.sum(res["load_power"]) * h - (
-        res["stored_energy"][-1] - res["stored_energy"][0])
-    assert abs(balance) < 5e-3 * np.sum(np.abs(res["electrical_power"])) * h
+    assert abs(energy_residual(res)) < 5e-3
 
 
 def test_resonance_lowers_the_velocity_margins(design, params):
@@ -227,7 +213,7 @@ def test_noback_preload_dilates_with_temperature(params):
     k = params.value("friction.preload_temperature_coefficient")
     pre = params.value("noback.preload")
     for T in (-55.0, 25.0, 70.0):
-        y = np.asarray(plant.f(plant.initial_state(params), _u(plant, load_force=0.0, temperature=T), p)[1]).ravel()
+        y = np.asarray(plant.f(plant.initial_state(params), plant_inputs(plant, load_force=0.0, temperature=T), p)[1]).ravel()
         expected = pre * (1 + k * (params.value("friction.reference_temperature") - T))
         assert y[plant.index("output", "noback_normal_force_comp")] == pytest.approx(expected, rel=1e-12)
     assert expected < pre  # 70 degC: below the 25 degC preload

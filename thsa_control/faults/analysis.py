@@ -30,6 +30,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..sim.metrics import energy_residual  # noqa: F401 (one definition; re-exported here)
 from ..errors import ScenarioError
 from ..model import build_plant
 from ..sim.scenarios import SCENARIOS, Scenario, get_scenario
@@ -65,17 +66,6 @@ def normal_scenarios() -> tuple[Scenario, ...]:
 def fault_scenarios() -> tuple[Scenario, ...]:
     """Scenarios with scheduled faults."""
     return tuple(s for s in SCENARIOS.values() if s.faults)
-
-
-def energy_residual(result) -> float:
-    """(energy in - lost - to the load - stored change) / energy throughput [-] (needs 1-sample output)."""
-    h = result.info["output_period_s"]
-    e_in = np.sum(result["electrical_power"]) * h
-    lost = np.sum(result["loss_power"]) * h
-    to_load = np.sum(result["load_power"]) * h
-    stored = result["stored_energy"][-1] - result["stored_energy"][0]
-    scale = np.sum(np.abs(result["electrical_power"])) * h
-    return float((e_in - lost - to_load - stored) / max(scale, 1e-300))
 
 
 def persisted_peak(time, signal, duration: float) -> float:

@@ -14,7 +14,8 @@ import numpy as np
 
 from ..data.rigdata import _runs  # maximal runs of True, (start, stop exclusive)
 
-__all__ = ["Interval", "plateaus", "stops", "backdrive_metrics", "surface_speed_deviation", "BackdriveMetrics"]
+__all__ = ["Interval", "plateaus", "stops", "backdrive_metrics", "surface_speed_deviation", "BackdriveMetrics",
+           "energy_residual"]
 
 
 @dataclass(frozen=True)
@@ -134,3 +135,16 @@ def surface_speed_deviation(result, *, t0: float | None = None, t1: float | None
         if np.any(m):
             worst = max(worst, float(np.max(np.abs(vs[m] - p.command)) / abs(p.command)))
     return worst
+
+
+def energy_residual(result) -> float:
+    """Energy balance of a run: (electrical energy in - losses - work on the load - change of stored
+    energy) / electrical energy throughput [-].  Needs every control period in the result
+    (``output_period=None``); the first-order scheme closes it to O(h)."""
+    h = result.info["output_period_s"]
+    e_in = np.sum(result["electrical_power"]) * h
+    lost = np.sum(result["loss_power"]) * h
+    to_load = np.sum(result["load_power"]) * h
+    stored = result["stored_energy"][-1] - result["stored_energy"][0]
+    scale = np.sum(np.abs(result["electrical_power"])) * h
+    return float((e_in - lost - to_load - stored) / max(scale, 1e-300))
