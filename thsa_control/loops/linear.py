@@ -96,6 +96,7 @@ from linearization import (
 
 from ..errors import ModelError, SolverError
 from ..model import Plant, build_plant
+from ..model.effects import drivetrain_stiffness
 from ..model.params import ParameterSet, default_parameters
 
 __all__ = [
@@ -357,7 +358,7 @@ class PlantModel:
         line = f"level {lvl} ({eff}); {rotors}"
         if "drivetrain_compliance" in self.effects:
             P = self.params.value
-            k = 1.0 / (1.0 / P("gear.torsional_stiffness") + 1.0 / P("screw.torsional_stiffness")) / P("gear.ratio") ** 2
+            k = drivetrain_stiffness(_values(self.params))
             j_r = P("motor.rotor_inertia") * (2 if "standby_motor" in self.effects else 1)
             j_m = self.params_inertia_load()
             f = math.sqrt(k * (1 / j_r + P("gear.efficiency") / j_m)) / (2 * math.pi)  # motor driving
@@ -379,8 +380,7 @@ class PlantModel:
         iw = plant.index("state", "motor_speed")
         base = float(plant.f(x, u, p)[0][iw])
         if "drivetrain_twist" in plant.state_names:
-            k = 1.0 / (1.0 / P.value("gear.torsional_stiffness") + 1.0 / P.value("screw.torsional_stiffness"))
-            k /= P.value("gear.ratio") ** 2
+            k = drivetrain_stiffness(_values(P))
             x[plant.index("state", "drivetrain_twist")] = 1e-6
             return k * 1e-6 / (float(plant.f(x, u, p)[0][iw]) - base)
         x[plant.index("state", "motor_current")] = 1.0
@@ -393,6 +393,11 @@ DEFAULT_LEVEL = "B"
 #: The cold friction law and the standby motor, whose rotor the primary drags (the plant that exists).
 DEFAULT_EFFECTS: tuple[str, ...] = ("temperature_friction", "standby_motor")
 
+
+
+def _values(params: ParameterSet) -> dict:
+    """``name -> value`` of a parameter set (for the effect library's laws)."""
+    return {n: params.value(n) for n in params.names}
 
 def plant_model(level: str | None = DEFAULT_LEVEL, effects: Iterable[str] | None = None,
                 params: ParameterSet | None = None, *, settings: LinearizationSettings | None = None) -> PlantModel:
@@ -472,8 +477,7 @@ def plant_model(level: str | None = DEFAULT_LEVEL, effects: Iterable[str] | None
     if "drivetrain_twist" in names:
         # compliant drive train: the disturbance acts on the gear-output body; 1/J of that body from
         # its own balance (the spring torque k * twist enters it with unit gain)
-        k_dt = 1.0 / (1.0 / pp[pidx["gear.torsional_stiffness"]] + 1.0 / pp[pidx["screw.torsional_stiffness"]])
-        k_dt = k_dt / pp[pidx["gear.ratio"]] ** 2
+        k_dt = drivetrain_stiffness({n: pp[i] for n, i in pidx.items()})
         inv_j = ca.jacobian(xdot[i_w], x[names.index("drivetrain_twist")]) / k_dt
     else:
         inv_j = ca.jacobian(xdot[i_w], x[i_i]) / kt  # 1/J from the plant's own speed balance
@@ -543,10 +547,8 @@ def _spec(model: PlantModel, c: OperatingCondition) -> OperatingPointSpec:
     i_guess = c.load_force * r / kt
     guess_x = {i_active: i_guess}
     if "rotor_speed" in named.states:
-        p_ = model.params
-        k_dt = 1.0 / (1.0 / p_.value("gear.torsional_stiffness") + 1.0 / p_.value("screw.torsional_stiffness"))
         guess_x["rotor_speed"] = w
-        guess_x["drivetrain_twist"] = kt * i_guess / (k_dt / p_.value("gear.ratio") ** 2)
+        guess_x["drivetrain_twist"] = kt * i_guess / drivetrain_stiffness(_values(model.params))
     # The speed is held as a state, not solved for through the output nut_speed: the
     # solver then never steps across w = 0, where the friction of the continuous form jumps.
     states = {"nut_position": 0.0, "motor_speed": w}

@@ -76,6 +76,7 @@ import casadi as ca
 from .structure import Assembly, FrictionChannel, StateInfo, kinematic_ratio, motor_lag, torque_constant
 
 __all__ = ["Effect", "EFFECTS", "EFFECT_ORDER", "stribeck", "temperature_drag_terms", "loadpath_force_law",
+           "drivetrain_stiffness",
            "loadpath_static_deflection"]
 
 
@@ -291,15 +292,23 @@ def _noback_ideal(a: Assembly) -> None:
     a.output("noback_torque", "N m", lambda res: res.channel["noback_ideal"] * a.p["gear.ratio"])
 
 
-def _drivetrain_compliance(a: Assembly) -> None:
-    # Paper 000, Figure 6: gearbox stiffness k_g and damping d_g between the
-    # motor rotors and the gear output; the screw's torsional compliance in
-    # series (no inertia between them: the screw inertia sits at the nut end
-    # with the no-back).  Referred to the motor shaft: k / N^2, d / N^2.
-    x, p = a.x, a.p
-    N2 = p["gear.ratio"] ** 2
+def drivetrain_stiffness(p) -> object:
+    """Torsional stiffness of the drive train at the motor shaft [N m/rad] (``drivetrain_compliance``).
+
+    Paper 000, Figure 6: the gearbox stiffness k_g in series with the screw's
+    torsional stiffness (no inertia between them: the screw inertia sits at
+    the nut end with the no-back), referred to the motor shaft by ``1/N^2``.
+    ``p`` maps parameter names to values (numbers or casadi expressions).
+    """
     k_eq = 1.0 / (1.0 / p["gear.torsional_stiffness"] + 1.0 / p["screw.torsional_stiffness"])
-    k, d = k_eq / N2, p["gear.torsional_damping"] / N2
+    return k_eq / p["gear.ratio"] ** 2
+
+
+def _drivetrain_compliance(a: Assembly) -> None:
+    # Paper 000, Figure 6: the spring of drivetrain_stiffness and the gearbox
+    # damping d_g between the motor rotors and the gear output, at the motor shaft.
+    x, p = a.x, a.p
+    k, d = drivetrain_stiffness(p), p["gear.torsional_damping"] / p["gear.ratio"] ** 2
     twist = x["drivetrain_twist"]
 
     def coupling(wr, w):
