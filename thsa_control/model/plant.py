@@ -31,7 +31,7 @@ from .params import ParameterSet, default_parameters
 from .effects import EFFECT_ORDER, EFFECTS
 from .levels import resolve_effects
 from .structure import (
-    INPUTS, STRUCTURE_STATES, Assembly, FrictionResolution, StateInfo, apply_structure, finish_structure,
+    INPUTS, STRUCTURE_STATES, Assembly, FrictionResolution, StateInfo, apply_structure, finish_structure, sum_terms,
 )
 
 __all__ = ["Plant", "build_plant"]
@@ -118,13 +118,6 @@ class Plant:
                         outputs=list(self.outputs), name=name)
 
 
-def _sum(terms, zero=0.0):
-    total = zero
-    for t in terms:
-        total = total + t
-    return total
-
-
 def _evaluate(value, res):
     return value(res) if callable(value) else value
 
@@ -183,8 +176,8 @@ def build_plant(level: str | None = "A", effects: Iterable[str] = (), *, remove:
     finish_structure(a)
 
     w = x["motor_speed"]
-    J = _sum(a.inertia)
-    t_smooth = _sum(expr for _, expr in a.torques)
+    J = sum_terms(a.inertia)
+    t_smooth = sum_terms(expr for _, expr in a.torques)
     channels = a.channels
 
     def outputs(res: FrictionResolution):
@@ -196,9 +189,9 @@ def build_plant(level: str | None = "A", effects: Iterable[str] = (), *, remove:
         extra = {
             "friction_torque": ("N m", res.total),
             "stuck": ("-", res.stuck),
-            "loss_power": ("W", _sum(_evaluate(v, res) for v in a.losses.values())),
-            "stored_energy": ("J", _sum(a.stored_energy.values())),
-            "electrical_power": ("W", 1.5 * _sum(
+            "loss_power": ("W", sum_terms(_evaluate(v, res) for v in a.losses.values())),
+            "stored_energy": ("J", sum_terms(a.stored_energy.values())),
+            "electrical_power": ("W", 1.5 * sum_terms(
                 _evaluate(a.outputs[v][1], res) * x[c]
                 for v, c in (("motor_voltage", "motor_current"), ("standby_voltage", "standby_current")) if c in x)),
             "load_power": ("W", u["load_force"] * _evaluate(a.outputs["surface_speed"][1], res)),
@@ -211,7 +204,7 @@ def build_plant(level: str | None = "A", effects: Iterable[str] = (), *, remove:
 
     # ---- continuous form
     cont = {c.name: ca.if_else(w > 0, c.kinetic_pos, ca.if_else(w < 0, -c.kinetic_neg, 0.0)) for c in channels}
-    res_c = FrictionResolution(cont, _sum(cont.values()), ca.SX(0.0), w)
+    res_c = FrictionResolution(cont, sum_terms(cont.values()), ca.SX(0.0), w)
     xdot = []
     for s in states:
         if s.kind == "lag":
@@ -226,10 +219,10 @@ def build_plant(level: str | None = "A", effects: Iterable[str] = (), *, remove:
 
     # ---- discrete form
     h = ca.SX.sym("h")
-    s_pos = _sum(c.static_pos for c in channels)
-    s_neg = _sum(c.static_neg for c in channels)
-    k_pos = _sum(ca.fmin(c.kinetic_pos, c.static_pos) for c in channels)
-    k_neg = _sum(ca.fmin(c.kinetic_neg, c.static_neg) for c in channels)
+    s_pos = sum_terms(c.static_pos for c in channels)
+    s_neg = sum_terms(c.static_neg for c in channels)
+    k_pos = sum_terms(ca.fmin(c.kinetic_pos, c.static_pos) for c in channels)
+    k_neg = sum_terms(ca.fmin(c.kinetic_neg, c.static_neg) for c in channels)
     momentum = J * w + h * t_smooth
     t_stick = momentum / h
     slip_pos = t_stick > s_pos

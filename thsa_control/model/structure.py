@@ -296,8 +296,8 @@ def finish_structure(a: Assembly) -> None:
 
     a.loss("efficiency", efficiency_loss)
 
-    motor_torque = _sum_exprs(expr for label, expr in a.rotor_torques if label.startswith("motor_"))
-    rotor_drag = _sum_exprs(expr for label, expr in a.rotor_torques if not label.startswith("motor_"))
+    motor_torque = sum_terms(expr for label, expr in a.rotor_torques if label.startswith("motor_"))
+    rotor_drag = sum_terms(expr for label, expr in a.rotor_torques if not label.startswith("motor_"))
     eta_g = p["gear.efficiency"]
     c_drive, c_back = 1.0 - eta_g, (1.0 - eta_g) / eta_g
 
@@ -318,11 +318,11 @@ def finish_structure(a: Assembly) -> None:
         # At standstill (stick) dw/dt = 0 and T_g = T_m + D_r.
         a.inertia += a.rotor_inertia
         a.torques += a.rotor_torques
-        j_total = _sum_exprs(a.inertia)
-        rho = _sum_exprs(a.rotor_inertia) / j_total
-        t_smooth = _sum_exprs(expr for _, expr in a.torques)
-        f_pos = _sum_exprs(c.kinetic_pos for c in a.channels)
-        f_neg = _sum_exprs(c.kinetic_neg for c in a.channels)
+        j_total = sum_terms(a.inertia)
+        rho = sum_terms(a.rotor_inertia) / j_total
+        t_smooth = sum_terms(expr for _, expr in a.torques)
+        f_pos = sum_terms(c.kinetic_pos for c in a.channels)
+        f_neg = sum_terms(c.kinetic_neg for c in a.channels)
 
         def loss_moving(s, a_s):
             drive = s * a_s > 0
@@ -341,7 +341,7 @@ def finish_structure(a: Assembly) -> None:
     else:
         wr = a.rotor_speed
         coupling = a.coupling(wr, w)
-        j_rotor = _sum_exprs(a.rotor_inertia)
+        j_rotor = sum_terms(a.rotor_inertia)
         a.rates["rotor_speed"] = (motor_torque + rotor_drag - coupling) / j_rotor
         a.torques.append(("drivetrain", coupling))
         gear_torque = coupling
@@ -349,7 +349,7 @@ def finish_structure(a: Assembly) -> None:
         g_pos = ca.if_else(gear_torque > 0, c_drive, c_back) * mag
         g_neg = ca.if_else(gear_torque < 0, c_drive, c_back) * mag
         a.channels.append(FrictionChannel("gear_efficiency", g_pos, g_neg, g_pos, g_neg))
-        a.stored_energy["kinetic_main"] = 0.5 * _sum_exprs(a.inertia) * w**2
+        a.stored_energy["kinetic_main"] = 0.5 * sum_terms(a.inertia) * w**2
         a.stored_energy["kinetic_rotors"] = 0.5 * j_rotor * wr**2
     a.loss("gear_efficiency", lambda res: res.channel["gear_efficiency"] * res.speed)
 
@@ -372,7 +372,8 @@ def _limiter_static_torque(p: dict):
     return limiter_slip_torques(p)[0]
 
 
-def _sum_exprs(terms):
+def sum_terms(terms):
+    """Sum of casadi terms, SX zero when there are none (used here and by ``plant.py``)."""
     total = ca.SX(0.0)
     for t in terms:
         total = total + t
