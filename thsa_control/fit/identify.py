@@ -57,6 +57,7 @@ from .replay import (
     sample_periods,
 )
 from ..data.rigdata import RigRun
+from .segment_states import drivetrain_segment_guess
 
 __all__ = ["IdentificationSettings", "ParameterEstimate", "IdentificationResult", "Identifier", "estimate_noise"]
 
@@ -592,6 +593,9 @@ class _RunProblem:
                     X[i_nut, m] = nut + deflection
                 else:
                     X[i_nut, m] = nut
+        # a compliant drive train: rotors from the motor sensor, gear output from the screw sensor, twist quasi-static
+        drivetrain_segment_guess(plant, params, self.time, run.signals, run.source_columns, run.gear_ratio, starts, X,
+                                 self._measured_at)
         return X
 
     def _measured_at(self, name: str, k: int) -> float | None:

@@ -102,6 +102,9 @@ CANDIDATES: dict[str, CandidateSpec] = {c.name: c for c in (
                   {}, "loaded", "nut_position"),
     CandidateSpec("temperature_friction", ("friction.cold_coulomb_torque", "friction.viscous_temperature_coefficient"),
                   {}, "cold"),
+    # only the series stiffness is identifiable: the gearbox's is freed, the screw's held at its file value
+    CandidateSpec("drivetrain_compliance", ("gear.torsional_stiffness", "gear.torsional_damping"), {}, "all",
+                  "screw_speed"),
 )}
 #: Effects that are configurations, not candidates.
 NOT_CANDIDATES = ("standby_motor", "noback_ideal")
@@ -381,7 +384,8 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, effects,
     u[plant.index("input", "temperature")] = 25.0
     p = plant.p_vector(params)
     xs = ca.SX.sym("x", len(x))
-    k = plant.index("state", "motor_speed")
+    # the state the motor-speed sensor reads (the rotors' own body with drivetrain_compliance)
+    k = plant.index("state", "rotor_speed" if "rotor_speed" in plant.state_names else "motor_speed")
     dwdi = float(np.asarray(ca.Function("j", [xs], [ca.jacobian(plant.f(xs, u, p)[0][k], xs)])(x)).ravel()[0])
     kt = 1.5 * params.value("motor.pole_pairs") * params.value("motor.flux_linkage")
     inertia = kt / dwdi
