@@ -34,7 +34,7 @@ from ..model.plant import Plant
 __all__ = ["drivetrain_segment_guess"]
 
 #: Half-width of the window of the rotor-speed slope [samples].
-SLOPE_HALF_WIDTH = 5
+SLOPE_HALF_WIDTH = 2
 
 
 def _rotor_rate_sensitivities(plant: Plant, params: ParameterSet) -> tuple[float, float]:

@@ -102,9 +102,8 @@ CANDIDATES: dict[str, CandidateSpec] = {c.name: c for c in (
                   {}, "loaded", "nut_position"),
     CandidateSpec("temperature_friction", ("friction.cold_coulomb_torque", "friction.viscous_temperature_coefficient"),
                   {}, "cold"),
-    # only the series stiffness is identifiable: the gearbox's is freed, the screw's held at its file value
-    CandidateSpec("drivetrain_compliance", ("gear.torsional_stiffness", "gear.torsional_damping"), {}, "all",
-                  "screw_speed"),
+    # only the series stiffness is identifiable: the gearbox's is freed, the screw's and the damping held
+    CandidateSpec("drivetrain_compliance", ("gear.torsional_stiffness",), {}, "all", "screw_speed"),
 )}
 #: Effects that are configurations, not candidates.
 NOT_CANDIDATES = ("standby_motor", "noback_ideal")
