@@ -23,7 +23,8 @@
 
    a candidate is significant when its held-out drop exceeds both the
    ``chi2(k)`` quantile at ``alpha`` and ``null_factor`` times its null drop,
-   its window error falls by ``min_window_reduction``, and it is plausible;
+   its window error falls by ``min_window_reduction``, no measured channel's
+   window error grows by more than ``max_channel_increase``, and it is plausible;
 3. keeps the most significant candidate, makes it part of the model and
    repeats (forward selection) until none is significant;
 4. describes the remaining residual (:mod:`thsa_control.trace.signature`)
@@ -135,6 +136,12 @@ class TraceSettings:
         The held-out drop must exceed this many times the drop on the null run.
     min_window_reduction : float
         Required relative drop of the held-out RMS inside the candidate's window.
+    max_channel_increase : float
+        A candidate that makes any measured channel's held-out RMS inside its
+        window grow by more than this fraction is refused (the right effect
+        does not trade one sensor against another: a lagging motor-speed
+        sensor fitted as a compliant drive train made the screw-speed error
+        five times larger).
     max_effects : int
         Forward selection stops after this many effects.
     workers : int
@@ -156,6 +163,7 @@ class TraceSettings:
     alpha: float = 1e-3
     null_factor: float = 3.0
     min_window_reduction: float = 0.05
+    max_channel_increase: float = 0.1
     max_effects: int = 3
     workers: int = 2
     seed: int = 0
@@ -590,6 +598,10 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             rms_b, rms_c = _rms_by_channel(current), _rms_by_channel(f)
             err_red = {c: (1 - rms_c[c] / rms_b[c]) if rms_b[c] > 0 else 0.0 for c in rms_c}
             plausible, why = _plausibility(f, spec)
+            for c, v in win_red.items():
+                if v < -st.max_channel_increase:
+                    plausible = False
+                    why.append(f"{c} error grows by {-v:.0%}")
             prelim = drop > thr and max(win_red.values(), default=0.0) >= st.min_window_reduction and plausible
             scored.append({
                 "name": spec.name, "score": drop / max(sum(base_hold.values()), 1e-300), "holdout_chi2_drop": drop,
