@@ -23,8 +23,9 @@
 
    a candidate is significant when its held-out drop exceeds both the
    ``chi2(k)`` quantile at ``alpha`` and ``null_factor`` times its null drop,
-   its window error falls by ``min_window_reduction``, no measured channel's
-   window error grows by more than ``max_channel_increase``, and it is plausible;
+   its window error falls by ``min_window_reduction``, the window error of its
+   own channel (``CandidateSpec.channel``, where measured) does not grow by
+   more than ``max_channel_increase``, and it is plausible;
 3. keeps the most significant candidate, makes it part of the model and
    repeats (forward selection) until none is significant;
 4. describes the remaining residual (:mod:`thsa_control.trace.signature`)
@@ -141,11 +142,13 @@ class TraceSettings:
     min_window_reduction : float
         Required relative drop of the held-out RMS inside the candidate's window.
     max_channel_increase : float
-        A candidate that makes any measured channel's held-out RMS inside its
-        window grow by more than this fraction is refused (the right effect
-        does not trade one sensor against another: a lagging motor-speed
-        sensor fitted as a compliant drive train made the screw-speed error
-        five times larger).
+        A candidate that makes the held-out RMS of its own channel (where it
+        shows, :attr:`CandidateSpec.channel`) inside its window grow by more
+        than this fraction is refused, whatever it buys on the others (a
+        lagging motor-speed sensor fitted as a compliant drive train made the
+        screw-speed error five times larger).  Other channels may trade: a
+        cogging fit aligns its angle through the segments' nut positions and
+        doubles the LVDT's small error.
     max_effects : int
         Forward selection stops after this many effects.
     workers : int
@@ -602,10 +605,9 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             rms_b, rms_c = _rms_by_channel(current), _rms_by_channel(f)
             err_red = {c: (1 - rms_c[c] / rms_b[c]) if rms_b[c] > 0 else 0.0 for c in rms_c}
             plausible, why = _plausibility(f, spec)
-            for c, v in win_red.items():
-                if v < -st.max_channel_increase:
-                    plausible = False
-                    why.append(f"{c} error grows by {-v:.0%}")
+            if win_red.get(spec.channel, 0.0) < -st.max_channel_increase:
+                plausible = False
+                why.append(f"{spec.channel} error grows by {-win_red[spec.channel]:.0%}")
             prelim = drop > thr and max(win_red.values(), default=0.0) >= st.min_window_reduction and plausible
             scored.append({
                 "name": spec.name, "score": drop / max(sum(base_hold.values()), 1e-300), "holdout_chi2_drop": drop,
