@@ -554,6 +554,13 @@ class _RunProblem:
         self.f_res = ca.Function("res", [dec, P, scale, sig], [r])
         self.f_jac = ca.Function("res_jac", [dec, P, scale, sig], [r, ca.jacobian(r, dec)])
         self.f_pred = ca.Function("pred", [dec, P, scale], [Y])
+        # every state (at each sample's start) and every output of the same segment predictions, for the
+        # segmented open-loop residual (thsa_control.fit.segmented); not differentiated
+        step_all = ca.Function("step_all", [x, v, p, h], [xn, y])
+        Xs, Ys = step_all.mapaccum("segment_all", L)(xs0, Vs, ps, Hs)
+        seg_all = ca.Function("seg_all", [xs0, Vs, ps, Hs], [ca.horzcat(xs0, Xs[:, :L - 1]), Ys])
+        Xall, Yall = seg_all.map("segments_all", "serial", M, [2], [])(X0full, ca.DM(V), pv, ca.DM(H).T)
+        self.f_pred_all = ca.Function("pred_all", [dec, P, scale], [Xall, Yall])
 
     def _initial_states(self, params: ParameterSet, L: int, M: int) -> np.ndarray:
         """Segment initial states: measured where measured, else from a closed-loop replay or rest."""

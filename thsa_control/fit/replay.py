@@ -118,7 +118,8 @@ class ChannelFit:
                 for k, v in self.__dict__.items()}
 
 
-_UNITS = {"motor_speed": "rad/s", "motor_current": "A", "nut_position": "m", "screw_speed": "rad/s"}
+_UNITS = {"motor_speed": "rad/s", "motor_current": "A", "nut_position": "m", "screw_speed": "rad/s",
+          "missing_torque": "N m"}
 
 
 def channel_fit(channel: str, measured, simulated, unit: str | None = None) -> ChannelFit:
@@ -616,6 +617,9 @@ def residual_signals(run: RigRun, result: ReplayResult) -> tuple[dict, dict]:
 
     Conditioning (FORMAT.md signs): nut speed command [m/s], load [N],
     quadrant (opposing / aiding / unloaded, from the command and the load),
+    direction of motion (sign of the measured motor speed, else of ratio x
+    screw speed, else of the command; stopped within 5 % of its peak: a
+    friction shows as residual means of opposite signs),
     temperature [degC], nut position [m] and motor electrical angle [rad]
     (as simulated: they are not noisy), time to the nearest direction
     reversal [s], motors on/off [0/1].  Inputs: load force, speed command,
@@ -633,8 +637,14 @@ def residual_signals(run: RigRun, result: ReplayResult) -> tuple[dict, dict]:
     sim = result.simulated
     deadband = 0.05 * float(np.max(np.abs(cmd))) if cmd.size and np.any(cmd) else 0.0
     pole_pairs = result.params.value("motor.pole_pairs")
+    meas = result.measured
+    speed = (np.asarray(meas["motor_speed"], float) if "motor_speed" in meas else
+             np.asarray(meas["screw_speed"], float) * run.gear_ratio if "screw_speed" in meas else cmd)
+    speed = np.nan_to_num(speed)
+    moving = 0.05 * float(np.max(np.abs(speed))) if speed.size else 0.0
     conditioning = {
         "speed_cmd": cmd, "load_force": load,
+        "direction": np.where(np.abs(speed) > moving, np.sign(speed), 0.0),
         "quadrant": quadrant(cmd, load, (deadband, 0.02 * float(np.max(np.abs(load))) if np.any(load) else 0.0)),
         "temperature": np.asarray(s["temperature"], float), "nut_position": np.asarray(sim["nut_position"], float),
         "motor_angle": wrapped_angle(t, sim["motor_speed"], periods_per_revolution=pole_pairs),
@@ -654,5 +664,6 @@ def analyse_replay(run: RigRun, result: ReplayResult, settings=None):
     conditioning, inputs = residual_signals(run, result)
     channels = list(result.fits)
     return analyse_residuals(result.time, {c: result.measured[c] for c in channels},
-                             {c: result.compared.get(c, result.simulated[c]) for c in channels}, conditioning, inputs, settings=settings,
+                             {c: result.compared[c] if c in result.compared else result.simulated[c] for c in channels},
+                             conditioning, inputs, settings=settings,
                              units={c: _UNITS.get(c, "") for c in channels})
