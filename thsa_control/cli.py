@@ -10,7 +10,8 @@ Commands::
     thsa check-data RUN.csv
     thsa identify  RUN.csv [RUN2.csv ...] --model B --free PARAM,... [--effects E ...] [--params FILE] --out DIR
     thsa trace     RUN.csv [RUN2.csv ...] --model A [--effects E ...] [--params FILE ...] --out DIR
-    thsa residual  RUN.csv --model A [--mode closed_loop|open_loop] [--effects E ...] [--params FILE] --out DIR
+    thsa residual  RUN.csv --model A [--mode closed_loop|open_loop] [--segment S|whole] [--effects E ...]
+                   [--remove E ...] [--params FILE] --out DIR
     thsa report    --design designs/nominal.toml --out DIR [--level B] [--effects E ...] [--params FILE]
                    [--no-switching] [--check]
     thsa linearize --level A --speed 5 --load 20000 --temperature -30 [--effects E ...] [--active standby]
@@ -358,18 +359,26 @@ def _cmd_identify(args) -> int:
 
 
 def _cmd_residual(args) -> int:
-    from .fit.replay import analyse_replay, replay
+    from .fit.replay import analyse_replay
     from .fit.residuals import format_residual_report
+    from .fit.segmented import parse_segment, replay_for_residual
+    from .model import build_plant
     from .report import atomic_folder
     from .report.identification import write_residual_folder
 
+    segment = parse_segment(args.segment)
     _preflight_out(args, _run_inputs([args.run]))
     progress = _progress(args, "thsa residual")
     params = _load_params(args)
     progress.phase("reading the run")
     run, = _read_runs([args.run], args.column_map, params)
+    mode = _replay_mode(run, args.mode)
+    if args.segment is not None and mode != "open_loop":
+        raise UsageError(f"--segment {args.segment}: segments apply to the open-loop replay (--mode open_loop); "
+                         f"run {run.name!r} replays in closed loop under its controller")
+    plant = build_plant(args.model, _effects_arg(args.effects), remove=_effects_arg(args.remove), params=params)
     progress.phase(f"replaying {run.name} through level {args.model}")
-    result = replay(run, args.model, _effects_arg(args.effects), params=params, mode=_replay_mode(run, args.mode))
+    result = replay_for_residual(run, plant, params, mode, segment_duration=segment)
     progress.phase("residual analysis")
     analysis = analyse_replay(run, result)
     progress.phase("writing the report")
@@ -532,6 +541,11 @@ def _parser() -> argparse.ArgumentParser:
     model_args(p)
     p = add("residual", "replay a run through a model; residual analysis JSON and HTML report", _cmd_residual)
     p.add_argument("run", help="RUN.csv (RUN.json beside it)")
+    p.add_argument("--segment", help="open loop: restart the mechanics from the measured state every SEGMENT "
+                   "seconds (default 0.05), so each residual is a one-segment prediction error and does not "
+                   "drift; 'whole' (or 0): one replay over the whole run")
+    p.add_argument("--remove", nargs="*", help="effects removed from the level (a plain screw drive: --model A "
+                   "--remove noback_ideal)")
     model_args(p)
     p = add("report", "loop analysis of a design over speed, load and temperature: HTML + JSON", _cmd_report)
     p.add_argument("--design", help="design TOML (default designs/nominal.toml)")

@@ -584,7 +584,8 @@ def replay_open_loop(run: RigRun, plant: Plant, params: ParameterSet, *, setting
     measured = _measured(run)
     compared = compared_signals(run, simulated, [c for c in measured if c != "motor_current"])
     fits = {c: channel_fit(c, measured[c], compared[c]) for c in compared}
-    info = {"wall_s": wall, "substeps": settings.substeps}
+    info = {"wall_s": wall, "substeps": settings.substeps, "open_loop_replay": "whole_run", "segment_s": None,
+            "segments": 1}
     return ReplayResult(run.name, "open_loop", np.asarray(run.time, float), MappingProxyType(simulated),
                         MappingProxyType(measured), plant.effects, params, MappingProxyType(fits), info,
                         MappingProxyType(compared))

@@ -55,7 +55,7 @@ from ..model.plant import Plant
 from .replay import ReplayResult, channel_fit, check_run_model, compared_signals, current_driven_map
 
 __all__ = ["DEFAULT_SEGMENT", "WHOLE_RUN", "parse_segment", "check_segment", "replay_segmented",
-           "MISSING_TORQUE"]
+           "replay_for_residual", "MISSING_TORQUE"]
 
 #: Default segment length [s]: the tracer's and the identification command's multiple-shooting segments.
 DEFAULT_SEGMENT = 0.05
@@ -196,7 +196,7 @@ def replay_segmented(run: RigRun, plant: Plant, params: ParameterSet, *, segment
     compared = compared_signals(run, simulated, [c for c in measured if c != "motor_current"])
     starts = np.arange(pb.M) * pb.L
     starts = starts[starts < n]
-    info = {"open_loop_replay": "segmented", "segment_s": float(pb.L * np.median(np.diff(t))),
+    info = {"open_loop_replay": "segmented", "segment_s": round(float(pb.L * np.median(np.diff(t))), 9),
             "segments": int(starts.size), "segment_starts_s": t[starts].tolist(), "substeps": substeps}
 
     # inverse model: the torque the measured motion needs minus the torque the measured current gives
@@ -231,3 +231,29 @@ def replay_segmented(run: RigRun, plant: Plant, params: ParameterSet, *, segment
     info["wall_s"] = _time.perf_counter() - t0
     return ReplayResult(run.name, "open_loop", t, MappingProxyType(simulated), MappingProxyType(measured),
                         plant.effects, params, MappingProxyType(fits), info, MappingProxyType(compared))
+
+
+def replay_for_residual(run: RigRun, plant: Plant, params: ParameterSet, mode: str, *,
+                        segment_duration: float | None = DEFAULT_SEGMENT) -> ReplayResult:
+    """The replay ``thsa residual`` analyses.
+
+    ``mode = "closed_loop"``: under the run's controller
+    (:func:`~thsa_control.fit.replay.replay_closed_loop`).  ``"open_loop"``:
+    segmented (:func:`replay_segmented`) unless ``segment_duration`` is None,
+    then the whole-run replay (:func:`~thsa_control.fit.replay.replay_open_loop`),
+    whose ``info`` says ``open_loop_replay = "whole_run"``.
+
+    Raises
+    ------
+    UsageError
+        Unknown mode, or a bad segment (see :func:`check_segment`).
+    """
+    from .replay import replay_closed_loop, replay_open_loop
+
+    if mode == "closed_loop":
+        return replay_closed_loop(run, plant, params)
+    if mode != "open_loop":
+        raise UsageError(f"replay mode {mode!r}: expected 'closed_loop' or 'open_loop'")
+    if segment_duration is None:
+        return replay_open_loop(run, plant, params)
+    return replay_segmented(run, plant, params, segment_duration=segment_duration)
