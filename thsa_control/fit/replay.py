@@ -19,6 +19,9 @@ Two replays of one :class:`~thsa_control.data.rigdata.RigRun`:
   (:func:`current_driven_map`), so the motor torque is ``Kt i_measured`` and
   neither the controller nor the electrics take part.  The same map, mapped
   over segments, is what :mod:`thsa_control.fit.identify` differentiates.
+  On a drive whose position integrates, this whole-run replay drifts:
+  :mod:`thsa_control.fit.segmented` restarts it from the measured state
+  every segment (what ``thsa residual --mode open_loop`` uses by default).
 
 Both return a :class:`ReplayResult` with simulated and measured signals at the
 run's sample times (SI, FORMAT.md signs) and the fit statistics of

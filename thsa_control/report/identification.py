@@ -167,6 +167,14 @@ def _fits(replay_result) -> dict:
 def write_residual_folder(folder: str | Path, replay_result, analysis, *, title: str | None = None) -> dict:
     """``residuals.json``, ``report.html`` (overlay, residual figures, residual report) in ``folder``.
 
+    ``residuals.json``: ``run``, ``mode`` (``closed_loop`` / ``open_loop``),
+    ``effects``, ``fits`` (per channel: RMS, NRMSE, fit %), ``residuals``
+    (:meth:`ResidualAnalysis.summary`), and for an open-loop replay
+    ``open_loop_replay`` (``segmented``: restarted from the measured state
+    every ``segment_s`` seconds, ``segments`` of them, with the inverse-model
+    channel ``missing_torque`` [N m] and ``reflected_inertia_median``
+    [kg m^2]; ``whole_run``: one replay, ``segment_s`` null).
+
     Returns the JSON content.
     """
     from ..fit.residuals import format_residual_report
