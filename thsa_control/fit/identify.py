@@ -41,7 +41,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace as dc_replace
 from pathlib import Path
 from types import MappingProxyType
 
@@ -329,7 +329,7 @@ class IdentificationResult:
             src = source or (f"identified: {self.method} on {', '.join(self.runs)}; "
                              f"stderr {e.stderr:.3g} {old.unit}" if math.isfinite(e.stderr) else
                              f"identified: {self.method} on {', '.join(self.runs)}; stderr undetermined")
-            new[n] = Parameter(n, e.value, old.unit, src, old.min, old.max, old.vary, old.description)
+            new[n] = dc_replace(old, value=e.value, source=src)  # keeps the search and physical bounds
         return self.params.replace_parameters(new)
 
     def parameters_toml(self) -> str:
@@ -684,8 +684,6 @@ class Identifier:
 
     def _with_search_bounds(self) -> ParameterSet:
         """``self.params`` with this fit's search bounds (``bounds``), checked against the physical ones."""
-        from dataclasses import replace as dc_replace
-
         new = {}
         for n, b in self.bounds.items():
             if n not in self.params:
