@@ -278,8 +278,11 @@ def _read_runs(paths, column_map, params):
     from .data.rigdata import read_run
     from .loops.design import check_control_period
 
+    from .fit.kinematics import run_kinematics
+
     mapping = _column_map(column_map)
-    runs = [read_run(p, column_map=mapping) for p in paths]
+    kin = (params.value("screw.lead") * 1e3, params.value("gear.ratio"))  # where a run states none
+    runs = [run_kinematics(read_run(p, column_map=mapping, default_kinematics=kin), params) for p in paths]
     for run in runs:
         if run.controller is not None:
             # the JSON's controller against the plant: a 1 s period would "replay" a nonsense loop

@@ -90,8 +90,12 @@ def _reject_constant(name: str):
     raise ValueError(f"{name} is not valid JSON")
 
 
-def _check_metadata(meta: dict, where: str, has_temperature_column: bool, problems: list):
-    """Validate the JSON object; return (controller, motor_disabled, lead_mm, ratio)."""
+def _check_metadata(meta: dict, where: str, has_temperature_column: bool, problems: list,
+                    default_kinematics: tuple[float, float] | None = None):
+    """Validate the JSON object; return (controller, motor_disabled, lead_mm, ratio).
+
+    ``lead_mm, ratio`` are the ``rig`` block's, else ``default_kinematics``, else FORMAT.md's seed values.
+    """
     def bad(key: str, message: str) -> None:
         problems.append((f"{where}:{key}", None, message))
 
@@ -121,7 +125,7 @@ def _check_metadata(meta: dict, where: str, has_temperature_column: bool, proble
     if not isinstance(disabled, bool):
         bad("motor_disabled_when_cmd_zero", f"must be true or false, got {disabled!r}")
         disabled = False
-    lead_mm, ratio = DEFAULT_SCREW_LEAD_MM, DEFAULT_GEAR_RATIO
+    lead_mm, ratio = default_kinematics or (DEFAULT_SCREW_LEAD_MM, DEFAULT_GEAR_RATIO)
     rig = meta.get("rig")
     if rig is not None and not isinstance(rig, dict):
         bad("rig", "must be an object")

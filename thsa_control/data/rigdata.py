@@ -193,7 +193,8 @@ def _map_header(header: list[str], column_map: Mapping[str, str], problems: list
 
 
 def read_run(csv_path: str | os.PathLike, *, column_map: Mapping[str, str] | None = None,
-             json_path: str | os.PathLike | None = None) -> RigRun:
+             json_path: str | os.PathLike | None = None,
+             default_kinematics: tuple[float, float] | None = None) -> RigRun:
     """Read and validate one ``thsa-rig-run/1`` run.
 
     Parameters
@@ -206,6 +207,11 @@ def read_run(csv_path: str | os.PathLike, *, column_map: Mapping[str, str] | Non
         their columns otherwise (``{"t": "time_s"}``).  Errors then name both.
     json_path : str or path-like, optional
         The metadata file; default ``NAME.json`` next to the CSV.
+    default_kinematics : (screw_lead_mm, gear_ratio), optional
+        Kinematics where the JSON's ``rig`` block states none (the parameter
+        set's, so that the unit checks use the rig's); default FORMAT.md's
+        seed values.  Whether stated ones agree with the parameter set is
+        decided by :func:`thsa_control.fit.kinematics.run_kinematics`.
 
     Returns
     -------
@@ -252,7 +258,8 @@ def read_run(csv_path: str | os.PathLike, *, column_map: Mapping[str, str] | Non
         names, labels = _map_header(table.header, column_map, csv_problems)
     parsed = None
     if meta is not None:
-        parsed = _check_metadata(meta, json_path.name, "temperature_C" in names, json_problems)
+        parsed = _check_metadata(meta, json_path.name, "temperature_C" in names, json_problems,
+                                 default_kinematics)
     lead_mm, ratio = (parsed[2], parsed[3]) if parsed else (DEFAULT_SCREW_LEAD_MM,
                                                             DEFAULT_GEAR_RATIO)
     columns: dict[str, np.ndarray] = {}

@@ -57,6 +57,7 @@ from .replay import (
     sample_periods,
 )
 from ..data.rigdata import RigRun
+from .kinematics import run_kinematics
 
 __all__ = ["IdentificationSettings", "ParameterEstimate", "IdentificationResult", "Identifier", "estimate_noise"]
 
@@ -752,6 +753,7 @@ class Identifier:
         if not runs:
             raise RigDataError("<runs>", [(None, None, "no run given")])
         self.params = self._with_search_bounds()
+        runs = [run_kinematics(r, self.params) for r in runs]  # a run stating other kinematics is refused
         plant = build_plant(self.level, self.effects, params=self.params)
         self._check(plant)
         st = self.settings

@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from ..loops.design import Design, load_design, nominal_design_path
-from ..data.export import rig_columns, rig_metadata
+from ..data.export import FEEDFORWARD_COLUMN, rig_columns, rig_metadata
 from ..model import build_plant
 from ..model.params import ParameterSet, default_parameters
 from ..data.rigdata import COLUMNS, write_run
@@ -155,7 +155,7 @@ class VirtualRig:
                 q = float(self.quantisation.get(name, 0.0))
                 if q > 0:
                     values = q * np.round(values / q)
-            if name in COLUMNS or self.truth_columns:
+            if name in COLUMNS or name == FEEDFORWARD_COLUMN or self.truth_columns:  # the JSON names the latter
                 out[name] = values
         return out
 
