@@ -345,8 +345,7 @@ class ParameterSet(Mapping[str, Parameter]):
                 entry["vary"] = True
             if p.integer:
                 entry["integer"] = True
-            if (p.hard_min, p.hard_max) != (p.min, p.max) or p.hard_min_open or p.hard_max_open:
-                entry["valid"] = p.valid
+            entry["valid"] = p.valid
             if p.description:
                 entry["description"] = p.description
             target = doc
