@@ -163,7 +163,6 @@ def test_write_read_replay_round_trip_to_the_sensor_noise(truth_run, tmp_path):
         meta["controller"].pop(drop, None)
         stem.with_suffix(".json").write_text(json.dumps(meta))
         errors[drop] = replay_closed_loop(read_run(stem.with_suffix(".csv")), plant, truth).fits["nut_position"].rms
-    print("nut_position rms [m]:", errors, "round trip:", {c: f.rms for c, f in fits.items()})
     assert errors[None] < 2e-6
     assert errors["position_loop"] > 1000 * errors[None] and errors["current_feedforward"] > 20 * errors[None], errors
 
