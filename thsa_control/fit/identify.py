@@ -51,7 +51,7 @@ import numpy as np
 from ..errors import ParameterError, RigDataError, SolverError, ThsaError
 from ..model import build_plant
 from ..model.plant import Plant
-from ..model.params import Parameter, ParameterSet, default_parameters
+from ..model.params import ParameterSet, default_parameters
 from .replay import (
     COMPARED_OUTPUT, channel_fit, check_run_model, current_driven_map, mech_inputs, replay_closed_loop, run_design,
     sample_periods,
