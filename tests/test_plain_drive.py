@@ -255,3 +255,15 @@ def test_plain_drive_identifies_inertia_below_the_old_bound_coulomb_and_offset(t
         est, true = res.estimates[name].value, TRUTH[name]
         assert abs(est / true - 1.0) < 0.10, (name, est, true)
     assert res.estimates["motor.rotor_inertia"].value < default_parameters()["motor.rotor_inertia"].min
+
+
+@pytest.mark.parametrize("bounds, fragment", [
+    ("motor.rotor_inertia=1e-6:1e-5", "do not contain the initial value"),
+    ("motor.rotor_inertia=-1:1e-5", "widen the physical bounds"),
+    ("motor.rotor_inertia=small", "is not NAME=LO:HI"),
+])
+def test_cli_per_fit_search_bounds_are_checked(truth_run, tmp_path, capsys, bounds, fragment):
+    code = main(["identify", str(truth_run), "--model", "A", "--params", str(EXAMPLE), "--free", "motor.rotor_inertia",
+                 "--bounds", bounds, "--out", str(tmp_path / "o"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and fragment in err and not (tmp_path / "o").exists()
