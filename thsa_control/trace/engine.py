@@ -49,6 +49,7 @@ from ..fit.identify import IdentificationSettings, Identifier, estimate_noise
 from ..fit.replay import channel_fit
 from ..fit.residuals import quadrant, reversal_proximity
 from ..model import EFFECTS, build_plant, resolve_effects
+from ..model.fault_effects import FAULT_EFFECTS
 from ..model.params import ParameterSet, default_parameters
 from ._threads import limit_blas_threads
 from .signature import SignatureSettings, missing_torque, sensor_consistency, signature_tests
@@ -103,8 +104,11 @@ CANDIDATES: dict[str, CandidateSpec] = {c.name: c for c in (
     CandidateSpec("temperature_friction", ("friction.cold_coulomb_torque", "friction.viscous_temperature_coefficient"),
                   {}, "cold"),
 )}
-#: Effects that are configurations, not candidates.
-NOT_CANDIDATES = ("standby_motor", "noback_ideal")
+#: Effects that are configurations or faults, not candidates of a healthy rig's residual: the fault
+#: effects (a jam, a load-path failure, the end stops, the limiter's slip, the motor brakes) act through an
+#: event or a threshold that gives a fit no gradient on data where they do not fire.  Name one in
+#: ``candidates`` to score it anyway.
+NOT_CANDIDATES = ("standby_motor", "noback_ideal", *FAULT_EFFECTS)
 
 
 @dataclass(frozen=True)
