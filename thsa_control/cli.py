@@ -57,7 +57,8 @@ def _progress(args, label: str):
 
 def _out_options(args, inputs=()) -> dict:
     """Keyword arguments of ``atomic_folder`` from ``--out``/``--force`` and the command's input files."""
-    extra = [getattr(args, "params", None), getattr(args, "design", None)]
+    params = getattr(args, "params", None)  # one file, or a list (--params takes several)
+    extra = [*(params if isinstance(params, (list, tuple)) else [params]), getattr(args, "design", None)]
     return {"force": bool(getattr(args, "force", False)), "inputs": [p for p in (*inputs, *extra) if p],
             "command": " ".join(["thsa", *getattr(args, "argv", [])])}
 
@@ -279,8 +280,11 @@ def _read_runs(paths, column_map, params):
     from .data.rigdata import read_run
     from .loops.design import check_control_period
 
+    from .fit.kinematics import run_kinematics
+
     mapping = _column_map(column_map)
-    runs = [read_run(p, column_map=mapping) for p in paths]
+    kin = (params.value("screw.lead") * 1e3, params.value("gear.ratio"))  # where a run states none
+    runs = [run_kinematics(read_run(p, column_map=mapping, default_kinematics=kin), params) for p in paths]
     for run in runs:
         if run.controller is not None:
             # the JSON's controller against the plant: a 1 s period would "replay" a nonsense loop
@@ -304,6 +308,21 @@ def _load_params(args):
 
 def _replay_mode(run, mode):
     return mode if mode != "auto" else ("closed_loop" if run.controller is not None else "open_loop")
+
+
+def _bounds_arg(text: str | None) -> dict:
+    """``--bounds NAME=LO:HI,...`` (SI) -> {name: (lo, hi)}."""
+    out = {}
+    for item in (text or "").split(","):
+        if not item.strip():
+            continue
+        name, _, rng = item.partition("=")
+        lo, _, hi = rng.partition(":")
+        try:
+            out[name.strip()] = (float(lo), float(hi))
+        except ValueError:
+            raise UsageError(f"--bounds: {item.strip()!r} is not NAME=LO:HI (SI numbers)") from None
+    return out
 
 
 def _cmd_identify(args) -> int:
@@ -333,7 +352,8 @@ def _cmd_identify(args) -> int:
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     progress.phase(f"fitting {', '.join(free) or 'nothing'} at level {args.model}")
-    result = Identifier(args.model, params, free, effects=effects, settings=settings).fit(
+    result = Identifier(args.model, params, free, effects=effects, settings=settings,
+                        bounds=_bounds_arg(args.bounds)).fit(
         runs, progress=stderr_progress("identify", quiet=getattr(args, "quiet", False)))
     fitted = result.to_parameter_set()
     before, after, analyses = [], [], []
@@ -538,6 +558,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="wall-time limit of the fit [s] (default 180); the best result is written when reached")
     p.add_argument("--prior-sd", type=float, help="regularise: Gaussian prior on each free parameter at its "
                    "parameter-file value, relative standard deviation (e.g. 0.3)")
+    p.add_argument("--bounds", help="search bounds of this fit, SI, inside the physical ones: "
+                   "NAME=LO:HI,... (default: the parameter file's min/max)")
     model_args(p)
     p = add("residual", "replay a run through a model; residual analysis JSON and HTML report", _cmd_residual)
     p.add_argument("run", help="RUN.csv (RUN.json beside it)")
