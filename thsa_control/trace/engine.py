@@ -379,19 +379,9 @@ def _null_runs(fit: dict, runs: Sequence[RigRun], noise: Mapping[str, float], se
 
 # ----------------------------------------------------------------------------- signature
 def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, effects, s: SignatureSettings) -> dict:
-    plant = build_plant(None, effects, params=params)
-    import casadi as ca
+    from ..loops.design import reflected_inertia
 
-    x = plant.initial_state(params)
-    u = np.zeros(len(plant.inputs))
-    u[plant.index("input", "enable_primary")] = 1.0
-    u[plant.index("input", "temperature")] = 25.0
-    p = plant.p_vector(params)
-    xs = ca.SX.sym("x", len(x))
-    k = plant.index("state", "motor_speed")
-    dwdi = float(np.asarray(ca.Function("j", [xs], [ca.jacobian(plant.f(xs, u, p)[0][k], xs)])(x)).ravel()[0])
-    kt = 1.5 * params.value("motor.pole_pairs") * params.value("motor.flux_linkage")
-    inertia = kt / dwdi
+    inertia = reflected_inertia(params, None, effects)  # the signature's missing torque at the motor shaft
     torque: list = []
     vars_: dict = {}
     for run in runs:
