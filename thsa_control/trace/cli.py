@@ -49,7 +49,10 @@ def run(args) -> int:
     check_output_folder(args.out, **out_opts)  # refuse a foreign output folder before the long computation
     params = load_parameters(args.params, base=default_parameters()) if args.params else default_parameters()
     mapping = json.loads(args.column_map) if args.column_map else None
-    runs = [read_run(p, column_map=mapping) for p in args.runs]
+    from ..fit.kinematics import run_kinematics
+
+    kin = (params.value("screw.lead") * 1e3, params.value("gear.ratio"))  # where a run states none
+    runs = [run_kinematics(read_run(p, column_map=mapping, default_kinematics=kin), params) for p in args.runs]
     split = lambda s: tuple(x.strip() for x in s.split(",") if x.strip()) if s else None  # noqa: E731
     try:
         settings = TraceSettings(segment_duration=args.segment, max_effects=args.max_effects, max_nfev=args.max_nfev,
