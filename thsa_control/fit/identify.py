@@ -57,11 +57,8 @@ from .replay import (
     sample_periods,
 )
 from ..data.rigdata import RigRun
-<<<<<<< HEAD
-from .segment_states import drivetrain_segment_guess
-=======
 from .kinematics import run_kinematics
->>>>>>> main
+from .segment_states import drivetrain_segment_guess
 
 __all__ = ["IdentificationSettings", "ParameterEstimate", "IdentificationResult", "Identifier", "estimate_noise"]
 
