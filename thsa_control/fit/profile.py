@@ -79,7 +79,7 @@ class ProfileSettings:
     other_points: int = 5
     local_minima: int = 3
     fine_points: int = 21
-    refine_fits: int = 2
+    refine_fits: int = 0
     level: float = 0.95
 
     def validate(self) -> None:

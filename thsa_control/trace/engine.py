@@ -592,6 +592,11 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             replaced = {x for e in req + [spec.name] for x in EFFECTS[e].supersedes}
             effs = resolve_effects(None, add=[e for e in cur_effects if e not in replaced] + req + [spec.name])
             pset = cur_params.replace({n: v for n, v in spec.seeds.items() if cur_params.value(n) == 0})
+            if spec.profile:
+                # a switch the model lacks distorts the declared fit (a missing pawl clearance drives the
+                # retraction disk friction to 0): a profiled candidate restarts the declared parameters, and
+                # centres their priors, at the parameter file's values
+                pset = pset.replace({n: params.value(n) for n in uncertain})
             free = tuple(dict.fromkeys(cur_free + spec.free))
             jobs.append(job(spec.name, effs, free, pset, fit_runs, profile=spec.profile))
         say(f"round {len(rounds) + 1}: scoring {len(jobs)} candidates ({', '.join(s.name for s in scorable)})")
