@@ -99,9 +99,9 @@ def test_segment_clearances_follow_the_truth_at_the_true_pitch(stops_record, par
 
 def test_profiled_parameter_cannot_also_be_free(stops_record, params):
     with pytest.raises(ParameterError, match="both free and profiled"):
-        profile_identify(stops_record("C"), params, (PITCH,), {PITCH: (0.02, 0.5)}, level="C")
+        profile_identify(stops_record("C"), params, (PITCH,), {PITCH: (0.03, 0.3)}, level="C")
     with pytest.raises(ParameterError, match="inside its bounds"):
-        profile_identify(stops_record("C"), params, ("gear.viscous_friction",), {PITCH: (0.02, 5.0)}, level="C")
+        profile_identify(stops_record("C"), params, ("gear.viscous_friction",), {PITCH: (0.03, 5.0)}, level="C")
 
 
 @pytest.mark.slow
@@ -126,7 +126,7 @@ def test_backlash_is_found_first_with_its_pitch(stops_record, params, capsys):
     best = min(prof["fits"], key=lambda f: f["score"])
     assert best["values"][PITCH] == pitch["value"]
     cand = next(c for c in doc["candidates"] if c["name"] == "noback_backlash")
-    assert cand["window"] == "reversal" and cand["window_reduction"]["motor_speed"] >= 0.5
+    assert cand["window"] == "reversal_or_stop" and cand["window_reduction"]["motor_speed"] >= 0.5
     with capsys.disabled():
         print(f"\nbacklash: pitch {pitch['value']:.5f} rad (truth {TRUE_PITCH}), interval {lo:.5f}..{hi:.5f}; "
               f"RMS drop {', '.join(f'{c} {v:.0%}' for c, v in red.items())}; "

@@ -78,7 +78,7 @@ class CandidateSpec:
     ``free``: its parameters identified with the declared ones; ``seeds``:
     starting values where the parameter file has the effect off (0);
     ``window``: where it acts (``moving``, ``all``, ``loaded``, ``reversal``,
-    ``cold``); ``channel``: the channel where it shows most; ``profile``:
+    ``reversal_or_stop``, ``cold``); ``channel``: the channel where it shows most; ``profile``:
     parameters that act through a switch (no gradient), searched over a range
     ``(lo, hi)`` by :func:`~thsa_control.fit.profile.profile_identify` (the
     first finely, the others where they matter) while ``free`` is fitted at
@@ -102,10 +102,11 @@ CANDIDATES: dict[str, CandidateSpec] = {c.name: c for c in (
     CandidateSpec("cogging_torque", ("drive.cogging_torque_cos", "drive.cogging_torque_sin"),
                   {"drive.cogging_torque_cos": 0.005, "drive.cogging_torque_sin": 0.005}),
     CandidateSpec("noback_quadrant_friction", ("noback.mu_coulomb_pos", "noback.mu_coulomb_neg"), {}, "loaded"),
-    # the pawl switch gives no gradient: the pitch (papers: 8.57 deg max, searched 1.1..29 deg) is profiled,
-    # each value with segment clearances of its own; the initial clearance only where it matters
-    CandidateSpec("noback_backlash", (), {}, "reversal",
-                  profile={"noback.pawl_pitch": (0.02, 0.5), "noback.pawl_initial_clearance": (0.0, 1.0)}),
+    # the pawl switch gives no gradient: the pitch (papers: 8.57 deg max; searched 1.7..17 deg) is profiled,
+    # each value with segment clearances of its own; the initial clearance only where it matters.  It acts
+    # after a reversal and at a stop under load (the load back-drives through the clearance)
+    CandidateSpec("noback_backlash", (), {}, "reversal_or_stop",
+                  profile={"noback.pawl_pitch": (0.03, 0.3), "noback.pawl_initial_clearance": (0.0, 1.0)}),
     CandidateSpec("loadpath_compliance", ("loadpath.contact_stiffness_upper", "loadpath.contact_stiffness_lower"),
                   {}, "loaded", "nut_position"),
     CandidateSpec("temperature_friction", ("friction.cold_coulomb_torque", "friction.viscous_temperature_coefficient"),
@@ -240,6 +241,12 @@ def _window(kind: str, run: RigRun) -> np.ndarray:
         return moving & (np.abs(load) > max(0.05 * float(np.max(np.abs(load))), 500.0))
     if kind == "reversal":
         return moving & (reversal_proximity(run.time, w, deadband=0.05 * float(np.max(np.abs(w)))) < 0.3)
+    if kind == "reversal_or_stop":  # 0.3 s around a reversal, or after the motion stops (moving -> still)
+        t = np.asarray(run.time, float)
+        near = reversal_proximity(t, w, deadband=0.05 * float(np.max(np.abs(w)))) < 0.3
+        for ts in t[1:][moving[:-1] & ~moving[1:]]:
+            near |= (t >= ts) & (t < ts + 0.3)
+        return near
     if kind == "cold":
         temp = np.asarray(s["temperature"], float)
         return np.abs(temp - 25.0) > 5.0
@@ -574,7 +581,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     current, cur_effects, cur_params, cur_free = base, declared, ParameterSet.from_toml(base["params_toml"]), uncertain
     added, rounds, cand_times = [], [], []
     windows_cache = {spec: {r.name: _window(spec, r) for r in runs}
-                     for spec in ("moving", "all", "loaded", "reversal", "cold")}
+                     for spec in ("moving", "all", "loaded", "reversal", "reversal_or_stop", "cold")}
     while len(added) < st.max_effects:
         specs = candidate_specs(cur_effects, cur_params, st.candidates)
         scorable, skipped = [], []
