@@ -605,10 +605,11 @@ class _RunProblem:
 
         run, plant = self.run, self.plant
         idx = custom_state_indices(plant)
-        Xm = measured_state_matrix(run, plant, self.x_guess[:, 0]) if idx else None
+        Xm = measured_state_matrix(run, plant, params) if idx else None
         if Xm is None:
             return
         n = self.time.size
+        Xm[idx, 0] = self.x_guess[idx, 0]
         track = custom_state_track(plant, mech, Xm, V[:, :n], H[:n], plant.p_vector(params))
         starts = np.minimum(np.arange(M) * L, n - 1)
         self.x_guess[idx, :] = track[:, starts]

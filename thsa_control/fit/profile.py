@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..data.rigdata import RigRun
-from ..errors import ParameterError
+from ..errors import ParameterError, SolverError, ThsaError
 from ..model import build_plant
 from ..model.params import ParameterSet
 from .identify import IdentificationResult, IdentificationSettings, Identifier, estimate_noise
@@ -170,11 +170,10 @@ class OneStepScreen:
     def __init__(self, runs: Sequence[RigRun], plant, params: ParameterSet, substeps: int = 1):
         self.plant = plant
         mech = current_driven_map(plant, substeps)
-        x_rest = plant.initial_state(params)
         self.parts = []
         for run in runs:
             w = measured_speed(run)
-            X = measured_state_matrix(run, plant, x_rest)
+            X = measured_state_matrix(run, plant, params)
             if w is None or X is None or w.size < 3:
                 continue
             n = w.size
@@ -255,6 +254,8 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
     ------
     ParameterError
         A profiled parameter that is unknown, also free, or a range outside its bounds.
+    SolverError
+        Every profile fit failed (a single failing value is recorded in ``fits`` and skipped).
     """
     t0 = time.perf_counter()
     runs = [runs] if isinstance(runs, RigRun) else list(runs)
@@ -321,15 +322,22 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
     def fit_at(v: float):
         nonlocal best
         pset = params.replace({main: float(v), **others})
-        res = Identifier(level, pset, free, effects=effects, settings=st).fit(runs)
+        try:
+            res = Identifier(level, pset, free, effects=effects, settings=st).fit(runs)
+        except (ThsaError, RuntimeError) as exc:  # one value failing does not end the profile
+            fits.append({"values": {main: float(v), **others}, "error": str(exc)})
+            say(f"profile fit {main} = {v:.5g} failed: {exc}")
+            return
         s = float(score(res))
         fits.append({"values": {main: float(v), **others}, "score": s, "chisqr": res.chisqr, "converged": res.converged})
         say(f"profile fit {main} = {v:.5g}: held-out chi2 {s:.5g}")
         if best is None or s < best[0]:
             best = (s, float(v), res)
 
-    for v in cands:
+    for v in dict.fromkeys(cands):
         fit_at(v)
+    if best is None:
+        raise SolverError("profile", f"every profile fit of {main} failed: {fits[-1]['error']}")
     if ps.refine_fits:
         step = float(np.min(np.diff(np.sort(allx)))) if allx.size > 1 else 0.0
         v0 = best[1]

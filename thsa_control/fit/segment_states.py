@@ -26,6 +26,7 @@ import casadi as ca
 import numpy as np
 
 from ..data.rigdata import RigRun
+from ..model.params import ParameterSet
 from ..model.plant import Plant
 
 __all__ = ["custom_state_indices", "measured_speed", "measured_state_matrix", "custom_state_track", "one_step_map"]
@@ -57,28 +58,37 @@ def measured_speed(run: RigRun) -> np.ndarray | None:
     return w
 
 
-def measured_state_matrix(run: RigRun, plant: Plant, x_rest: np.ndarray) -> np.ndarray | None:
-    """Full state per sample: ``x_rest`` with the speed and position states set to the measured values.
+def measured_state_matrix(run: RigRun, plant: Plant, params: ParameterSet) -> np.ndarray | None:
+    """Full state per sample: at rest with the load-path springs in equilibrium with the measured load,
+    the speeds and positions set to the measured values.
 
     The motor speed (and the rotors' speed with a compliant drive train) is
-    the measured motor speed (:func:`measured_speed`), the nut (and surface)
-    position the LVDT where it is measured without gaps.  None when the run
-    measures no speed.
+    the measured motor speed (:func:`measured_speed`), the surface speed the
+    matching nut speed; the LVDT gives the surface position where the load
+    path is compliant (the nut sits the spring deflection ahead), the nut
+    position otherwise.  The custom states are their initial values
+    (``plant.init``).  None when the run measures no speed.
     """
     w = measured_speed(run)
     if w is None:
         return None
     n = w.size
-    X = np.repeat(np.asarray(x_rest, float).reshape(-1, 1), n, axis=1)
+    p = plant.p_vector(params)
+    load = np.nan_to_num(np.asarray(run.signals["load_force"], float))
+    nut = np.asarray(run.signals["nut_position"], float) if "nut_position" in run.source_columns else None
+    if nut is not None and not np.isfinite(nut).all():
+        nut = None
+    X = np.array(plant.init.map(n)((nut if nut is not None else np.zeros(n))[None, :], load[None, :], p))
+    names = plant.state_names
+    if nut is not None and "surface_position" in names:  # the LVDT reads the surface
+        i_nut, i_srf = plant.index("state", "nut_position"), plant.index("state", "surface_position")
+        X[i_nut] = nut + (X[i_nut] - X[i_srf])
+        X[i_srf] = nut
     for name in ("motor_speed", "rotor_speed"):
-        if name in plant.state_names:
+        if name in names:
             X[plant.index("state", name)] = w
-    if "nut_position" in run.source_columns:
-        nut = np.asarray(run.signals["nut_position"], float)
-        if np.isfinite(nut).all():
-            for name in ("nut_position", "surface_position"):
-                if name in plant.state_names:
-                    X[plant.index("state", name)] = nut
+    if "surface_speed" in names:
+        X[plant.index("state", "surface_speed")] = w * params.value("screw.lead") / (2 * np.pi * params.value("gear.ratio"))
     return X
 
 
@@ -117,8 +127,8 @@ def custom_state_track(plant: Plant, mech: ca.Function, x_measured: np.ndarray, 
     mech : casadi.Function
         ``mech(x, v, p, h) -> (x_next, y)``, the current-driven map of ``plant``.
     x_measured : ndarray (nx, n)
-        Full state per sample: measured speeds and positions, rest values
-        elsewhere; the custom rows of column 0 are the initial custom states.
+        Full state per sample (:func:`measured_state_matrix`); the custom rows
+        of column 0 are the initial custom states.
     inputs : ndarray (nv, n)
         The map's inputs per sample (:func:`~thsa_control.fit.replay.mech_inputs`).
     periods : ndarray (n,)
