@@ -224,3 +224,22 @@ def test_atomic_folder_api_refuses_foreign(tmp_path):
         with atomic_folder(d):
             pass
     assert (d / "y").read_text() == "y"
+
+
+def test_trace_refuses_before_fitting(own_run, tmp_path, capsys, monkeypatch):
+    """`thsa trace` (minutes of fitting) refuses a foreign folder or one holding its input at once."""
+    import thsa_control.trace.engine as engine
+
+    def no_fit(*a, **k):
+        raise AssertionError("trace ran before the output folder was checked")
+
+    monkeypatch.setattr(engine, "trace", no_fit)
+    run = own_run / "cold_ramp_A.csv"
+    d = tmp_path / "results"
+    d.mkdir()
+    (d / "thesis.tex").write_text("two years of work")
+    assert main(["trace", str(run), "--model", "A", "--quiet", "--out", str(d)]) == 2
+    assert "not written by thsa" in capsys.readouterr().err
+    assert main(["trace", str(run), "--model", "A", "--quiet", "--out", str(own_run), "--force"]) == 2
+    assert "holds the input file" in capsys.readouterr().err
+    assert (d / "thesis.tex").read_text() == "two years of work" and run.is_file()

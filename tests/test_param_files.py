@@ -78,9 +78,12 @@ def test_override_cannot_move_a_physical_bound(base, text):
 def test_override_may_narrow_the_search_bounds(base):
     p = override(base, "[gear]\nefficiency = { value = 0.9, min = 0.8, max = 0.95, vary = true }\n")
     e = p["gear.efficiency"]
-    assert (e.min, e.max, e.hard_min, e.hard_max, e.vary) == (0.8, 0.95, 0.3, 1.0, True)
-    with pytest.raises(ParameterError):
-        e.with_value(0.97)  # outside the narrowed search bounds
+    assert (e.min, e.max, e.hard_min, e.hard_max, e.vary) == (0.8, 0.95, 0.0, 1.0, True)
+    assert e.valid == "(0, 1]"
+    with pytest.raises(ParameterError, match=r"gear.efficiency.*\(0, 1\]"):
+        e.with_value(1.01)  # outside the physical bounds
+    moved = e.with_value(0.97)  # physically valid, outside the search bounds: they move with the value
+    assert moved.min <= 0.97 <= moved.max <= 1.0
 
 
 def test_api_parameter_cannot_be_built_outside_its_hard_bounds():

@@ -10,7 +10,8 @@ Commands::
     thsa check-data RUN.csv
     thsa identify  RUN.csv [RUN2.csv ...] --model B --free PARAM,... [--effects E ...] [--params FILE] --out DIR
     thsa trace     RUN.csv [RUN2.csv ...] --model A [--effects E ...] [--params FILE ...] --out DIR
-    thsa residual  RUN.csv --model A [--mode closed_loop|open_loop] [--effects E ...] [--params FILE] --out DIR
+    thsa residual  RUN.csv --model A [--mode closed_loop|open_loop] [--segment S|whole] [--effects E ...]
+                   [--remove E ...] [--params FILE] --out DIR
     thsa report    --design designs/nominal.toml --out DIR [--level B] [--effects E ...] [--params FILE]
                    [--no-switching] [--check]
     thsa linearize --level A --speed 5 --load 20000 --temperature -30 [--effects E ...] [--active standby]
@@ -56,7 +57,8 @@ def _progress(args, label: str):
 
 def _out_options(args, inputs=()) -> dict:
     """Keyword arguments of ``atomic_folder`` from ``--out``/``--force`` and the command's input files."""
-    extra = [getattr(args, "params", None), getattr(args, "design", None)]
+    params = getattr(args, "params", None)  # one file, or a list (--params takes several)
+    extra = [*(params if isinstance(params, (list, tuple)) else [params]), getattr(args, "design", None)]
     return {"force": bool(getattr(args, "force", False)), "inputs": [p for p in (*inputs, *extra) if p],
             "command": " ".join(["thsa", *getattr(args, "argv", [])])}
 
@@ -278,8 +280,11 @@ def _read_runs(paths, column_map, params):
     from .data.rigdata import read_run
     from .loops.design import check_control_period
 
+    from .fit.kinematics import run_kinematics
+
     mapping = _column_map(column_map)
-    runs = [read_run(p, column_map=mapping) for p in paths]
+    kin = (params.value("screw.lead") * 1e3, params.value("gear.ratio"))  # where a run states none
+    runs = [run_kinematics(read_run(p, column_map=mapping, default_kinematics=kin), params) for p in paths]
     for run in runs:
         if run.controller is not None:
             # the JSON's controller against the plant: a 1 s period would "replay" a nonsense loop
@@ -303,6 +308,21 @@ def _load_params(args):
 
 def _replay_mode(run, mode):
     return mode if mode != "auto" else ("closed_loop" if run.controller is not None else "open_loop")
+
+
+def _bounds_arg(text: str | None) -> dict:
+    """``--bounds NAME=LO:HI,...`` (SI) -> {name: (lo, hi)}."""
+    out = {}
+    for item in (text or "").split(","):
+        if not item.strip():
+            continue
+        name, _, rng = item.partition("=")
+        lo, _, hi = rng.partition(":")
+        try:
+            out[name.strip()] = (float(lo), float(hi))
+        except ValueError:
+            raise UsageError(f"--bounds: {item.strip()!r} is not NAME=LO:HI (SI numbers)") from None
+    return out
 
 
 def _cmd_identify(args) -> int:
@@ -332,7 +352,8 @@ def _cmd_identify(args) -> int:
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     progress.phase(f"fitting {', '.join(free) or 'nothing'} at level {args.model}")
-    result = Identifier(args.model, params, free, effects=effects, settings=settings).fit(
+    result = Identifier(args.model, params, free, effects=effects, settings=settings,
+                        bounds=_bounds_arg(args.bounds)).fit(
         runs, progress=stderr_progress("identify", quiet=getattr(args, "quiet", False)))
     fitted = result.to_parameter_set()
     before, after, analyses = [], [], []
@@ -358,18 +379,26 @@ def _cmd_identify(args) -> int:
 
 
 def _cmd_residual(args) -> int:
-    from .fit.replay import analyse_replay, replay
+    from .fit.replay import analyse_replay
     from .fit.residuals import format_residual_report
+    from .fit.segmented import parse_segment, replay_for_residual
+    from .model import build_plant
     from .report import atomic_folder
     from .report.identification import write_residual_folder
 
+    segment = parse_segment(args.segment)
     _preflight_out(args, _run_inputs([args.run]))
     progress = _progress(args, "thsa residual")
     params = _load_params(args)
     progress.phase("reading the run")
     run, = _read_runs([args.run], args.column_map, params)
+    mode = _replay_mode(run, args.mode)
+    if args.segment is not None and mode != "open_loop":
+        raise UsageError(f"--segment {args.segment}: segments apply to the open-loop replay (--mode open_loop); "
+                         f"run {run.name!r} replays in closed loop under its controller")
+    plant = build_plant(args.model, _effects_arg(args.effects), remove=_effects_arg(args.remove), params=params)
     progress.phase(f"replaying {run.name} through level {args.model}")
-    result = replay(run, args.model, _effects_arg(args.effects), params=params, mode=_replay_mode(run, args.mode))
+    result = replay_for_residual(run, plant, params, mode, segment_duration=segment)
     progress.phase("residual analysis")
     analysis = analyse_replay(run, result)
     progress.phase("writing the report")
@@ -529,9 +558,16 @@ def _parser() -> argparse.ArgumentParser:
                    help="wall-time limit of the fit [s] (default 180); the best result is written when reached")
     p.add_argument("--prior-sd", type=float, help="regularise: Gaussian prior on each free parameter at its "
                    "parameter-file value, relative standard deviation (e.g. 0.3)")
+    p.add_argument("--bounds", help="search bounds of this fit, SI, inside the physical ones: "
+                   "NAME=LO:HI,... (default: the parameter file's min/max)")
     model_args(p)
     p = add("residual", "replay a run through a model; residual analysis JSON and HTML report", _cmd_residual)
     p.add_argument("run", help="RUN.csv (RUN.json beside it)")
+    p.add_argument("--segment", help="open loop: restart the mechanics from the measured state every SEGMENT "
+                   "seconds (default 0.05), so each residual is a one-segment prediction error and does not "
+                   "drift; 'whole' (or 0): one replay over the whole run")
+    p.add_argument("--remove", nargs="*", help="effects removed from the level (a plain screw drive: --model A "
+                   "--remove noback_ideal)")
     model_args(p)
     p = add("report", "loop analysis of a design over speed, load and temperature: HTML + JSON", _cmd_report)
     p.add_argument("--design", help="design TOML (default designs/nominal.toml)")

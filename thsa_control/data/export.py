@@ -21,6 +21,9 @@ from .units import rad_s_to_rpm
 
 __all__ = ["rig_columns", "rig_metadata", "write_simulation", "UNIT_TAGS"]
 
+#: Extra column of a varying current added at the velocity loop's output [A] (controller.current_feedforward).
+FEEDFORWARD_COLUMN = "current_ff_A"
+
 #: SI unit -> (column suffix, factor to display unit)
 UNIT_TAGS: dict[str, tuple[str, float]] = {
     "m": ("mm", 1e3), "m/s": ("mm_s", 1e3), "rad/s": ("rpm", float(rad_s_to_rpm(1.0))), "rad": ("deg", 180 / math.pi),
@@ -55,6 +58,9 @@ def rig_columns(result: SimulationResult) -> dict[str, np.ndarray]:
     cols["motor_current_A"] = np.where(standby_active, np.asarray(result["standby_current"]), cols["motor_current_A"])
     if np.any(np.asarray(result.inputs.signals["position_mode"]) > 0.5):
         cols["position_cmd_mm"] = np.asarray(result.inputs.signals["position_cmd"])[idx] * 1e3
+    ff = np.asarray(result.inputs.signals["current_ff"], float)
+    if ff.size and np.ptp(ff) > 0:  # a varying current at the controller output: its own column (JSON names it)
+        cols[FEEDFORWARD_COLUMN] = ff[idx]
     used = {sig for sig, _ in _STANDARD.values()}
     for name in result.names:
         if name in used:
@@ -65,6 +71,33 @@ def rig_columns(result: SimulationResult) -> dict[str, np.ndarray]:
             key = f"model_{key}"
         cols[key] = np.asarray(result[name]) * k
     return cols
+
+
+def _controller_extensions(result: SimulationResult) -> dict:
+    """``position_loop`` / ``current_feedforward`` of the controller block (docs/rig_format.md), when the run used them.
+
+    Raises ``ValueError`` for a run whose position loop is closed only part
+    of the time: the format's ``position_loop`` holds for the whole run.
+    """
+    d, inputs = result.design, result.inputs
+    out: dict = {}
+    mode = np.asarray(inputs.signals["position_mode"]) > 0.5
+    if mode.all() and d.position_kp > 0:
+        pl = {"kp_1_per_s": d.position_kp, "max_speed_mm_s": d.max_speed * 1e3}
+        if math.isfinite(inputs.accel_limit):
+            pl["accel_limit_mm_s2"] = inputs.accel_limit * 1e3
+        if math.isfinite(inputs.jerk_limit):
+            pl["jerk_limit_mm_s3"] = inputs.jerk_limit * 1e3
+        out["position_loop"] = pl
+    elif mode.any() and d.position_kp > 0:
+        raise ValueError(f"run {result.name!r} closes the position loop only part of the time; the rig format's "
+                         "controller.position_loop holds for the whole run")
+    ff = np.asarray(inputs.signals["current_ff"], float)
+    if ff.size and np.ptp(ff) > 0:
+        out["current_feedforward"] = {"column": FEEDFORWARD_COLUMN}
+    elif ff.size and ff[0] != 0:
+        out["current_feedforward"] = {"offset_A": float(ff[0])}
+    return out
 
 
 def rig_metadata(result: SimulationResult, *, level: str | None = None) -> dict:
@@ -84,6 +117,7 @@ def rig_metadata(result: SimulationResult, *, level: str | None = None) -> dict:
             "control_period_s": d.control_period,
             # free metadata (FORMAT.md): samples between the measurement and the voltage it produces
             "computation_delay_samples": d.computation_delay_samples,
+            **_controller_extensions(result),
         },
         "motor_disabled_when_cmd_zero": bool(result.inputs.motor_off_at_zero),
         "rig": {"screw_lead_mm": result.params.value("screw.lead") * 1e3, "gear_ratio": result.params.value("gear.ratio"),

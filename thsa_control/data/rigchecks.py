@@ -29,7 +29,9 @@ from thsa_control.data.rigformat import (
     FORMAT_TAG,
     MAX_ROWS_LISTED,
     ColumnSpec,
+    CurrentFeedForward,
     CurrentLoopGains,
+    PositionLoopGains,
     RigController,
     VelocityLoopGains,
     _add_rows,
@@ -88,8 +90,12 @@ def _reject_constant(name: str):
     raise ValueError(f"{name} is not valid JSON")
 
 
-def _check_metadata(meta: dict, where: str, has_temperature_column: bool, problems: list):
-    """Validate the JSON object; return (controller, motor_disabled, lead_mm, ratio)."""
+def _check_metadata(meta: dict, where: str, has_temperature_column: bool, problems: list,
+                    default_kinematics: tuple[float, float] | None = None):
+    """Validate the JSON object; return (controller, motor_disabled, lead_mm, ratio).
+
+    ``lead_mm, ratio`` are the ``rig`` block's, else ``default_kinematics``, else FORMAT.md's seed values.
+    """
     def bad(key: str, message: str) -> None:
         problems.append((f"{where}:{key}", None, message))
 
@@ -119,7 +125,7 @@ def _check_metadata(meta: dict, where: str, has_temperature_column: bool, proble
     if not isinstance(disabled, bool):
         bad("motor_disabled_when_cmd_zero", f"must be true or false, got {disabled!r}")
         disabled = False
-    lead_mm, ratio = DEFAULT_SCREW_LEAD_MM, DEFAULT_GEAR_RATIO
+    lead_mm, ratio = default_kinematics or (DEFAULT_SCREW_LEAD_MM, DEFAULT_GEAR_RATIO)
     rig = meta.get("rig")
     if rig is not None and not isinstance(rig, dict):
         bad("rig", "must be an object")
@@ -180,11 +186,98 @@ def _parse_controller(block: Any, bad: Callable[[str, str], None]) -> RigControl
         bad("controller.control_period_s",
             f"must be a positive number [s], got {block.get('control_period_s', 'nothing')!r}")
         ok = False
-    if not ok:
+    position = _parse_position_loop(block["position_loop"], bad) if "position_loop" in block else None
+    feedforward = _parse_feedforward(block["current_feedforward"], bad) if "current_feedforward" in block else None
+    if not ok or position is False or feedforward is False:
         return None
-    extra = {k: v for k, v in block.items()
-             if k not in ("velocity_loop", "current_loop", "control_period_s")}
-    return RigController(loops["velocity_loop"], loops["current_loop"], period, extra)
+    extra = {k: v for k, v in block.items() if k not in _CONTROLLER_KEYS}
+    return RigController(loops["velocity_loop"], loops["current_loop"], period, extra, position, feedforward)
+
+
+_CONTROLLER_KEYS = ("velocity_loop", "current_loop", "control_period_s", "position_loop", "current_feedforward")
+#: controller.position_loop: JSON key -> (attribute, SI factor, required)
+_POSITION_KEYS = {"kp_1_per_s": ("kp", 1.0, True), "max_speed_mm_s": ("max_speed", 1e-3, False),
+                  "accel_limit_mm_s2": ("accel_limit", 1e-3, False), "jerk_limit_mm_s3": ("jerk_limit", 1e-3, False)}
+
+
+def _parse_position_loop(sub: Any, bad: Callable[[str, str], None]):
+    """``controller.position_loop`` (extension): a PositionLoopGains, or False after reporting."""
+    where = "controller.position_loop"
+    if not isinstance(sub, dict):
+        bad(where, f"must be an object, got {sub!r}")
+        return False
+    values, ok = {}, True
+    for key, (attr, factor, required) in _POSITION_KEYS.items():
+        if key not in sub:
+            if required:
+                bad(f"{where}.{key}", "missing (the position loop's P gain [1/s])")
+                ok = False
+            continue
+        value = _number(sub[key])
+        if value is None and sub[key] is None and not required:
+            continue  # null: unlimited
+        if value is None or value <= 0:
+            bad(f"{where}.{key}", f"must be a positive number, got {sub[key]!r}")
+            ok = False
+            continue
+        values[attr] = value * factor
+    if not ok:
+        return False
+    return PositionLoopGains(**values, extra={k: v for k, v in sub.items() if k not in _POSITION_KEYS})
+
+
+def _parse_feedforward(sub: Any, bad: Callable[[str, str], None]):
+    """``controller.current_feedforward`` (extension): a CurrentFeedForward, or False after reporting."""
+    where = "controller.current_feedforward"
+    if not isinstance(sub, dict):
+        bad(where, f"must be an object, got {sub!r}")
+        return False
+    if "offset_A" not in sub and "column" not in sub:
+        bad(where, "needs offset_A [A] and/or column (a CSV column in A)")
+        return False
+    ok, offset, column = True, 0.0, None
+    if "offset_A" in sub:
+        value = _number(sub["offset_A"])
+        if value is None:
+            bad(f"{where}.offset_A", f"must be a finite number [A], got {sub['offset_A']!r}")
+            ok = False
+        else:
+            offset = value
+    if "column" in sub:
+        column = sub["column"]
+        if not isinstance(column, str) or not column:
+            bad(f"{where}.column", f"must be the name of a CSV column, got {column!r}")
+            ok = False
+    if not ok:
+        return False
+    return CurrentFeedForward(offset, column, {k: v for k, v in sub.items() if k not in ("offset_A", "column")})
+
+
+def _check_controller_columns(controller: RigController | None, columns: dict, extra: dict, where: str,
+                              problems: list) -> None:
+    """The CSV columns the controller block's extensions need (read_run, after the table)."""
+    if controller is None:
+        return
+    if controller.position_loop is not None and "position_cmd_mm" not in columns:
+        problems.append((f"{where}:controller.position_loop", None,
+                         "the position loop needs the position command: the CSV has no position_cmd_mm column"))
+    ff = controller.current_feedforward
+    if ff is None or ff.column is None:
+        return
+    key = f"{where}:controller.current_feedforward.column"
+    if ff.column not in extra:
+        standard = " (a standard column, not a current)" if ff.column in columns else ""
+        problems.append((key, None, f"names column {ff.column!r}, which the CSV does not have as an extra "
+                                    f"column{standard}; extra columns: {', '.join(extra) or 'none'}"))
+        return
+    values = extra[ff.column]
+    if values.dtype.kind not in "fiu":
+        problems.append((key, None, f"column {ff.column!r} holds text, not currents [A]"))
+        return
+    bad_rows = np.flatnonzero(~np.isfinite(values))
+    if bad_rows.size:
+        _add_rows(problems, ff.column, bad_rows, lambda i: "missing value in the current feed-forward column "
+                                                           "(every sample is needed)")
 
 
 def _check_gaps(spec: ColumnSpec, label: str, empty: np.ndarray, problems: list,

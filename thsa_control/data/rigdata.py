@@ -32,6 +32,11 @@ Validation rules (decisions taken where FORMAT.md leaves room)
   ``motor_disabled_when_cmd_zero`` is optional (default false) and must be a
   JSON boolean; ``rig.screw_lead_mm`` / ``rig.gear_ratio`` are optional
   positive numbers (defaults 12 mm and 65.61).  Other keys are kept.
+  Extensions the workbench reads beyond FORMAT.md (``docs/rig_format.md``):
+  ``controller.position_loop`` (a position P loop; needs the
+  ``position_cmd_mm`` column), ``controller.current_feedforward`` (a
+  current added at the velocity loop's output: ``offset_A`` and/or an extra
+  CSV ``column`` in A, every cell a number), ``controller.computation_delay_samples``.
 * Empty cells: in ``time_s``, ``speed_cmd_mm_s``, ``load_force_N``,
   ``position_cmd_mm`` and the enable flags any empty cell is an error.  In a
   measured column (motor speed and current, nut position, screw speed,
@@ -104,7 +109,9 @@ import numpy as np
 
 from thsa_control.errors import RigDataError
 from thsa_control.data import _csvtable
-from thsa_control.data.rigchecks import _check_gaps, _check_metadata, _check_units, _load_json
+from thsa_control.data.rigchecks import (
+    _check_controller_columns, _check_gaps, _check_metadata, _check_units, _load_json,
+)
 from thsa_control.data.rigformat import (  # noqa: F401  (re-exported: the public names live here)
     _BY_SIGNAL,
     _MAX_TEMPERATURE_C,
@@ -186,7 +193,8 @@ def _map_header(header: list[str], column_map: Mapping[str, str], problems: list
 
 
 def read_run(csv_path: str | os.PathLike, *, column_map: Mapping[str, str] | None = None,
-             json_path: str | os.PathLike | None = None) -> RigRun:
+             json_path: str | os.PathLike | None = None,
+             default_kinematics: tuple[float, float] | None = None) -> RigRun:
     """Read and validate one ``thsa-rig-run/1`` run.
 
     Parameters
@@ -199,6 +207,11 @@ def read_run(csv_path: str | os.PathLike, *, column_map: Mapping[str, str] | Non
         their columns otherwise (``{"t": "time_s"}``).  Errors then name both.
     json_path : str or path-like, optional
         The metadata file; default ``NAME.json`` next to the CSV.
+    default_kinematics : (screw_lead_mm, gear_ratio), optional
+        Kinematics where the JSON's ``rig`` block states none (the parameter
+        set's, so that the unit checks use the rig's); default FORMAT.md's
+        seed values.  Whether stated ones agree with the parameter set is
+        decided by :func:`thsa_control.fit.kinematics.run_kinematics`.
 
     Returns
     -------
@@ -245,7 +258,8 @@ def read_run(csv_path: str | os.PathLike, *, column_map: Mapping[str, str] | Non
         names, labels = _map_header(table.header, column_map, csv_problems)
     parsed = None
     if meta is not None:
-        parsed = _check_metadata(meta, json_path.name, "temperature_C" in names, json_problems)
+        parsed = _check_metadata(meta, json_path.name, "temperature_C" in names, json_problems,
+                                 default_kinematics)
     lead_mm, ratio = (parsed[2], parsed[3]) if parsed else (DEFAULT_SCREW_LEAD_MM,
                                                             DEFAULT_GEAR_RATIO)
     columns: dict[str, np.ndarray] = {}
@@ -254,6 +268,8 @@ def read_run(csv_path: str | os.PathLike, *, column_map: Mapping[str, str] | Non
     if table is not None:
         columns, extra, source = _check_table(table, names, labels, meta, lead_mm, ratio,
                                               csv_problems, warnings)
+        if parsed is not None:
+            _check_controller_columns(parsed[0], columns, extra, json_path.name, json_problems)
     if csv_problems or json_problems:
         raise RigDataError(str(csv_path if csv_problems else json_path),
                            csv_problems + json_problems)
@@ -274,7 +290,9 @@ def read_run(csv_path: str | os.PathLike, *, column_map: Mapping[str, str] | Non
     return RigRun(name=name, csv_path=csv_path, json_path=json_path, metadata=meta, time=time,
                   signals=signals, extra=extra, controller=controller,
                   motor_disabled_when_cmd_zero=disabled, warnings=tuple(warnings),
-                  screw_lead=float(mm_to_m(lead_mm)), gear_ratio=ratio, source_columns=source)
+                  screw_lead=float(mm_to_m(lead_mm)), gear_ratio=ratio, source_columns=source,
+                  kinematics_stated=tuple(k for k in ("screw_lead_mm", "gear_ratio")
+                                          if isinstance(meta.get("rig"), dict) and k in meta["rig"]))
 
 
 def _check_table(table, names, labels, meta, lead_mm, ratio, problems, warnings):

@@ -20,6 +20,7 @@ import numpy as np
 from thsa_control.data.units import m_to_mm, mm_to_m, rad_s_to_rpm, rpm_to_rad_s
 
 __all__ = ["FORMAT_TAG", "ColumnSpec", "COLUMNS", "VelocityLoopGains", "CurrentLoopGains", "RigController",
+           "PositionLoopGains", "CurrentFeedForward",
            "RigRun", "DEFAULT_SCREW_LEAD_MM", "DEFAULT_GEAR_RATIO", "MAX_ROWS_LISTED"]
 
 FORMAT_TAG = "thsa-rig-run/1"
@@ -138,6 +139,61 @@ class CurrentLoopGains:
 
 
 @dataclass(frozen=True)
+class PositionLoopGains:
+    """Position P loop of the rig around its velocity loop (JSON ``controller.position_loop``, an extension).
+
+    The target nut speed is ``kp (position_cmd - nut_position)``, capped at
+    ``max_speed`` and by the speed from which ``accel_limit`` brakes to rest
+    within the error, then rate limited to ``accel_limit`` and acceleration
+    limited to ``jerk_limit`` (the cascade of
+    :mod:`thsa_control.loops.controllers`).  The command is the CSV's
+    ``position_cmd_mm`` column.
+
+    Parameters
+    ----------
+    kp : float
+        Proportional gain [1/s], > 0 (``kp_1_per_s``).
+    max_speed : float
+        Speed cap [m/s], > 0 (``max_speed_mm_s``; default unlimited).
+    accel_limit : float
+        Rate limit of the speed target [m/s^2], > 0 (``accel_limit_mm_s2``; default unlimited).
+    jerk_limit : float
+        Its acceleration limit [m/s^3], > 0 (``jerk_limit_mm_s3``; default unlimited).
+    extra : dict
+        Unknown keys of the block, kept.
+    """
+
+    kp: float
+    max_speed: float = math.inf
+    accel_limit: float = math.inf
+    jerk_limit: float = math.inf
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class CurrentFeedForward:
+    """Current added at the velocity loop's output (JSON ``controller.current_feedforward``, an extension).
+
+    ``i_ref = PI(speed error) + offset + column(t)``, then clamped to the
+    current limit: a feed-forward, or a disturbance injected at the
+    controller output.
+
+    Parameters
+    ----------
+    offset : float
+        Constant current [A] (``offset_A``; default 0).
+    column : str or None
+        CSV column [A] added sample by sample (``column``; default none).
+    extra : dict
+        Unknown keys of the block, kept.
+    """
+
+    offset: float = 0.0
+    column: str | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
 class RigController:
     """The rig's cascade as it ran (JSON ``controller`` block).
 
@@ -149,12 +205,18 @@ class RigController:
         Controller sample period [s], > 0.
     extra : dict
         Unknown keys of the block, kept.
+    position_loop : PositionLoopGains or None
+        The position P loop, when the run closed it (extension of FORMAT.md).
+    current_feedforward : CurrentFeedForward or None
+        Current added at the velocity loop's output (extension of FORMAT.md).
     """
 
     velocity_loop: VelocityLoopGains
     current_loop: CurrentLoopGains
     control_period: float
     extra: dict[str, Any] = field(default_factory=dict)
+    position_loop: PositionLoopGains | None = None
+    current_feedforward: CurrentFeedForward | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -192,6 +254,10 @@ class RigRun:
         Screw lead [m] used for the kinematic checks.
     gear_ratio : float
         Motor-to-screw gear ratio [-].
+    kinematics_stated : tuple of str
+        Which of ``screw_lead_mm``, ``gear_ratio`` the JSON's ``rig`` block
+        states; the others are FORMAT.md's seed values, to be replaced by the
+        parameter set's (:func:`thsa_control.fit.kinematics.run_kinematics`).
     source_columns : dict of str to str
         Canonical signal -> CSV column it was read from (original name).
 
@@ -213,6 +279,7 @@ class RigRun:
     screw_lead: float = mm_to_m(DEFAULT_SCREW_LEAD_MM)
     gear_ratio: float = DEFAULT_GEAR_RATIO
     source_columns: dict[str, str] = field(default_factory=dict)
+    kinematics_stated: tuple[str, ...] = ()
 
     @property
     def sample_rate_hz(self) -> float:

@@ -41,7 +41,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace as dc_replace
 from pathlib import Path
 from types import MappingProxyType
 
@@ -51,12 +51,13 @@ import numpy as np
 from ..errors import ParameterError, RigDataError, SolverError, ThsaError
 from ..model import build_plant
 from ..model.plant import Plant
-from ..model.params import Parameter, ParameterSet, default_parameters
+from ..model.params import ParameterSet, default_parameters
 from .replay import (
     COMPARED_OUTPUT, channel_fit, check_run_model, current_driven_map, mech_inputs, replay_closed_loop, run_design,
     sample_periods,
 )
 from ..data.rigdata import RigRun
+from .kinematics import run_kinematics
 
 __all__ = ["IdentificationSettings", "ParameterEstimate", "IdentificationResult", "Identifier", "estimate_noise"]
 
@@ -329,7 +330,7 @@ class IdentificationResult:
             src = source or (f"identified: {self.method} on {', '.join(self.runs)}; "
                              f"stderr {e.stderr:.3g} {old.unit}" if math.isfinite(e.stderr) else
                              f"identified: {self.method} on {', '.join(self.runs)}; stderr undetermined")
-            new[n] = Parameter(n, e.value, old.unit, src, old.min, old.max, old.vary, old.description)
+            new[n] = dc_replace(old, value=e.value, source=src)  # keeps the search and physical bounds
         return self.params.replace_parameters(new)
 
     def parameters_toml(self) -> str:
@@ -556,6 +557,13 @@ class _RunProblem:
         self.f_res = ca.Function("res", [dec, P, scale, sig], [r])
         self.f_jac = ca.Function("res_jac", [dec, P, scale, sig], [r, ca.jacobian(r, dec)])
         self.f_pred = ca.Function("pred", [dec, P, scale], [Y])
+        # every state (at each sample's start) and every output of the same segment predictions, for the
+        # segmented open-loop residual (thsa_control.fit.segmented); not differentiated
+        step_all = ca.Function("step_all", [x, v, p, h], [xn, y])
+        Xs, Ys = step_all.mapaccum("segment_all", L)(xs0, Vs, ps, Hs)
+        seg_all = ca.Function("seg_all", [xs0, Vs, ps, Hs], [ca.horzcat(xs0, Xs[:, :L - 1]), Ys])
+        Xall, Yall = seg_all.map("segments_all", "serial", M, [2], [])(X0full, ca.DM(V), pv, ca.DM(H).T)
+        self.f_pred_all = ca.Function("pred_all", [dec, P, scale], [Xall, Yall])
 
     def _initial_states(self, params: ParameterSet, L: int, M: int) -> np.ndarray:
         """Segment initial states: measured where measured, else from a closed-loop replay or rest."""
@@ -657,6 +665,11 @@ class Identifier:
     effects : iterable of str
         Effects added to the level.
     settings : IdentificationSettings, optional
+    bounds : mapping name -> (lo, hi), optional
+        Search bounds of this fit, replacing the parameter file's ``min`` /
+        ``max`` (SI).  They must contain the initial value and lie inside the
+        parameter's physical ``valid`` interval (else :class:`ParameterError`
+        naming the parameter).
 
     Examples
     --------
@@ -666,9 +679,11 @@ class Identifier:
     """
 
     def __init__(self, level: str | None = "A", params: ParameterSet | None = None, free: Sequence[str] = (), *,
-                 effects: Iterable[str] = (), settings: IdentificationSettings | None = None):
+                 effects: Iterable[str] = (), settings: IdentificationSettings | None = None,
+                 bounds: Mapping[str, tuple[float, float]] | None = None):
         self.level = level
         self.params = params if params is not None else default_parameters()
+        self.bounds = dict(bounds or {})
         self.free = tuple(free)
         self.effects = tuple(effects)
         self.settings = settings or IdentificationSettings()
@@ -694,6 +709,22 @@ class Identifier:
             if n in seen:
                 raise ParameterError(n, "listed twice in the free parameters")
             seen.add(n)
+
+    def _with_search_bounds(self) -> ParameterSet:
+        """``self.params`` with this fit's search bounds (``bounds``), checked against the physical ones."""
+        new = {}
+        for n, b in self.bounds.items():
+            if n not in self.params:
+                raise ParameterError(n, "unknown; cannot set its search bounds")
+            if not (isinstance(b, (tuple, list)) and len(b) == 2):
+                raise ParameterError(n, f"search bounds {b!r} must be a pair (lo, hi)")
+            par = self.params[n]
+            lo, hi = float(b[0]), float(b[1])
+            if not lo <= par.value <= hi:
+                raise ParameterError(n, f"search bounds [{lo:g}, {hi:g}] {par.unit} do not contain the initial "
+                                        f"value {par.value:g}")
+            new[n] = dc_replace(par, min=lo, max=hi)  # the Parameter checks them against its physical bounds
+        return self.params.replace_parameters(new) if new else self.params
 
     def _scales(self) -> np.ndarray:
         out = []
@@ -748,6 +779,8 @@ class Identifier:
         runs = [runs] if isinstance(runs, RigRun) else list(runs)
         if not runs:
             raise RigDataError("<runs>", [(None, None, "no run given")])
+        self.params = self._with_search_bounds()
+        runs = [run_kinematics(r, self.params) for r in runs]  # a run stating other kinematics is refused
         plant = build_plant(self.level, self.effects, params=self.params)
         self._check(plant)
         st = self.settings
@@ -763,8 +796,8 @@ class Identifier:
         prior_w = np.array([scale[k] / priors[n][1] if n in priors else 0.0 for k, n in enumerate(self.free)]) \
             if priors else None
         p0 = plant.p_vector(self.params)
-        lo = np.array([(self.params[n].min - self.params[n].value) / s for n, s in zip(self.free, scale)])
-        hi = np.array([(self.params[n].max - self.params[n].value) / s for n, s in zip(self.free, scale)])
+        lo = np.array([(self.params[n].search_interval()[0] - self.params[n].value) / s for n, s in zip(self.free, scale)])
+        hi = np.array([(self.params[n].search_interval()[1] - self.params[n].value) / s for n, s in zip(self.free, scale)])
         sizes = [pb.n_dec_states for pb in problems]
         offsets = np.cumsum([nf] + sizes)
         sigmas = [pb.sigma0 for pb in problems]

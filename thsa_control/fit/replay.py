@@ -19,6 +19,9 @@ Two replays of one :class:`~thsa_control.data.rigdata.RigRun`:
   (:func:`current_driven_map`), so the motor torque is ``Kt i_measured`` and
   neither the controller nor the electrics take part.  The same map, mapped
   over segments, is what :mod:`thsa_control.fit.identify` differentiates.
+  On a drive whose position integrates, this whole-run replay drifts:
+  :mod:`thsa_control.fit.segmented` restarts it from the measured state
+  every segment (what ``thsa residual --mode open_loop`` uses by default).
 
 Both return a :class:`ReplayResult` with simulated and measured signals at the
 run's sample times (SI, FORMAT.md signs) and the fit statistics of
@@ -42,6 +45,7 @@ from ..errors import RigDataError, ThsaError
 from ..model.plant import Plant
 from ..model.params import ParameterSet
 from ..data.rigdata import RigRun
+from .kinematics import run_kinematics
 from ..sim.simulate import InputSeries, SimulationSettings, Simulator
 
 __all__ = [
@@ -81,6 +85,8 @@ COMPARED_OUTPUT = {"motor_speed": "motor_speed", "motor_current": "motor_current
                    "nut_position": "surface_position", "screw_speed": "screw_speed"}
 #: Shaper rate limit that passes a recorded (already shaped) command through [m/s^2].
 PASS_THROUGH_ACCEL = 1e9
+#: Speed cap [m/s] of a run's position loop that states none (the Design needs a finite one).
+UNLIMITED_SPEED = 1e3
 
 
 @dataclass(frozen=True)
@@ -118,7 +124,8 @@ class ChannelFit:
                 for k, v in self.__dict__.items()}
 
 
-_UNITS = {"motor_speed": "rad/s", "motor_current": "A", "nut_position": "m", "screw_speed": "rad/s"}
+_UNITS = {"motor_speed": "rad/s", "motor_current": "A", "nut_position": "m", "screw_speed": "rad/s",
+          "missing_torque": "N m"}
 
 
 def channel_fit(channel: str, measured, simulated, unit: str | None = None) -> ChannelFit:
@@ -240,10 +247,13 @@ class ReplayResult:
 def run_design(run: RigRun, *, name: str | None = None) -> Design:
     """The rig's cascade of ``run`` (its JSON ``controller`` block) as a :class:`Design`.
 
-    The position loop is not part of the format; it is set open
-    (``position_kp = 0``): a replay feeds the recorded speed command.  The
-    controller block's free key ``computation_delay_samples`` (0 or 1, written
-    by the workbench) is honoured; absent, no delay.
+    Without the block's ``position_loop`` (an extension, ``docs/rig_format.md``)
+    the position loop is open (``position_kp = 0``): a replay feeds the
+    recorded speed command.  With it, its P gain and speed cap
+    (:data:`UNLIMITED_SPEED` when the run gives none) close the loop on the
+    CSV's ``position_cmd_mm`` (:func:`run_inputs`).  The controller block's
+    free key ``computation_delay_samples`` (0 or 1, written by the workbench)
+    is honoured; absent, no delay.
 
     Raises
     ------
@@ -254,10 +264,12 @@ def run_design(run: RigRun, *, name: str | None = None) -> Design:
     if c is None:
         raise RigDataError(str(run.json_path), [(f"{run.json_path.name}:controller", None,
                                                  "missing: a closed-loop replay needs the rig's controller")])
+    pl = c.position_loop
     return Design(name=name or f"{run.name} (rig controller)", current_kp=c.current_loop.kp,
                   current_ki=c.current_loop.ki, voltage_limit=c.current_loop.voltage_limit,
                   velocity_kp=c.velocity_loop.kp, velocity_ki=c.velocity_loop.ki,
-                  current_limit=c.velocity_loop.current_limit, position_kp=0.0,
+                  current_limit=c.velocity_loop.current_limit, position_kp=pl.kp if pl else 0.0,
+                  max_speed=min(pl.max_speed, UNLIMITED_SPEED) if pl else Design.max_speed,
                   control_period=c.control_period, source=str(run.json_path),
                   computation_delay_samples=_delay_samples(c.extra.get("computation_delay_samples", 0), run))
 
@@ -303,6 +315,12 @@ def run_inputs(run: RigRun, control_period: float, *, interpolation: str = "line
         is the recorded command read one control period ahead (the shaper's
         one-period delay), ``accel_limit`` is :data:`PASS_THROUGH_ACCEL`;
         position loop open; motors off at zero command as the JSON says.
+        When the JSON's controller has a ``position_loop``, the loop is closed
+        on ``position_cmd_mm`` (rebuilt like the command) and the shaper
+        limits are the loop's ``accel_limit`` / ``jerk_limit``; the recorded
+        speed command is then an output of the rig, not an input.  A
+        ``current_feedforward`` gives ``current_ff`` (offset plus its column,
+        rebuilt like the command).
     """
     t_run = np.asarray(run.time, float)
     n = int(math.floor((t_run[-1] - t_run[0]) / control_period + 1e-6)) + 1
@@ -311,13 +329,24 @@ def run_inputs(run: RigRun, control_period: float, *, interpolation: str = "line
     cmd = _resample(t_run, _fill_single_gaps(t_run, sig["speed_cmd"]), t + control_period, interpolation)
     load = _resample(t_run, _fill_single_gaps(t_run, sig["load_force"]), t, interpolation)
     temp = _resample(t_run, _fill_single_gaps(t_run, sig["temperature"]), t, "linear")
+    c = run.controller
+    pl = c.position_loop if c is not None else None
+    ff = c.current_feedforward if c is not None else None
+    current_ff = np.zeros(n)
+    if ff is not None:
+        current_ff += ff.offset
+        if ff.column is not None:
+            current_ff += _resample(t_run, np.asarray(run.extra[ff.column], float), t, interpolation)
     signals = {
-        "speed_target": cmd, "position_cmd": np.zeros(n), "position_mode": np.zeros(n),
+        "speed_target": cmd,
+        "position_cmd": _resample(t_run, sig["position_cmd"], t, interpolation) if pl else np.zeros(n),
+        "position_mode": np.full(n, 1.0 if pl else 0.0),
         "primary_enable": _resample(t_run, sig["primary_enable"], t, "hold"),
         "standby_enable": _resample(t_run, sig["standby_enable"], t, "hold"),
-        "load_force": load, "temperature": temp,
+        "load_force": load, "temperature": temp, "current_ff": current_ff,
     }
-    return InputSeries(run.name, t, signals, PASS_THROUGH_ACCEL, math.inf, bool(run.motor_disabled_when_cmd_zero),
+    accel, jerk = (min(pl.accel_limit, PASS_THROUGH_ACCEL), pl.jerk_limit) if pl else (PASS_THROUGH_ACCEL, math.inf)
+    return InputSeries(run.name, t, signals, accel, jerk, bool(run.motor_disabled_when_cmd_zero),
                        str(run.metadata.get("description", "")))
 
 
@@ -425,6 +454,7 @@ def replay_closed_loop(run: RigRun, plant: Plant, params: ParameterSet, *, desig
     """
     settings = settings or ReplaySettings()
     settings.validate()
+    run = run_kinematics(run, params)  # one source of truth: a run stating other kinematics is refused
     check_run_model(run, plant, mode="closed_loop")
     design = design or run_design(run)
     h = design.control_period
@@ -563,6 +593,7 @@ def replay_open_loop(run: RigRun, plant: Plant, params: ParameterSet, *, setting
 
     settings = settings or ReplaySettings()
     settings.validate()
+    run = run_kinematics(run, params)
     for msg in check_run_model(run, plant, mode="open_loop"):
         _warnings.warn(msg, stacklevel=2)
     V = mech_inputs(run)
@@ -583,7 +614,8 @@ def replay_open_loop(run: RigRun, plant: Plant, params: ParameterSet, *, setting
     measured = _measured(run)
     compared = compared_signals(run, simulated, [c for c in measured if c != "motor_current"])
     fits = {c: channel_fit(c, measured[c], compared[c]) for c in compared}
-    info = {"wall_s": wall, "substeps": settings.substeps}
+    info = {"wall_s": wall, "substeps": settings.substeps, "open_loop_replay": "whole_run", "segment_s": None,
+            "segments": 1}
     return ReplayResult(run.name, "open_loop", np.asarray(run.time, float), MappingProxyType(simulated),
                         MappingProxyType(measured), plant.effects, params, MappingProxyType(fits), info,
                         MappingProxyType(compared))
@@ -616,6 +648,9 @@ def residual_signals(run: RigRun, result: ReplayResult) -> tuple[dict, dict]:
 
     Conditioning (FORMAT.md signs): nut speed command [m/s], load [N],
     quadrant (opposing / aiding / unloaded, from the command and the load),
+    direction of motion (sign of the measured motor speed, else of ratio x
+    screw speed, else of the command; stopped within 5 % of its peak: a
+    friction shows as residual means of opposite signs),
     temperature [degC], nut position [m] and motor electrical angle [rad]
     (as simulated: they are not noisy), time to the nearest direction
     reversal [s], motors on/off [0/1].  Inputs: load force, speed command,
@@ -633,8 +668,14 @@ def residual_signals(run: RigRun, result: ReplayResult) -> tuple[dict, dict]:
     sim = result.simulated
     deadband = 0.05 * float(np.max(np.abs(cmd))) if cmd.size and np.any(cmd) else 0.0
     pole_pairs = result.params.value("motor.pole_pairs")
+    meas = result.measured
+    speed = (np.asarray(meas["motor_speed"], float) if "motor_speed" in meas else
+             np.asarray(meas["screw_speed"], float) * run.gear_ratio if "screw_speed" in meas else cmd)
+    speed = np.nan_to_num(speed)
+    moving = 0.05 * float(np.max(np.abs(speed))) if speed.size else 0.0
     conditioning = {
         "speed_cmd": cmd, "load_force": load,
+        "direction": np.where(np.abs(speed) > moving, np.sign(speed), 0.0),
         "quadrant": quadrant(cmd, load, (deadband, 0.02 * float(np.max(np.abs(load))) if np.any(load) else 0.0)),
         "temperature": np.asarray(s["temperature"], float), "nut_position": np.asarray(sim["nut_position"], float),
         "motor_angle": wrapped_angle(t, sim["motor_speed"], periods_per_revolution=pole_pairs),
@@ -654,5 +695,6 @@ def analyse_replay(run: RigRun, result: ReplayResult, settings=None):
     conditioning, inputs = residual_signals(run, result)
     channels = list(result.fits)
     return analyse_residuals(result.time, {c: result.measured[c] for c in channels},
-                             {c: result.compared.get(c, result.simulated[c]) for c in channels}, conditioning, inputs, settings=settings,
+                             {c: result.compared[c] if c in result.compared else result.simulated[c] for c in channels},
+                             conditioning, inputs, settings=settings,
                              units={c: _UNITS.get(c, "") for c in channels})

@@ -102,7 +102,8 @@ QUADRANT_LABELS: dict[int, str] = {1: "opposing", -1: "aiding", 0: "unloaded/sto
 # ------------------------------------------------------------------ settings
 def _default_labels() -> dict[str, dict[float, str]]:
     return {"quadrant": {float(k): v for k, v in QUADRANT_LABELS.items()},
-            "motor_on": {0.0: "off", 1.0: "on"}}
+            "motor_on": {0.0: "off", 1.0: "on"},
+            "direction": {1.0: "positive", -1.0: "negative", 0.0: "stopped"}}
 
 
 @dataclass(frozen=True)
@@ -131,8 +132,8 @@ class ResidualSettings:
     peak_ratio : float
         A peak must exceed this multiple of the median PSD [-].
     category_labels : dict of str to dict of float to str
-        Labels of categorical conditioning values by signal name (``quadrant``
-        and ``motor_on`` by default).
+        Labels of categorical conditioning values by signal name (``quadrant``,
+        ``motor_on`` and ``direction`` by default).
     """
 
     max_lag: int = 25

@@ -24,7 +24,11 @@ parameter value of the plant, so that identification can be checked.
 
 :func:`excitation_inputs` builds an identification excitation like the one of
 ``shared/rig-data/examples``: plateaus of constant speed under a constant
-load with a Schroeder multi-sine and a PRBS on top.
+load with a Schroeder multi-sine and a PRBS on top.  :func:`position_inputs`
+builds a position-loop run (moves between positions, optionally a current
+added at the controller output); the JSON then holds the run's
+``controller.position_loop`` and ``controller.current_feedforward``
+(``docs/rig_format.md``), so that a replay closes the same loop.
 
 This module does no physics and imports no matplotlib.
 """
@@ -39,14 +43,14 @@ from pathlib import Path
 import numpy as np
 
 from ..loops.design import Design, load_design, nominal_design_path
-from ..data.export import rig_columns, rig_metadata
+from ..data.export import FEEDFORWARD_COLUMN, rig_columns, rig_metadata
 from ..model import build_plant
 from ..model.params import ParameterSet, default_parameters
 from ..data.rigdata import COLUMNS, write_run
 from ..sim.scenarios import Scenario
 from ..sim.simulate import InputSeries, SimulationResult, SimulationSettings, Simulator
 
-__all__ = ["VirtualRig", "excitation_inputs", "NOISY_COLUMNS"]
+__all__ = ["VirtualRig", "excitation_inputs", "position_inputs", "NOISY_COLUMNS"]
 
 #: Columns that may carry sensor noise and quantisation (the rig's sensors).
 NOISY_COLUMNS = ("load_force_N", "motor_speed_rpm", "motor_current_A", "nut_position_mm", "screw_speed_rpm",
@@ -155,7 +159,7 @@ class VirtualRig:
                 q = float(self.quantisation.get(name, 0.0))
                 if q > 0:
                     values = q * np.round(values / q)
-            if name in COLUMNS or self.truth_columns:
+            if name in COLUMNS or name == FEEDFORWARD_COLUMN or self.truth_columns:  # the JSON names the latter
                 out[name] = values
         return out
 
@@ -278,3 +282,41 @@ def excitation_inputs(duration: float = 10.0, mean_speed: float = 3e-3, load: fl
             f"(+-{prbs_amplitude * 1e3:g} mm/s, {prbs_clock * 1e3:g} ms clock); load {load:g} N "
             f"(compressive positive) from 0.3 s; {temperature:g} degC; seed {seed}")
     return InputSeries(name or "excitation", t, signals, accel_limit, math.inf, True, desc)
+
+
+def position_inputs(times, positions, *, current_ff=None, load: float = 0.0, accel_limit: float = 2.0,
+                    jerk_limit: float = math.inf, temperature: float = 25.0, control_period: float = 1e-4,
+                    motor_off_at_zero: bool = False, name: str = "position_moves") -> InputSeries:
+    """A position-loop run as an :class:`InputSeries` (the cascade's position P loop closed throughout).
+
+    Parameters
+    ----------
+    times, positions : sequence of float
+        Corners of the piecewise-linear position command [s], [m]; the run
+        lasts until the last time.
+    current_ff : callable or float, optional
+        Current added at the velocity loop's output [A]: a constant, or
+        ``f(t) -> A`` on the time grid (a disturbance or a feed-forward).
+    load : float
+        Constant axial load [N, compressive positive].
+    accel_limit, jerk_limit : float
+        Shaper limits of the speed target [m/s^2], [m/s^3].
+
+    Examples
+    --------
+    >>> u = position_inputs([0.0, 0.1, 0.5], [0.0, 0.0, 0.01], current_ff=0.2)
+    >>> u.time.size, float(u.signals["position_cmd"][-1]) < 0.01, float(u.signals["current_ff"][0])
+    (5000, True, 0.2)
+    """
+    times, positions = np.asarray(times, float), np.asarray(positions, float)
+    n = int(round(times[-1] / control_period))
+    t = np.arange(n) * control_period
+    ff = np.zeros(n) if current_ff is None else (
+        np.asarray(current_ff(t), float) * np.ones(n) if callable(current_ff) else np.full(n, float(current_ff)))
+    signals = {"speed_target": np.zeros(n), "position_cmd": np.interp(t, times, positions),
+               "position_mode": np.ones(n), "primary_enable": np.ones(n), "standby_enable": np.zeros(n),
+               "load_force": np.full(n, float(load)), "temperature": np.full(n, float(temperature)),
+               "current_ff": ff}
+    desc = (f"position moves through {len(times)} corners ({positions.min() * 1e3:g}..{positions.max() * 1e3:g} mm), "
+            f"load {load:g} N" + ("" if current_ff is None else ", current added at the controller output"))
+    return InputSeries(name, t, signals, accel_limit, jerk_limit, motor_off_at_zero, desc)

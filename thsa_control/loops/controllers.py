@@ -11,6 +11,8 @@ One control period ``h`` (10 kHz by default) does, in this order:
 3. motors de-energised while the shaped command is exactly zero (as on the
    rig; optional), integrators reset then;
 4. velocity PI on motor speed [rad/s] (reference = shaped nut speed / r),
+   plus the per-sample ``current_ff`` [A] added at its output (a feed-forward
+   or a disturbance at the controller output; 0 by default),
    current reference clamped to ``+-current_limit``, conditional integration
    (no integration while the clamp is active and the error drives further into
    it, nor while no motor is energised);
@@ -39,8 +41,8 @@ CONTROLLER_STATES = (
     "energised_prev_primary", "energised_prev_standby",
 )
 #: Per-sample reference inputs: target nut speed [m/s], position command [m],
-#: position mode (1: P loop closed), channel enables (0/1).
-REFERENCE_INPUTS = ("speed_target", "position_cmd", "position_mode", "primary_enable", "standby_enable")
+#: position mode (1: P loop closed), channel enables (0/1), current added at the velocity PI's output [A].
+REFERENCE_INPUTS = ("speed_target", "position_cmd", "position_mode", "primary_enable", "standby_enable", "current_ff")
 #: Measurements: motor speed [rad/s], currents [A], nut position [m].
 MEASUREMENTS = ("motor_speed", "motor_current", "standby_current", "nut_position")
 CONTROLLER_PARAMETERS = (
@@ -56,9 +58,9 @@ def _clamp(v, lim):
     return ca.fmin(ca.fmax(v, -lim), lim)
 
 
-def _pi(error, integrator, kp, ki, limit, h, active):
-    """PI with output clamp and conditional integration; returns (output, integrator_next)."""
-    unsat = kp * error + integrator
+def _pi(error, integrator, kp, ki, limit, h, active, offset=0.0):
+    """PI (plus ``offset`` at its output) with output clamp and conditional integration; returns (output, integrator_next)."""
+    unsat = kp * error + integrator + offset
     out = _clamp(unsat, limit)
     saturated = ca.fabs(unsat) >= limit
     winding = saturated * (error * unsat > 0)
@@ -113,7 +115,7 @@ def build_controller() -> ca.Function:
     # 4. velocity PI (reset at zero command; in a fault gap held with hand-over, else reset)
     w_ref = speed_cmd / K["nut_per_motor_rad"]
     i_ref, vi = _pi(w_ref - M["motor_speed"], X["velocity_integrator"], K["velocity_kp"], K["velocity_ki"],
-                    K["current_limit"], h, any_on)
+                    K["current_limit"], h, any_on, R["current_ff"])
     held = ca.if_else(K["handover"] > 0.5, X["velocity_integrator"], 0.0)
     vi = ca.if_else(run, ca.if_else(any_on, vi, held), 0.0)
     i_ref = ca.if_else(any_on, i_ref, 0.0)

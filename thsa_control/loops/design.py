@@ -315,7 +315,9 @@ def reflected_inertia(params: ParameterSet, level: str = "A", effects=()) -> flo
 
     At standstill and no load the speed's derivative is linear in the motor
     current, ``dw/dt = Kt i / J``, so ``J = Kt / (dw/dt(i=1) - dw/dt(i=0))``
-    exactly: no second copy of the inertia sum the structure builds.
+    exactly: no second copy of the inertia sum the structure builds.  With
+    ``drivetrain_compliance`` the current accelerates the rotors alone at first
+    (the spring carries no torque yet): that rotor inertia is returned.
     """
     from ..model import build_plant
     from ..model.structure import torque_constant
@@ -326,7 +328,8 @@ def reflected_inertia(params: ParameterSet, level: str = "A", effects=()) -> flo
     u[plant.index("input", "enable_primary")] = 1.0
     u[plant.index("input", "temperature")] = params.value("friction.reference_temperature")
     x = plant.initial_state(params)
-    iw, ii = plant.index("state", "motor_speed"), plant.index("state", "motor_current")
+    speed = "rotor_speed" if "rotor_speed" in plant.state_names else "motor_speed"
+    iw, ii = plant.index("state", speed), plant.index("state", "motor_current")
     w0 = float(plant.f(x, u, p)[0][iw])
     x[ii] = 1.0
     w1 = float(plant.f(x, u, p)[0][iw])

@@ -32,9 +32,10 @@ import tomli_w
 
 from ..errors import ParameterError
 
-__all__ = ["Parameter", "ParameterSet", "default_parameters", "load_parameters", "convert_unit", "UNIT_CONVERSIONS"]
+__all__ = ["Parameter", "ParameterSet", "default_parameters", "load_parameters", "convert_unit", "UNIT_CONVERSIONS",
+           "search_bounds_for", "SEARCH_DECADES"]
 
-_FIELDS = {"value", "unit", "min", "max", "source", "vary", "description", "integer"}
+_FIELDS = {"value", "unit", "min", "max", "source", "vary", "description", "integer", "valid"}
 
 #: Units a parameter file may use instead of the parameter's own unit: unit -> (unit, factor),
 #: value_in_unit * factor = value in the parameter's unit.  Anything else is refused.
@@ -93,7 +94,7 @@ class Parameter:
     source : str
         A table of the papers, or ``"assumed: <reason>"``.
     min, max : float
-        Physical bounds; ``value`` must lie inside.
+        Search bounds of the identification; ``value`` lies inside.
     vary : bool
         Default for identification: free (True) or held (False).
     description : str
@@ -101,9 +102,20 @@ class Parameter:
     integer : bool
         The value must be a whole number (``motor.pole_pairs``).
     hard_min, hard_max : float
-        Physical bounds that no override may move (efficiency <= 1, masses
-        >= 0, ...); default ``min`` / ``max``.  ``min`` / ``max`` are the
-        adjustable (search) bounds and must lie inside them.
+        Physical validity bounds: what a parameter file may hold at all
+        (efficiency in (0, 1], inertia > 0, ...); default ``min`` / ``max``.
+        In a file they are the ``valid`` interval, ``"(0, 1]"``.  No
+        override may widen them.
+    hard_min_open, hard_max_open : bool
+        The physical bound itself is excluded (``(`` / ``)`` in ``valid``).
+
+    Notes
+    -----
+    ``min`` / ``max`` are the identification's search bounds (overridable
+    per fit, ``Identifier(bounds=...)``), inside the physical ones; they
+    always contain the value.  A physically valid value outside them is
+    accepted: the search bounds then move with it (:func:`search_bounds_for`),
+    since they described another rig.
     """
 
     name: str
@@ -117,6 +129,8 @@ class Parameter:
     integer: bool = False
     hard_min: float = math.nan
     hard_max: float = math.nan
+    hard_min_open: bool = False
+    hard_max_open: bool = False
 
     def __post_init__(self):
         for key in ("value", "min", "max", "hard_min", "hard_max"):
@@ -127,7 +141,7 @@ class Parameter:
         for key in ("unit", "source", "description"):
             if not isinstance(getattr(self, key), str):
                 raise ParameterError(self.name, f"{key} {getattr(self, key)!r} must be a string")
-        for key in ("vary", "integer"):
+        for key in ("vary", "integer", "hard_min_open", "hard_max_open"):
             if not isinstance(getattr(self, key), (bool, np.bool_)):
                 raise ParameterError(self.name, f"{key} {getattr(self, key)!r} must be true or false")
             object.__setattr__(self, key, bool(getattr(self, key)))
@@ -142,13 +156,17 @@ class Parameter:
             raise ParameterError(self.name, "min/max must not be NaN")
         if self.min > self.max:
             raise ParameterError(self.name, f"min {self.min} > max {self.max}")
+        if self.hard_min > self.hard_max:
+            raise ParameterError(self.name, f"physical bounds {self.valid} are empty")
+        if not (self.physically_valid(value)):
+            raise ParameterError(self.name, f"value {value:g} {self.unit} outside its bounds: physically valid "
+                                            f"values are {self.valid} {self.unit}")
         if self.min < self.hard_min or self.max > self.hard_max:
-            raise ParameterError(self.name, f"bounds [{self.min:g}, {self.max:g}] would widen the physical bounds "
-                                            f"[{self.hard_min:g}, {self.hard_max:g}] {self.unit} (an override may "
-                                            "only narrow them)")
+            raise ParameterError(self.name, f"search bounds [{self.min:g}, {self.max:g}] would widen the physical "
+                                            f"bounds {self.valid} {self.unit} (an override may only narrow them)")
         if not (self.min <= value <= self.max):
             raise ParameterError(
-                self.name, f"value {value:g} {self.unit} outside its bounds [{self.min:g}, {self.max:g}]"
+                self.name, f"value {value:g} {self.unit} outside its search bounds [{self.min:g}, {self.max:g}]"
             )
         if self.integer and value != round(value):
             raise ParameterError(self.name, f"value {value:g} must be a whole number")
@@ -158,9 +176,88 @@ class Parameter:
         if src.lower().startswith("assumed") and len(src.split(":", 1)) < 2:
             raise ParameterError(self.name, "an assumed value needs a reason: 'assumed: <reason>'")
 
+    @property
+    def valid(self) -> str:
+        """The physical validity interval as written in a file, ``"(0, 1]"``."""
+        return _interval(self.hard_min, self.hard_max, self.hard_min_open, self.hard_max_open)
+
+    def physically_valid(self, value: float) -> bool:
+        """True when ``value`` lies in the physical interval (open ends excluded)."""
+        lo_ok = value > self.hard_min if self.hard_min_open else value >= self.hard_min
+        hi_ok = value < self.hard_max if self.hard_max_open else value <= self.hard_max
+        return bool(lo_ok and hi_ok)
+
+    def search_interval(self) -> tuple[float, float]:
+        """The search bounds as a closed interval an optimiser may reach (an open physical end kept just inside)."""
+        lo, hi = self.min, self.max
+        if self.hard_min_open and lo <= self.hard_min:
+            lo = self.hard_min + 1e-6 * (self.value - self.hard_min)
+        if self.hard_max_open and hi >= self.hard_max:
+            hi = self.hard_max - 1e-6 * (self.hard_max - self.value)
+        return lo, hi
+
     def with_value(self, value: float) -> "Parameter":
-        """Return a copy with another value (bounds are checked)."""
+        """Return a copy with another value.
+
+        The value must be physically valid (else :class:`ParameterError`
+        naming the parameter); outside the search bounds, they move with it
+        (:func:`search_bounds_for`).
+        """
+        if _is_number(value) and math.isfinite(float(value)) and not (self.min <= value <= self.max) \
+                and self.physically_valid(float(value)):
+            lo, hi = search_bounds_for(self, float(value))
+            return _dc_replace(self, value=value, min=lo, max=hi)
         return _dc_replace(self, value=value)
+
+
+#: Decades either side of a value that the search bounds span when they are re-derived from it.
+SEARCH_DECADES = 3.0
+
+
+def _fmt(x: float) -> str:
+    return "inf" if x == math.inf else "-inf" if x == -math.inf else f"{x:g}"
+
+
+def search_bounds_for(par: Parameter, value: float) -> tuple[float, float]:
+    """Search bounds around a physically valid ``value`` that lies outside ``par``'s search bounds.
+
+    The old search bounds described another rig (the papers' actuator).  A
+    positive quantity (physical lower bound >= 0, value > 0) gets
+    ``value / 10**3 .. value * 10**3``; anything else the physical interval.
+    Both are clipped to the physical interval (an open end is kept just
+    inside, so that an identification never reaches it).
+    """
+    if par.hard_min >= 0.0 and value > 0.0:
+        lo, hi = value * 10.0 ** -SEARCH_DECADES, value * 10.0 ** SEARCH_DECADES
+    else:
+        lo, hi = par.hard_min, par.hard_max
+    lo, hi = max(lo, par.hard_min), min(hi, par.hard_max)
+    if par.hard_min_open and lo <= par.hard_min:
+        lo = min(value, par.hard_min + 1e-9 * max(abs(value), 1e-300)) if par.hard_min != 0 else value * 1e-9
+    if par.hard_max_open and hi >= par.hard_max:
+        hi = max(value, par.hard_max - 1e-9 * abs(par.hard_max))
+    return min(lo, value), max(hi, value)
+
+
+def _interval(lo: float, hi: float, lo_open: bool, hi_open: bool) -> str:
+    return ("(" if lo_open else "[") + f"{_fmt(lo)}, {_fmt(hi)}" + (")" if hi_open else "]")
+
+
+def parse_valid(name: str, text, source_name: str) -> tuple[float, float, bool, bool]:
+    """``"(0, 1]"`` -> (0.0, 1.0, True, False); ParameterError naming the parameter otherwise."""
+    import re
+
+    m = re.fullmatch(r"\s*([\[(])\s*([^,\s]+)\s*,\s*([^,\s]+)\s*([\])])\s*", text) if isinstance(text, str) else None
+    if m is None:
+        raise ParameterError(name, f"valid {text!r} in {source_name} is not an interval like \"(0, 1]\" or "
+                                   "\"[0, inf)\"")
+    try:
+        lo, hi = float(m.group(2)), float(m.group(3))
+    except ValueError:
+        raise ParameterError(name, f"valid {text!r} in {source_name}: bounds must be numbers or inf") from None
+    if math.isnan(lo) or math.isnan(hi) or lo > hi:
+        raise ParameterError(name, f"valid {text!r} in {source_name} is an empty interval")
+    return lo, hi, m.group(1) == "(", m.group(4) == ")"
 
 
 @dataclass(frozen=True)
@@ -248,6 +345,7 @@ class ParameterSet(Mapping[str, Parameter]):
                 entry["vary"] = True
             if p.integer:
                 entry["integer"] = True
+            entry["valid"] = p.valid
             if p.description:
                 entry["description"] = p.description
             target = doc
@@ -315,8 +413,27 @@ class ParameterSet(Mapping[str, Parameter]):
                     "value": old.value, "unit": old.unit, "source": old.source, "min": old.min,
                     "max": old.max, "vary": old.vary, "description": old.description, "integer": old.integer,
                     "hard_min": old.hard_min, "hard_max": old.hard_max,
+                    "hard_min_open": old.hard_min_open, "hard_max_open": old.hard_max_open,
                 }
+                if "valid" in entry:
+                    lo, hi, lo_open, hi_open = parse_valid(name, entry.pop("valid"), source_name)
+                    if not ((lo > old.hard_min or (lo == old.hard_min and (lo_open or not old.hard_min_open)))
+                            and (hi < old.hard_max or (hi == old.hard_max and (hi_open or not old.hard_max_open)))):
+                        raise ParameterError(name, f"valid {_interval(lo, hi, lo_open, hi_open)} in {source_name} "
+                                                   f"would widen the physical bounds {old.valid} {old.unit} "
+                                                   "(an override may only narrow them)")
+                    merged.update(hard_min=lo, hard_max=hi, hard_min_open=lo_open, hard_max_open=hi_open)
+                    merged["min"], merged["max"] = max(old.min, lo), min(old.max, hi)
                 merged.update(entry)
+                if "value" in entry and "min" not in entry and "max" not in entry and _is_number(entry["value"]):
+                    probe = Parameter(name, old.value, old.unit, old.source, min=merged["min"], max=merged["max"],
+                                      hard_min=merged["hard_min"], hard_max=merged["hard_max"],
+                                      hard_min_open=merged["hard_min_open"], hard_max_open=merged["hard_max_open"]) \
+                        if merged["min"] <= old.value <= merged["max"] else None
+                    value = float(entry["value"])
+                    if probe is not None and math.isfinite(value) and probe.physically_valid(value) \
+                            and not merged["min"] <= value <= merged["max"]:
+                        merged["min"], merged["max"] = search_bounds_for(probe, value)
                 params.append(Parameter(name=name, **merged))
                 continue
             if base is not None:
@@ -329,6 +446,12 @@ class ParameterSet(Mapping[str, Parameter]):
             for req in ("unit", "source"):
                 if req not in entry:
                     raise ParameterError(name, f"missing '{req}' in {source_name}")
+            entry = dict(entry)
+            if "valid" in entry:
+                lo, hi, lo_open, hi_open = parse_valid(name, entry.pop("valid"), source_name)
+                entry.update(hard_min=lo, hard_max=hi, hard_min_open=lo_open, hard_max_open=hi_open)
+                entry.setdefault("min", lo)
+                entry.setdefault("max", hi)
             params.append(Parameter(name=name, **entry))
         if base is None:
             return cls(tuple(params))

@@ -25,7 +25,8 @@ __all__ = ["plot_overlay", "plot_residual_channel", "plot_segments", "figure_png
 
 #: Display scale and unit per channel (SI -> display).
 _DISPLAY = {"motor_speed": (60 / (2 * np.pi), "rpm"), "screw_speed": (60 / (2 * np.pi), "rpm"),
-            "nut_position": (1e3, "mm"), "motor_current": (1.0, "A"), "nut_speed": (1e3, "mm/s")}
+            "nut_position": (1e3, "mm"), "motor_current": (1.0, "A"), "nut_speed": (1e3, "mm/s"),
+            "missing_torque": (1.0, "N m")}
 
 
 def _scale(channel: str) -> tuple[float, str]:
@@ -166,6 +167,14 @@ def _fits(replay_result) -> dict:
 def write_residual_folder(folder: str | Path, replay_result, analysis, *, title: str | None = None) -> dict:
     """``residuals.json``, ``report.html`` (overlay, residual figures, residual report) in ``folder``.
 
+    ``residuals.json``: ``run``, ``mode`` (``closed_loop`` / ``open_loop``),
+    ``effects``, ``fits`` (per channel: RMS, NRMSE, fit %), ``residuals``
+    (:meth:`ResidualAnalysis.summary`), and for an open-loop replay
+    ``open_loop_replay`` (``segmented``: restarted from the measured state
+    every ``segment_s`` seconds, ``segments`` of them, with the inverse-model
+    channel ``missing_torque`` [N m] and ``reflected_inertia_median``
+    [kg m^2]; ``whole_run``: one replay, ``segment_s`` null).
+
     Returns the JSON content.
     """
     from ..fit.residuals import format_residual_report
@@ -173,11 +182,22 @@ def write_residual_folder(folder: str | Path, replay_result, analysis, *, title:
 
     folder = Path(folder)
     r = replay_result
-    title = title or f"Residuals of {r.run_name}: {r.mode.replace('_', ' ')} replay, effects {', '.join(r.effects) or 'level A'}"
+    how = r.mode.replace("_", " ")
+    if r.info.get("open_loop_replay") == "segmented":
+        how += f" (restarted from the measured state every {r.info['segment_s']:.4g} s)"
+    elif r.info.get("open_loop_replay") == "whole_run":
+        how += " (whole run, not restarted)"
+    title = title or f"Residuals of {r.run_name}: {how} replay, effects {', '.join(r.effects) or 'level A'}"
     summary = {"run": r.run_name, "mode": r.mode, "effects": list(r.effects), "fits": _fits(r),
                "residuals": analysis.summary()}
+    if r.mode == "open_loop":  # which open-loop replay: segmented (one-segment prediction errors) or whole run
+        summary["open_loop_replay"] = r.info.get("open_loop_replay", "whole_run")
+        summary["segment_s"] = r.info.get("segment_s")
+        summary["segments"] = r.info.get("segments", 1)
+        if "reflected_inertia_median" in r.info:
+            summary["reflected_inertia_median"] = r.info["reflected_inertia_median"]
     write_json(folder / "residuals.json", summary)
-    figures = {"measured and simulated": figure_png(plot_overlay(r.time, r.measured, {r.mode: r.simulated},
+    figures = {"measured and simulated": figure_png(plot_overlay(r.time, r.measured, {r.mode: {**r.simulated, **r.compared}},
                                                                  channels=list(r.fits), title=title))}
     for c in analysis.channels.values():
         figures[f"residual of {c.name}"] = figure_png(plot_residual_channel(analysis.time, c, title=f"{r.run_name}: {c.name}"))

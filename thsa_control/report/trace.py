@@ -52,7 +52,12 @@ def format_trace_summary(doc: dict) -> str:
         for c, red in e["error_reduction"].items():
             b, a = e["error_before"].get(c, {}), e["error_after"].get(c, {})
             lines.append(f"    {c}: RMS {_num(b.get('rms'))} -> {_num(a.get('rms'))} ({100 * red:+.1f} % drop)")
-    if not doc["effects_added"]:
+    for a in doc.get("ambiguous", []):
+        drops = ", ".join(f"{n} {_num(v, '.4g')}" for n, v in a["holdout_chi2_drop"].items())
+        lines.append(f"not named (round {a['round']}): {', '.join(a['candidates'])} explain the same part of the "
+                     f"residual; held-out chi2 drops {drops} differ by less than {_num(a['indistinct_below'], '.3g')}. "
+                     f"The data cannot tell them apart (another speed, load or direction would).")
+    if not doc["effects_added"] and not doc.get("ambiguous"):
         lines.append("no candidate effect is significant")
     for r in doc["rounds"]:
         lines.append(f"round {r['round']} (model: {', '.join(r['model']) or 'functional'}): candidates")

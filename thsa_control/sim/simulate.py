@@ -46,6 +46,8 @@ __all__ = ["SimulationSettings", "InputSeries", "SimulationResult", "Simulator",
 
 #: Per-sample inputs of a run: the controller's references, then load and temperature.
 RUN_INPUTS = REFERENCE_INPUTS + ("load_force", "temperature")
+#: Inputs an :class:`InputSeries` may omit (zero): the current added at the velocity PI's output [A].
+OPTIONAL_INPUTS = ("current_ff",)
 
 
 @dataclass(frozen=True)
@@ -85,7 +87,7 @@ class InputSeries:
     """Inputs of a run, one sample per control period (SI).
 
     ``signals`` holds every name of ``RUN_INPUTS`` as an array of the length
-    of ``time``.  Build one with :meth:`from_scenario` or from rig data.
+    of ``time`` (those of ``OPTIONAL_INPUTS`` default to zeros).  Build one with :meth:`from_scenario` or from rig data.
     """
 
     name: str
@@ -99,6 +101,9 @@ class InputSeries:
 
     def __post_init__(self):
         n = len(self.time)
+        missing = {k: np.zeros(n) for k in OPTIONAL_INPUTS if k not in self.signals}
+        if missing:  # optional inputs default to 0 (a copy: the caller's dict is not changed)
+            object.__setattr__(self, "signals", {**self.signals, **missing})
         for key in RUN_INPUTS:
             if key not in self.signals:
                 raise ScenarioError(f"inputs {self.name!r}: missing signal {key!r}")

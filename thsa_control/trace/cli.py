@@ -26,7 +26,10 @@ def add_parser(subparsers) -> None:
     p.add_argument("--workers", type=int, default=2, help="parallel candidate fits (default 2)")
     p.add_argument("--column-map", help="JSON mapping of rig column names to FORMAT names")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
-    p.add_argument("--out", required=True, help="output folder (replaced atomically)")
+    p.add_argument("--out", required=True,
+                   help="output folder: new, empty, or written by thsa before (then replaced atomically)")
+    p.add_argument("--force", action="store_true",
+                   help="also replace a folder not written by thsa (never one holding an input file)")
     p.set_defaults(fn=run)
 
 
@@ -37,12 +40,19 @@ def run(args) -> int:
     from ..data.rigdata import read_run
     from ..model.params import default_parameters, load_parameters
     from ..report import atomic_folder
+    from ..report.build import check_output_folder
     from ..report.trace import format_trace_summary, write_trace_folder
     from .engine import TraceSettings, trace
 
+    inputs = [q for r in args.runs for q in (Path(r), Path(r).with_suffix(".json"))] + list(args.params or ())
+    out_opts = {"force": bool(args.force), "inputs": inputs}
+    check_output_folder(args.out, **out_opts)  # refuse a foreign output folder before the long computation
     params = load_parameters(args.params, base=default_parameters()) if args.params else default_parameters()
     mapping = json.loads(args.column_map) if args.column_map else None
-    runs = [read_run(p, column_map=mapping) for p in args.runs]
+    from ..fit.kinematics import run_kinematics
+
+    kin = (params.value("screw.lead") * 1e3, params.value("gear.ratio"))  # where a run states none
+    runs = [run_kinematics(read_run(p, column_map=mapping, default_kinematics=kin), params) for p in args.runs]
     split = lambda s: tuple(x.strip() for x in s.split(",") if x.strip()) if s else None  # noqa: E731
     try:
         settings = TraceSettings(segment_duration=args.segment, max_effects=args.max_effects, max_nfev=args.max_nfev,
@@ -54,7 +64,7 @@ def run(args) -> int:
         raise ThsaError(str(exc)) from None
     say = None if args.quiet else (lambda m: print(f"trace: {m}", file=sys.stderr, flush=True))
     result = trace(runs, args.model, args.effects or (), remove=args.remove or (), params=params, settings=settings, progress=say)
-    with atomic_folder(args.out) as tmp:
+    with atomic_folder(args.out, **out_opts, command=" ".join(["thsa", *getattr(args, "argv", [])])) as tmp:
         write_trace_folder(tmp, result)
     print(format_trace_summary(result.to_dict()))
     print(f"wrote {Path(args.out).resolve()}")

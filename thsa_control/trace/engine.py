@@ -25,7 +25,10 @@
    ``chi2(k)`` quantile at ``alpha`` and ``null_factor`` times its null drop,
    its window error falls by ``min_window_reduction``, and it is plausible;
 3. keeps the most significant candidate, makes it part of the model and
-   repeats (forward selection) until none is significant;
+   repeats (forward selection) until none is significant; when other
+   plausible candidates explain the same part of the residual (held-out drops
+   closer than noise can separate, see :func:`_rivals`) it names none of them,
+   lists them under ``ambiguous`` and stops;
 4. describes the remaining residual (:mod:`thsa_control.trace.signature`)
    and says ``unexplained`` when it is still structured.
 
@@ -49,6 +52,7 @@ from ..fit.identify import IdentificationSettings, Identifier, estimate_noise
 from ..fit.replay import channel_fit
 from ..fit.residuals import quadrant, reversal_proximity
 from ..model import EFFECTS, build_plant, resolve_effects
+from ..model.fault_effects import FAULT_EFFECTS
 from ..model.params import ParameterSet, default_parameters
 from ._threads import limit_blas_threads
 from .signature import SignatureSettings, missing_torque, sensor_consistency, signature_tests
@@ -112,8 +116,11 @@ CANDIDATES: dict[str, CandidateSpec] = {c.name: c for c in (
     CandidateSpec("temperature_friction", ("friction.cold_coulomb_torque", "friction.viscous_temperature_coefficient"),
                   {}, "cold"),
 )}
-#: Effects that are configurations, not candidates.
-NOT_CANDIDATES = ("standby_motor", "noback_ideal")
+#: Effects that are configurations or faults, not candidates of a healthy rig's residual: the fault
+#: effects (a jam, a load-path failure, the end stops, the limiter's slip, the motor brakes) act through an
+#: event or a threshold that gives a fit no gradient on data where they do not fire.  Name one in
+#: ``candidates`` to score it anyway.
+NOT_CANDIDATES = ("standby_motor", "noback_ideal", *FAULT_EFFECTS)
 
 
 @dataclass(frozen=True)
@@ -408,19 +415,9 @@ def _null_runs(fit: dict, runs: Sequence[RigRun], noise: Mapping[str, float], se
 
 # ----------------------------------------------------------------------------- signature
 def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, effects, s: SignatureSettings) -> dict:
-    plant = build_plant(None, effects, params=params)
-    import casadi as ca
+    from ..loops.design import reflected_inertia
 
-    x = plant.initial_state(params)
-    u = np.zeros(len(plant.inputs))
-    u[plant.index("input", "enable_primary")] = 1.0
-    u[plant.index("input", "temperature")] = 25.0
-    p = plant.p_vector(params)
-    xs = ca.SX.sym("x", len(x))
-    k = plant.index("state", "motor_speed")
-    dwdi = float(np.asarray(ca.Function("j", [xs], [ca.jacobian(plant.f(xs, u, p)[0][k], xs)])(x)).ravel()[0])
-    kt = 1.5 * params.value("motor.pole_pairs") * params.value("motor.flux_linkage")
-    inertia = kt / dwdi
+    inertia = reflected_inertia(params, None, effects)  # the signature's missing torque at the motor shaft
     torque: list = []
     vars_: dict = {}
     for run in runs:
@@ -579,7 +576,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     say(f"base fit: {base_fit_time:.1f} s")
     first = base
     current, cur_effects, cur_params, cur_free = base, declared, ParameterSet.from_toml(base["params_toml"]), uncertain
-    added, rounds, cand_times = [], [], []
+    added, rounds, cand_times, ambiguous = [], [], [], []
     windows_cache = {spec: {r.name: _window(spec, r) for r in runs}
                      for spec in ("moving", "all", "loaded", "reversal", "reversal_or_stop", "cold")}
     while len(added) < st.max_effects:
@@ -637,6 +634,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "plausible": plausible, "implausible_because": why, "parameters": _params_out(f, spec),
                 "fit_time_s": f["time_s"], "converged": f["converged"], "prelim": prelim, "_fit": f, "_job": jb,
                 **({"profile": f["profile"]} if f.get("profile") else {}),
+                "_noise": noise,
                 "_spec": spec,
             })
         # calibrate the promising ones on a null run of the current model (same inputs, its own noise)
@@ -665,6 +663,16 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         best = next((s for s in scored if s.get("significant")), None)
         if best is None:
             say("no candidate is significant: stop")
+            break
+        rivals = _rivals(best, scored, st.alpha)
+        if rivals:
+            names_amb = [best["name"]] + [r["name"] for r in rivals]
+            rounds[-1]["ambiguous"] = names_amb
+            ambiguous.append({"round": len(rounds), "candidates": names_amb,
+                              "holdout_chi2_drop": {s["name"]: s["holdout_chi2_drop"] for s in [best, *rivals]},
+                              "indistinct_below": best["_indistinct_below"]})
+            say(f"{', '.join(names_amb)} explain the same part of the residual (held-out chi2 drops within "
+                f"{best['_indistinct_below']:.3g}): none is named; stop")
             break
         say(f"added {best['name']}: held-out chi2 drop {best['holdout_chi2_drop']:.4g} "
             f"(null {best.get('null_chi2_drop', float('nan')):.3g})")
@@ -697,6 +705,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         "error_by_regime_before": _regime_errors(first, runs),
         "error_by_regime_after": _regime_errors(current, runs),
         "unexplained": bool(structured),
+        "ambiguous": ambiguous,
         "residual_signature": {**sig_after, "structured": [t["variable"] for t in structured]},
         "residual_signature_before": sig_before,
         "candidates": rounds[0]["candidates"] if rounds else [],
@@ -707,6 +716,36 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                    "total_s": time.perf_counter() - t_start},
     }
     return TraceResult(doc, {"before": first, "after": current})
+
+
+def _rivals(best: dict, scored: list[dict], alpha: float) -> list[dict]:
+    """Plausible candidates whose held-out drop the data cannot tell from the best one's.
+
+    Two fits differ by more than noise when their held-out chi2 differ by more
+    than the ``chi2(1)`` quantile at ``alpha``, scaled by the best fit's reduced
+    held-out chi2 when that exceeds 1 (the unmodelled part of the residual
+    inflates every difference; a quasi-likelihood scaling).  On one speed and
+    one load, for example, a constant force offset, a Coulomb friction and a
+    direction-dependent friction are the same constant torque.
+    """
+    from scipy.stats import chi2
+
+    hold = sum(_chi2_by_channel(best["_fit"], best["_noise"], "holdout").values())
+    n = _holdout_samples(best["_fit"])
+    gap = float(chi2.ppf(1 - alpha, 1)) * max(1.0, hold / max(n, 1))
+    best["_indistinct_below"] = gap
+    return [s for s in scored if s is not best and "error" not in s and s["plausible"]
+            and best["holdout_chi2_drop"] - s["holdout_chi2_drop"] < gap]
+
+
+def _holdout_samples(fit: dict) -> int:
+    """Number of finite held-out samples over all channels of a fit."""
+    n = 0
+    for p in fit["predictions"].values():
+        hold = np.asarray(p["holdout"], bool)
+        for c, y in p["measured"].items():
+            n += int(np.sum(hold & np.isfinite(np.asarray(y) - np.asarray(p["simulated"][c]))[:hold.size]))
+    return n
 
 
 def _params_out(f: dict, spec: CandidateSpec) -> dict:
