@@ -21,16 +21,16 @@ from pathlib import Path
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import thsa_control as thsa  # noqa: E402
-from thsa_control.data.rigdata import read_run  # noqa: E402
-from thsa_control.fit.identify import IdentificationSettings, Identifier, estimate_noise  # noqa: E402
-from thsa_control.fit.profile import OneStepScreen, profile_identify  # noqa: E402
-from thsa_control.fit.virtual_rig import VirtualRig  # noqa: E402
-from thsa_control.loops.design import derive_gains  # noqa: E402
-from thsa_control.model import build_plant  # noqa: E402
+import thsa_control as thsa
+from thsa_control.data.rigdata import read_run
+from thsa_control.fit.identify import IdentificationSettings, Identifier, estimate_noise
+from thsa_control.fit.profile import OneStepScreen, profile_identify
+from thsa_control.fit.virtual_rig import VirtualRig
+from thsa_control.loops.design import derive_gains
+from thsa_control.model import build_plant
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from test_trace_backlash import NOISE, PITCH, TRUE_PITCH, _stops_scenario  # noqa: E402
+from test_trace_backlash import NOISE, PITCH, TRUE_PITCH, _stops_scenario
 
 FREE = ("gear.viscous_friction", "noback.mu_coulomb_pos", "noback.mu_coulomb_neg")
 

@@ -17,7 +17,6 @@ import pytest
 
 from thsa_control.data.rigdata import read_run
 from thsa_control.errors import ParameterError
-from thsa_control.fit.identify import IdentificationSettings
 from thsa_control.fit.profile import OneStepScreen, profile_identify
 from thsa_control.fit.virtual_rig import VirtualRig
 from thsa_control.loops.design import derive_gains
@@ -78,7 +77,10 @@ def test_segment_clearances_follow_the_truth_at_the_true_pitch(stops_record, par
     """The clearance the identification gives each segment (the model's own map driven by the measured speed)
     follows the simulated truth's clearance, and the one-step screen's best pitch is the truth's."""
     from thsa_control.fit.replay import current_driven_map, mech_inputs, sample_periods
-    from thsa_control.fit.segment_states import custom_state_track, measured_state_matrix
+    from thsa_control.fit.segment_states import (
+        custom_state_track,
+        measured_state_matrix,
+    )
 
     run = dataclasses.replace(stops_record("C"), controller=None)
     truth = params.replace({PITCH: TRUE_PITCH})

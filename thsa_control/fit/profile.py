@@ -50,11 +50,21 @@ from ..data.rigdata import RigRun
 from ..errors import ParameterError, SolverError, ThsaError
 from ..model import build_plant
 from ..model.params import ParameterSet
-from .identify import IdentificationResult, IdentificationSettings, Identifier, estimate_noise
+from .identify import (
+    IdentificationResult,
+    IdentificationSettings,
+    Identifier,
+    estimate_noise,
+)
 from .replay import current_driven_map, mech_inputs, sample_periods
-from .segment_states import custom_state_indices, measured_speed, measured_state_matrix, one_step_map
+from .segment_states import (
+    custom_state_indices,
+    measured_speed,
+    measured_state_matrix,
+    one_step_map,
+)
 
-__all__ = ["ProfileSettings", "ProfileResult", "OneStepScreen", "profile_identify", "holdout_chi2"]
+__all__ = ["OneStepScreen", "ProfileResult", "ProfileSettings", "holdout_chi2", "profile_identify"]
 
 
 @dataclass(frozen=True)

@@ -29,7 +29,7 @@ from ..data.rigdata import RigRun
 from ..model.params import ParameterSet
 from ..model.plant import Plant
 
-__all__ = ["custom_state_indices", "measured_speed", "measured_state_matrix", "custom_state_track", "one_step_map"]
+__all__ = ["custom_state_indices", "custom_state_track", "measured_speed", "measured_state_matrix", "one_step_map"]
 
 
 def custom_state_indices(plant: Plant) -> list[int]:
