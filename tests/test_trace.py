@@ -109,9 +109,10 @@ def test_every_candidate_is_found_first(record, params, effect, values, candidat
     """Each library effect in the truth, not declared: it is added first and its channel's error halves.
     Loaded cases use a load that swings between compression and tension, so that each direction of
     motion is both opposed and aided (on one constant load the no-back's quadrant friction is a
-    direction-dependent Coulomb friction, and the tracer cannot tell them apart).  noback_backlash is not
-    in the list: its clearance acts through a switch (pawl engaged or not) that gives the least-squares
-    fit no gradient, so the tracer does not find it (a profiled search over the clearance is missing)."""
+    direction-dependent Coulomb friction, and the tracer cannot tell them apart).  noback_backlash has its
+    own test (tests/test_trace_backlash.py) on a record with motor-off stops under load, where each stop
+    back-drives the screw through the pawl clearance; its pitch is profiled, not fitted (the pawl switch
+    gives the least-squares fit no gradient)."""
     base_effects = ("noback_quadrant_friction",) if level == "B" else ()
     run = record(base_effects + (effect,), values, load=load, duration=3.0, level=level, triangle_load=load > 0)
     remove = ["noback_ideal"] if level is None else []

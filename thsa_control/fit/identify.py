@@ -497,6 +497,7 @@ class _RunProblem:
         self.free_states = [i for i, s in enumerate(states) if s.kind in _FREE_STATE_KINDS
                             and not (s.name == "nut_position" and "nut_position" not in run.source_columns)]
         self.x_guess = self._initial_states(params, L, M)
+        self._track_custom_states(mech, params, V, H, L, M)
         # casadi: one segment = mapaccum of the map; all segments = map
         n_p = len(plant.parameters)
         y_idx = [plant.index("output", COMPARED_OUTPUT[c]) for c in self.channels]
@@ -538,7 +539,8 @@ class _RunProblem:
             elif states[i].name in pawl and M > 0:
                 # the run starts with the ratchets where they stopped: the clearance of the first segment is a
                 # parameter (noback.pawl_initial_clearance, a fraction of the pitch); later segments take it
-                # from the replay at the initial parameters
+                # from the model's map driven by the measured speed at the initial parameters (no gradient:
+                # a pitch is profiled, thsa_control.fit.profile, each value with its own segment clearances)
                 ip, ic = plant.parameters.index("noback.pawl_pitch"), plant.parameters.index("noback.pawl_initial_clearance")
                 first = pv[ic] * pv[ip]
                 rows.append(ca.horzcat(first, X0[i, 1:]) if M > 1 else first)
@@ -605,6 +607,24 @@ class _RunProblem:
         drivetrain_segment_guess(plant, params, self.time, run.signals, run.source_columns, run.gear_ratio, starts, X,
                                  self._measured_at)
         return X
+
+    def _track_custom_states(self, mech: ca.Function, params: ParameterSet, V: np.ndarray, H: np.ndarray, L: int,
+                             M: int) -> None:
+        """Custom states (pawl clearances) at the segment starts from the model's own map driven by the
+        measured speeds at ``params`` (:func:`~thsa_control.fit.segment_states.custom_state_track`), so that
+        they are consistent with the parameters being fitted; unchanged when the run measures no speed."""
+        from .segment_states import custom_state_indices, custom_state_track, measured_state_matrix
+
+        run, plant = self.run, self.plant
+        idx = custom_state_indices(plant)
+        Xm = measured_state_matrix(run, plant, params) if idx else None
+        if Xm is None:
+            return
+        n = self.time.size
+        Xm[idx, 0] = self.x_guess[idx, 0]
+        track = custom_state_track(plant, mech, Xm, V[:, :n], H[:n], plant.p_vector(params))
+        starts = np.minimum(np.arange(M) * L, n - 1)
+        self.x_guess[idx, :] = track[:, starts]
 
     def _measured_at(self, name: str, k: int) -> float | None:
         if name not in self.run.source_columns:

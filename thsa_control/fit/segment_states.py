@@ -1,11 +1,26 @@
-"""Initial guesses of the segment states of a compliant drive train (``drivetrain_compliance``).
+"""Segment states the measurements do not give: the model's own custom states along a run.
 
-With ``drivetrain_compliance`` the plant has two bodies joined by the
-drive-train spring: the motor rotors (state ``rotor_speed``, read by the
-motor-speed sensor) and the gear output (state ``motor_speed``, read by the
-screw-speed sensor through the gear ratio), and the spring's ``drivetrain_twist``.
-Multiple shooting (:mod:`thsa_control.fit.identify`) frees all three per
-segment; this module only gives them a starting point from the data:
+Multiple shooting (:mod:`thsa_control.fit.identify`) frees each segment's
+speeds and positions, but an effect's *custom* states (the no-back's pawl
+clearances, a jam anchor) have no sensor and no gradient: where the ratchets
+stopped decides whether a pawl is engaged, a switch.  Each segment must start
+with the clearance the model itself would have there, for the parameters being
+tried (a clearance from a replay at other parameters, e.g. another pawl
+pitch, is inconsistent with the model being fitted).
+
+:func:`custom_state_track` runs the plant's own current-driven map
+(:func:`~thsa_control.fit.replay.current_driven_map`) one sample period at a
+time from the *measured* state: before each step the speed and position states
+are reset to their measured values, so only the custom states are carried from
+step to step (the series-parallel, one-step-ahead form of a replay).  It
+cannot drift like an open-loop replay, and it uses the effect's own discrete
+update, so no law is written twice.  The result depends on the parameters:
+call it again for each pitch of a profile.
+
+:func:`drivetrain_segment_guess` starts the compliant drive train's segment
+states (``drivetrain_compliance``: rotors and gear output as two bodies, read
+by the motor-speed and the screw-speed sensor, joined by the drive-train
+spring) from the data:
 
 * ``rotor_speed``: the measured motor speed (else ratio x screw speed);
 * gear-output ``motor_speed``: ratio x the measured screw speed (else the
@@ -16,9 +31,9 @@ segment; this module only gives them a starting point from the data:
   Jacobian at rest: no second copy of the physics), ``i`` the measured
   current and ``d(rotor_speed)/dt`` the slope of a straight line through the
   measured rotor speed around the segment start.  Drag and damping are
-  neglected in the guess; the fit frees the twist anyway.
+  neglected in the guess; the fit frees these states per segment anyway.
 
-Imports casadi and numpy only.
+Imports casadi and numpy; no file parsing, no plotting.
 """
 
 from __future__ import annotations
@@ -28,10 +43,136 @@ from collections.abc import Callable
 import casadi as ca
 import numpy as np
 
+from ..data.rigdata import RigRun
 from ..model.params import ParameterSet
 from ..model.plant import Plant
 
-__all__ = ["drivetrain_segment_guess"]
+__all__ = ["custom_state_indices", "custom_state_track", "measured_speed", "measured_state_matrix", "one_step_map",
+           "drivetrain_segment_guess"]
+
+
+def custom_state_indices(plant: Plant) -> list[int]:
+    """Positions of the plant's ``custom`` states (effect-specific discrete updates) in ``x``."""
+    return [i for i, s in enumerate(plant.states) if s.kind == "custom"]
+
+
+def measured_speed(run: RigRun) -> np.ndarray | None:
+    """Motor speed [rad/s] per sample: the motor speed sensor, else ratio x screw speed, else None.
+
+    Single missing samples are bridged by linear interpolation; a run with no
+    finite speed sample gives None.
+    """
+    if "motor_speed" in run.source_columns:
+        w = np.asarray(run.signals["motor_speed"], float)
+    elif "screw_speed" in run.source_columns:
+        w = np.asarray(run.signals["screw_speed"], float) * run.gear_ratio
+    else:
+        return None
+    ok = np.isfinite(w)
+    if not ok.any():
+        return None
+    if not ok.all():
+        k = np.arange(w.size)
+        w = np.interp(k, k[ok], w[ok])
+    return w
+
+
+def measured_state_matrix(run: RigRun, plant: Plant, params: ParameterSet) -> np.ndarray | None:
+    """Full state per sample: at rest with the load-path springs in equilibrium with the measured load,
+    the speeds and positions set to the measured values.
+
+    The motor speed (and the rotors' speed with a compliant drive train) is
+    the measured motor speed (:func:`measured_speed`), the surface speed the
+    matching nut speed; the LVDT gives the surface position where the load
+    path is compliant (the nut sits the spring deflection ahead), the nut
+    position otherwise.  The custom states are their initial values
+    (``plant.init``).  None when the run measures no speed.
+    """
+    w = measured_speed(run)
+    if w is None:
+        return None
+    n = w.size
+    p = plant.p_vector(params)
+    load = np.nan_to_num(np.asarray(run.signals["load_force"], float))
+    nut = np.asarray(run.signals["nut_position"], float) if "nut_position" in run.source_columns else None
+    if nut is not None and not np.isfinite(nut).all():
+        nut = None
+    X = np.array(plant.init.map(n)((nut if nut is not None else np.zeros(n))[None, :], load[None, :], p))
+    names = plant.state_names
+    if nut is not None and "surface_position" in names:  # the LVDT reads the surface
+        i_nut, i_srf = plant.index("state", "nut_position"), plant.index("state", "surface_position")
+        X[i_nut] = nut + (X[i_nut] - X[i_srf])
+        X[i_srf] = nut
+    for name in ("motor_speed", "rotor_speed"):
+        if name in names:
+            X[plant.index("state", name)] = w
+    if "surface_speed" in names:
+        X[plant.index("state", "surface_speed")] = w * params.value("screw.lead") / (2 * np.pi * params.value("gear.ratio"))
+    return X
+
+
+def one_step_map(plant: Plant, mech: ca.Function, n: int) -> ca.Function:
+    """``F(c0, U, p) -> (C, W)``: ``n`` steps of the map from measured states, custom states carried.
+
+    ``U`` stacks per sample the measured full state, the map's inputs and the
+    sample period (``nx + nv + 1`` rows, ``n`` columns); ``C`` holds the custom
+    states after each step, ``W`` the motor speed the map predicts one sample
+    ahead.  Build it once per plant and run length: the parameters are an input.
+    """
+    idx = custom_state_indices(plant)
+    nx = len(plant.states)
+    nv = mech.size1_in(1)
+    c = ca.SX.sym("c", len(idx))
+    xm = ca.SX.sym("xm", nx)
+    v = ca.SX.sym("v", nv)
+    ps = ca.SX.sym("p", mech.size1_in(2))
+    h = ca.SX.sym("h")
+    parts = ca.vertsplit(xm)
+    for k, i in enumerate(idx):
+        parts[i] = c[k]
+    xn, _ = mech(ca.vertcat(*parts), v, ps, h)
+    w_next = xn[plant.index("state", "motor_speed")]
+    step = ca.Function("custom_step", [c, ca.vertcat(xm, v, h), ps], [xn[idx] if idx else ca.SX(0, 1), w_next])
+    return step.mapaccum("one_step", n)
+
+
+def custom_state_track(plant: Plant, mech: ca.Function, x_measured: np.ndarray, inputs: np.ndarray,
+                       periods: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Custom states at every sample, carried by the plant's map from the measured states.
+
+    Parameters
+    ----------
+    plant : Plant
+    mech : casadi.Function
+        ``mech(x, v, p, h) -> (x_next, y)``, the current-driven map of ``plant``.
+    x_measured : ndarray (nx, n)
+        Full state per sample (:func:`measured_state_matrix`); the custom rows
+        of column 0 are the initial custom states.
+    inputs : ndarray (nv, n)
+        The map's inputs per sample (:func:`~thsa_control.fit.replay.mech_inputs`).
+    periods : ndarray (n,)
+        Sample periods [s].
+    p : ndarray
+        Parameter vector in ``plant.parameters`` order.
+
+    Returns
+    -------
+    ndarray (n_custom, n)
+        Custom states at the start of each sample period (column 0 is the
+        given initial value).
+    """
+    idx = custom_state_indices(plant)
+    X = np.asarray(x_measured, float)
+    n = X.shape[1]
+    if not idx or n == 0:
+        return np.zeros((len(idx), n))
+    out = np.empty((len(idx), n))
+    out[:, 0] = X[idx, 0]
+    if n > 1:
+        U = np.vstack([X[:, :-1], inputs[:, :n - 1], np.asarray(periods, float)[None, :n - 1]])
+        out[:, 1:] = np.asarray(one_step_map(plant, mech, n - 1)(X[idx, 0], U, p)[0])
+    return out
+
 
 #: Half-width of the window of the rotor-speed slope [samples].
 SLOPE_HALF_WIDTH = 2

@@ -48,7 +48,8 @@ def format_trace_summary(doc: dict) -> str:
                      f"BIC drop {_num(e['bic_drop'], '.1f')})")
         for n, p in e["parameters"].items():
             ci = p["ci95"]
-            lines.append(f"    {n} = {_num(p['value'])} {p['unit']}" + (f"  95 % CI [{_num(ci[0])}, {_num(ci[1])}]" if ci else ""))
+            lines.append(f"    {n} = {_num(p['value'])} {p['unit']}" + (f"  95 % CI [{_num(ci[0])}, {_num(ci[1])}]" if ci else "")
+                         + (" (profiled)" if p.get("profiled") else ""))
         for c, red in e["error_reduction"].items():
             b, a = e["error_before"].get(c, {}), e["error_after"].get(c, {})
             lines.append(f"    {c}: RMS {_num(b.get('rms'))} -> {_num(a.get('rms'))} ({100 * red:+.1f} % drop)")

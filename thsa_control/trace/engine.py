@@ -84,7 +84,11 @@ class CandidateSpec:
     ``free``: its parameters identified with the declared ones; ``seeds``:
     starting values where the parameter file has the effect off (0);
     ``window``: where it acts (``moving``, ``all``, ``loaded``, ``reversal``,
-    ``cold``); ``channel``: the channel where it shows most.
+    ``reversal_or_stop``, ``cold``); ``channel``: the channel where it shows most; ``profile``:
+    parameters that act through a switch (no gradient), searched over a range
+    ``(lo, hi)`` by :func:`~thsa_control.fit.profile.profile_identify` (the
+    first finely, the others where they matter) while ``free`` is fitted at
+    each value.
     """
 
     name: str
@@ -92,6 +96,7 @@ class CandidateSpec:
     seeds: Mapping[str, float] = field(default_factory=dict)
     window: str = "moving"
     channel: str = "motor_speed"
+    profile: Mapping[str, tuple[float, float]] = field(default_factory=dict)
 
 
 CANDIDATES: dict[str, CandidateSpec] = {c.name: c for c in (
@@ -103,7 +108,11 @@ CANDIDATES: dict[str, CandidateSpec] = {c.name: c for c in (
     CandidateSpec("cogging_torque", ("drive.cogging_torque_cos", "drive.cogging_torque_sin"),
                   {"drive.cogging_torque_cos": 0.005, "drive.cogging_torque_sin": 0.005}),
     CandidateSpec("noback_quadrant_friction", ("noback.mu_coulomb_pos", "noback.mu_coulomb_neg"), {}, "loaded"),
-    CandidateSpec("noback_backlash", ("noback.pawl_initial_clearance",), {}, "reversal"),
+    # the pawl switch gives no gradient: the pitch (papers: 8.57 deg max; searched 1.7..17 deg) is profiled,
+    # each value with segment clearances of its own; the initial clearance only where it matters.  It acts
+    # after a reversal and at a stop under load (the load back-drives through the clearance)
+    CandidateSpec("noback_backlash", (), {}, "reversal_or_stop",
+                  profile={"noback.pawl_pitch": (0.03, 0.3), "noback.pawl_initial_clearance": (0.0, 1.0)}),
     CandidateSpec("loadpath_compliance", ("loadpath.contact_stiffness_upper", "loadpath.contact_stiffness_lower"),
                   {}, "loaded", "nut_position"),
     CandidateSpec("temperature_friction", ("friction.cold_coulomb_torque", "friction.viscous_temperature_coefficient"),
@@ -232,7 +241,7 @@ def candidate_specs(model_effects: Iterable[str], params: ParameterSet, names: S
         if n in have:
             continue
         spec = CANDIDATES.get(n) or _generic_spec(n, params)
-        if spec is not None and all(p in params for p in spec.free):
+        if spec is not None and all(p in params for p in (*spec.free, *spec.profile)):
             out.append(spec)
     return out
 
@@ -252,6 +261,12 @@ def _window(kind: str, run: RigRun) -> np.ndarray:
         return moving & (np.abs(load) > max(0.05 * float(np.max(np.abs(load))), 500.0))
     if kind == "reversal":
         return moving & (reversal_proximity(run.time, w, deadband=0.05 * float(np.max(np.abs(w)))) < 0.3)
+    if kind == "reversal_or_stop":  # 0.3 s around a reversal, or after the motion stops (moving -> still)
+        t = np.asarray(run.time, float)
+        near = reversal_proximity(t, w, deadband=0.05 * float(np.max(np.abs(w)))) < 0.3
+        for ts in t[1:][moving[:-1] & ~moving[1:]]:
+            near |= (t >= ts) & (t < ts + 0.3)
+        return near
     if kind == "cold":
         temp = np.asarray(s["temperature"], float)
         return np.abs(temp - 25.0) > 5.0
@@ -265,19 +280,32 @@ def _fit_job(job: dict) -> dict:
     limit_blas_threads(1)
     try:
         params = ParameterSet.from_toml(job["params_toml"])
-        ident = Identifier(None, params, job["free"], effects=job["effects"], settings=job["settings"])
-        res = ident.fit(job["runs"])
+        prof = None
+        if job.get("profile"):
+            from ..fit.profile import profile_identify
+
+            prof = profile_identify(job["runs"], params, job["free"], job["profile"], effects=job["effects"],
+                                    settings=job["settings"])
+            res = prof.result
+        else:
+            ident = Identifier(None, params, job["free"], effects=job["effects"], settings=job["settings"])
+            res = ident.fit(job["runs"])
     except (ThsaError, ValueError, RuntimeError) as exc:  # casadi raises RuntimeError
         return {"label": job["label"], "error": str(exc), "time_s": time.perf_counter() - t0}
     est = {n: {"value": e.value, "stderr": e.stderr if math.isfinite(e.stderr) else None, "init": e.init,
                "at_bound": e.at_bound, "min": e.min, "max": e.max, "unit": e.unit}
            for n, e in res.estimates.items()}
+    if prof is not None:  # profiled: a value with an interval from the profile, no stderr
+        for n, (lo, hi) in job["profile"].items():
+            est[n] = {"value": prof.values[n], "stderr": None, "init": params.value(n), "at_bound": prof.at_bound[n],
+                      "min": lo, "max": hi, "unit": params[n].unit, "interval": prof.interval[n],
+                      "profiled": True, "mattered": prof.mattered[n]}
     preds = {r: {"time": p["time"], "measured": dict(p["measured"]), "simulated": dict(p["simulated"]),
                  "holdout": p["holdout"], "segment_starts": p["segment_starts"]} for r, p in res.predictions.items()}
     return {"label": job["label"], "effects": list(res.effects), "free": list(job["free"]), "estimates": est,
             "aic": res.aic, "bic": res.bic, "chisqr": res.chisqr, "nfev": res.nfev, "converged": res.converged,
             "status": res.status, "time_s": time.perf_counter() - t0, "predictions": preds,
-            "params_toml": res.to_parameter_set().to_toml()}
+            "params_toml": res.to_parameter_set().to_toml(), "profile": prof.to_dict() if prof is not None else None}
 
 
 def _run_jobs(jobs: list[dict], workers: int, progress: Callable | None) -> list[dict]:
@@ -354,6 +382,14 @@ def _plausibility(fit: dict, spec: CandidateSpec) -> tuple[bool, list[str]]:
     """
     why, determined = [], 0
     est = [(n, fit["estimates"][n]) for n in spec.free if n in fit["estimates"]]
+    for n in spec.profile:  # profiled: determined when its profile interval closes inside the search range
+        e = fit["estimates"].get(n)
+        if e is None or not e.get("mattered"):
+            continue
+        if e["at_bound"]:
+            why.append(f"{n} at the {e['at_bound']} end of its profile range")
+        elif e["interval"] is not None:
+            determined += 1
     pairs = spec.name in ("screw_friction_ripple", "cogging_torque")
     for n, e in est:
         if e["at_bound"]:
@@ -371,7 +407,7 @@ def _plausibility(fit: dict, spec: CandidateSpec) -> tuple[bool, list[str]]:
                         b["stderr"] if b["stderr"] is not None else math.inf)
         if not amp > 2 * sd:
             why.append(f"amplitude {amp:.3g} collapses to zero (stderr {sd:.2g})")
-    if est and determined == 0:
+    if (est or spec.profile) and determined == 0:
         why.append("no parameter determined by the data")
     return not why, why
 
@@ -538,10 +574,11 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                                       prior_relative_sd=st.prior_relative_sd if prior else None,
                                       holdout_every=st.holdout_every)
 
-    def job(label, effs, free, pset, data, prior=True):
+    def job(label, effs, free, pset, data, prior=True, profile=None):
         # priors on the declared uncertain parameters only: a candidate's values are seeds
         return {"label": label, "effects": tuple(effs), "free": tuple(free), "params_toml": pset.to_toml(),
-                "settings": id_settings(prior, [n for n in free if n not in uncertain]), "runs": data}
+                "settings": id_settings(prior, [n for n in free if n not in uncertain]), "runs": data,
+                "profile": dict(profile or {})}
 
     say(f"fitting the declared model ({', '.join(declared) or 'level A'}): {', '.join(uncertain)}")
     t0 = time.perf_counter()
@@ -554,7 +591,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     current, cur_effects, cur_params, cur_free = base, declared, ParameterSet.from_toml(base["params_toml"]), uncertain
     added, rounds, cand_times, ambiguous = [], [], [], []
     windows_cache = {spec: {r.name: _window(spec, r) for r in runs}
-                     for spec in ("moving", "all", "loaded", "reversal", "cold")}
+                     for spec in ("moving", "all", "loaded", "reversal", "reversal_or_stop", "cold")}
     while len(added) < st.max_effects:
         specs = candidate_specs(cur_effects, cur_params, st.candidates)
         scorable, skipped = [], []
@@ -572,8 +609,13 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             replaced = {x for e in req + [spec.name] for x in EFFECTS[e].supersedes}
             effs = resolve_effects(None, add=[e for e in cur_effects if e not in replaced] + req + [spec.name])
             pset = cur_params.replace({n: v for n, v in spec.seeds.items() if cur_params.value(n) == 0})
+            if spec.profile:
+                # a switch the model lacks distorts the declared fit (a missing pawl clearance drives the
+                # retraction disk friction to 0): a profiled candidate restarts the declared parameters, and
+                # centres their priors, at the parameter file's values
+                pset = pset.replace({n: params.value(n) for n in uncertain})
             free = tuple(dict.fromkeys(cur_free + spec.free))
-            jobs.append(job(spec.name, effs, free, pset, fit_runs))
+            jobs.append(job(spec.name, effs, free, pset, fit_runs, profile=spec.profile))
         say(f"round {len(rounds) + 1}: scoring {len(jobs)} candidates ({', '.join(s.name for s in scorable)})")
         fits = _run_jobs(jobs, st.workers, say)
         base_hold = _chi2_by_channel(current, noise, "holdout")
@@ -586,7 +628,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             cand_times.append(f["time_s"])
             hold = _chi2_by_channel(f, noise, "holdout")
             drop = sum(base_hold.values()) - sum(hold.values())
-            k = len(spec.free)
+            k = len(spec.free) + len(spec.profile)
             from scipy.stats import chi2
 
             thr = float(chi2.ppf(1 - st.alpha, k))
@@ -607,6 +649,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "aic_drop": current["aic"] - f["aic"], "bic_drop": current["bic"] - f["bic"],
                 "plausible": plausible, "implausible_because": why, "parameters": _params_out(f, spec),
                 "fit_time_s": f["time_s"], "converged": f["converged"], "prelim": prelim, "_fit": f, "_job": jb,
+                **({"profile": f["profile"]} if f.get("profile") else {}),
                 "_noise": noise,
                 "_spec": spec,
             })
@@ -617,7 +660,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             say(f"calibrating {len(promising)} candidate(s) on a null run")
             null_base = _run_jobs([job("null base", cur_effects, cur_free, cur_params, null)], 1, None)[0]
             null_fits = _run_jobs([job(f"null {s['name']}", s["_job"]["effects"], s["_job"]["free"],
-                                       ParameterSet.from_toml(s["_job"]["params_toml"]), null) for s in promising],
+                                       ParameterSet.from_toml(s["_job"]["params_toml"]), null,
+                                       profile=s["_job"]["profile"]) for s in promising],
                                   st.workers, say)
             nb = sum(_chi2_by_channel(null_base, noise, "holdout").values()) if "error" not in null_base else math.nan
             for s, nf in zip(promising, null_fits):
@@ -653,7 +697,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                       "aic_drop": best["aic_drop"], "bic_drop": best["bic_drop"], "score": best["score"],
                       "window": best["window"], "window_reduction": best["window_reduction"],
                       "error_before": _channel_errors(current), "error_after": _channel_errors(f),
-                      "segments_explained": _explained_regimes(current, f, runs)})
+                      "segments_explained": _explained_regimes(current, f, runs),
+                      **({"profile": best["profile"]} if best.get("profile") else {})})
         current, cur_effects = f, tuple(best["_job"]["effects"])
         cur_params = ParameterSet.from_toml(f["params_toml"])
         cur_free = tuple(best["_job"]["free"])
@@ -721,14 +766,14 @@ def _holdout_samples(fit: dict) -> int:
 
 def _params_out(f: dict, spec: CandidateSpec) -> dict:
     out = {}
-    for n in spec.free:
+    for n in (*spec.free, *spec.profile):
         e = f["estimates"].get(n)
         if e is None:
             continue
         sd = e["stderr"]
-        out[n] = {"value": e["value"], "stderr": sd, "unit": e["unit"],
-                  "ci95": [e["value"] - 1.96 * sd, e["value"] + 1.96 * sd] if sd is not None else None,
-                  "at_bound": e["at_bound"]}
+        ci = [e["value"] - 1.96 * sd, e["value"] + 1.96 * sd] if sd is not None else e.get("interval")
+        out[n] = {"value": e["value"], "stderr": sd, "unit": e["unit"], "ci95": list(ci) if ci else None,
+                  "at_bound": e["at_bound"], **({"profiled": True} if e.get("profiled") else {})}
     return out
 
 

@@ -1,0 +1,151 @@
+"""The tracer finds the no-back's ratchet/pawl backlash (issue #11): a profiled pawl pitch.
+
+The pawl clearance acts through a switch (engaged or not), so the pitch gets no gradient: it is profiled
+(thsa_control.fit.profile), each value with segment clearances of its own (thsa_control.fit.segment_states).
+The runs: short extensions against a 20 kN compressive load with the motors switched off between them
+(the papers' trim stops): at each stop the load back-drives the screw through the clearance its
+compressive-side pawl has left (the extension's screw travel modulo the pitch) until the pawl engages.
+The truth's pitch (0.10 rad) is not the parameter file's (0.1496 rad, the papers' 8.57 deg).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from thsa_control.data.rigdata import read_run
+from thsa_control.errors import ParameterError
+from thsa_control.fit.profile import OneStepScreen, profile_identify
+from thsa_control.fit.virtual_rig import VirtualRig
+from thsa_control.loops.design import derive_gains
+from thsa_control.model import build_plant
+from thsa_control.sim.scenarios import Scenario
+from thsa_control.trace import TraceSettings, trace
+
+NOISE = {"motor_speed_rpm": 2.0, "nut_position_mm": 0.005, "motor_current_A": 0.02, "screw_speed_rpm": 0.2}
+TRUE_PITCH = 0.10  # rad at the screw; the parameter file says 0.1496
+PITCH = "noback.pawl_pitch"
+DISTRACTORS = ("coulomb_friction", "force_offset", "direction_friction")
+
+
+def _stops_scenario() -> Scenario:
+    """+6 mm/s extensions of 0.13-0.29 s against 20 kN (compressive: opposing), motors off for 0.35 s between."""
+    points, t = [(0.0, 0.0)], 0.2
+    for dur in (0.17, 0.23, 0.13, 0.29, 0.19):
+        points += [(t, 6e-3), (t + dur, 0.0)]
+        t += dur + 0.35
+    return Scenario("trim_stops_20kN", "short extensions against 20 kN, motors off in the stops (back-drive "
+                    "through the pawl clearance)", round(t, 3), tuple(points), 0.1, ((0.0, 0.0), (0.15, 20e3)))
+
+
+@pytest.fixture(scope="module")
+def stops_record(tmp_path_factory, params):
+    """``stops_record(level, seed)`` -> RigRun of the stops scenario, truth pitch 0.10 rad, memoised."""
+    rig = derive_gains(params, current_bandwidth_hz=150, velocity_crossover_hz=10, velocity_pi_zero_ratio=5,
+                       position_bandwidth_hz=1, control_period_s=1e-3, name="rig_1kHz")
+    d = tmp_path_factory.mktemp("backlash")
+    cache = {}
+
+    def _record(level="C", seed=1):
+        if (level, seed) not in cache:
+            stem = d / f"stops_{level}_{seed}"
+            VirtualRig(level, params=params.replace({PITCH: TRUE_PITCH}), design=rig, noise=NOISE, seed=seed,
+                       truth_columns=True).record(_stops_scenario(), stem)
+            cache[level, seed] = read_run(stem.with_suffix(".csv"))
+        return cache[level, seed]
+
+    return _record
+
+
+def test_the_stops_back_drive_through_the_pawl_clearance(stops_record):
+    """The record shows the effect: with the backlash each motor-off stop back-drives the screw (less than a
+    pitch at the screw), without it the no-back holds."""
+    c, b = stops_record("C"), stops_record("B")
+    off = np.asarray(c.extra["primary_energised"]) < 0.5  # truth column: the inverter off
+    assert off.sum() > 1000
+    w_c, w_b = np.asarray(c.signals["motor_speed"]), np.asarray(b.signals["motor_speed"])
+    assert np.min(w_c[off]) < -50.0  # rad/s: back-driven in the stops
+    assert np.min(w_b[off]) > -2.0  # held: never back-driven (noise 0.2 rad/s)
+    depth = (np.max(np.asarray(b.signals["nut_position"]) - np.asarray(c.signals["nut_position"])))
+    lead = c.screw_lead
+    assert 0 < depth < 5 * TRUE_PITCH * lead / (2 * np.pi)  # a few stops' back-drive, each below one pitch
+
+
+def test_segment_clearances_follow_the_truth_at_the_true_pitch(stops_record, params):
+    """The clearance the identification gives each segment (the model's own map driven by the measured speed)
+    follows the simulated truth's clearance, and the one-step screen's best pitch is the truth's."""
+    from thsa_control.fit.replay import current_driven_map, mech_inputs, sample_periods
+    from thsa_control.fit.segment_states import (
+        custom_state_track,
+        measured_state_matrix,
+    )
+
+    run = dataclasses.replace(stops_record("C"), controller=None)
+    truth = params.replace({PITCH: TRUE_PITCH})
+    plant = build_plant("C", params=truth)
+    X = measured_state_matrix(run, plant, truth)
+    track = custom_state_track(plant, current_driven_map(plant), X, mech_inputs(run), sample_periods(run),
+                               plant.p_vector(truth))
+    for k, side in enumerate(("comp", "tens")):
+        true_c = np.deg2rad(np.asarray(run.extra[f"pawl_clearance_{side}_deg"], float))  # truth column
+        err = np.abs(track[k] - true_c)
+        err = np.minimum(err, TRUE_PITCH - err)  # a wrap one sample apart is the same tooth
+        assert np.mean(err < 0.005) > 0.99, (side, float(np.max(err)))
+    screen = OneStepScreen([run], plant, params)
+    grid = np.linspace(0.06, 0.16, 201)
+    chi2 = [screen.chi2(params.replace({PITCH: float(v)})) for v in grid]
+    assert grid[int(np.argmin(chi2))] == pytest.approx(TRUE_PITCH, rel=0.01)
+
+
+def test_profiled_parameter_cannot_also_be_free(stops_record, params):
+    with pytest.raises(ParameterError, match="both free and profiled"):
+        profile_identify(stops_record("C"), params, (PITCH,), {PITCH: (0.03, 0.3)}, level="C")
+    with pytest.raises(ParameterError, match="inside its bounds"):
+        profile_identify(stops_record("C"), params, ("gear.viscous_friction",), {PITCH: (0.03, 5.0)}, level="C")
+
+
+@pytest.mark.slow
+def test_backlash_is_found_first_with_its_pitch(stops_record, params, capsys):
+    """Level-C data (pitch 0.10 rad), declared level B: noback_backlash is added first among drive-friction
+    and offset distractors, the motor-speed error falls by more than half, and the profiled pitch is within
+    15 % of the truth with the profile in the result."""
+    run = stops_record("C")
+    res = trace(run, "B", params=params, settings=TraceSettings(candidates=("noback_backlash",) + DISTRACTORS,
+                                                                 max_nfev=30, max_effects=1))
+    doc = res.to_dict()
+    assert res.effects_added == ["noback_backlash"], doc["rounds"]
+    step = doc["effects_added"][0]
+    red = step["error_reduction"]
+    assert red["motor_speed"] >= 0.5, red
+    pitch = step["parameters"][PITCH]
+    assert pitch["profiled"] and pitch["value"] == pytest.approx(TRUE_PITCH, rel=0.15), pitch
+    lo, hi = pitch["ci95"]
+    assert lo <= pitch["value"] <= hi
+    prof = step["profile"]
+    assert len(prof["screen"][PITCH]) > 100 and prof["fits"]
+    best = min((f for f in prof["fits"] if "score" in f), key=lambda f: f["score"])
+    assert best["values"][PITCH] == pitch["value"]
+    cand = next(c for c in doc["candidates"] if c["name"] == "noback_backlash")
+    assert cand["window"] == "reversal_or_stop" and cand["window_reduction"]["motor_speed"] >= 0.5
+    with capsys.disabled():
+        print(f"\nbacklash: pitch {pitch['value']:.5f} rad (truth {TRUE_PITCH}), interval {lo:.5f}..{hi:.5f}; "
+              f"RMS drop {', '.join(f'{c} {v:.0%}' for c, v in red.items())}; "
+              f"profiled candidate fit {cand['fit_time_s']:.1f} s")
+
+
+@pytest.mark.slow
+def test_backlash_null_stays_null(stops_record, params, capsys):
+    """Level-B data (no backlash) traced with level B: noback_backlash is not added (2 noise seeds)."""
+    added = []
+    for seed in (1, 2):
+        res = trace(stops_record("B", seed), "B", params=params,
+                    settings=TraceSettings(candidates=("noback_backlash", "coulomb_friction"), max_nfev=30,
+                                           max_effects=1))
+        added.append(res.effects_added)
+        cand = next(c for c in res.to_dict()["candidates"] if c["name"] == "noback_backlash")
+        assert not cand["significant"], cand
+    with capsys.disabled():
+        print(f"\nbacklash null (level B, trim stops, 2 seeds): added {added}")
+    assert all("noback_backlash" not in a for a in added), added

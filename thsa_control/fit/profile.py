@@ -1,0 +1,377 @@
+"""Profiled parameters: a parameter that acts through a switch is searched, not differentiated.
+
+The no-back's pawl pitch decides *when* a pawl engages (a switch): the
+least-squares fit gets no gradient from it, and the chi-square as a function
+of the pitch is rugged (the screw travel between stops, modulo the pitch,
+decides how far each stop back-drives, so pitches a few per cent apart
+predict different depths).  :func:`profile_identify` therefore profiles it:
+
+1. **screen**: on a geometric grid over the parameter's search range, the
+   one-step-ahead prediction error of the measured motor speed
+   (:func:`~thsa_control.fit.segment_states.one_step_map`: the model's own map
+   from the measured state, its custom states carried) is evaluated; it costs
+   one pass over the run per value, no fit;
+2. **refine the screen**: a finer grid around its ``local_minima`` best
+   local minima;
+3. **profile fits**: at each refined minimum the parameter is fixed, the
+   segments' custom states are recomputed at that value (the
+   :class:`~thsa_control.fit.identify.Identifier` does it from the
+   parameter set it is given), the remaining free parameters are identified,
+   and the fit is scored by its held-out error (``score``); ``refine_fits``
+   more fits half a fine step either side of the best keep the best;
+4. further profiled parameters (e.g. the initial clearance fraction) are
+   screened one at a time at the best value of the ones before, on a coarse
+   grid, and kept only where they matter (their screened chi-square spans
+   more than the interval threshold); the profile fits then use the best
+   combination.
+
+The interval of each profiled parameter is read off its screened profile:
+the contiguous range around the chosen value where the one-step chi-square
+stays below its local minimum plus ``chi2(1)`` quantile x the reduced
+chi-square of that minimum (the residual variance scaled as lmfit's
+``scale_covar``: model error, not only sensor noise, sets the width),
+widened to the next screened value each side: a pawl engages at a whole
+sample, so the chi-square is a staircase at fine scale and the profile
+resolves nothing finer than its grid (0.08 % of the pitch by default).
+
+Imports casadi, numpy, scipy; no plotting, no file parsing.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..data.rigdata import RigRun
+from ..errors import ParameterError, SolverError, ThsaError
+from ..model import build_plant
+from ..model.params import ParameterSet
+from .identify import (
+    IdentificationResult,
+    IdentificationSettings,
+    Identifier,
+    estimate_noise,
+)
+from .replay import current_driven_map, mech_inputs, sample_periods
+from .segment_states import (
+    custom_state_indices,
+    measured_speed,
+    measured_state_matrix,
+    one_step_map,
+)
+
+__all__ = ["OneStepScreen", "ProfileResult", "ProfileSettings", "holdout_chi2", "profile_identify"]
+
+
+@dataclass(frozen=True)
+class ProfileSettings:
+    """How :func:`profile_identify` searches.
+
+    Parameters
+    ----------
+    screen_points : int
+        Geometric grid of the first profiled parameter's range (a linear grid
+        when the range includes 0).
+    other_points : int
+        Linear grid of each further profiled parameter.
+    local_minima : int
+        Local minima of the screen refined and fitted.
+    fine_points : int
+        Finer grid over one coarse step either side of each local minimum.
+    refine_fits : int
+        Extra profile fits half a fine step either side of the best (0 or 2).
+    level : float
+        Confidence level of the profile interval.
+    """
+
+    screen_points: int = 301
+    other_points: int = 5
+    local_minima: int = 2
+    fine_points: int = 21
+    refine_fits: int = 0
+    level: float = 0.95
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` naming the bad field."""
+        for name in ("screen_points", "other_points", "fine_points"):
+            v = getattr(self, name)
+            if not (isinstance(v, int) and v >= 3):
+                raise ValueError(f"ProfileSettings.{name} = {v!r} must be an integer >= 3")
+        if not (isinstance(self.local_minima, int) and self.local_minima >= 1):
+            raise ValueError(f"ProfileSettings.local_minima = {self.local_minima!r} must be an integer >= 1")
+        if self.refine_fits not in (0, 2):
+            raise ValueError(f"ProfileSettings.refine_fits = {self.refine_fits!r} must be 0 or 2")
+        if not (0 < self.level < 1):
+            raise ValueError(f"ProfileSettings.level = {self.level!r} must lie in (0, 1)")
+
+
+@dataclass(frozen=True)
+class ProfileResult:
+    """What a profiled identification found.
+
+    Attributes
+    ----------
+    result : IdentificationResult
+        The best profile fit (its parameter set holds the profiled values).
+    values : dict name -> float
+        The profiled parameters' chosen values.
+    interval : dict name -> (lo, hi) or None
+        Range where the screened chi-square rises by less than the threshold
+        (None: it does not close inside the search range).
+    at_bound : dict name -> str or None
+        ``"min"``/``"max"`` when the chosen value is the search range's edge.
+    mattered : dict name -> bool
+        Whether each parameter changed the screen by more than the threshold.
+    screen : dict name -> list of (value, chi2)
+        The screened profiles (one-step chi-square).
+    fits : list of dict
+        The profile fits: ``values``, ``score`` (held-out chi-square), ``chisqr``.
+    time_s : float
+    """
+
+    result: IdentificationResult
+    values: dict
+    interval: dict
+    at_bound: dict
+    mattered: dict
+    screen: dict
+    fits: list
+    time_s: float
+    threshold: float = math.nan
+    notes: list = field(default_factory=list)
+    screen_time_s: float = math.nan
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (no time series)."""
+        return {"values": dict(self.values), "interval": {n: (list(v) if v else None) for n, v in self.interval.items()},
+                "at_bound": dict(self.at_bound), "mattered": dict(self.mattered),
+                "screen": {n: [[float(a), float(b)] for a, b in v] for n, v in self.screen.items()},
+                "fits": [dict(f) for f in self.fits], "time_s": self.time_s, "screen_time_s": self.screen_time_s,
+                "threshold": self.threshold,
+                "notes": list(self.notes)}
+
+
+def holdout_chi2(res: IdentificationResult, noise: Mapping[str, float]) -> float:
+    """Noise-weighted squared error of ``res``'s segment predictions on its held-out samples
+    (every sample when none is held out)."""
+    tot = 0.0
+    for p in res.predictions.values():
+        hold = np.asarray(p["holdout"], bool)
+        if not hold.any():
+            hold = np.ones_like(hold)
+        for c, y in p["measured"].items():
+            e = (np.asarray(y, float) - np.asarray(p["simulated"][c], float)) / noise[c]
+            m = np.isfinite(e) & hold
+            tot += float(np.sum(e[m] ** 2))
+    return tot
+
+
+class OneStepScreen:
+    """One-step-ahead chi-square of the measured motor speed, the model's custom states carried.
+
+    Built once per model and runs; :meth:`chi2` takes a parameter set (the
+    plant's parameters are an input), so a profile costs one pass per value.
+    """
+
+    def __init__(self, runs: Sequence[RigRun], plant, params: ParameterSet, substeps: int = 1):
+        self.plant = plant
+        mech = current_driven_map(plant, substeps)
+        self.parts = []
+        for run in runs:
+            w = measured_speed(run)
+            X = measured_state_matrix(run, plant, params)
+            if w is None or X is None or w.size < 3:
+                continue
+            n = w.size
+            sigma = estimate_noise(w) * math.sqrt(2.0)  # the start speed and the compared one both carry noise
+            U = np.vstack([X[:, :-1], mech_inputs(run)[:, :n - 1], sample_periods(run)[None, :n - 1]])
+            self.parts.append((one_step_map(plant, mech, n - 1), U, w[1:], sigma))
+        if not self.parts:
+            raise ParameterError("<profile>", "no run measures a motor or screw speed: nothing to screen a profile on")
+        self.n = sum(p[2].size for p in self.parts)
+
+    def chi2(self, params: ParameterSet) -> float:
+        """Sum of squared one-step speed errors over the runs, each weighted by its noise."""
+        p = self.plant.p_vector(params)
+        # the first custom states follow the parameters (initial clearance fraction x pitch)
+        c0 = self.plant.initial_state(params)[custom_state_indices(self.plant)]
+        tot = 0.0
+        for F, U, w_next, sigma in self.parts:
+            _, W = F(c0, U, p)
+            e = (np.asarray(W).ravel() - w_next) / sigma
+            e = e[np.isfinite(e)]
+            tot += float(e @ e)
+        return tot
+
+
+def _grid(lo: float, hi: float, n: int) -> np.ndarray:
+    if lo > 0:
+        return np.geomspace(lo, hi, n)
+    return np.linspace(lo, hi, n)
+
+
+def _local_minima(x: np.ndarray, y: np.ndarray, k: int) -> list[int]:
+    idx = [i for i in range(len(y)) if (i == 0 or y[i] <= y[i - 1]) and (i == len(y) - 1 or y[i] <= y[i + 1])]
+    return sorted(idx, key=lambda i: y[i])[:k]
+
+
+def _interval(x: np.ndarray, y: np.ndarray, i0: int, thr: float) -> tuple[float, float] | None:
+    """Contiguous range around ``x[i0]`` where ``y <= y[i0] + thr``, widened by one grid step each side (the
+    profile resolves nothing finer: the switch times are whole samples); None if it reaches an edge."""
+    top = y[i0] + thr
+    i = i0
+    while i > 0 and y[i - 1] <= top:
+        i -= 1
+    j = i0
+    while j < len(y) - 1 and y[j + 1] <= top:
+        j += 1
+    if i == 0 or j == len(y) - 1:
+        return None
+    return float(x[i - 1]), float(x[j + 1])
+
+
+def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free: Sequence[str],
+                     profile: Mapping[str, tuple[float, float]], *, level: str | None = None, effects=(),
+                     settings: IdentificationSettings | None = None, psettings: ProfileSettings | None = None,
+                     score: Callable[[IdentificationResult], float] | None = None,
+                     progress: Callable[[str], None] | None = None) -> ProfileResult:
+    """Identify ``free`` with the ``profile`` parameters searched over their ranges (see the module doc).
+
+    Parameters
+    ----------
+    runs : RigRun or sequence of RigRun
+    params : ParameterSet
+        Initial values, bounds, priors.
+    free : sequence of str
+        Parameters fitted by least squares at each profiled value.
+    profile : mapping name -> (lo, hi)
+        Search range of each profiled parameter (inside its bounds), the
+        first one screened finely.
+    level, effects : the model (as :class:`Identifier`).
+    settings : IdentificationSettings
+        Of each profile fit.
+    psettings : ProfileSettings
+    score : callable, optional
+        ``score(result) -> float`` to minimise over the profile fits (default:
+        :func:`holdout_chi2` with the settings' noise, else the fit's chi-square).
+    progress : callable, optional
+
+    Raises
+    ------
+    ParameterError
+        A profiled parameter that is unknown, also free, or a range outside its bounds.
+    SolverError
+        Every profile fit failed (a single failing value is recorded in ``fits`` and skipped).
+    """
+    t0 = time.perf_counter()
+    runs = [runs] if isinstance(runs, RigRun) else list(runs)
+    st = settings or IdentificationSettings()
+    ps = psettings or ProfileSettings()
+    ps.validate()
+    say = progress or (lambda m: None)
+    plant = build_plant(level, effects, params=params)
+    for name, (lo, hi) in profile.items():
+        if name not in params or name not in plant.parameters:
+            raise ParameterError(name, f"cannot be profiled: not a parameter of the model ({', '.join(plant.effects)})")
+        if name in free:
+            raise ParameterError(name, "cannot be both free and profiled")
+        par = params[name]
+        if not (par.min <= lo < hi <= par.max):
+            raise ParameterError(name, f"profile range {lo:g}..{hi:g} {par.unit} must lie inside its bounds "
+                                       f"{par.min:g}..{par.max:g} and be increasing")
+    if score is None:
+        if st.noise is not None and st.holdout_every:
+            def score(res):
+                return holdout_chi2(res, st.noise)
+        else:
+            def score(res):
+                return res.chisqr
+    from scipy.stats import chi2 as chi2_dist
+
+    q = float(chi2_dist.ppf(ps.level, 1))
+    screen = OneStepScreen(runs, plant, params, st.substeps)
+    names = list(profile)
+    main = names[0]
+    # 1-2: screen the first parameter, then refine around its best local minima
+    lo, hi = profile[main]
+    x = _grid(lo, hi, ps.screen_points)
+    y = np.array([screen.chi2(params.replace({main: float(v)})) for v in x])
+    say(f"profile {main}: screened {x.size} values")
+    cands, fine_pts = [], {}
+    for i in _local_minima(x, y, ps.local_minima):
+        a, b = x[max(i - 1, 0)], x[min(i + 1, x.size - 1)]
+        xf = np.linspace(a, b, ps.fine_points)
+        yf = np.array([screen.chi2(params.replace({main: float(v)})) for v in xf])
+        fine_pts.update(zip(xf.tolist(), yf.tolist()))
+        cands.append(float(xf[int(np.argmin(yf))]))
+    allx = np.array(sorted(set(x.tolist()) | set(fine_pts)))
+    ally = np.array([fine_pts.get(v, None) if v in fine_pts else float(y[np.searchsorted(x, v)]) for v in allx])
+    redchi = float(np.min(ally)) / max(screen.n - 1, 1)
+    thr = q * max(redchi, 1.0)
+    screens = {main: list(zip(allx.tolist(), ally.tolist()))}
+    # 4: further parameters, one at a time at the best screened values
+    best_vals = {main: float(allx[int(np.argmin(ally))])}
+    mattered = {main: bool(np.ptp(ally) > thr)}
+    for name in names[1:]:
+        a, b = profile[name]
+        xo = np.linspace(a, b, ps.other_points)
+        yo = np.array([screen.chi2(params.replace({**best_vals, name: float(v)})) for v in xo])
+        screens[name] = list(zip(xo.tolist(), yo.tolist()))
+        mattered[name] = bool(np.ptp(yo) > thr)
+        best_vals[name] = float(xo[int(np.argmin(yo))]) if mattered[name] else params.value(name)
+    others = {n: best_vals[n] for n in names[1:]}
+    t_screen = time.perf_counter() - t0
+
+    # 3: profile fits at the candidate minima, scored on held-out data
+    fits, best = [], None
+
+    def fit_at(v: float):
+        nonlocal best
+        pset = params.replace({main: float(v), **others})
+        try:
+            res = Identifier(level, pset, free, effects=effects, settings=st).fit(runs)
+        except (ThsaError, RuntimeError) as exc:  # one value failing does not end the profile
+            fits.append({"values": {main: float(v), **others}, "error": str(exc)})
+            say(f"profile fit {main} = {v:.5g} failed: {exc}")
+            return
+        s = float(score(res))
+        fits.append({"values": {main: float(v), **others}, "score": s, "chisqr": res.chisqr, "converged": res.converged})
+        say(f"profile fit {main} = {v:.5g}: held-out chi2 {s:.5g}")
+        if best is None or s < best[0]:
+            best = (s, float(v), res)
+
+    for v in dict.fromkeys(cands):
+        fit_at(v)
+    if best is None:
+        raise SolverError("profile", f"every profile fit of {main} failed: {fits[-1]['error']}")
+    if ps.refine_fits:
+        step = float(np.min(np.diff(np.sort(allx)))) if allx.size > 1 else 0.0
+        v0 = best[1]
+        for v in (v0 - 0.5 * step, v0 + 0.5 * step):
+            if lo <= v <= hi:
+                fit_at(v)
+    values = {main: best[1], **others}
+    # interval of the chosen value on the screened profile (nearest screened point, then its local minimum)
+    intervals, at_bound = {}, {}
+    for name, pts in screens.items():
+        xs = np.array([a for a, _ in pts])
+        ys = np.array([b for _, b in pts])
+        i0 = int(np.argmin(np.abs(xs - values[name])))
+        while True:  # downhill to the screened local minimum the chosen value sits in
+            nb = [j for j in (i0 - 1, i0 + 1) if 0 <= j < xs.size and ys[j] < ys[i0]]
+            if not nb:
+                break
+            i0 = min(nb, key=lambda j: ys[j])
+        intervals[name] = _interval(xs, ys, i0, thr) if mattered[name] else None
+        rlo, rhi = profile[name]
+        span = rhi - rlo
+        at_bound[name] = ("min" if values[name] - rlo <= 1e-9 * span else
+                          "max" if rhi - values[name] <= 1e-9 * span else None) if mattered[name] else None
+    notes = [f"{n} does not change the one-step error by more than the threshold: held at {values[n]:g}"
+             for n in names if not mattered[n]]
+    return ProfileResult(best[2], values, intervals, at_bound, mattered, screens, fits, time.perf_counter() - t0,
+                         thr, notes, t_screen)
