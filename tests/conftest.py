@@ -25,6 +25,15 @@ def params():
 
 
 @pytest.fixture(scope="session")
+def rig_1khz(params):
+    """The virtual rig's 1 kHz cascade of the measured-data tests (identification, residual, trace)."""
+    from thsa_control.loops.design import derive_gains
+
+    return derive_gains(params, current_bandwidth_hz=150, velocity_crossover_hz=10, velocity_pi_zero_ratio=5,
+                        position_bandwidth_hz=1, control_period_s=1e-3, name="rig_1kHz")
+
+
+@pytest.fixture(scope="session")
 def design():
     return load_design(ROOT / "designs" / "nominal.toml")
 

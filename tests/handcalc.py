@@ -1,9 +1,12 @@
-"""Helpers shared by the tests: hand-written torque balances (independent of the model code) and
-the plant input vector by name."""
+"""Helpers shared by the tests: hand-written torque balances (independent of the model code),
+the plant input vector by name, and the sensor noise of the virtual-rig runs of the measured-data tests."""
 
 import math
 
 import numpy as np
+
+#: Sensor noise of the 1 kHz virtual-rig runs (the shared example's sensors; 0.02 A current).
+RIG_NOISE = {"motor_speed_rpm": 2.0, "nut_position_mm": 0.005, "motor_current_A": 0.02, "screw_speed_rpm": 0.2}
 
 
 def plant_inputs(plant, **kw):

@@ -18,7 +18,6 @@ import pytest
 import json
 
 from thsa_control.cli import main
-from thsa_control.loops.design import derive_gains
 from thsa_control.model import build_plant
 from thsa_control.fit.replay import replay_closed_loop
 from thsa_control.errors import ParameterError, RigDataError, SolverError
@@ -49,12 +48,6 @@ FREE = {
 #: A second actuator, every free parameter moved from the default by 5-20 %.
 OTHER = {"screw.efficiency_direct": 0.85, "screw.efficiency_inverse": 0.80, "gear.viscous_friction": 1.2e-4,
          "noback.mu_coulomb_pos": 0.0055, "noback.mu_coulomb_neg": 0.0038, "motor.rotor_inertia": 2.2e-4}
-
-
-@pytest.fixture(scope="module")
-def rig_1khz(params):
-    return derive_gains(params, current_bandwidth_hz=150, velocity_crossover_hz=10, velocity_pi_zero_ratio=5,
-                        position_bandwidth_hz=1, control_period_s=1e-3, name="rig_1kHz")
 
 
 @pytest.fixture(scope="module")

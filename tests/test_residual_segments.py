@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from handcalc import RIG_NOISE
 
 from thsa_control.cli import main
 from thsa_control.data.rigdata import read_run
@@ -23,20 +24,18 @@ from thsa_control.errors import UsageError
 from thsa_control.fit.replay import analyse_replay, replay_open_loop
 from thsa_control.fit.segmented import MISSING_TORQUE, parse_segment, replay_segmented
 from thsa_control.fit.virtual_rig import VirtualRig, excitation_inputs
-from thsa_control.loops.design import derive_gains
 from thsa_control.model import build_plant
 
 ROOT = Path(__file__).resolve().parents[1]
-NOISE = {"motor_speed_rpm": 2.0, "nut_position_mm": 0.005, "motor_current_A": 0.02, "screw_speed_rpm": 0.2}
+NOISE = RIG_NOISE
 LVDT_NOISE = 5e-6  # [m]
 COULOMB = 0.05  # [N m], at the motor shaft
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory, params):
+def runs(tmp_path_factory, params, rig_1khz):
     """``runs[(coulomb_torque, seed)]`` -> RigRun of a plain drive, 2.5 s bipolar excitation, no load."""
-    rig = derive_gains(params, current_bandwidth_hz=150, velocity_crossover_hz=10, velocity_pi_zero_ratio=5,
-                       position_bandwidth_hz=1, control_period_s=1e-3, name="rig_1kHz")
+    rig = rig_1khz
     d = tmp_path_factory.mktemp("segments")
     out = {}
     for tc, seed in ((0.0, 1), (0.0, 2), (COULOMB, 1)):

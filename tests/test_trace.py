@@ -14,21 +14,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from handcalc import RIG_NOISE
 
 from thsa_control.cli import main
 from thsa_control.data.rigdata import read_run
 from thsa_control.fit.virtual_rig import VirtualRig, excitation_inputs
-from thsa_control.loops.design import derive_gains
 from thsa_control.trace import TraceSettings, trace
 
 ROOT = Path(__file__).resolve().parents[1]
-NOISE = {"motor_speed_rpm": 2.0, "nut_position_mm": 0.005, "motor_current_A": 0.02, "screw_speed_rpm": 0.2}
-
-
-@pytest.fixture(scope="module")
-def rig_1khz(params):
-    return derive_gains(params, current_bandwidth_hz=150, velocity_crossover_hz=10, velocity_pi_zero_ratio=5,
-                        position_bandwidth_hz=1, control_period_s=1e-3, name="rig_1kHz")
+NOISE = RIG_NOISE
 
 
 @pytest.fixture(scope="module")

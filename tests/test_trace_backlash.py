@@ -14,17 +14,17 @@ import dataclasses
 
 import numpy as np
 import pytest
+from handcalc import RIG_NOISE
 
 from thsa_control.data.rigdata import read_run
 from thsa_control.errors import ParameterError
 from thsa_control.fit.profile import OneStepScreen, profile_identify
 from thsa_control.fit.virtual_rig import VirtualRig
-from thsa_control.loops.design import derive_gains
 from thsa_control.model import build_plant
 from thsa_control.sim.scenarios import Scenario
 from thsa_control.trace import TraceSettings, trace
 
-NOISE = {"motor_speed_rpm": 2.0, "nut_position_mm": 0.005, "motor_current_A": 0.02, "screw_speed_rpm": 0.2}
+NOISE = RIG_NOISE
 TRUE_PITCH = 0.10  # rad at the screw; the parameter file says 0.1496
 PITCH = "noback.pawl_pitch"
 DISTRACTORS = ("coulomb_friction", "force_offset", "direction_friction")
@@ -41,10 +41,9 @@ def _stops_scenario() -> Scenario:
 
 
 @pytest.fixture(scope="module")
-def stops_record(tmp_path_factory, params):
+def stops_record(tmp_path_factory, params, rig_1khz):
     """``stops_record(level, seed)`` -> RigRun of the stops scenario, truth pitch 0.10 rad, memoised."""
-    rig = derive_gains(params, current_bandwidth_hz=150, velocity_crossover_hz=10, velocity_pi_zero_ratio=5,
-                       position_bandwidth_hz=1, control_period_s=1e-3, name="rig_1kHz")
+    rig = rig_1khz
     d = tmp_path_factory.mktemp("backlash")
     cache = {}
 

@@ -17,25 +17,19 @@ import dataclasses
 
 import numpy as np
 import pytest
+from handcalc import RIG_NOISE
 
 from thsa_control.data.rigdata import read_run
 from thsa_control.fit.segment_states import drivetrain_segment_guess
 from thsa_control.fit.virtual_rig import VirtualRig, excitation_inputs
-from thsa_control.loops.design import derive_gains
 from thsa_control.model import build_plant
 from thsa_control.model.effects import drivetrain_stiffness
 from thsa_control.trace import CANDIDATES, TraceSettings, trace
 
-NOISE = {"motor_speed_rpm": 2.0, "nut_position_mm": 0.005, "motor_current_A": 0.02, "screw_speed_rpm": 0.2}
+NOISE = RIG_NOISE
 TRUTH = {"gear.torsional_stiffness": 4e3, "gear.torsional_damping": 10.0}
 DISTRACTORS = ("coulomb_friction", "cogging_torque", "screw_friction_ripple")
 STIFFNESS = ("gear.torsional_stiffness", "screw.torsional_stiffness", "gear.ratio")
-
-
-@pytest.fixture(scope="module")
-def rig_1khz(params):
-    return derive_gains(params, current_bandwidth_hz=150, velocity_crossover_hz=10, velocity_pi_zero_ratio=5,
-                        position_bandwidth_hz=1, control_period_s=1e-3, name="rig_1kHz")
 
 
 @pytest.fixture(scope="module")
