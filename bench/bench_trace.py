@@ -7,7 +7,11 @@ screw_friction_ripple and cogging_torque (2 worker processes), calibrates the pr
 and repeats while one is significant.  Prints the time of the base-model fit, the median candidate fit, the
 total, and what it found.
 
-Run: ``python bench/bench_trace.py [--workers 2]``
+With ``--all`` every default candidate of the declared model is scored (the physical library: the drive
+effects plus drivetrain_compliance, loadpath_compliance, the no-back's and temperature friction where their
+window is not empty), as ``thsa trace`` does without ``--candidates``.
+
+Run: ``python bench/bench_trace.py [--workers 2] [--all]``
 """
 
 from __future__ import annotations
@@ -33,7 +37,9 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--duration", type=float, default=10.0)
+    ap.add_argument("--all", action="store_true", help="score every default candidate (as thsa trace does)")
     args = ap.parse_args()
+    cands = None if args.all else CANDIDATES
     params = thsa.default_parameters()
     truth = params.replace({"drive.coulomb_torque": 0.05})
     rig = derive_gains(params, current_bandwidth_hz=150, velocity_crossover_hz=10, velocity_pi_zero_ratio=5,
@@ -45,13 +51,14 @@ def main() -> None:
         run = read_run(f"{d}/bench.csv")
     t0 = time.perf_counter()
     res = trace(run, "A", remove=["noback_ideal"], params=params,
-                settings=TraceSettings(candidates=CANDIDATES, workers=args.workers, max_effects=2),
+                settings=TraceSettings(candidates=cands, workers=args.workers, max_effects=2),
                 progress=lambda m: print(f"  {time.perf_counter() - t0:6.1f} s  {m}", flush=True))
     wall = time.perf_counter() - t0
     doc = res.to_dict()
     tm = doc["timing"]
-    print(f"run: {args.duration:g} s at 1 kHz ({len(run.time)} samples), {len(CANDIDATES)} candidates, "
-          f"{args.workers} workers")
+    scored = doc["rounds"][0]["candidates"] if doc["rounds"] else []
+    print(f"run: {args.duration:g} s at 1 kHz ({len(run.time)} samples), {len(scored)} candidates scored in round 1 "
+          f"({', '.join(c['name'] for c in scored)}), {args.workers} workers")
     print(f"one base-model fit: {tm['base_fit_s']:.1f} s; one candidate fit (median): {tm['candidate_fit_s']:.1f} s")
     print(f"whole trace: {wall:.1f} s (target < 120 s): {'OK' if wall < 120 else 'OVER'}")
     for e in doc["effects_added"]:
