@@ -24,15 +24,18 @@ def _num(x, fmt=".4g"):
 
 def plot_residual_before_after(before: dict, after: dict, run_name: str, channel: str = "motor_speed"):
     """Segment residual of ``channel`` before and after the added effects."""
+    from ..data.rigformat import COLUMNS
+
+    spec = next((c for c in COLUMNS.values() if c.signal == channel), None)  # the rig format's unit (rpm, mm)
     fig, ax = plt.subplots(figsize=(10, 3.2))
     for label, fit, kw in (("declared model", before, {"color": "0.6"}), ("with added effects", after, {"color": "C3"})):
         p = fit["predictions"][run_name]
         if channel not in p["measured"]:
             continue
         e = np.asarray(p["measured"][channel]) - np.asarray(p["simulated"][channel])
-        ax.plot(p["time"][:e.size], e, lw=0.7, label=label, **kw)
+        ax.plot(p["time"][:e.size], spec.from_si(e) if spec else e, lw=0.7, label=label, **kw)
     ax.set_xlabel("time [s]")
-    ax.set_ylabel(f"{channel} residual (SI)")
+    ax.set_ylabel(f"{channel} residual [{spec.unit if spec else 'SI'}]")
     ax.set_title(f"{run_name}: {channel} residual of the multiple-shooting segments")
     ax.legend(loc="upper right")
     fig.tight_layout()
