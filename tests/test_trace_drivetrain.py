@@ -14,6 +14,7 @@ damping held at twice the truth here), so the test compares the series stiffness
 from __future__ import annotations
 
 import dataclasses
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -81,8 +82,8 @@ def test_segment_guess_of_the_compliant_drive_train(rig_1khz, params):
     plant = build_plant(None, ("drivetrain_compliance",), params=truth)
     starts = np.arange(0, t.size, 50)
     X = np.zeros((len(plant.states), starts.size))
-    drivetrain_segment_guess(plant, truth, t, sig, set(sig), truth.value("gear.ratio"), starts, X,
-                             lambda name, k: float(sig[name][k]))
+    measured = SimpleNamespace(time=t, signals=sig, source_columns=set(sig), gear_ratio=truth.value("gear.ratio"))
+    drivetrain_segment_guess(plant, truth, measured, starts, X, lambda name, k: float(sig[name][k]))
     i_r, i_w, i_phi = (plant.index("state", n) for n in ("rotor_speed", "motor_speed", "drivetrain_twist"))
     np.testing.assert_allclose(X[i_r], sig["motor_speed"][starts])
     np.testing.assert_allclose(X[i_w], sig["screw_speed"][starts] * truth.value("gear.ratio"))

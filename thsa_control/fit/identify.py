@@ -604,8 +604,7 @@ class _RunProblem:
                 else:
                     X[i_nut, m] = nut
         # a compliant drive train: rotors from the motor sensor, gear output from the screw sensor, twist quasi-static
-        drivetrain_segment_guess(plant, params, self.time, run.signals, run.source_columns, run.gear_ratio, starts, X,
-                                 self._measured_at)
+        drivetrain_segment_guess(plant, params, run, starts, X, self._measured_at)
         return X
 
     def _track_custom_states(self, mech: ca.Function, params: ParameterSet, V: np.ndarray, H: np.ndarray, L: int,

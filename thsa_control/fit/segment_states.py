@@ -200,8 +200,7 @@ def _slope(t: np.ndarray, y: np.ndarray, k: int) -> float | None:
     return float(np.polyfit(tt[ok] - tt[ok][0], yy[ok], 1)[0])
 
 
-def drivetrain_segment_guess(plant: Plant, params: ParameterSet, time: np.ndarray, signals, source_columns,
-                             gear_ratio: float, starts: np.ndarray, X: np.ndarray,
+def drivetrain_segment_guess(plant: Plant, params: ParameterSet, run: RigRun, starts: np.ndarray, X: np.ndarray,
                              measured_at: Callable[[str, int], float | None]) -> None:
     """Overwrite the compliant drive train's states in ``X`` (states x segments) at the segment ``starts``.
 
@@ -213,14 +212,10 @@ def drivetrain_segment_guess(plant: Plant, params: ParameterSet, time: np.ndarra
         return
     i_r, i_w, i_phi = (plant.index("state", n) for n in ("rotor_speed", "motor_speed", "drivetrain_twist"))
     a_i, a_phi = _rotor_rate_sensitivities(plant, params)
-    t = np.asarray(time, float)
-    if "motor_speed" in source_columns:
-        w_rotor = np.asarray(signals["motor_speed"], float)
-    elif "screw_speed" in source_columns:
-        w_rotor = np.asarray(signals["screw_speed"], float) * gear_ratio
-    else:
-        w_rotor = None
-    current = np.asarray(signals["motor_current"], float) if "motor_current" in source_columns else None
+    t = np.asarray(run.time, float)
+    gear_ratio = run.gear_ratio
+    w_rotor = measured_speed(run)
+    current = np.asarray(run.signals["motor_current"], float) if "motor_current" in run.source_columns else None
     for m, k in enumerate(starts):
         k = int(min(k, t.size - 1))
         wm = measured_at("motor_speed", k)
