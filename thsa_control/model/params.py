@@ -425,15 +425,11 @@ class ParameterSet(Mapping[str, Parameter]):
                     merged.update(hard_min=lo, hard_max=hi, hard_min_open=lo_open, hard_max_open=hi_open)
                     merged["min"], merged["max"] = max(old.min, lo), min(old.max, hi)
                 merged.update(entry)
-                if "value" in entry and "min" not in entry and "max" not in entry and _is_number(entry["value"]):
-                    probe = Parameter(name, old.value, old.unit, old.source, min=merged["min"], max=merged["max"],
-                                      hard_min=merged["hard_min"], hard_max=merged["hard_max"],
-                                      hard_min_open=merged["hard_min_open"], hard_max_open=merged["hard_max_open"]) \
-                        if merged["min"] <= old.value <= merged["max"] else None
-                    value = float(entry["value"])
-                    if probe is not None and math.isfinite(value) and probe.physically_valid(value) \
-                            and not merged["min"] <= value <= merged["max"]:
-                        merged["min"], merged["max"] = search_bounds_for(probe, value)
+                if "value" in entry and "min" not in entry and "max" not in entry and _is_number(entry["value"]) \
+                        and merged["min"] <= old.value <= merged["max"]:
+                    # a new value moves the search bounds as Parameter.with_value does (physically valid, outside them)
+                    moved = Parameter(name=name, **{**merged, "value": old.value}).with_value(float(entry["value"]))
+                    merged["min"], merged["max"] = moved.min, moved.max
                 params.append(Parameter(name=name, **merged))
                 continue
             if base is not None:
