@@ -799,8 +799,9 @@ class Identifier:
         prior_w = np.array([scale[k] / priors[n][1] if n in priors else 0.0 for k, n in enumerate(self.free)]) \
             if priors else None
         p0 = plant.p_vector(self.params)
-        lo = np.array([(self.params[n].search_interval()[0] - self.params[n].value) / s for n, s in zip(self.free, scale)])
-        hi = np.array([(self.params[n].search_interval()[1] - self.params[n].value) / s for n, s in zip(self.free, scale)])
+        box = [self.params[n].search_interval() for n in self.free]
+        lo = np.array([(b[0] - self.params[n].value) / s for (n, s), b in zip(zip(self.free, scale), box)])
+        hi = np.array([(b[1] - self.params[n].value) / s for (n, s), b in zip(zip(self.free, scale), box)])
         sizes = [pb.n_dec_states for pb in problems]
         offsets = np.cumsum([nf] + sizes)
         sigmas = [pb.sigma0 for pb in problems]

@@ -64,7 +64,7 @@ from .segment_states import (
     one_step_map,
 )
 
-__all__ = ["OneStepScreen", "ProfileResult", "ProfileSettings", "holdout_chi2", "profile_identify"]
+__all__ = ["OneStepScreen", "ProfileResult", "ProfileSettings", "chi2_by_channel", "holdout_chi2", "profile_identify"]
 
 
 @dataclass(frozen=True)
@@ -155,19 +155,27 @@ class ProfileResult:
                 "notes": list(self.notes)}
 
 
+def chi2_by_channel(predictions: Mapping[str, Mapping], noise: Mapping[str, float], select: str = "holdout",
+                    windows: Mapping[str, np.ndarray] | None = None) -> dict[str, float]:
+    """Noise-weighted squared error per channel of segment predictions (``IdentificationResult.predictions``)
+    over the held-out (``select="holdout"``) or all samples, optionally only inside ``windows[run]``."""
+    out: dict[str, float] = {}
+    for r, p in predictions.items():
+        hold = np.asarray(p["holdout"], bool)
+        for c, y in p["measured"].items():
+            e = (np.asarray(y, float) - np.asarray(p["simulated"][c], float)) / noise[c]
+            m = np.isfinite(e) & (hold if select == "holdout" else np.ones_like(hold))
+            if windows is not None:
+                m &= windows[r][:m.size]
+            out[c] = out.get(c, 0.0) + float(np.sum(e[m] ** 2))
+    return out
+
+
 def holdout_chi2(res: IdentificationResult, noise: Mapping[str, float]) -> float:
     """Noise-weighted squared error of ``res``'s segment predictions on its held-out samples
     (every sample when none is held out)."""
-    tot = 0.0
-    for p in res.predictions.values():
-        hold = np.asarray(p["holdout"], bool)
-        if not hold.any():
-            hold = np.ones_like(hold)
-        for c, y in p["measured"].items():
-            e = (np.asarray(y, float) - np.asarray(p["simulated"][c], float)) / noise[c]
-            m = np.isfinite(e) & hold
-            tot += float(np.sum(e[m] ** 2))
-    return tot
+    held = any(np.asarray(p["holdout"], bool).any() for p in res.predictions.values())
+    return sum(chi2_by_channel(res.predictions, noise, "holdout" if held else "all").values())
 
 
 class OneStepScreen:

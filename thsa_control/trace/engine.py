@@ -51,6 +51,7 @@ import numpy as np
 from ..data.rigdata import RigRun
 from ..errors import ThsaError
 from ..fit.identify import IdentificationSettings, Identifier, estimate_noise
+from ..fit.profile import chi2_by_channel
 from ..fit.replay import channel_fit
 from ..fit.residuals import quadrant, reversal_proximity
 from ..model import EFFECTS, build_plant, resolve_effects
@@ -337,17 +338,8 @@ def _run_jobs(jobs: list[dict], workers: int, progress: Callable | None) -> list
 
 # ----------------------------------------------------------------------------- scoring
 def _chi2_by_channel(fit: dict, noise: Mapping[str, float], select: str, windows: dict | None = None) -> dict:
-    """Noise-weighted squared error per channel over held-out (``select="holdout"``) or all samples."""
-    out: dict[str, float] = {}
-    for r, p in fit["predictions"].items():
-        hold = np.asarray(p["holdout"], bool)
-        for c, y in p["measured"].items():
-            e = (np.asarray(y) - np.asarray(p["simulated"][c])) / noise[c]
-            m = np.isfinite(e) & (hold if select == "holdout" else np.ones_like(hold))
-            if windows is not None:
-                m &= windows[r][:m.size]
-            out[c] = out.get(c, 0.0) + float(np.sum(e[m] ** 2))
-    return out
+    """Noise-weighted squared error per channel of a fit over held-out (``select="holdout"``) or all samples."""
+    return chi2_by_channel(fit["predictions"], noise, select, windows)
 
 
 def _rms_by_channel(fit: dict, mask_fn=None) -> dict:
