@@ -11,6 +11,7 @@ from __future__ import annotations
 import base64
 import html
 import io
+import textwrap
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -58,15 +59,18 @@ def plot_overlay(time, measured: Mapping[str, np.ndarray], simulated: Mapping[st
     styles = ["tab:orange", "tab:blue", "tab:green", "tab:red"]
     for ax, c in zip(axes[:, 0], channels):
         k, unit = _scale(c)
-        ax.plot(t, np.asarray(measured[c]) * k, color="0.55", lw=0.8, label="measured")
+        torque = c == "missing_torque"  # its two lines: what the measured motion needs, what the current gives
+        ax.plot(t, np.asarray(measured[c]) * k, color="0.55", lw=0.8,
+                label="needed by the measured motion" if torque else "measured")
         for (label, sim), color in zip(simulated.items(), styles):
             if c in sim:
-                ax.plot(t, np.asarray(sim[c]) * k, color=color, lw=0.9, label=label)
-        ax.set_ylabel(f"{c} [{unit}]")
+                ax.plot(t, np.asarray(sim[c]) * k, color=color, lw=0.9,
+                        label=f"given by the measured current ({label})" if torque else label)
+        ax.set_ylabel("motor torque [N m]\n(missing = needed - given)" if torque else f"{c} [{unit}]")
         ax.grid(True, alpha=0.3)
         ax.legend(loc="upper right", fontsize=8)
     axes[-1, 0].set_xlabel("time [s]")
-    fig.suptitle(title)
+    fig.suptitle(textwrap.fill(title, 100))  # a long replay description stays inside the figure
     return fig
 
 
