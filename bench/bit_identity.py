@@ -1,7 +1,8 @@
 """Bit-identity check of the compiled closed-loop simulator across a refactoring.
 
 Runs every scenario of ``SCENARIOS`` at levels A-D (plus level B with
-``temperature_friction`` and ``standby_motor``) with the nominal design and
+``temperature_friction`` and ``standby_motor``), each with the effects the
+scenario requires (fault cases: the jam, the limiter, ...), with the nominal design and
 the embedded actuator, and either saves every output signal to an ``.npz``
 file or compares a fresh run against such a file.  ``--compare`` exits 1
 when any signal differs in a single bit (or a case is missing or fails), so
@@ -40,11 +41,13 @@ def run_all() -> dict[str, np.ndarray]:
     out: dict[str, np.ndarray] = {}
     plants: dict = {}
     for key, name, level, effects in cases():
-        plant = plants.get((level, effects))
+        scenario = thsa.get_scenario(name)
+        need = tuple(effects) + tuple(dict.fromkeys(e for e in scenario.required_effects if e not in effects))
+        plant = plants.get((level, need))
         if plant is None:
-            plant = plants[(level, effects)] = thsa.Simulator(thsa.build_plant(level, effects))
+            plant = plants[(level, need)] = thsa.Simulator(thsa.build_plant(level, need))
         try:
-            res = plant.run(thsa.get_scenario(name), design, params)
+            res = plant.run(scenario, design, params)
         except Exception as exc:  # a case that fails is recorded as such, never skipped silently
             out[f"{key}::ERROR"] = np.array(f"{type(exc).__name__}: {exc}")
             continue
