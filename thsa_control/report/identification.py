@@ -129,7 +129,7 @@ def figure_png(fig, dpi: int = 100) -> bytes:
 
 
 def write_html_report(path: str | Path, *, title: str, sections: Sequence[tuple[str, str]],
-                      figures: Mapping[str, bytes]) -> Path:
+                      figures: Mapping[str, bytes], html_sections: Sequence[tuple[str, str]] = ()) -> Path:
     """Write one self-contained HTML page.
 
     Parameters
@@ -142,6 +142,8 @@ def write_html_report(path: str | Path, *, title: str, sections: Sequence[tuple[
         Fit report, residual report, summaries.
     figures : mapping caption -> PNG bytes
         Embedded in order as base64 images.
+    html_sections : sequence of (heading, HTML fragment)
+        Placed before the text sections (tables the caller built and escaped).
 
     Returns
     -------
@@ -149,9 +151,13 @@ def write_html_report(path: str | Path, *, title: str, sections: Sequence[tuple[
     """
     parts = [f"<!DOCTYPE html>\n<html><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
              "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto}"
-             "pre{background:#f6f6f6;padding:1em;overflow-x:auto;font-size:12px}"
+             "pre{background:#f6f6f6;padding:1em;overflow-x:auto;font-size:12px;white-space:pre-wrap}"
+             "table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #ccc;padding:3px 6px;"
+             "vertical-align:top}"
              "img{max-width:100%;border:1px solid #ddd}</style></head><body>",
              f"<h1>{html.escape(title)}</h1>"]
+    for heading, fragment in html_sections:
+        parts.append(f"<h2>{html.escape(heading)}</h2>\n{fragment}")
     for heading, text in sections:
         parts.append(f"<h2>{html.escape(heading)}</h2>\n<pre>{html.escape(text)}</pre>")
     for caption, png in figures.items():
