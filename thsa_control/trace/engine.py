@@ -564,8 +564,8 @@ def _base_correction(first: dict, declared, uncertain, params: ParameterSet, pla
                      job: Callable, say: Callable) -> dict:
     """The base-correction step: what every real drive has and the declared level may lack.
 
-    The constant-torque explainers (a Coulomb drag, a direction-dependent drag, an axial force the load cell
-    does not see) and the ball screw's efficiencies are fitted together with the declared uncertain set,
+    The constant-torque explainers (a Coulomb drag, an axial force the load cell does not see) and the ball
+    screw's efficiencies are fitted together with the declared uncertain set,
     each inside its plausible magnitude (:data:`PLAUSIBLE`, the bound's source reported) and with a prior at
     0 (the file's efficiency) of half that size, so that explainers that stand for the same torque share it
     instead of drifting along their common direction.  Accepted when the held-out chi2 drop passes the
@@ -574,7 +574,9 @@ def _base_correction(first: dict, declared, uncertain, params: ParameterSet, pla
     """
     from scipy.stats import chi2
 
-    explainers = [CANDIDATES[n] for n in ("coulomb_friction", "direction_friction", "force_offset")
+    # a drag is symmetric: the direction-dependent part of a rig's base is what the efficiencies (load
+    # proportional) and an axial force give; a direction drag on top would double the plausible drag one way
+    explainers = [CANDIDATES[n] for n in ("coulomb_friction", "force_offset")
                   if n in CANDIDATES and n not in declared] + [EFFICIENCY_EXPLAINER]
     bounds, priors, sources, owner = {}, {}, {}, {}
     for e in explainers:
