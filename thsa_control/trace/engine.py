@@ -59,7 +59,7 @@ from ..model.fault_effects import FAULT_EFFECTS
 from ..model.params import ParameterSet, default_parameters
 from ._threads import limit_blas_threads
 from .signature import (SignatureSettings, binned_mean, cross_correlation, current_offset_test, missing_torque,
-                        sensor_consistency, signature_tests)
+                        position_local_test, sensor_consistency, signature_tests)
 
 __all__ = ["TraceSettings", "CandidateSpec", "CANDIDATES", "DEFAULT_UNCERTAIN", "TraceResult", "trace",
            "candidate_specs", "TRACE_FORMAT"]
@@ -555,7 +555,9 @@ def _held_params(toml: str, fit: dict) -> str:
 def _signature_brief(sig: dict) -> dict:
     """What a round leaves: the structured tests (name, kind, size) and whether anything is structured."""
     tests = [t for t in sig.get("tests", []) + sig.get("sensors", []) if t["significant"]]
-    return {"unexplained": bool(tests), "structured": [t["variable"] for t in tests],
+    above = [f"held-out residual above noise ({c}: {r:.2g} x)" for c, r in sig.get("residual_to_noise", {}).items()
+             if r > sig.get("max_noise_ratio", math.inf)]
+    return {"unexplained": bool(tests or above), "structured": [t["variable"] for t in tests] + above,
             "missing_torque_rms": sig.get("missing_torque_rms"),
             "tests": [{k: t[k] for k in ("variable", "kind", "size", "unit", "p_value") if k in t} for t in tests]}
 
@@ -655,12 +657,14 @@ def _null_runs(fit: dict, runs: Sequence[RigRun], noise: Mapping[str, float], se
 
 
 # ----------------------------------------------------------------------------- signature
-def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, effects, s: SignatureSettings) -> dict:
+def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, effects, s: SignatureSettings,
+               noise: Mapping[str, float] | None = None) -> dict:
     from ..loops.design import reflected_inertia
 
     inertia = reflected_inertia(params, None, effects)  # the signature's missing torque at the motor shaft
     torque: list = []
     vars_: dict = {}
+    local_in: dict[str, list] = {"e": [], "x": [], "d": []}
     for run in runs:
         pr = fit["predictions"][run.name]
         n = len(run.time)
@@ -699,11 +703,21 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, effects,
         del dt
         for name, (kind, v) in cols.items():
             vars_.setdefault(name, (kind, []))[1].append(np.asarray(v, float))
+        # the pass-replicated position test (runs separated by a gap that ends every pass)
+        gap = np.full(100, np.nan)
+        local_in["e"] += [torque[-1], gap]
+        local_in["x"] += [cols["nut_position"][1], gap]
+        local_in["d"] += [cols["speed_sign"][1], np.zeros(100)]
     if not torque:
         return {"missing_torque_rms": None, "tests": [], "sensors": []}
     e_all = np.concatenate(torque)
     variables = {n: (k, np.concatenate(v)) for n, (k, v) in vars_.items()}
     tests = signature_tests(e_all, variables, unit="N m", settings=s)
+    loc = position_local_test(np.concatenate(local_in["e"]), np.concatenate(local_in["x"]),
+                              np.concatenate(local_in["d"]), bin_width=s.position_bin, alpha=s.local_alpha)
+    if loc is not None:
+        loc["unit"] = "N m"
+        tests.insert(0, loc) if loc["significant"] else tests.append(loc)
     sensors = []
     for run in runs:
         for d in sensor_consistency(run.time, {c: run.signals[c] for c in ("motor_speed", "screw_speed", "nut_position")
@@ -719,9 +733,26 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, effects,
             co["run"] = run.name
             sensors.append(co)
     ok = np.isfinite(e_all)
+    ratio = {c: math.sqrt(v / n) for c, (v, n) in _holdout_chi2_and_count(fit, noise or {}).items() if n > 0}
     return {"residual": "missing torque at the motor shaft, J d(speed residual)/dt", "unit": "N m",
             "reflected_inertia": inertia, "missing_torque_rms": float(np.sqrt(np.mean(e_all[ok] ** 2))),
+            "residual_to_noise": ratio, "max_noise_ratio": s.max_noise_ratio,
             "tests": tests, "sensors": sensors, "curves": _signature_curves(e_all, variables, runs, s)}
+
+
+def _holdout_chi2_and_count(fit: dict, noise: Mapping[str, float]) -> dict:
+    """Per channel: the held-out noise-weighted squared error and its sample count."""
+    out: dict = {}
+    for p in fit["predictions"].values():
+        hold = np.asarray(p["holdout"], bool)
+        for c, y in p["measured"].items():
+            if c not in noise or not noise[c] > 0:
+                continue
+            e = (np.asarray(y) - np.asarray(p["simulated"][c]))[:hold.size]
+            m = hold[:e.size] & np.isfinite(e)
+            a, n = out.get(c, (0.0, 0))
+            out[c] = (a + float(np.sum((e[m] / noise[c]) ** 2)), n + int(m.sum()))
+    return out
 
 
 def _signature_curves(e: np.ndarray, variables: dict, runs, s: SignatureSettings) -> dict:
@@ -884,7 +915,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             base_bounds = bc["bounds"]
             at_plausible_bound = _explainers_at_bound(current, base_bounds)
             base_doc["signature_after"] = _signature_brief(
-                _signature(current, runs, cur_params, cur_effects, st.signature))
+                _signature(current, runs, cur_params, cur_effects, st.signature, noise))
     windows_cache = {spec: {r.name: _window(spec, r) for r in runs}
                      for spec in ("moving", "all", "loaded", "reversal", "reversal_or_stop", "cold")}
     while sum(1 for e in added if "implied_by" not in e) < st.max_effects:
@@ -1034,10 +1065,12 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         lifted = set(best["_spec"].free) if best.get("beyond_base_correction") else set()
         base_bounds = {n: b for n, b in base_bounds.items() if n not in lifted}
         at_plausible_bound = _explainers_at_bound(f, base_bounds)
-        rounds[-1]["signature_after"] = _signature_brief(_signature(current, runs, cur_params, cur_effects, st.signature))
-    sig_before = _signature(first, runs, ParameterSet.from_toml(first["params_toml"]), declared, st.signature)
-    sig_after = _signature(current, runs, cur_params, cur_effects, st.signature)
+        rounds[-1]["signature_after"] = _signature_brief(_signature(current, runs, cur_params, cur_effects, st.signature, noise))
+    sig_before = _signature(first, runs, ParameterSet.from_toml(first["params_toml"]), declared, st.signature, noise)
+    sig_after = _signature(current, runs, cur_params, cur_effects, st.signature, noise)
     structured = [t for t in sig_after["tests"] + sig_after["sensors"] if t["significant"]]
+    structured += [{"variable": f"held-out residual above noise ({c}: {r:.2g} x)"}
+                   for c, r in sig_after.get("residual_to_noise", {}).items() if r > st.signature.max_noise_ratio]
     doc = {
         "format": TRACE_FORMAT,
         "datasets": [{"name": r.name, "csv": str(r.csv_path), "samples": int(len(r.time)),

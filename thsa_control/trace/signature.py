@@ -38,7 +38,8 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missing_torque", "current_offset_test",
-           "binned_mean", "cross_correlation"]
+           "binned_mean", "cross_correlation",
+           "position_local_test"]
 
 
 @dataclass(frozen=True)
@@ -52,6 +53,10 @@ class SignatureSettings:
     min_r2: float = 0.01
     window: int = 21
     min_samples_per_bin: int = 20
+    #: the pass-replicated position test's level (its replicates are passes, not samples)
+    local_alpha: float = 1e-4
+    #: held-out residual RMS above this multiple of the channel's noise is a remainder (``unexplained``)
+    max_noise_ratio: float = 2.0
 
 
 def missing_torque(time, e_speed, segment_starts, inertia: float, window: int = 21) -> np.ndarray:
@@ -348,3 +353,57 @@ def cross_correlation(a, b, dt: float, max_lag: int = 40) -> dict:
         lags.append(lag * dt)
         cc.append(float(x @ y) / den)
     return {"lag_s": lags, "correlation": cc}
+
+
+def position_local_test(residual, position, direction, *, bin_width: float = 2e-3, min_samples: int = 5,
+                        alpha: float = 1e-4) -> dict | None:
+    """A residual tied to the nut position, replicated over passes (a friction bump, a worn spot).
+
+    The record is cut into passes (stretches of one direction of motion, ``direction`` +-1, 0 when still);
+    each pass's residual, less its own mean (a direction or load dependence is not a position one), is
+    averaged in position bins.  A one-way analysis of variance with the bins as groups and the passes as
+    replicates: the between-bin variance of the bin means against the pass-to-pass variance inside the
+    bins.  A residual structured in time only (a start, a transient) is not repeated at the same position
+    by another pass, so it lands in the replicate variance; the test needs no model of the residual's
+    autocorrelation.  None when fewer than three bins are visited by two passes.
+    """
+    from scipy.stats import f as f_dist
+
+    e = np.asarray(residual, float)
+    x = np.asarray(position, float)
+    d = np.asarray(direction, float)
+    ok = np.isfinite(e) & np.isfinite(x) & (d != 0)
+    if ok.sum() < 50:
+        return None
+    # passes: maximal stretches of one sign of motion
+    idx = np.flatnonzero(ok)
+    brk = np.flatnonzero((np.diff(idx) > 50) | (np.diff(d[idx]) != 0)) + 1
+    passes = np.split(idx, brk)
+    x0 = float(np.nanmin(x[ok]))
+    table: dict[int, list[float]] = {}
+    for p in passes:
+        if p.size < 3 * min_samples:
+            continue
+        ep = e[p] - e[p].mean()
+        b = np.floor((x[p] - x0) / bin_width).astype(int)
+        for k in np.unique(b):
+            m = b == k
+            if m.sum() >= min_samples:
+                table.setdefault(int(k), []).append(float(ep[m].mean()))
+    rep = {k: v for k, v in table.items() if len(v) >= 2}
+    if len(rep) < 3:
+        return None
+    means = {k: float(np.mean(v)) for k, v in rep.items()}
+    grand = float(np.mean([m for k, v in rep.items() for m in v]))
+    ss_b = sum(len(v) * (means[k] - grand) ** 2 for k, v in rep.items())
+    ss_w = sum(sum((m - means[k]) ** 2 for m in v) for k, v in rep.items())
+    df_b = len(rep) - 1
+    df_w = sum(len(v) - 1 for v in rep.values())
+    F = (ss_b / df_b) / max(ss_w / df_w, 1e-300)
+    p = float(f_dist.sf(F, df_b, df_w))
+    kpk = max(means, key=lambda k: abs(means[k] - grand))
+    lo = x0 + kpk * bin_width
+    size = math.sqrt(ss_b / sum(len(v) for v in rep.values()))
+    return {"variable": "nut_position (repeated over passes)", "kind": "local", "size": size, "r2": None,
+            "p_value": p, "significant": bool(p < alpha), "peak_bin": [lo, lo + bin_width],
+            "peak_mean": means[kpk] - grand, "bins": len(rep), "passes": len(passes), "F": F}
