@@ -231,6 +231,10 @@ class TraceSettings:
         its reference magnitude (file value, seed or plausible bound), or is
         undetermined, is not determined by the run: it is held at its file
         value, the candidate refitted and judged on what the others explain.
+    window_tolerance : float
+        A significant physical effect whose window RMS drop is within this of
+        the best constant-torque explainer's comes before it
+        (:func:`_physical_first`).
     """
 
     segment_duration: float = 0.05
@@ -252,6 +256,7 @@ class TraceSettings:
     signature: SignatureSettings = field(default_factory=SignatureSettings)
     base_corrections: bool | None = None
     undetermined_relative_stderr: float = 1.0
+    window_tolerance: float = 0.02
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad field."""
@@ -1019,7 +1024,12 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         if best is None:
             say("no candidate is significant: stop")
             break
-        rivals = _rivals(best, scored, st.alpha)
+        best, yielded = _physical_first(best, scored, st.window_tolerance)
+        if yielded:
+            rounds[-1]["physical_first"] = {"chosen": best["name"], "over": yielded}
+            say(f"{best['name']} explains as much inside its window as the constant-torque "
+                f"{', '.join(yielded)}: the physical effect comes first")
+        rivals = _rivals(best, [s for s in scored if s["name"] not in yielded], st.alpha)
         if rivals:
             names_amb = [best["name"]] + [r["name"] for r in rivals]
             rounds[-1]["ambiguous"] = names_amb
@@ -1100,6 +1110,30 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                    "total_s": time.perf_counter() - t_start},
     }
     return TraceResult(doc, {"before": first, "after": current})
+
+
+def _is_explainer(s: dict) -> bool:
+    return bool(s.get("_spec") is not None and CANDIDATES.get(s["name"]) is not None
+                and CANDIDATES[s["name"]].base_correction)
+
+
+def _physical_first(best: dict, scored: list[dict], tol: float) -> tuple[dict, list[str]]:
+    """Order by what is explained: when the best held-out drop is a constant-torque explainer's (a Coulomb or
+    direction drag, an axial force) and a significant physical effect explains as much of the residual inside
+    its window (window RMS drop within ``tol`` of the explainer's), the physical effect comes first; the
+    explainers that yielded to it are returned (they are scored again in the next round).  On one load a
+    no-back's aiding-quadrant friction is a direction drag; only the no-back says why."""
+    if not _is_explainer(best):
+        return best, []
+    phys = [s for s in scored if s.get("significant") and not _is_explainer(s)]
+    if not phys:
+        return best, []
+    p = max(phys, key=lambda s: s["holdout_chi2_drop"])
+    wr = lambda s: max(s["window_reduction"].values(), default=0.0)  # noqa: E731
+    if wr(p) < wr(best) - tol:
+        return best, []
+    return p, [s["name"] for s in scored if s.get("significant") and _is_explainer(s)
+               and s["holdout_chi2_drop"] >= p["holdout_chi2_drop"]]
 
 
 def _rivals(best: dict, scored: list[dict], alpha: float) -> list[dict]:
