@@ -923,6 +923,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 _signature(current, runs, cur_params, cur_effects, st.signature, noise))
     windows_cache = {spec: {r.name: _window(spec, r) for r in runs}
                      for spec in ("moving", "all", "loaded", "reversal", "reversal_or_stop", "cold")}
+    hurt: set[str] = set()
     while sum(1 for e in added if "implied_by" not in e) < st.max_effects:
         specs = candidate_specs(cur_effects, cur_params, st.candidates)
         # a base correction that ran to its plausible bound: the same effect, larger than a rig's base can be,
@@ -934,10 +935,14 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             win = windows_cache[spec.window]
             if sum(int(w.sum()) for w in win.values()) < 50:
                 skipped.append({"name": spec.name, "reason": f"does not act on these runs (window '{spec.window}' empty)"})
+            elif spec.name in hurt:
+                skipped.append({"name": spec.name, "reason": f"made the held-out error worse in round {len(rounds)}"})
             else:
                 scorable.append(spec)
         if not scorable:
             break
+        # the longest fits first, so that the workers finish together (profiled, then the structural effects)
+        scorable.sort(key=lambda sp: (not sp.profile, sp.base_correction, -len(sp.free)))
         jobs = []
         for spec in scorable:
             lift = tuple(n for n in spec.free if n in at_plausible_bound)
@@ -998,19 +1003,33 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "_spec": spec,
             })
         # calibrate the promising ones on a null run of the current model (same inputs, its own noise)
-        promising = [s for s in scored if s.get("prelim")]
+        # calibrate the promising ones on a null run, strongest first, a batch (one per worker, the strongest
+        # physical one included) at a time until one passes: the weaker ones are not needed then
+        promising = sorted([s for s in scored if s.get("prelim")], key=lambda s: -s["holdout_chi2_drop"])
         if promising:
             null = _null_runs(current, fit_runs, noise, st.seed + len(rounds))
-            say(f"calibrating {len(promising)} candidate(s) on a null run")
             null_base = _run_jobs([job("null base", cur_effects, cur_free, cur_params, null)], 1, None)[0]
-            null_fits = _run_jobs([{**s["_job"], "label": f"null {s['name']}", "runs": null,
-                                    "free": tuple(s["_fit"]["free"]),
-                                    "params_toml": _held_params(s["_job"]["params_toml"], s["_fit"]), "judge": {}}
-                                   for s in promising], st.workers, say)
             nb = sum(_chi2_by_channel(null_base, noise, "holdout").values()) if "error" not in null_base else math.nan
-            for s, nf in zip(promising, null_fits):
-                nd = (nb - sum(_chi2_by_channel(nf, noise, "holdout").values())) if "error" not in nf else math.nan
-                s["null_chi2_drop"] = nd
+            todo = list(promising)
+            while todo:
+                batch = todo[:max(st.workers, 2)]
+                phys = next((c for c in todo if not _is_explainer(c)), None)
+                if phys is not None and phys not in batch:
+                    batch.append(phys)
+                todo = [c for c in todo if c not in batch]
+                say(f"calibrating {', '.join(c['name'] for c in batch)} on a null run")
+                null_fits = _run_jobs([{**c["_job"], "label": f"null {c['name']}", "runs": null,
+                                        "free": tuple(c["_fit"]["free"]), "judge": {},
+                                        "params_toml": _held_params(c["_job"]["params_toml"], c["_fit"])}
+                                       for c in batch], st.workers, say)
+                for c, nf in zip(batch, null_fits):
+                    nd = (nb - sum(_chi2_by_channel(nf, noise, "holdout").values())) if "error" not in nf else math.nan
+                    c["null_chi2_drop"] = nd
+                if any(math.isfinite(c["null_chi2_drop"]) and c["holdout_chi2_drop"] > st.null_factor
+                       * max(c["null_chi2_drop"], 0.0) for c in batch):
+                    break
+            for c in todo:
+                c["not_calibrated"] = "a stronger candidate passed its null calibration"
         for s in scored:
             if "error" in s:
                 continue
@@ -1018,6 +1037,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             s["significant"] = bool(s["prelim"] and nd is not None and math.isfinite(nd)
                                     and s["holdout_chi2_drop"] > st.null_factor * max(nd, 0.0))
         scored.sort(key=lambda s: -(s.get("holdout_chi2_drop") or -math.inf))
+        # a candidate that made the held-out error worse is not fitted again in the next round
+        hurt = {c["name"] for c in scored if "error" not in c and c["holdout_chi2_drop"] < 0}
         rounds.append({"round": len(rounds) + 1, "model": list(cur_effects), "skipped": skipped,
                        "candidates": [_public(s) for s in scored]})
         best = next((s for s in scored if s.get("significant")), None)
