@@ -1,0 +1,87 @@
+"""Table of tracer outcomes on rig-sim runs (issue #21 notes): truth against what ``thsa trace`` added.
+
+Reads trace folders written by ``thsa trace RUN.csv --model A --out DIR`` and the ``.truth.json`` beside each
+run's CSV (the truth is read here, by the judge, never by the tracer), and prints a markdown table: truth,
+base corrections, effects added in order (implied ones marked), window error drops, held parameters,
+unexplained and the structured signature; then the rates (right first physical effect, nulls clean).
+
+Run: ``python bench/trace_rigsim_table.py OUT_DIR [OUT_DIR ...]``
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+LIBRARY = {
+    "noback_quadrant": "noback_quadrant_friction", "ratchet_backlash": "noback_backlash",
+    "loadpath_backlash": "loadpath_compliance", "loadpath_preload": "loadpath_compliance",
+    "temp_friction": "temperature_friction", "drivetrain_compliance": "drivetrain_compliance",
+    "coulomb": "coulomb_friction", "direction_friction": "direction_friction", "axial_offset": "force_offset",
+    "screw_ripple": "screw_friction_ripple", "cogging": "cogging_torque",
+}
+EXPLAINERS = {"coulomb_friction", "direction_friction", "force_offset"}
+
+
+def row(folder: Path) -> dict | None:
+    f = folder / "trace.json"
+    if not f.is_file():
+        return None
+    doc = json.loads(f.read_text())
+    csv = Path(doc["datasets"][0]["csv"])
+    truth = json.loads(csv.with_suffix("").with_suffix(".truth.json").read_text()) \
+        if csv.with_suffix("").with_suffix(".truth.json").exists() else \
+        json.loads(Path(str(csv)[:-4] + ".truth.json").read_text())
+    effs = list(truth.get("effects") or {})
+    bc = doc.get("base_corrections") or {}
+    corr = [f"{c['parameter'].split('.')[-1]}={c['value']:.3g}{'*' if c['at_plausible_bound'] else ''}"
+            for c in bc.get("corrections", [])] if bc.get("accepted") else []
+    added = []
+    for e in doc["effects_added"]:
+        tag = e["name"] + (f" (with {e['implied_by']})" if e.get("implied_by") else "") + \
+            (" (beyond base)" if e.get("beyond_base_correction") else "")
+        wr = e.get("window_reduction") or {}
+        if wr and not e.get("implied_by"):
+            tag += f" [{max(wr.values()):.0%}]"
+        added.append(tag)
+    held = [f"{h['parameter']}" for e in doc["effects_added"] for h in e.get("not_determined", [])]
+    found = [e["name"] for e in doc["effects_added"] if not e.get("implied_by")]
+    phys = [e["name"] for e in doc["effects_added"] if not e.get("implied_by") and not e.get("refines_declared")
+            and e["name"] not in EXPLAINERS]
+    return {"run": folder.name, "base": truth["base"], "scenario": truth["scenario"], "truth": effs, "found": found,
+            "phys": phys, "corr": corr, "added": added, "held": held, "unexplained": doc["unexplained"],
+            "structured": doc["residual_signature"]["structured"], "time": doc["timing"]["total_s"],
+            "ambiguous": [a["candidates"] for a in doc.get("ambiguous", [])]}
+
+
+def main(argv=None) -> int:
+    dirs = [Path(a) for a in (argv or sys.argv[1:])]
+    rows = [r for d in dirs for r in ([row(d)] if (d / "trace.json").exists() else
+                                      [row(x) for x in sorted(d.iterdir()) if x.is_dir()]) if r]
+    print("| run | base | scenario | truth | base corrections (* at bound) | added in order [window drop] | "
+          "held (not determined) | unexplained: structured | time [s] |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    right = lib = null_clean = nulls = 0
+    for r in rows:
+        print(f"| {r['run']} | {r['base']} | {r['scenario']} | {', '.join(r['truth']) or '-'} | "
+              f"{', '.join(r['corr']) or '-'} | {'; '.join(r['added']) or '-'}"
+              f"{' ambiguous ' + str(r['ambiguous']) if r['ambiguous'] else ''} | {', '.join(r['held']) or '-'} | "
+              f"{r['unexplained']}: {'; '.join(s[:40] for s in r['structured'][:4])} | {r['time']:.0f} |")
+        if len(r["truth"]) == 1 and r["truth"][0] in LIBRARY:
+            lib += 1
+            want = LIBRARY[r["truth"][0]]
+            order = r["found"] if want in EXPLAINERS | {"noback_quadrant_friction"} else r["phys"]
+            if want in EXPLAINERS:
+                order = [x for x in r["found"] if x != "noback_quadrant_friction"]
+            right += bool(order and order[0] == want)
+        if not r["truth"]:
+            nulls += 1
+            null_clean += set(r["found"]) <= {"noback_quadrant_friction"}
+    print(f"\nright first effect: {right} / {lib} library runs; nulls adding only what the base contains: "
+          f"{null_clean} / {nulls}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
