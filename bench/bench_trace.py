@@ -11,7 +11,10 @@ With ``--all`` every default candidate of the declared model is scored (the phys
 effects plus drivetrain_compliance, loadpath_compliance, the no-back's and temperature friction where their
 window is not empty), as ``thsa trace`` does without ``--candidates``.
 
-Run: ``python bench/bench_trace.py [--workers 2] [--all]``
+With ``--csv RUN.csv`` it traces that run as ``thsa trace RUN.csv --model A`` does (default candidates, base
+corrections): the issue-#21 target is a 10 s, 1 kHz rig-sim run in under 60 s on 2 quiet cores.
+
+Run: ``python bench/bench_trace.py [--workers 2] [--all] [--csv RUN.csv]``
 """
 
 from __future__ import annotations
@@ -38,9 +41,25 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--duration", type=float, default=10.0)
     ap.add_argument("--all", action="store_true", help="score every default candidate (as thsa trace does)")
+    ap.add_argument("--csv", help="trace this run instead (declared level A, default candidates and base "
+                                  "corrections, as `thsa trace RUN.csv --model A`): e.g. a 10 s, 1 kHz rig-sim run")
     args = ap.parse_args()
     cands = None if args.all else CANDIDATES
     params = thsa.default_parameters()
+    if args.csv:
+        from thsa_control.fit.kinematics import run_kinematics
+
+        run = run_kinematics(read_run(args.csv), params)
+        t0 = time.perf_counter()
+        res = trace(run, "A", params=params, settings=TraceSettings(workers=args.workers),
+                    progress=lambda m: print(f"  {time.perf_counter() - t0:6.1f} s  {m}", flush=True))
+        wall = time.perf_counter() - t0
+        tm = res.to_dict()["timing"]
+        print(f"run: {args.csv} ({len(run.time)} samples), {args.workers} workers")
+        print(f"one base-model fit: {tm['base_fit_s']:.1f} s; one candidate fit (median): {tm['candidate_fit_s']:.1f} s")
+        print(f"whole trace: {wall:.1f} s (target < 60 s on 2 quiet cores): {'OK' if wall < 60 else 'OVER'}")
+        print(f"added: {res.effects_added}; unexplained: {res.unexplained}")
+        return
     truth = params.replace({"drive.coulomb_torque": 0.05})
     rig = derive_gains(params, current_bandwidth_hz=150, velocity_crossover_hz=10, velocity_pi_zero_ratio=5,
                        position_bandwidth_hz=1, control_period_s=1e-3, name="rig_1kHz")
