@@ -1045,7 +1045,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         if best is None:
             say("no candidate is significant: stop")
             break
-        best, yielded = _physical_first(best, scored, st.window_tolerance)
+        best, yielded = _physical_first(best, scored, st.window_tolerance, current, noise, windows_cache)
         if yielded:
             rounds[-1]["physical_first"] = {"chosen": best["name"], "over": yielded}
             say(f"{best['name']} explains as much inside its window as the constant-torque "
@@ -1138,20 +1138,30 @@ def _is_explainer(s: dict) -> bool:
                 and CANDIDATES[s["name"]].base_correction)
 
 
-def _physical_first(best: dict, scored: list[dict], tol: float) -> tuple[dict, list[str]]:
+def _physical_first(best: dict, scored: list[dict], tol: float, current: dict, noise, windows_cache: dict
+                    ) -> tuple[dict, list[str]]:
     """Order by what is explained: when the best held-out drop is a constant-torque explainer's (a Coulomb or
     direction drag, an axial force) and a significant physical effect explains as much of the residual inside
-    its window (window RMS drop within ``tol`` of the explainer's), the physical effect comes first; the
-    explainers that yielded to it are returned (they are scored again in the next round).  On one load a
-    no-back's aiding-quadrant friction is a direction drag; only the no-back says why."""
+    its own window, on its own channel (held-out RMS drop there at least the explainer's there, less ``tol``),
+    the physical effect comes first; the explainers that yielded to it are returned (they are scored again in
+    the next round).  On one load a no-back's aiding-quadrant friction is a direction drag; only the no-back
+    says why."""
     if not _is_explainer(best):
         return best, []
     phys = [s for s in scored if s.get("significant") and not _is_explainer(s)]
     if not phys:
         return best, []
     p = max(phys, key=lambda s: s["holdout_chi2_drop"])
-    wr = lambda s: max(s["window_reduction"].values(), default=0.0)  # noqa: E731
-    if wr(p) < wr(best) - tol:
+    spec = p["_spec"]
+    win = windows_cache[spec.window]
+    base = _chi2_by_channel(current, noise, "holdout", win).get(spec.channel, 0.0)
+    if not base > 0:
+        return best, []
+
+    def red(s):
+        return 1 - math.sqrt(_chi2_by_channel(s["_fit"], noise, "holdout", win).get(spec.channel, base) / base)
+
+    if red(p) < red(best) - tol:
         return best, []
     return p, [s["name"] for s in scored if s.get("significant") and _is_explainer(s)
                and s["holdout_chi2_drop"] >= p["holdout_chi2_drop"]]
