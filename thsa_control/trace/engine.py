@@ -118,8 +118,9 @@ CANDIDATES: dict[str, CandidateSpec] = {c.name: c for c in (
     CandidateSpec("screw_friction_ripple", ("drive.screw_ripple_torque_cos", "drive.screw_ripple_torque_sin"),
                   {"drive.screw_ripple_torque_cos": 0.005, "drive.screw_ripple_torque_sin": 0.005},
                   plausible={"drive.screw_ripple_torque_cos": "periodic", "drive.screw_ripple_torque_sin": "periodic"}),
+    # the cogging acts where the record resolves its period (4 samples or more): an aliased one fits noise
     CandidateSpec("cogging_torque", ("drive.cogging_torque_cos", "drive.cogging_torque_sin"),
-                  {"drive.cogging_torque_cos": 0.005, "drive.cogging_torque_sin": 0.005},
+                  {"drive.cogging_torque_cos": 0.005, "drive.cogging_torque_sin": 0.005}, "resolved_cogging",
                   plausible={"drive.cogging_torque_cos": "periodic", "drive.cogging_torque_sin": "periodic"}),
     CandidateSpec("noback_quadrant_friction", ("noback.mu_coulomb_pos", "noback.mu_coulomb_neg"), {}, "loaded"),
     # the pawl switch gives no gradient: the pitch (papers: 8.57 deg max; searched 1.7..17 deg) is profiled,
@@ -316,7 +317,7 @@ def candidate_specs(model_effects: Iterable[str], params: ParameterSet, names: S
     return out
 
 
-def _window(kind: str, run: RigRun) -> np.ndarray:
+def _window(kind: str, run: RigRun, params: ParameterSet | None = None) -> np.ndarray:
     s = run.signals
     w = np.asarray(s["motor_speed"] if "motor_speed" in run.source_columns else s["screw_speed"] * run.gear_ratio,
                    float)
@@ -337,6 +338,11 @@ def _window(kind: str, run: RigRun) -> np.ndarray:
         for ts in t[1:][moving[:-1] & ~moving[1:]]:
             near |= (t >= ts) & (t < ts + 0.3)
         return near
+    if kind == "resolved_cogging":  # moving slowly enough that the cogging's period spans 4 samples or more
+        t = np.asarray(run.time, float)
+        fs = 1.0 / float(np.median(np.diff(t))) if t.size > 1 else 0.0
+        n = params.value("drive.cogging_periods") if params is not None and "drive.cogging_periods" in params else 6.0
+        return moving & (n * np.abs(w) / (2 * math.pi) < fs / 4)
     if kind == "cold":
         temp = np.asarray(s["temperature"], float)
         return np.abs(temp - 25.0) > 5.0
@@ -921,8 +927,9 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             at_plausible_bound = _explainers_at_bound(current, base_bounds)
             base_doc["signature_after"] = _signature_brief(
                 _signature(current, runs, cur_params, cur_effects, st.signature, noise))
-    windows_cache = {spec: {r.name: _window(spec, r) for r in runs}
-                     for spec in ("moving", "all", "loaded", "reversal", "reversal_or_stop", "cold")}
+    windows_cache = {spec: {r.name: _window(spec, r, params) for r in runs}
+                     for spec in ("moving", "all", "loaded", "reversal", "reversal_or_stop", "cold",
+                                  "resolved_cogging")}
     hurt: set[str] = set()
     while sum(1 for e in added if "implied_by" not in e) < st.max_effects:
         specs = candidate_specs(cur_effects, cur_params, st.candidates)
