@@ -156,7 +156,7 @@ def test_out_of_library_effect_is_unexplained_with_its_signature(traced, name):
     doc = traced(name)
     assert doc["unexplained"], doc["residual_signature"]["structured"]
     structured = doc["residual_signature"]["structured"]
-    assert set(FOREIGN[name]) & set(structured), structured
+    assert any(v in s for v in FOREIGN[name] for s in structured), structured
     assert not set(_found(doc)) & INVENTED, doc["rounds"]
 
 

@@ -98,15 +98,18 @@ def plot_candidate_drops(doc: dict):
     fig, axes = plt.subplots(len(rounds), 1, figsize=(9, 0.5 + 2.6 * len(rounds)), squeeze=False)
     for ax, r in zip(axes[:, 0], rounds):
         cands = [c for c in r["candidates"] if c.get("holdout_chi2_drop") is not None]
-        names = [c["name"] + (" (beyond base)" if c.get("beyond_base_correction") else "") for c in cands]
-        drops = [max(c["holdout_chi2_drop"], 0.0) for c in cands]
+        chosen = {e["name"] for e in doc["effects_added"]} if r is rounds[-1] else set(rounds[rounds.index(r) + 1]["model"])
+        names = [c["name"] + (" (beyond base)" if c.get("beyond_base_correction") else "")
+                 + (" <- added" if c["name"] in chosen and c["name"] not in r["model"] else "") for c in cands]
+        drops = [c["holdout_chi2_drop"] for c in cands]
         colors = ["C2" if c["significant"] else ("C3" if not c["plausible"] else "0.6") for c in cands]
         y = np.arange(len(cands))
-        ax.barh(y, [max(d, 1e-1) for d in drops], color=colors)
+        ax.barh(y, drops, color=colors)
         ax.set_yticks(y, names, fontsize=8)
         ax.invert_yaxis()
-        ax.set_xscale("log")
-        ax.set_xlabel("held-out chi2 drop (green: significant, red: implausible, grey: not significant)")
+        ax.set_xscale("symlog", linthresh=10.0)  # negative: the candidate made the held-out error worse
+        ax.axvline(0, color="0.3", lw=0.6)
+        ax.set_xlabel("held-out chi2 drop, symmetric log (green: significant, red: implausible, grey: not significant)")
         ax.set_title(f"round {r['round']}: model {', '.join(r['model']) or 'functional'}", fontsize=9, wrap=True)
     fig.tight_layout()
     return fig
