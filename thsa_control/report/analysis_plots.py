@@ -2,21 +2,19 @@
 
 from __future__ import annotations
 
-
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.collections import LineCollection  # noqa: E402
+import numpy as np
+from matplotlib.collections import LineCollection
+from matplotlib.patches import Rectangle
+from matplotlib.ticker import MultipleLocator
 
 from ..loops.analysis import LOOPS, METRIC_LABELS, METRICS, LoopAnalysis  # noqa: E402
+from .figure import colormap, new_figure, subplots
 
 __all__ = ["plot_loop_bode", "plot_steps", "plot_margin_maps", "plot_velocity_poles", "plot_friction_slopes",
            "plot_switching"]
 
 _LOOP_TITLE = {"current_loop": "current loop", "velocity_loop": "velocity loop", "position_loop": "position loop"}
-_CMAP = plt.get_cmap("coolwarm")
+_CMAP = colormap("coolwarm")
 
 
 def _tcolor(t: float):
@@ -88,7 +86,7 @@ def plot_loop_bode(analysis: LoopAnalysis, loop: str, axes=None):
     matplotlib.figure.Figure
     """
     if axes is None:
-        fig, axes = plt.subplots(2, 1, figsize=(9, 6.8), sharex=True, constrained_layout=True)
+        fig, axes = subplots(2, 1, figsize=(9, 6.8), sharex=True, constrained_layout=True)
     else:
         fig = axes[0].figure
     ax_m, ax_p = axes
@@ -151,7 +149,7 @@ def plot_loop_bode(analysis: LoopAnalysis, loop: str, axes=None):
     ax_p.set_xlabel("frequency [Hz] (dotted: Nyquist)")
     ph_ok = ph[ks][np.isfinite(ph[ks])] if ks.size else np.array([-180.0])
     ax_p.set_ylim(max(np.min(ph_ok) - 15, -405), min(np.max(ph_ok) + 15, 45))
-    ax_p.yaxis.set_major_locator(plt.MultipleLocator(90))
+    ax_p.yaxis.set_major_locator(MultipleLocator(90))
     for a in axes:
         a.grid(True, which="both", alpha=0.3)
     ref = analysis.conditions[next(iter(refs.values()))] if refs else None
@@ -169,7 +167,7 @@ def plot_steps(analysis: LoopAnalysis):
     -------
     matplotlib.figure.Figure
     """
-    fig, axes = plt.subplots(2, 3, figsize=(14, 7.5), constrained_layout=True)
+    fig, axes = subplots(2, 3, figsize=(14, 7.5), constrained_layout=True)
     refs = analysis.reference_indices()
     scale = {"current_loop": (1e3, "ms"), "velocity_loop": (1e3, "ms"), "position_loop": (1.0, "s")}
     for j, loop in enumerate(LOOPS):
@@ -232,7 +230,7 @@ def plot_margin_maps(analysis: LoopAnalysis, loop: str = "velocity_loop",
     if grid is None:
         raise ValueError("plot_margin_maps needs an analysis over a ConditionGrid")
     nT, nV, nF = grid.shape
-    fig, axes = plt.subplots(len(metrics), nT, figsize=(3.1 * nT + 1, 2.9 * len(metrics)), squeeze=False,
+    fig, axes = subplots(len(metrics), nT, figsize=(3.1 * nT + 1, 2.9 * len(metrics)), squeeze=False,
                              constrained_layout=True)
     valid = analysis.valid.reshape(nT, nV, nF)
     for i, name in enumerate(metrics):
@@ -240,7 +238,7 @@ def plot_margin_maps(analysis: LoopAnalysis, loop: str = "velocity_loop",
         shown = np.where(valid, np.abs(vals) if name == "gain_margin_db" else vals, np.nan)
         finite = shown[np.isfinite(shown)]
         vmin, vmax = (np.min(finite), np.max(finite)) if finite.size else (0, 1)
-        cmap = plt.get_cmap("RdYlGn_r" if METRICS[name][1].startswith("max") else "RdYlGn")
+        cmap = colormap("RdYlGn_r" if METRICS[name][1].startswith("max") else "RdYlGn")
         w = analysis.worst(loop, name)
         for t in range(nT):
             ax = axes[i, t]
@@ -248,12 +246,12 @@ def plot_margin_maps(analysis: LoopAnalysis, loop: str = "velocity_loop",
             for a in range(nV):
                 for b in range(nF):
                     if not valid[t, a, b]:
-                        ax.add_patch(plt.Rectangle((b - 0.5, a - 0.5), 1, 1, fill=False, hatch="///", color="0.6"))
+                        ax.add_patch(Rectangle((b - 0.5, a - 0.5), 1, 1, fill=False, hatch="///", color="0.6"))
                     elif np.isfinite(vals[t, a, b]):
                         ax.text(b, a, f"{vals[t, a, b]:.3g}", ha="center", va="center", fontsize=6)
             if w is not None and w.index // (nV * nF) == t:
                 a, b = divmod(w.index % (nV * nF), nF)
-                ax.add_patch(plt.Rectangle((b - 0.5, a - 0.5), 1, 1, fill=False, lw=2.2, color="k"))
+                ax.add_patch(Rectangle((b - 0.5, a - 0.5), 1, 1, fill=False, lw=2.2, color="k"))
             ax.set_xticks(range(nF), [f"{f * 1e-3:g}" for f in grid.load_forces], fontsize=7)
             ax.set_yticks(range(nV), [f"{v * 1e3:g}" for v in grid.nut_speeds], fontsize=7)
             if i == len(metrics) - 1:
@@ -278,7 +276,7 @@ def plot_velocity_poles(analysis: LoopAnalysis, ax=None):
     matplotlib.figure.Figure
     """
     if ax is None:
-        fig, ax = plt.subplots(1, 2, figsize=(12, 5.2), constrained_layout=True)
+        fig, ax = subplots(1, 2, figsize=(12, 5.2), constrained_layout=True)
     else:
         fig = ax[0].figure
     lm = analysis.loops["velocity_loop"]
@@ -336,7 +334,7 @@ def plot_friction_slopes(analysis: LoopAnalysis):
     lin = analysis.linearization
     loads = sorted({c.load_force for c in analysis.conditions})
     temps = sorted({c.temperature for c in analysis.conditions})
-    fig, axes = plt.subplots(2, len(loads), figsize=(3.2 * len(loads) + 1, 6), sharex=True, squeeze=False,
+    fig, axes = subplots(2, len(loads), figsize=(3.2 * len(loads) + 1, 6), sharex=True, squeeze=False,
                              constrained_layout=True)
     for j, f in enumerate(loads):
         for temp in temps:
@@ -372,11 +370,11 @@ def plot_switching(switching):
     -------
     matplotlib.figure.Figure
     """
-    fig = plt.figure(figsize=(13, 7.5), constrained_layout=True)
+    fig = new_figure(figsize=(13, 7.5), constrained_layout=True)
     gs = fig.add_gridspec(2, 2, height_ratios=(2.2, 1))
     cases = list(switching.cases)
     delays = sorted({c.delay_s for c in cases})
-    cmap = plt.get_cmap("viridis")
+    cmap = colormap("viridis")
     t_fault = getattr(switching, "fault_time_s", None)
     for j, hand in enumerate((False, True)):
         ax = fig.add_subplot(gs[0, j])

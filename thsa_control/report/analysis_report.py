@@ -29,17 +29,18 @@ from __future__ import annotations
 
 import base64
 import html
-import io
 import math
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..loops.analysis import LOOPS, METRIC_LABELS, DesignAnalysis, check_requirements, metric_unit  # noqa: E402
+from ..loops.analysis import (  # noqa: E402
+    LOOPS,
+    METRIC_LABELS,
+    DesignAnalysis,
+    check_requirements,
+    metric_unit,
+)
 from .analysis_json import ANALYSIS_FORMAT, analysis_to_dict  # noqa: E402
 from .analysis_plots import (  # noqa: E402
     _LOOP_TITLE,
@@ -51,6 +52,7 @@ from .analysis_plots import (  # noqa: E402
     plot_velocity_poles,
 )
 from .build import atomic_folder, write_json  # noqa: E402
+from .figure import png_bytes
 
 __all__ = [
     "ANALYSIS_FORMAT",
@@ -91,10 +93,7 @@ td.why{max-width:28em;white-space:normal;text-align:left;color:#555}
 
 
 def _png(fig) -> bytes:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100)
-    plt.close(fig)
-    return buf.getvalue()
+    return png_bytes(fig, dpi=100)
 
 
 def _fmt(x, digits: int = 4) -> str:
@@ -350,7 +349,9 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
                          "note"], rows,
         caption="Friction: the plant's set-valued friction vs motor speed around zero speed; "
                 "backlash: the load-path play (2 x backlash) in the position feedback."), open_=True))
-    from .tuning_report import tuning_section  # before/after of a tuned design (issue #9)
+    from .tuning_report import (
+        tuning_section,  # before/after of a tuned design (issue #9)
+    )
     parts.append(tuning_section(d))
     notes = "; ".join(f"{k} {v:.2f} s" for k, v in result.timings.items())
     parts.append(f"<p class='note'>Computed in: {html.escape(notes)}.</p></body></html>")

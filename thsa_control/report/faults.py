@@ -13,13 +13,10 @@ import html
 import math
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from .build import atomic_folder, write_json  # noqa: E402
+from .figure import subplots
 from .identification import figure_png  # noqa: E402
 
 __all__ = ["plot_fault_run", "plot_fault_case", "plot_sweep", "fault_analysis_to_dict", "write_fault_report"]
@@ -30,7 +27,7 @@ _FLAGS = (("trip_discrepancy", "discrepancy trip"), ("trip_lvdt", "LVDT trip"), 
 
 
 def _panels(t, get, r, N, title, fault_times=()):
-    fig, axes = plt.subplots(5, 1, figsize=(10, 12), sharex=True, constrained_layout=True)
+    fig, axes = subplots(5, 1, figsize=(10, 12), sharex=True, constrained_layout=True)
     ax = axes[0]
     ax.plot(t, get("speed_cmd") * 1e3, "k--", lw=1, label="command")
     ax.plot(t, get("measured_motor_speed") * r * 1e3, label="motor sensor (x lead/2 pi N)")
@@ -99,7 +96,7 @@ def plot_fault_case(case, params):
 def plot_sweep(analysis):
     """Detection time of each fault scenario vs threshold scale (false alarms marked); recovery vs take-over delay."""
     pts = list(analysis.sweep)  # detection does not depend on the take-over delay: any point of the scale
-    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
+    fig, (ax, ax2) = subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
     names = sorted({n for p in pts for n in p.detection_s})
     scales = sorted({p.scale for p in pts})
     for n in names:
@@ -231,7 +228,7 @@ def write_fault_report(analysis, params, out_dir, **folder_options) -> Path:
             data = base64.b64encode(figure_png(fig)).decode()
             parts.append(f"<figure id='fig-{html.escape(name[:-4])}'><img alt='{html.escape(caption)}' "
                          f"src='data:image/png;base64,{data}'><figcaption>{html.escape(caption)}</figcaption></figure>")
-            plt.close(fig)
+            fig.clear()
         parts.append("</body></html>\n")
         (tmp / "report.html").write_text("\n".join(parts), encoding="utf-8")
     return Path(out_dir)

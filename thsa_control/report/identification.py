@@ -10,16 +10,13 @@ from __future__ import annotations
 
 import base64
 import html
-import io
 import textwrap
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+
+from .figure import png_bytes, subplots
 
 __all__ = ["plot_overlay", "plot_residual_channel", "plot_segments", "figure_png", "write_html_report",
            "write_residual_folder", "write_identification_folder"]
@@ -54,7 +51,7 @@ def plot_overlay(time, measured: Mapping[str, np.ndarray], simulated: Mapping[st
     """
     channels = list(channels or measured)
     t = np.asarray(time)
-    fig, axes = plt.subplots(len(channels), 1, figsize=(10, 2.4 * len(channels) + 0.6), sharex=True,
+    fig, axes = subplots(len(channels), 1, figsize=(10, 2.4 * len(channels) + 0.6), sharex=True,
                              squeeze=False, constrained_layout=True)
     styles = ["tab:orange", "tab:blue", "tab:green", "tab:red"]
     for ax, c in zip(axes[:, 0], channels):
@@ -92,7 +89,7 @@ def plot_residual_channel(time, channel, *, title: str = ""):
     ``channel`` is a :class:`thsa_control.fit.residuals.ChannelResiduals`.
     """
     k, unit = _scale(channel.name)
-    fig, axes = plt.subplots(3, 1, figsize=(10, 8), constrained_layout=True)
+    fig, axes = subplots(3, 1, figsize=(10, 8), constrained_layout=True)
     ax = axes[0]
     ax.plot(np.asarray(time), np.asarray(channel.residual) * k, lw=0.6)
     ax.set_xlabel("time [s]")
@@ -122,10 +119,9 @@ def plot_residual_channel(time, channel, *, title: str = ""):
 
 def figure_png(fig, dpi: int = 100) -> bytes:
     """PNG bytes of ``fig``; the figure is closed."""
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi)
-    plt.close(fig)
-    return buf.getvalue()
+    data = png_bytes(fig, dpi=dpi)
+    fig.clear()
+    return data
 
 
 def write_html_report(path: str | Path, *, title: str, sections: Sequence[tuple[str, str]],
