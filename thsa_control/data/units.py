@@ -62,6 +62,9 @@ __all__ = [
     "to_display",
     "from_display",
     "label",
+    "SIGNAL_QUANTITY",
+    "signal_display",
+    "signal_label",
 ]
 
 _RPM = 2.0 * math.pi / 60.0
@@ -213,3 +216,33 @@ def label(name: str, quantity: str) -> str:
     'load [kN]'
     """
     return display_unit(quantity).label(name)
+
+
+#: Signal names of the workbench (rig-run signals, simulation outputs, replay channels) -> quantity.
+SIGNAL_QUANTITY: dict[str, str] = {
+    "motor_speed": "rotational_speed", "screw_speed": "rotational_speed", "standby_speed": "rotational_speed",
+    "nut_position": "position", "position_cmd": "position", "surface_position": "position",
+    "model_nut_position": "position",
+    "nut_speed": "nut_speed", "speed_cmd": "nut_speed", "surface_speed": "nut_speed",
+    "load_force": "force", "loadpath_force": "force",
+    "motor_current": "current", "standby_current": "current", "current_ref": "current",
+    "motor_voltage": "voltage",
+    "noback_torque": "torque", "missing_torque": "torque", "motor_torque": "torque",
+    "temperature": "temperature",
+    "motor_angle": "angle",
+    "reversal_proximity": "duration",
+}
+
+
+def signal_display(name: str) -> DisplayUnit:
+    """Display unit of a named signal (``dimensionless`` when the signal has no entry).
+
+    >>> signal_display("motor_speed").unit, signal_display("load_force").unit
+    ('rpm', 'kN')
+    """
+    return DISPLAY_UNITS[SIGNAL_QUANTITY.get(name, "dimensionless")]
+
+
+def signal_label(name: str, text: str | None = None) -> str:
+    """Axis or column heading of a signal: ``"motor_speed [rpm]"``."""
+    return signal_display(name).label(text or name)

@@ -26,11 +26,28 @@ import casadi as ca
 import numpy as np
 
 from ..errors import ScenarioError, ThsaError
-from ..loops.controllers import CONTROLLER_PARAMETERS, CONTROLLER_SIGNALS, CONTROLLER_STATES, REFERENCE_INPUTS, build_controller
+from ..loops.controllers import (
+    CONTROLLER_PARAMETERS,
+    CONTROLLER_SIGNALS,
+    CONTROLLER_STATES,
+    REFERENCE_INPUTS,
+    build_controller,
+)
 from ..sim._compile import compile_run_loop
-from ..sim.simulate import RUN_INPUTS, InputSeries, SimulationResult, output_decimation, plant_input_vector
+from ..sim.simulate import (
+    RUN_INPUTS,
+    InputSeries,
+    SimulationResult,
+    output_decimation,
+    plant_input_vector,
+)
 from .events import FAULT_INPUTS, effects_for_faults, fault_signals
-from .monitors import MONITOR_CONTEXT, MONITOR_SENSORS, MONITOR_SIGNALS, MONITOR_STATES, MONITOR_UNITS, build_monitor
+from .monitors import (
+    MONITOR_SIGNALS,
+    MONITOR_STATES,
+    MONITOR_UNITS,
+    build_monitor,
+)
 from .settings import MONITOR_PARAMETERS, MonitorSettings
 
 __all__ = ["fault_sample_functions", "run_fault_loop", "FAULT_RUN_INPUTS"]

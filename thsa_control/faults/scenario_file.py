@@ -59,7 +59,10 @@ def _breakpoints(where: str, key: str, value):
 
 def scenario_from_dict(data: dict, *, where: str = "scenario"):
     """A :class:`Scenario` from a parsed TOML table (see the module docstring)."""
-    from ..sim.scenarios import SCENARIOS, Scenario  # here: sim.scenarios imports this package's events
+    from ..sim.scenarios import (  # here: sim.scenarios imports this package's events
+        SCENARIOS,
+        Scenario,
+    )
 
     data = dict(data)
     known = {f.name for f in fields(Scenario)} | {"base"}
