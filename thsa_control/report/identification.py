@@ -135,7 +135,7 @@ _PAGE_CSS = ("body{font-family:system-ui,Segoe UI,Helvetica,Arial,sans-serif;max
              "td.l,th.l{text-align:left}td.bad{background:#fde7e6}td.ok{background:#e3f4e5}td.warn{background:#fff3c4}"
              "caption{caption-side:top;text-align:left;font-size:12px;color:#555}.note{font-size:12px;color:#555}"
              "nav{position:sticky;top:0;background:#fff;border-bottom:1px solid #ccc;padding:6px 0;z-index:5;"
-             "font-size:13px}nav a{margin-right:1em;color:#1a4f8b;text-decoration:none;white-space:nowrap}"
+             "font-size:13px;display:flex;flex-wrap:wrap;row-gap:2px}nav a{margin-right:1em;color:#1a4f8b;text-decoration:none;white-space:nowrap}"
              "figure{margin:0.6em 0}figcaption{font-size:12px;color:#555}")
 
 
@@ -428,9 +428,14 @@ def write_identification_folder(folder: str | Path, result, before: Sequence, af
     sections.append(("Full fit report (text)", _text_block("click to open the lmfit-style text report",
                                                            result.fit_report())))
     flagged = [n for n in result.estimates if n in result.not_identifiable]
-    lead = (f"{len(result.estimates)} parameter(s) fitted, {'converged' if result.converged else '<b>NOT converged</b>'}"
+    values = "; ".join(
+        f"<b>{html.escape(n)} = {e.value:.4g}</b> {html.escape(e.unit)}"
+        + (f" &plusmn; {100 * e.relative_stderr:.2g} %" if np.isfinite(e.relative_stderr) and e.relative_stderr < 1e3
+           else " (standard error undetermined)") for n, e in result.estimates.items())
+    lead = (f"{values}.<br>{len(result.estimates)} parameter(s) fitted, "
+            f"{'converged' if result.converged else '<b>NOT converged</b>'}"
             + (f"; <b>not identifiable from these runs: {html.escape(', '.join(flagged))}</b>" if flagged else
-               "; every parameter determined by the data") + ".")
+               "; every parameter determined by the data") + " (tables under the figures).")
     write_html_report(folder / "report.html", title=f"Identification: {', '.join(result.runs)}",
                       sections=sections, figures=figures, lead=lead)
     return doc
