@@ -19,9 +19,9 @@ from thsa_control.faults.analysis import (
     FAULT_PLANT_EFFECTS, RIGID_EFFECTS, analyse_fault_case, fault_scenarios, false_alarm_margins, normal_scenarios,
     persisted_peak, sweep_monitors,
 )
-from thsa_control.faults.events import FaultEvent
-from thsa_control.faults.scenario_file import load_scenario_file
-from thsa_control.faults.settings import MonitorSettings
+from thsa_control.sim.events import FaultEvent
+from thsa_control.sim.scenarios import load_scenario_file
+from thsa_control.sim.monitor_settings import MonitorSettings
 from thsa_control.model import build_plant
 from thsa_control.model.fault_effects import limiter_slip_torques
 from thsa_control.sim.metrics import energy_residual

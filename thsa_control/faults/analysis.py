@@ -2,7 +2,7 @@
 
 Numbers only (frozen result dataclasses); ``report/faults.py`` draws and
 writes them.  Every run is the closed loop with the monitors in it
-(``loop.py``), on one *fault plant*: level D with the compliant drive train,
+(``sim/monitors.py``), on one *fault plant*: level D with the compliant drive train,
 the torque limiter, the secondary load path, the jam, the brakes, the claw
 stops and the standby motor, so that the normal scenarios (false alarms) and
 the fault scenarios (detections) run on the same model.
@@ -35,7 +35,7 @@ from ..model import build_plant
 from ..sim.metrics import energy_residual  # noqa: F401 (one definition; re-exported here)
 from ..sim.scenarios import SCENARIOS, Scenario, get_scenario
 from ..sim.simulate import SimulationSettings, Simulator
-from .settings import MonitorSettings
+from ..sim.monitor_settings import MonitorSettings
 
 __all__ = [
     "FAULT_PLANT_EFFECTS", "RIGID_EFFECTS", "MONITORS", "FaultCase", "MonitorMargin", "SweepPoint", "FaultAnalysis",

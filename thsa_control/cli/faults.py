@@ -1,6 +1,6 @@
 """``thsa faults``: the fault report (detection times, loads, recovery, false-alarm margins, sweep).
 
-Registered in ``thsa_control/cli.py`` with ``add_parser(subparsers)``; the
+Registered in ``thsa_control/cli/__init__.py`` with ``add_parser(subparsers)``; the
 handler parses, calls :func:`thsa_control.faults.analysis.analyse_faults`,
 writes the report (``report/faults.py``) and prints the key numbers.
 """
@@ -47,12 +47,12 @@ def _ms(v: float) -> str:
 
 def run(args) -> int:
     """Handler of ``thsa faults``; returns the exit status."""
-    from ..cli import _out_options, _preflight_out
+    from ..faults.analysis import analyse_faults
     from ..report.faults import monitor_display, write_fault_report
-    from .analysis import analyse_faults
+    from .common import out_options, preflight_out
 
-    _preflight_out(args)  # refuse a foreign output folder before the long computation
-    from ..cli import load_params_design
+    preflight_out(args)  # refuse a foreign output folder before the long computation
+    from .common import load_params_design
 
     params, design = load_params_design(args)
     scales = _floats(args.scales, "scales")
@@ -62,7 +62,7 @@ def run(args) -> int:
     progress = Progress("thsa faults", enabled=not getattr(args, "quiet", False))
     a = analyse_faults(design, params, scales=scales, delays_s=delays, sweep=not args.no_sweep, progress=progress)
     progress.phase("writing the report")
-    write_fault_report(a, params, args.out, **_out_options(args))
+    write_fault_report(a, params, args.out, **out_options(args))
     progress.done()
     print(f"plant: level {a.level} + {', '.join(a.effects)}")
     heading = None
