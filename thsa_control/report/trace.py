@@ -91,7 +91,7 @@ def _errors_cell(before: dict, after: dict) -> str:
 def plot_candidate_drops(doc: dict):
     """Each round's candidates: held-out chi2 drop (log scale, significant ones coloured)."""
     rounds = doc["rounds"]
-    fig, axes = plt.subplots(len(rounds), 1, figsize=(9, 0.5 + 2.6 * len(rounds)), squeeze=False)
+    fig, axes = subplots(len(rounds), 1, figsize=(9, 0.5 + 2.6 * len(rounds)), squeeze=False)
     for ax, r in zip(axes[:, 0], rounds):
         cands = [c for c in r["candidates"] if c.get("holdout_chi2_drop") is not None]
         names = [c["name"] + (" (beyond base)" if c.get("beyond_base_correction") else "") for c in cands]
@@ -112,7 +112,7 @@ def plot_signature(sig: dict):
     """The remaining residual's signature: binned by nut position, by motor and screw angle, and the redundant
     sensors' cross-correlation."""
     curves = sig.get("curves") or {}
-    fig, axes = plt.subplots(2, 2, figsize=(11, 6.5))
+    fig, axes = subplots(2, 2, figsize=(11, 6.5))
     ax = axes[0, 0]
     if "nut_position" in curves:
         c = curves["nut_position"]
