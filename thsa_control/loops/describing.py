@@ -18,10 +18,10 @@ from dataclasses import dataclass, replace
 import control as ct
 import numpy as np
 
-from ._loopmath import _freq
+from .loopmath import freq_response
 from .design import Design
 from .linear import OperatingCondition, PlantLinearization, PlantModel, linearize_conditions, plant_model
-from .loop_analysis import AnalysisSettings, _build
+from .loop_analysis import AnalysisSettings, build_loops
 from ..model.params import ParameterSet, default_parameters
 
 __all__ = ["LimitCycle", "predict_limit_cycles", "describing_functions"]
@@ -178,15 +178,15 @@ def describing_functions(design: Design, params: ParameterSet | None = None, *,
     conds = [OperatingCondition(0.0, float(f), float(t)) for t in temps for f in loads]
     lin = linearize_conditions(model, conds)  # invalid (zero speed) by design: see the docstring
     dsettings = replace(settings, n_frequencies=int(n_frequencies))
-    loops = _build(lin, design, dsettings)
+    loops = build_loops(lin, design, dsettings)
     omega, h = loops.omega, loops.h
     z = np.exp(1j * omega * h)
     cl_v, _ = loops.closed["velocity_loop"]
     cl_x, _ = loops.closed["position_loop"]
     H = {
-        ("velocity_loop", "friction"): _freq(cl_v.sub([1], [2]), z),
-        ("position_loop", "friction"): _freq(cl_x.sub([1], [2]), z),
-        ("position_loop", "backlash"): _freq(loops.open["position_loop"], z),
+        ("velocity_loop", "friction"): freq_response(cl_v.sub([1], [2]), z),
+        ("position_loop", "friction"): freq_response(cl_x.sub([1], [2]), z),
+        ("position_loop", "backlash"): freq_response(loops.open["position_loop"], z),
     }
     backlash = params.value("loadpath.backlash")
     r = model.kinematic_ratio

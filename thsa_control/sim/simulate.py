@@ -243,7 +243,7 @@ class Simulator:
         p, k, h = theta[:n_p], theta[n_p:n_p + n_k], theta[n_p + n_k]
         names = plant.state_names
         standby = x[names.index("standby_current")] if "standby_current" in names else ca.SX(0.0)
-        speed_sensor = "rotor_speed" if "rotor_speed" in names else "motor_speed"  # the motor sensor reads the rotors
+        speed_sensor = plant.sensor_state("motor_speed")  # the motor sensor reads the rotors
         meas = ca.vertcat(x[names.index(speed_sensor)], x[names.index("motor_current")], standby,
                           x[names.index("nut_position")])
         xc_next, u_ctrl, sig = build_controller()(xc, w[:len(REFERENCE_INPUTS)], meas, k, h)

@@ -1,9 +1,9 @@
 """Generic drive effects: what a rig engineer suspects on any screw drive.
 
-The same :class:`~thsa_control.model.effects.Effect` / :class:`~thsa_control.model.structure.Assembly`
-API as :mod:`thsa_control.model.effects`; they are registered into ``EFFECTS``
-and ``EFFECT_ORDER`` there, so that simulation, linearisation and
-identification consume them like the papers' effects.  Every parameter is in
+Registered like every effect (:func:`thsa_control.model.effect.register`), in
+phase ``DRIVE`` (after the bodies, before the no-back, which reads the axial
+force that ``force_offset`` changes), so that simulation, linearisation,
+identification and the tracer consume them like the papers' effects.  Every parameter is in
 ``default_actuator.toml`` (group ``drive``) with a neutral default: at value
 0 the effect adds exactly nothing.
 
@@ -53,32 +53,13 @@ All act on the main body (motor shaft); none adds a state.
 
 from __future__ import annotations
 
-import math
-
 import casadi as ca
 
-from .effects import Effect
-from .structure import Assembly, FrictionChannel, kinematic_ratio
+from ..effect import EFFECTS, CandidateSpec, Effect, Phase, register
+from ..laws import drive_coulomb_terms, motor_angle, screw_angle
+from ..structure import Assembly, FrictionChannel
 
-__all__ = ["DRIVE_EFFECTS", "DRIVE_EFFECT_ORDER", "drive_coulomb_terms", "screw_angle", "motor_angle"]
-
-
-def drive_coulomb_terms(p: dict, speed):
-    """``(static, kinetic)`` torque [N m, motor shaft] of ``coulomb_friction`` at ``speed`` [rad/s]."""
-    tc = p["drive.coulomb_torque"]
-    r_s = p["drive.static_torque_ratio"]
-    kinetic = tc * (1.0 + r_s * ca.exp(-((speed / p["drive.stribeck_speed"]) ** 2)))
-    return tc * (1.0 + r_s), kinetic
-
-
-def screw_angle(p: dict, nut_position):
-    """Screw angle [rad] from the nut position [m] (``2 pi x / lead``)."""
-    return 2.0 * math.pi * nut_position / p["screw.lead"]
-
-
-def motor_angle(p: dict, nut_position):
-    """Mechanical motor angle [rad] from the nut position [m] (``x / r``, rigid drive)."""
-    return nut_position / kinematic_ratio(p)
+__all__ = ["DRIVE_EFFECTS"]
 
 
 def _coulomb_friction(a: Assembly) -> None:
@@ -117,25 +98,38 @@ def _cogging_torque(a: Assembly) -> None:
                             + p["drive.cogging_torque_sin"] * ca.sin(th)))
 
 
-DRIVE_EFFECTS: dict[str, Effect] = {
-    e.name: e
-    for e in (
-        Effect("coulomb_friction", "plain Coulomb and static friction of the drive, at the motor shaft", (),
-               ("drive.coulomb_torque", "drive.static_torque_ratio", "drive.stribeck_speed"), (), _coulomb_friction),
-        Effect("direction_friction", "Coulomb friction acting in one direction of motion only", (),
-               ("drive.direction_coulomb_torque",), (), _direction_friction),
-        Effect("force_offset", "constant axial force on the nut (gravity on an inclined axis, a cable)", (),
-               ("drive.axial_force_offset",), (), _force_offset),
-        Effect("screw_friction_ripple", "friction varying once per screw revolution (run-out, a bent screw)", (),
-               ("drive.screw_ripple_torque_cos", "drive.screw_ripple_torque_sin", "screw.lead"), (),
-               _screw_friction_ripple),
-        Effect("cogging_torque", "motor cogging torque, periodic in the mechanical motor angle", (),
-               ("drive.cogging_torque_cos", "drive.cogging_torque_sin", "drive.cogging_periods"), (),
-               _cogging_torque),
-    )
-}
+register(Effect("coulomb_friction", "plain Coulomb and static friction of the drive, at the motor shaft", (),
+                ("drive.coulomb_torque", "drive.static_torque_ratio", "drive.stribeck_speed"), (), _coulomb_friction,
+                phase=Phase.DRIVE,
+                neutral={"drive.coulomb_torque": 0.0},
+                candidate=CandidateSpec("coulomb_friction", ("drive.coulomb_torque",), {"drive.coulomb_torque": 0.02})))
+register(Effect("direction_friction", "Coulomb friction acting in one direction of motion only", (),
+                ("drive.direction_coulomb_torque",), (), _direction_friction,
+                phase=Phase.DRIVE,
+                neutral={"drive.direction_coulomb_torque": 0.0},
+                candidate=CandidateSpec("direction_friction", ("drive.direction_coulomb_torque",),
+                                        {"drive.direction_coulomb_torque": 0.01})))
+register(Effect("force_offset", "constant axial force on the nut (gravity on an inclined axis, a cable)", (),
+                ("drive.axial_force_offset",), (), _force_offset,
+                phase=Phase.DRIVE,  # before the no-back, which reads the axial force
+                neutral={"drive.axial_force_offset": 0.0},
+                candidate=CandidateSpec("force_offset", ("drive.axial_force_offset",),
+                                        {"drive.axial_force_offset": 200.0}, "all")))
+register(Effect("screw_friction_ripple", "friction varying once per screw revolution (run-out, a bent screw)", (),
+                ("drive.screw_ripple_torque_cos", "drive.screw_ripple_torque_sin", "screw.lead"), (),
+                _screw_friction_ripple,
+                phase=Phase.DRIVE,
+                neutral={"drive.screw_ripple_torque_cos": 0.0, "drive.screw_ripple_torque_sin": 0.0},
+                candidate=CandidateSpec("screw_friction_ripple",
+                                        ("drive.screw_ripple_torque_cos", "drive.screw_ripple_torque_sin"),
+                                        {"drive.screw_ripple_torque_cos": 0.005, "drive.screw_ripple_torque_sin": 0.005})))
+register(Effect("cogging_torque", "motor cogging torque, periodic in the mechanical motor angle", (),
+                ("drive.cogging_torque_cos", "drive.cogging_torque_sin", "drive.cogging_periods"), (),
+                _cogging_torque,
+                phase=Phase.DRIVE,
+                neutral={"drive.cogging_torque_cos": 0.0, "drive.cogging_torque_sin": 0.0},
+                candidate=CandidateSpec("cogging_torque", ("drive.cogging_torque_cos", "drive.cogging_torque_sin"),
+                                        {"drive.cogging_torque_cos": 0.005, "drive.cogging_torque_sin": 0.005})))
 
-#: Application order: ``force_offset`` changes the axial force, so it comes
-#: before the effects that read it (the no-back); it is inserted before
-#: ``noback_backlash`` in ``EFFECT_ORDER``.
-DRIVE_EFFECT_ORDER: tuple[str, ...] = tuple(DRIVE_EFFECTS)
+#: Names of the effects this module registers.
+DRIVE_EFFECTS: tuple[str, ...] = tuple(n for n, e in EFFECTS.items() if e.apply.__module__ == __name__)
