@@ -274,6 +274,7 @@ _NOBACK = tuple(f"noback.{n}" for n in (
 ))
 _PAWLS = ("pawl_clearance_comp", "pawl_clearance_tens")
 
+# Registration order is the order of the output signals (and, within a phase, of application).
 register(Effect(
     "standby_motor", "second PMSM torque-summed at the gearbox input, rotor always dragged",
     (StateInfo("standby_current", "A", "lag", "q-axis current of the standby motor"),),
@@ -285,6 +286,25 @@ register(Effect(
              Output("standby_energised", "-")),
     candidate=NotCandidate("a configuration of the actuator (the standby motor is fitted or not), "
                            "not a missing physics of a healthy rig's residual"),
+))
+register(Effect(
+    "drivetrain_compliance", "gearbox and screw torsional compliance between the motor rotors and the gear output",
+    (
+        StateInfo("rotor_speed", "rad/s", "velocity", "speed of the motor rotors (gearbox input), the motor sensor"),
+        StateInfo("drivetrain_twist", "rad", "position", "rotor angle minus gear-output angle, at the motor shaft"),
+    ),
+    ("gear.torsional_stiffness", "screw.torsional_stiffness", "gear.torsional_damping"), (),
+    _drivetrain_compliance,
+    phase=Phase.BODIES,
+    neutral=NoNeutral("the rotors are a body of their own: no parameter value makes the drive train rigid exactly"),
+    outputs=(Output("drivetrain_twist", "rad"), Output("drivetrain_torque", "N m")),
+    # only the series stiffness is identifiable: the gearbox's is freed, the screw's and the damping held
+    candidate=CandidateSpec("drivetrain_compliance", ("gear.torsional_stiffness",), {}, "all", "screw_speed"),
+    linear=LinearHints(
+        # the spring torque k * twist enters the gear-output body with unit gain
+        inertia_probe=("drivetrain_twist", drivetrain_stiffness),
+        operating_point=_drivetrain_operating_point,
+    ),
 ))
 register(Effect(
     "loadpath_compliance", "load-path backlash and preload compliance; surface as a separate body",
@@ -331,28 +351,6 @@ register(Effect(
                             ("friction.cold_coulomb_torque", "friction.viscous_temperature_coefficient"), {}, "cold"),
 ))
 register(Effect(
-    "noback_backlash", "ratchet/pawl clearance crossed before the pawl engages",
-    (
-        StateInfo("pawl_clearance_comp", "rad", "custom", "screw travel left before the compressive-side pawl locks retraction"),
-        StateInfo("pawl_clearance_tens", "rad", "custom", "screw travel left before the tensile-side pawl locks extension"),
-    ),
-    ("noback.pawl_pitch", "noback.pawl_initial_clearance"), ("noback_quadrant_friction",), _noback_backlash,
-    phase=Phase.PAWLS,
-    neutral={"noback.pawl_pitch": 0.0},  # no clearance: the pawls are always engaged
-    outputs=(Output("pawl_clearance_comp", "rad"), Output("pawl_clearance_tens", "rad")),
-    # the pawl switch gives no gradient: the pitch (papers: 8.57 deg max; searched 1.7..17 deg) is profiled,
-    # each value with segment clearances of its own; the initial clearance only where it matters.  It acts
-    # after a reversal and at a stop under load (the load back-drives through the clearance)
-    candidate=CandidateSpec("noback_backlash", (), {}, "reversal_or_stop",
-                            profile={"noback.pawl_pitch": (0.03, 0.3), "noback.pawl_initial_clearance": (0.0, 1.0)}),
-    linear=LinearHints(
-        # in a steady motion the clearances ramp (+-w/N) and nothing depends on them away from an edge
-        drifting=_PAWLS,
-        guards=tuple(Guard(f"{s}_edge", lambda x, p, s=s: ca.fabs(x[s]), "pawl_edge_band") for s in _PAWLS),
-        operating_point=_backlash_operating_point,
-    ),
-))
-register(Effect(
     "noback_quadrant_friction", "no-back friction disks with load- and quadrant-dependent normal force",
     (), _NOBACK, (), _noback_quadrant_friction, supersedes=("noback_ideal",),
     phase=Phase.NOBACK,
@@ -375,21 +373,24 @@ register(Effect(
                            "candidate that supersedes it"),
 ))
 register(Effect(
-    "drivetrain_compliance", "gearbox and screw torsional compliance between the motor rotors and the gear output",
+    "noback_backlash", "ratchet/pawl clearance crossed before the pawl engages",
     (
-        StateInfo("rotor_speed", "rad/s", "velocity", "speed of the motor rotors (gearbox input), the motor sensor"),
-        StateInfo("drivetrain_twist", "rad", "position", "rotor angle minus gear-output angle, at the motor shaft"),
+        StateInfo("pawl_clearance_comp", "rad", "custom", "screw travel left before the compressive-side pawl locks retraction"),
+        StateInfo("pawl_clearance_tens", "rad", "custom", "screw travel left before the tensile-side pawl locks extension"),
     ),
-    ("gear.torsional_stiffness", "screw.torsional_stiffness", "gear.torsional_damping"), (),
-    _drivetrain_compliance,
-    phase=Phase.BODIES,
-    neutral=NoNeutral("the rotors are a body of their own: no parameter value makes the drive train rigid exactly"),
-    outputs=(Output("drivetrain_twist", "rad"), Output("drivetrain_torque", "N m")),
-    # only the series stiffness is identifiable: the gearbox's is freed, the screw's and the damping held
-    candidate=CandidateSpec("drivetrain_compliance", ("gear.torsional_stiffness",), {}, "all", "screw_speed"),
+    ("noback.pawl_pitch", "noback.pawl_initial_clearance"), ("noback_quadrant_friction",), _noback_backlash,
+    phase=Phase.PAWLS,
+    neutral={"noback.pawl_pitch": 0.0},  # no clearance: the pawls are always engaged
+    outputs=(Output("pawl_clearance_comp", "rad"), Output("pawl_clearance_tens", "rad")),
+    # the pawl switch gives no gradient: the pitch (papers: 8.57 deg max; searched 1.7..17 deg) is profiled,
+    # each value with segment clearances of its own; the initial clearance only where it matters.  It acts
+    # after a reversal and at a stop under load (the load back-drives through the clearance)
+    candidate=CandidateSpec("noback_backlash", (), {}, "reversal_or_stop",
+                            profile={"noback.pawl_pitch": (0.03, 0.3), "noback.pawl_initial_clearance": (0.0, 1.0)}),
     linear=LinearHints(
-        # the spring torque k * twist enters the gear-output body with unit gain
-        inertia_probe=("drivetrain_twist", drivetrain_stiffness),
-        operating_point=_drivetrain_operating_point,
+        # in a steady motion the clearances ramp (+-w/N) and nothing depends on them away from an edge
+        drifting=_PAWLS,
+        guards=tuple(Guard(f"{s}_edge", lambda x, p, s=s: ca.fabs(x[s]), "pawl_edge_band") for s in _PAWLS),
+        operating_point=_backlash_operating_point,
     ),
 ))
