@@ -205,6 +205,10 @@ class Effect:
         Parameter values at which the effect adds nothing (with healthy fault
         inputs; an empty mapping: at the parameter file's values), or why no
         value does.  The registry suite checks the plant is then the base.
+    parameter_defaults : tuple of Parameter
+        Parameters the effect brings beyond the embedded parameter file (value,
+        unit, bounds, source); :func:`~thsa_control.model.params.default_parameters`
+        adds them, so a parameter file may override them like any other.
     """
 
     name: str
@@ -219,6 +223,7 @@ class Effect:
     candidate: CandidateSpec | NotCandidate | None = None
     linear: LinearHints = field(default_factory=LinearHints)
     neutral: Mapping[str, float] | NoNeutral | None = None
+    parameter_defaults: tuple = ()
 
 
 #: Every registered effect by name, in registration order.
