@@ -155,3 +155,15 @@ def test_toy_is_identified_and_traced_from_the_command_line(toy_run, tmp_path):
                  "--max-nfev", "30", "--quiet", "--out", str(tr)]) == 0
     doc = json.loads((tr / "trace.json").read_text())
     assert [e["name"] for e in doc["effects_added"]] == [TOY], doc["rounds"]
+
+
+def test_registration_refuses_an_effect_without_its_declarations():
+    import dataclasses
+
+    for missing in ({"candidate": None}, {"neutral": None}):
+        with pytest.raises(ValueError, match="declare"):
+            register(dataclasses.replace(_toy_effect(), **missing))
+    assert TOY not in EFFECTS
+    with pytest.raises(ValueError, match="already registered"):
+        register(dataclasses.replace(_toy_effect(), name="coulomb_friction",
+                                     candidate=CandidateSpec("coulomb_friction", (DRAG,))))

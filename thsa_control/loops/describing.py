@@ -22,6 +22,8 @@ from .loopmath import freq_response
 from .design import Design
 from .linear import OperatingCondition, PlantLinearization, PlantModel, linearize_conditions, plant_model
 from .loop_analysis import AnalysisSettings, build_loops
+from ..model import EFFECTS
+from ..model.laws import values_of
 from ..model.params import ParameterSet, default_parameters
 
 __all__ = ["LimitCycle", "predict_limit_cycles", "describing_functions"]
@@ -119,9 +121,11 @@ def _friction_map(model: PlantModel, lin: PlantLinearization, k: int, w_max: flo
     X = np.repeat(b.X[:, k:k + 1], w.size, axis=1)
     names = model.named.states
     X[names.index("motor_speed")] = w
-    for s in ("pawl_clearance_comp", "pawl_clearance_tens"):
-        if s in names:  # both pawls engaged: each direction meets its loaded disk, as at a reversal
-            X[names.index(s)] = -0.5 * model.params.value("noback.pawl_pitch")
+    values = values_of(model.params)
+    for e in model.effects:  # each effect's states at a reversal (both pawls engaged: each direction meets
+        hint = EFFECTS[e].linear.at_reversal  # its loaded disk)
+        for s, v in (hint(values) if hint is not None else {}).items():
+            X[names.index(s)] = v
     _, Y = model.named.evaluate_many(X, b.U[:, k:k + 1], b.P[:, k:k + 1])
     tf = Y[model.named.outputs.index("friction_torque")]
     return w, tf

@@ -10,6 +10,12 @@ Stribeck region).  It does no loop analysis (``analysis.py``) and no plotting
 
 The adapted model
 -----------------
+The adapter names no effect: each effect declares what linearisation needs
+(:class:`~thsa_control.model.LinearHints`: states re-expressed relative to
+another, drifting states, validity guards, the state that probes the main
+body's inertia, operating-point guesses), and the adapter reads these for the
+effects of the plant.  With the library's effects:
+
 * **States**: the plant's states, except that at level D ``surface_position``
   is re-expressed as ``loadpath_deflection = nut_position - surface_position``
   [m] (positive: the nut pushes the surface), so that a steady motion, in
@@ -495,6 +501,11 @@ def _is_stribeck(slope, damping):
 
 
 def _classify(model: PlantModel, conds, batch: LinearModelBatch, slope, damping):
+    hints = [EFFECTS[e].linear for e in model.effects]
+    kinks = {k: m for h in hints for k, m in h.kinks.items()}
+    # the effects' clearance and contact states: a kink there is a backlash edge
+    edge_states = tuple(s for h in hints for s in h.drifting) + tuple(
+        new for h in hints for new, _ in h.relative.values())
     reasons, notes = [], []
     min_mm = model.settings.min_speed * 1e3
     for k, c in enumerate(conds):
@@ -513,10 +524,9 @@ def _classify(model: PlantModel, conds, batch: LinearModelBatch, slope, damping)
                 note.append(text)
             elif "state 'motor_speed'" in text or "d(motor_speed)" in text:
                 why.append(f"friction discontinuity at this speed (stick/slip): {text}")
-            elif "noback_normal_force" in text:
-                why.append(f"load reversal in the load path (zero load-path force: the no-back's loaded "
-                           f"side switches): {text}")
-            elif any(s in text for s in ("pawl_clearance", "loadpath_deflection")):
+            elif any(k in text for k in kinks):
+                why.append(f"{next(m for k, m in kinks.items() if k in text)}: {text}")
+            elif any(s in text for s in edge_states):
                 why.append(f"backlash edge: {text}")
             else:
                 why.append(text)

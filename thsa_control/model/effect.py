@@ -163,6 +163,9 @@ class LinearHints:
     entering the main body; the structure's is the motor current and ``Kt``).
     ``operating_point(ctx) -> (held, guesses)``: states held at a value and
     initial guesses of the solved ones (:class:`OperatingContext`).
+    ``at_reversal(values) -> held``: its states at a reversal of motion
+    (friction maps, describing functions).  ``kinks``: ``signal -> meaning``
+    of a kink the smoothness check may find in one of its signals.
     """
 
     drifting: tuple[str, ...] = ()
@@ -170,6 +173,8 @@ class LinearHints:
     guards: tuple[Guard, ...] = ()
     inertia_probe: tuple[str, Callable[[Mapping], object]] | None = None
     operating_point: Callable[[OperatingContext], tuple[dict, dict]] | None = None
+    at_reversal: Callable[[Mapping], dict] | None = None
+    kinks: Mapping[str, str] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -236,15 +241,23 @@ def register(effect: Effect, *, replace: bool = False) -> Effect:
     Raises
     ------
     ValueError
-        A name already registered (unless ``replace``), a candidate spec named
-        for another effect, or a phase that is not a :class:`Phase`.
+        A name already registered (unless ``replace``), a phase that is not a
+        :class:`Phase`, no tracer candidate spec nor a reason it is not one
+        (an effect is never left out of the tracer silently), a candidate spec
+        named for another effect, or no neutral values nor a reason it has none.
     """
     if not replace and effect.name in EFFECTS:
         raise ValueError(f"effect {effect.name!r} is already registered")
     if not isinstance(effect.phase, Phase):
         raise ValueError(f"effect {effect.name!r}: phase {effect.phase!r} is not a Phase")
+    if not isinstance(effect.candidate, (CandidateSpec, NotCandidate)):
+        raise ValueError(f"effect {effect.name!r}: declare its tracer candidate spec (CandidateSpec) or why it is "
+                         f"not a candidate (NotCandidate)")
     if isinstance(effect.candidate, CandidateSpec) and effect.candidate.name != effect.name:
         raise ValueError(f"effect {effect.name!r}: its candidate spec is named {effect.candidate.name!r}")
+    if not isinstance(effect.neutral, (Mapping, NoNeutral)):
+        raise ValueError(f"effect {effect.name!r}: declare the parameter values at which it adds nothing "
+                         f"(neutral) or why there are none (NoNeutral)")
     EFFECTS[effect.name] = effect
     return effect
 

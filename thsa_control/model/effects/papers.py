@@ -361,6 +361,8 @@ register(Effect(
              Output("pawl_tens_engaged", "-"), Output("pawl_engaged", "-")),
     candidate=CandidateSpec("noback_quadrant_friction", ("noback.mu_coulomb_pos", "noback.mu_coulomb_neg"), {},
                             "loaded"),
+    linear=LinearHints(kinks={"noback_normal_force": "load reversal in the load path (zero load-path force: the "
+                                                     "no-back's loaded side switches)"}),
 ))
 register(Effect(
     "noback_ideal", "ideal irreversible no-back (level A): Coulomb torque F r against load-aided motion",
@@ -392,5 +394,7 @@ register(Effect(
         drifting=_PAWLS,
         guards=tuple(Guard(f"{s}_edge", lambda x, p, s=s: ca.fabs(x[s]), "pawl_edge_band") for s in _PAWLS),
         operating_point=_backlash_operating_point,
+        # both pawls engaged: each direction meets its loaded disk, as at a reversal
+        at_reversal=lambda v: {s: -0.5 * v["noback.pawl_pitch"] for s in _PAWLS},
     ),
 ))
