@@ -117,8 +117,14 @@ def check_segment(run: RigRun, segment_duration: float) -> None:
                          f"(sample time {dt:g} s)")
 
 
-def _inertia_function(plant: Plant, mech: ca.Function) -> tuple[ca.Function, int]:
-    """``J(x, v, p, h)`` [kg m^2, at the motor shaft] through the current-driven map, and the speed state used."""
+def _effective_inertia_function(plant: Plant, mech: ca.Function) -> tuple[ca.Function, int]:
+    """``(dT, dw)(x, v, p, h)``: motor torque and motor-sensor speed responses of one step of the current-driven
+    map to a shift of the measured current, and the speed state the motor sensor reads.
+
+    Their ratio is the inertia the measured motion sees through the map at each sample [kg m^2 at the motor
+    shaft]: the plant's :meth:`~thsa_control.model.Plant.inertia` as the step resolves it, with the gearbox
+    efficiency of the sample's power flow, and no response (NaN) while the model sticks.
+    """
     names = plant.state_names
     k_w = names.index(plant.sensor_state("motor_speed"))
     x = ca.SX.sym("x", len(names))
@@ -202,7 +208,7 @@ def replay_segmented(run: RigRun, plant: Plant, params: ParameterSet, *, segment
     # inverse model: the torque the measured motion needs minus the torque the measured current gives
     w_meas = motor_speed_from(measured.get, run.gear_ratio)
     if w_meas is not None:
-        f_j, k_w = _inertia_function(plant, mech)
+        f_j, k_w = _effective_inertia_function(plant, mech)
         gain, dw = f_j.map(n)(X, pb.V[:, :n], ca.repmat(ca.DM(p0), 1, n), ca.DM(pb.H[:n]).T)
         gain, dw = np.asarray(gain).ravel(), np.asarray(dw).ravel()
         with np.errstate(divide="ignore", invalid="ignore"):

@@ -1,7 +1,8 @@
 """Functional structure of the THSA: states, inputs, balances and sign conventions.
 
-The structure owns the balances; effects (``effects.py``) only add terms to
-them.  Everything is written once as casadi ``SX`` expressions and used twice,
+The structure owns the balances; effects (``effects/``) only add terms to
+them, and declare the neutral values of their outputs, which the structure
+writes for every effect set (``Effect.outputs``).  Everything is written once as casadi ``SX`` expressions and used twice,
 by two numerical forms assembled in ``plant.py``:
 
 * the continuous right-hand side ``f(x, u, p) -> (xdot, y)`` (linearisation,
@@ -79,7 +80,7 @@ INPUTS: tuple[tuple[str, str, str], ...] = (
     ("enable_standby", "-", "1: standby inverter energised (needs standby_motor)"),
     ("load_force", "N", "axial load on the surface/nut, positive compressive (opposes extension)"),
     ("temperature", "degC", "actuator temperature (needs temperature_friction)"),
-    # fault inputs (model/fault_effects.py); 0 is the healthy value, so runs that ignore them are unchanged
+    # fault inputs (model/effects/faults.py); 0 is the healthy value, so runs that ignore them are unchanged
     ("brake", "-", "1: motor brakes engaged (needs motor_brakes)"),
     ("surface_jam", "-", "1: surface locked where it is (needs surface_jam)"),
     ("loadpath_failure", "-", "1: primary load path broken at the upper gimbal (needs secondary_load_path)"),

@@ -1,10 +1,13 @@
-"""Effect library: the physical effects that model levels add to the structure.
+"""The papers' effects: what the model levels add to the structure.
 
-Each effect is a pure function of an :class:`~thsa_control.model.structure.Assembly`
-that declares its states and parameters and adds terms (torques, friction
-channels, states with their derivatives, losses, outputs).  It is written once
-as casadi expressions; linearisation, simulation, optimisation and
-identification all consume the same terms through ``plant.py``.
+Each effect's ``apply`` is a function of an :class:`~thsa_control.model.structure.Assembly`
+that adds terms (torques, friction channels, states with their derivatives,
+losses, outputs), written once as casadi expressions from the laws of
+``model/laws.py``; linearisation, simulation, optimisation and identification
+all consume the same terms through ``plant.py``.  Each is registered at the
+end of this module with everything else the workbench knows about it
+(:class:`~thsa_control.model.effect.Effect`: outputs and their neutral values,
+phase, tracer candidate spec, linearisation hints, neutral parameters).
 
 Effects (the papers' incremental modelling):
 
