@@ -204,7 +204,7 @@ class ClosedLoop:
         p, k, h = theta[:n_p], theta[n_p:n_p + n_k], theta[n_p + n_k]
         names = plant.state_names
         standby = x[names.index("standby_current")] if "standby_current" in names else ca.SX(0.0)
-        speed_sensor = "rotor_speed" if "rotor_speed" in names else "motor_speed"  # the motor sensor reads the rotors
+        speed_sensor = plant.sensor_state("motor_speed")  # the motor sensor reads the rotors
         nref = len(REFERENCE_INPUTS)
         if exts:
             stage = LoopStage(plant, dict(zip(names, ca.vertsplit(x))), dict(zip(CONTROLLER_STATES, ca.vertsplit(xc))),

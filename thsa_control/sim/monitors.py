@@ -189,7 +189,7 @@ class MonitorLoop(LoopExtension):
         X, XC, W, K, h = stage.x, stage.xc, stage.w, stage.k, stage.h
         N = stage.param("gear.ratio")
         r = K["nut_per_motor_rad"]
-        rotor = X["rotor_speed"] if "rotor_speed" in X else X["motor_speed"]  # the motor sensor reads the rotors
+        rotor = X[stage.plant.sensor_state("motor_speed")]  # the motor sensor reads the rotors
         gimbal = X.get("actuator_axial_position", ca.SX(0.0))
         sens = ca.vertcat(rotor, X["nut_position"] / (r * N), gimbal)
         energised = ca.fmax(XC["energised_prev_primary"], XC["energised_prev_standby"])
