@@ -73,10 +73,15 @@ Breakpoints = tuple[tuple[float, float], ...]
 
 def _steps(points: Breakpoints, t: np.ndarray) -> np.ndarray:
     """Piecewise-constant signal: value of the last breakpoint at or before t."""
-    times = np.array([p[0] for p in points])
-    values = np.array([p[1] for p in points])
-    idx = np.searchsorted(times, t, side="right") - 1
-    return np.where(idx >= 0, values[np.clip(idx, 0, None)], 0.0)
+    t = np.asarray(t, dtype=float)
+    out = np.zeros(t.shape)
+    if t.ndim == 1 and (t.size < 2 or bool(np.all(t[1:] >= t[:-1]))):  # sampled in order: one slice per breakpoint
+        for ti, vi in points:  # ordered in time: a later breakpoint holds from its time on
+            out[np.searchsorted(t, ti, side="left"):] = vi
+        return out
+    for ti, vi in points:
+        out[t >= ti] = vi
+    return out
 
 
 def _linear(points: Breakpoints, t: np.ndarray) -> np.ndarray:

@@ -107,8 +107,8 @@ class InputSeries:
             arr = np.asarray(self.signals[key], dtype=float)
             if arr.shape != (n,):
                 raise ScenarioError(f"inputs {self.name!r}: signal {key!r} has shape {arr.shape}, expected ({n},)")
-            bad = np.flatnonzero(~np.isfinite(arr))
-            if bad.size:
+            if not np.isfinite(arr).all():
+                bad = np.flatnonzero(~np.isfinite(arr))
                 raise ScenarioError(f"inputs {self.name!r}: signal {key!r} is not finite at sample {bad[0]} (t = {self.time[bad[0]]:g} s)")
         temp = np.asarray(self.signals["temperature"])
         lo, hi = TEMPERATURE_RANGE
@@ -297,7 +297,7 @@ class Simulator:
         missing = [e for e in dict.fromkeys(needed) if e not in self.plant.effects]
         if missing:
             raise ScenarioError(f"run {inputs.name!r} needs effect(s) {missing}; the plant has {list(self.plant.effects)}")
-        if len(inputs.time) > 1 and not np.allclose(np.diff(inputs.time), h, rtol=1e-6, atol=1e-12):
+        if scenario is None and len(inputs.time) > 1 and not np.allclose(np.diff(inputs.time), h, rtol=1e-6, atol=1e-12):
             raise ScenarioError(f"inputs {inputs.name!r} are not sampled at the control period {h:g} s")
         out_period, decimation = output_decimation(self.settings.output_period, h)
         k = design.controller_vector(params, accel_limit=inputs.accel_limit, jerk_limit=inputs.jerk_limit,
@@ -320,11 +320,8 @@ class Simulator:
         if not np.all(np.isfinite(Y)):
             bad = np.argwhere(~np.isfinite(Y))[0]
             raise ThsaError(f"simulation of {inputs.name!r} diverged (non-finite signal at t = {bad[1] * decimation * h:g} s)")
-        signals = {}
-        for i, name in enumerate(loop.signals):
-            arr = Y[i].copy()
-            arr.setflags(write=False)
-            signals[name] = arr
+        Y.setflags(write=False)  # one block, row per signal: the signals are read-only views of it
+        signals = dict(zip(loop.signals, Y))
         t = np.arange(n_out) * decimation * h
         t.setflags(write=False)
         info = {"wall_s": wall, "compile": dict(cinfo), "control_period_s": h, "output_period_s": decimation * h,
