@@ -58,8 +58,13 @@ def run(args) -> int:
     params, design = load_params_design(args)
     scales = _floats(args.scales, "scales")
     delays = tuple(d * 1e-3 for d in _floats(args.delays, "delays"))
-    a = analyse_faults(design, params, scales=scales, delays_s=delays, sweep=not args.no_sweep)
+    from ..progress import Progress
+
+    progress = Progress("thsa faults", enabled=not args.quiet)
+    a = analyse_faults(design, params, scales=scales, delays_s=delays, sweep=not args.no_sweep, progress=progress)
+    progress.phase("writing the report")
     write_fault_report(a, params, args.out, **_out_options(args))
+    progress.done()
     print(f"plant: level {a.level} + {', '.join(a.effects)}")
     for c in a.cases + a.rigid_cases:
         det = ", ".join(f"{m} {_ms(t)}" for m, t in c.detection_s.items() if math.isfinite(t)) or "no trip"
