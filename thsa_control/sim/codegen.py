@@ -123,7 +123,7 @@ static int thsa_run_one(thsa_buf* b, double* z, const double* W, const double* t
 }
 
 typedef struct {
-  long long first, n_runs, step; double* z; const double* W; long long w_stride; const double* theta;
+  long long first, n_runs, step; double* z; const double* const* W; const double* theta;
   long long th_stride; long long n_steps; long long decim; double* Y; int flag;
 } thsa_job;
 
@@ -136,21 +136,21 @@ static void* thsa_worker(void* p) {
   thsa_buf b;
   j->flag = thsa_buf_init(&b, nz, nw, ny);
   for (long long r = j->first; r < j->n_runs && !j->flag; r += j->step)
-    j->flag = thsa_run_one(&b, j->z + r * nz, j->W + r * j->w_stride, j->theta + r * j->th_stride, j->n_steps,
+    j->flag = thsa_run_one(&b, j->z + r * nz, j->W[r], j->theta + r * j->th_stride, j->n_steps,
                            j->decim, j->Y + r * ny * n_out);
   thsa_buf_free(&b);
   return 0;
 }
 
 /* n_runs runs of n_steps periods: run r starts from z + r*nz (updated in place), reads
-   W + r*w_stride and theta + r*th_stride (stride 0: shared) and writes Y + r*ny*n_out;
+   the inputs W[r] and theta + r*th_stride (stride 0: shared) and writes Y + r*ny*n_out;
    n_threads > 1 spreads the runs over threads (run r on thread r % n_threads). */
-int thsa_run_batch(long long n_runs, double* z, const double* W, long long w_stride, const double* theta,
+int thsa_run_batch(long long n_runs, double* z, const double* const* W, const double* theta,
                    long long th_stride, long long n_steps, long long decim, double* Y, int n_threads) {
   if (n_threads < 1) n_threads = 1;
   if (n_threads > n_runs) n_threads = (int) n_runs;
   if (n_threads <= 1) {
-    thsa_job j = {0, n_runs, 1, z, W, w_stride, theta, th_stride, n_steps, decim, Y, 0};
+    thsa_job j = {0, n_runs, 1, z, W, theta, th_stride, n_steps, decim, Y, 0};
     thsa_worker(&j);
     return j.flag;
   }
@@ -159,7 +159,7 @@ int thsa_run_batch(long long n_runs, double* z, const double* W, long long w_str
   int flag = 0;
   if (!jobs || !th) { free(jobs); free(th); return -1; }
   for (int t = 0; t < n_threads; ++t) {
-    thsa_job j = {t, n_runs, n_threads, z, W, w_stride, theta, th_stride, n_steps, decim, Y, 0};
+    thsa_job j = {t, n_runs, n_threads, z, W, theta, th_stride, n_steps, decim, Y, 0};
     jobs[t] = j;
   }
   char* started = (char*) calloc(n_threads, 1);
@@ -177,7 +177,7 @@ int thsa_run_batch(long long n_runs, double* z, const double* W, long long w_str
 }
 
 int thsa_run(double* z, const double* W, const double* theta, long long n_steps, long long decim, double* Y) {
-  return thsa_run_batch(1, z, W, 0, theta, 0, n_steps, decim, Y, 1);
+  return thsa_run_batch(1, z, &W, theta, 0, n_steps, decim, Y, 1);
 }
 """
 
@@ -272,7 +272,7 @@ class RunLoop:
         dp = ctypes.POINTER(ctypes.c_double)
         ll = ctypes.c_longlong
         self._batch = self._lib.thsa_run_batch
-        self._batch.argtypes = [ll, dp, dp, ll, dp, ll, ll, ll, dp, ctypes.c_int]
+        self._batch.argtypes = [ll, dp, ctypes.POINTER(ctypes.c_void_p), dp, ll, ll, ll, dp, ctypes.c_int]
         self._batch.restype = ctypes.c_int
         self.nz, self.nw, self.ny = nz, nw, ny
         self._sha = self._lib.thsa_source_sha256
@@ -284,41 +284,38 @@ class RunLoop:
         return self._sha().decode("ascii", "replace")
 
     def __call__(self, z0: np.ndarray, W: np.ndarray, theta: np.ndarray, decimation: int):
-        Y, z = self.batch(np.asarray(z0, dtype=float)[None, :], np.asarray(W, dtype=float)[None],
-                          np.asarray(theta, dtype=float)[None, :], decimation)
+        Y, z = self.batch(np.asarray(z0, dtype=float)[None, :], [W], np.asarray(theta, dtype=float)[None, :], decimation)
         return Y[0], z[0]
 
-    def batch(self, Z0: np.ndarray, W: np.ndarray, theta: np.ndarray, decimation: int, threads: int = 1):
+    def batch(self, Z0: np.ndarray, W, theta: np.ndarray, decimation: int, threads: int = 1):
         """Runs in one call, looping over them in C (``threads`` > 1: spread over threads).
 
-        ``Z0`` (n_runs x n_z); ``W`` (n_runs x n_w x n_steps), or (n_w x n_steps) shared by
-        every run; ``theta`` (n_runs x n_theta), or (n_theta,) shared.  Returns
-        ``Y`` (n_runs x n_y x n_out) and the final states (n_runs x n_z).  Each run is computed
-        exactly as alone (same operations, same order).
+        ``Z0`` (n_runs x n_z); ``W`` a list of one (n_w x n_steps) input matrix per run (the
+        same array may serve several runs: nothing is copied); ``theta`` (n_runs x n_theta),
+        or (n_theta,) shared.  Returns ``Y`` (n_runs x n_y x n_out) and the final states
+        (n_runs x n_z).  Each run is computed exactly as alone (same operations, same order).
         """
         z = np.array(Z0, dtype=float, order="C", ndmin=2)
         n_runs = z.shape[0]
         if z.shape[1] != self.nz:
             raise ValueError(f"initial states have {z.shape[1]} entries, the loop has {self.nz}")
-        W = np.ascontiguousarray(W, dtype=float)
-        if W.ndim == 2:
-            w_stride = 0
-        elif W.ndim == 3 and W.shape[0] == n_runs:
-            w_stride = W.shape[1] * W.shape[2]
-        else:
-            raise ValueError(f"inputs of shape {W.shape} for {n_runs} runs")
-        if W.shape[-2] != self.nw:
-            raise ValueError(f"inputs have {W.shape[-2]} rows, the loop has {self.nw} inputs")
+        Ws = [np.ascontiguousarray(w, dtype=float) for w in W]
+        if len(Ws) != n_runs:
+            raise ValueError(f"{len(Ws)} input matrices for {n_runs} runs")
+        n = Ws[0].shape[1] if Ws else 0
+        for w in Ws:
+            if w.ndim != 2 or w.shape != (self.nw, n):
+                raise ValueError(f"input matrix of shape {w.shape}, expected ({self.nw}, {n})")
         th = np.ascontiguousarray(theta, dtype=float)
         th_stride = 0 if th.ndim == 1 else th.shape[1]
         if th.ndim == 2 and th.shape[0] != n_runs:
             raise ValueError(f"parameters of shape {th.shape} for {n_runs} runs")
-        n = W.shape[-1]
         n_out = -(-n // decimation)
         Y = np.empty((n_runs, self.ny, n_out))
+        ptrs = (ctypes.c_void_p * max(n_runs, 1))(*[w.ctypes.data for w in Ws])
         dp = ctypes.POINTER(ctypes.c_double)
-        flag = self._batch(n_runs, z.ctypes.data_as(dp), W.ctypes.data_as(dp), w_stride, th.ctypes.data_as(dp),
-                           th_stride, n, decimation, Y.ctypes.data_as(dp), int(threads))
+        flag = self._batch(n_runs, z.ctypes.data_as(dp), ptrs, th.ctypes.data_as(dp), th_stride, n, decimation,
+                           Y.ctypes.data_as(dp), int(threads))
         if flag:
             raise RuntimeError(f"compiled run loop returned {flag}")
         return Y, z

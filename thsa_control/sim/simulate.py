@@ -334,7 +334,8 @@ class Simulator:
             C call the run was part of, ``info["batch"]`` its size.
         """
         runs = _broadcast(inputs=inputs, design=design, params=params, x0=x0)
-        preps = [self._prepare(r["inputs"], r["design"], r["params"], r["x0"], extensions) for r in runs]
+        memo: dict = {}  # runs of one input object share its sampled inputs and input matrix
+        preps = [self._prepare(r["inputs"], r["design"], r["params"], r["x0"], extensions, memo) for r in runs]
         if threads is None:
             threads = available_cpus()
         out: list = [None] * len(preps)
@@ -354,23 +355,27 @@ class Simulator:
                     for i, p, (Y, z) in zip(block, ps, res):
                         out[i] = self._result(p, Y, z, wall, cinfo, batch=len(block))
                     continue
-                shared = all(p.W is ps[0].W for p in ps)
-                W = ps[0].W if shared else np.stack([p.W for p in ps])
-                Y, Z = run_loop.batch(np.stack([p.z0 for p in ps]), W, np.stack([p.theta for p in ps]),
+                Y, Z = run_loop.batch(np.stack([p.z0 for p in ps]), [p.W for p in ps], np.stack([p.theta for p in ps]),
                                       ps[0].decimation, threads=threads)
                 wall = time.perf_counter() - t0
                 for j, (i, p) in enumerate(zip(block, ps)):
                     out[i] = self._result(p, Y[j], Z[j], wall, cinfo, batch=len(block))
         return out
 
-    def _prepare(self, inputs, design: Design, params: ParameterSet, x0, extensions) -> "_Prepared":
+    def _prepare(self, inputs, design: Design, params: ParameterSet, x0, extensions, memo=None) -> "_Prepared":
         """Check a run and lay out its numbers (the loop, ``z0``, ``W``, ``theta``)."""
         h = design.control_period
         scenario = inputs if isinstance(inputs, Scenario) else None
         if extensions is None:
             extensions = extensions_for(scenario) if scenario is not None else ()
         extensions = tuple(extensions)
-        if scenario is not None:
+        key = (id(inputs), h, tuple(e.key() for e in extensions))
+        shared = memo.get(key) if memo is not None else None
+        if shared is not None and shared[0] is inputs:
+            inputs, W = shared[1], shared[2]
+        else:
+            W = None
+        if W is None and scenario is not None:
             inputs = InputSeries.from_scenario(scenario, h)
         needed = tuple(inputs.required_effects) + tuple(e for x in extensions for e in x.required_effects(scenario))
         missing = [e for e in dict.fromkeys(needed) if e not in self.plant.effects]
@@ -383,7 +388,10 @@ class Simulator:
                                      motor_off_at_zero=inputs.motor_off_at_zero)
         loop = self.closed_loop(extensions)
         theta = loop.theta(self.plant.p_vector(params), k, h)
-        W = loop.input_matrix(inputs, scenario)
+        if W is None:
+            W = loop.input_matrix(inputs, scenario)
+            if memo is not None:
+                memo[key] = (scenario if scenario is not None else inputs, inputs, W)
         if x0 is None:
             x0 = self.plant.initial_state(params, load_force=float(W[RUN_INPUTS.index("load_force"), 0]))
         z0 = loop.initial_state(x0, k)
