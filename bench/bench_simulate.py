@@ -18,6 +18,8 @@ script exits 1.
 * Compile time with an empty cache, and what a second process pays with the cache.
 
 Run: ``python bench/bench_simulate.py`` (``--quick``: no python-control, no baseline).
+Speed targets (level D >= 1000x real time on one core, judged on the run's CPU time; batched level D >=
+2000 simulated seconds per wall second) are printed met or NOT met; not met exits 1 as a failed comparison.
 Wall times are best of ``--repeat`` runs; the CPU time of the same runs is printed beside them, since
 on a shared machine the wall time includes waiting for a core.
 """
@@ -93,6 +95,14 @@ def rtf(label, s: Side, horizon):
               f"{s.value[1] * 1e3:.1f} ms CPU ({horizon / s.value[1]:.0f}x)")
 
 
+def target(cmp, what: str, value: float, limit: float) -> None:
+    """A speed target: printed met or NOT met; not met is a failure (exit 1)."""
+    if value >= limit:
+        print(f"  target {what}: met ({value:.0f})")
+    else:
+        cmp.fail(f"target {what}: NOT met ({value:.0f} < {limit:.0f}, measured under the machine's present load)")
+
+
 def bench_levels(cmp, args, params, design, scenario):
     """Level A and D against the code before the speed-up."""
     base = None
@@ -109,6 +119,9 @@ def bench_levels(cmp, args, params, design, scenario):
             w, c, r = timed(lambda: sim.run(scenario, design, params), args.repeat)
             print(f"level {level}, 10 s {SCENARIO} closed loop at 10 kHz: {w * 1e3:.1f} ms ({10 / w:.0f}x real time), "
                   f"{c * 1e3:.1f} ms CPU ({10 / c:.0f}x)")
+            if level == "D":
+                target(cmp, "level D >= 1000x real time on one core (CPU time of the single-threaded run)",
+                       10.0 / c, 1000.0)
             continue
         bp = base.default_parameters()
         bd = base.load_design(REPO / "designs" / "nominal.toml")
@@ -142,6 +155,9 @@ def bench_levels(cmp, args, params, design, scenario):
                     agree=lambda a, b: same_bits(a[0], b[0]), tolerance="the same bits")
         if old.ok:
             print(f"  CPU-time ratio {old.value[1] / new.value[1]:.1f}x")
+        if level == "D":
+            target(cmp, "level D >= 1000x real time on one core (CPU time of the single-threaded run)",
+                   10.0 / new.value[1], 1000.0)
 
 
 def bench_batch(cmp, args, params, design, scenario):
@@ -180,6 +196,8 @@ def bench_batch(cmp, args, params, design, scenario):
               f"batched {horizon / batched.seconds:.0f} simulated s per wall s (target >= 2000 on 2 cores); "
               f"CPU time per simulated s: single {1e3 * min(cpu['single']) / horizon:.2f} ms, "
               f"batched {1e3 * min(cpu['batch']) / horizon:.2f} ms")
+        target(cmp, f"batched level D >= 2000 simulated s per wall s ({threads} CPU(s))", horizon / batched.seconds,
+               2000.0)
 
 
 def bench_python_control(cmp, args, params, design, scenario):
