@@ -138,11 +138,20 @@ class InputSeries:
         """Sample ``scenario`` at the control period [s]."""
         n = int(round(scenario.duration / control_period))
         t = np.arange(n) * control_period
-        return cls(scenario.name, t, scenario.inputs(t), scenario.accel_limit, scenario.jerk_limit,
-                   scenario.motor_off_at_zero, scenario.description, scenario.required_effects)
+        block = np.zeros((len(RUN_INPUTS), n))  # the signals are rows of the run's input matrix
+        rows = dict(zip(RUN_INPUTS, block))
+        signals = scenario.inputs(t, out=rows)
+        block.setflags(write=False)
+        series = cls(scenario.name, t, {**signals, **{k: rows[k] for k in OPTIONAL_INPUTS}}, scenario.accel_limit,
+                     scenario.jerk_limit, scenario.motor_off_at_zero, scenario.description, scenario.required_effects)
+        object.__setattr__(series, "_block", (block, tuple(rows[k] for k in RUN_INPUTS)))
+        return series
 
     def matrix(self) -> np.ndarray:
-        """Inputs as a (len(RUN_INPUTS) x n) array."""
+        """Inputs as a (len(RUN_INPUTS) x n) array (read-only when the series was sampled from a scenario)."""
+        block = self.__dict__.get("_block")
+        if block is not None and all(self.signals[k] is r for k, r in zip(RUN_INPUTS, block[1])):
+            return block[0]
         return np.vstack([np.asarray(self.signals[k], dtype=float) for k in RUN_INPUTS])
 
 
