@@ -56,7 +56,7 @@ from .replay import (
     COMPARED_OUTPUT, channel_fit, check_run_model, current_driven_map, mech_inputs, replay_closed_loop, run_design,
     sample_periods,
 )
-from ..data.rigdata import RigRun
+from ..data.rigdata import RigRun, motor_speed_from
 from .kinematics import run_kinematics
 from .segment_states import drivetrain_segment_guess
 
@@ -65,6 +65,8 @@ __all__ = ["IdentificationSettings", "ParameterEstimate", "IdentificationResult"
 #: Channels the mechanics are fitted on (RigRun signals, compared with the plant
 #: outputs of :data:`~thsa_control.fit.replay.COMPARED_OUTPUT`: the LVDT with the surface position).
 MECH_CHANNELS = ("motor_speed", "nut_position", "screw_speed")
+#: A parameter whose standard error exceeds this fraction of its value is not determined by the data.
+NOT_DETERMINED_REL_STDERR = 0.5
 _FREE_STATE_KINDS = ("speed", "velocity", "position")
 
 
@@ -323,10 +325,17 @@ class IdentificationResult:
 
     @property
     def not_identifiable(self) -> tuple[str, ...]:
-        """Parameters in a flagged pair, or with an undetermined stderr."""
-        out = {a for a, b, _ in self.high_correlations} | {b for a, b, _ in self.high_correlations}
-        out |= {n for n, e in self.estimates.items() if not math.isfinite(e.stderr)}
-        return tuple(n for n in self.estimates if n in out)
+        """Parameters the data do not determine: undetermined stderr, or stderr above half the value.
+
+        A high correlation (:attr:`high_correlations`) alone does not make a
+        parameter unidentifiable: its standard error comes from the
+        covariance, which already counts the correlation, so a correlated
+        parameter with a small standard error is determined (reported as
+        "correlated with ...").  An inseparable pair has an undetermined or
+        huge standard error and is flagged here.
+        """
+        return tuple(n for n, e in self.estimates.items()
+                     if not math.isfinite(e.stderr) or e.relative_stderr > NOT_DETERMINED_REL_STDERR)
 
     def to_parameter_set(self, source: str | None = None) -> ParameterSet:
         """The initial set with the estimates as values; their ``source`` says where they come from."""
@@ -417,9 +426,13 @@ class IdentificationResult:
                 flags.append("AT INITIAL VALUE")
             if n in self.not_identifiable:
                 flags.append("NOT IDENTIFIABLE")
+            partners = [b if a == n else a for a, b, _ in self.high_correlations if n in (a, b)]
+            if partners:
+                flags.append(f"CORRELATED WITH {', '.join(partners)}")
             lines.append(f"    {n}: {e.value:.6g} {err} [{e.unit}] (init = {e.init:.6g})"
                          + (f"  <- {', '.join(flags)}" if flags else ""))
-        lines.append(f"[[Correlations]] (|rho| > {self.settings.correlation_threshold:g}: not identifiable together)")
+        lines.append(f"[[Correlations]] (|rho| > {self.settings.correlation_threshold:g}: flagged, the pair moves together; "
+                     "the standard errors count it)")
         names = self.names
         pairs = [(names[i], names[j], self.correlation[i, j]) for i in range(len(names)) for j in range(i + 1, len(names))]
         pairs = sorted((p for p in pairs if np.isfinite(p[2]) and abs(p[2]) > 0.1), key=lambda p: -abs(p[2]))
@@ -461,7 +474,7 @@ def estimate_noise(y: np.ndarray) -> float:
 
 
 # ----------------------------------------------------------------------------- problem per run
-class _RunProblem:
+class RunProblem:
     """Residuals and Jacobian of one run: casadi map over segments of the current-driven map."""
 
     def __init__(self, run: RigRun, plant: Plant, mech: ca.Function, params: ParameterSet, free: Sequence[str],
@@ -593,10 +606,7 @@ class _RunProblem:
                     X[i, m] = cl.simulated[s.name][k]
                 else:
                     X[i, m] = x_rest[i]
-            w = self._measured_at("motor_speed", k)
-            if w is None:
-                ws = self._measured_at("screw_speed", k)
-                w = ws * run.gear_ratio if ws is not None else None
+            w = motor_speed_from(lambda c: self._measured_at(c, k), run.gear_ratio)
             if w is not None:
                 X[plant.index("state", "motor_speed"), m] = w
             if nut is not None:  # the LVDT reads the surface; the nut sits the load-path deflection ahead
@@ -798,7 +808,7 @@ class Identifier:
         from .replay import check_run_model
 
         run_warnings = tuple(w for r in runs for w in check_run_model(r, plant, mode="open_loop"))
-        problems = [_RunProblem(r, plant, mech, self.params, self.free, st) for r in runs]
+        problems = [RunProblem(r, plant, mech, self.params, self.free, st) for r in runs]
         nf = len(self.free)
         scale = self._scales()
         priors = self._priors(scale)

@@ -5,7 +5,7 @@
 named inputs, outputs and states, for the current, velocity and position
 loops.  They are the very systems the grid analysis
 (:func:`thsa_control.loops.analysis.analyse_loops`) evaluates, built by the
-same batched loop math (:mod:`._loopmath`) from the same linearisation
+same batched loop math (:mod:`.loopmath`) from the same linearisation
 (:mod:`.linear`), taken at one point; so ``control.stability_margins`` of an
 open loop gives the analysis' margins, and ``control.feedback(open_loop(...),
 1)`` its closed loop.
@@ -40,12 +40,12 @@ import numpy as np
 
 from ..errors import DesignError
 from ..model.params import ParameterSet, default_parameters
-from ._loopmath import _SS
+from .loopmath import _SS
 from .design import Design, load_design, nominal_design_path
 from .linear import DEFAULT_LEVEL, OperatingCondition, PlantModel, linearize_conditions, plant_model
-from .loop_analysis import LOOPS, AnalysisSettings, _build, _saturation
+from .loop_analysis import LOOPS, AnalysisSettings, build_loops, saturation_flags
 
-__all__ = ["open_loop", "closed_loop"]
+__all__ = ["open_loop", "closed_loop", "loop_frequency_response"]
 
 _ERROR = {"current_loop": ("current_error", "motor_current"), "velocity_loop": ("speed_error", "motor_speed"),
           "position_loop": ("position_error", "nut_position")}
@@ -70,7 +70,7 @@ def _condition(condition) -> OperatingCondition:
 
 
 def _state_names(lin, design: Design) -> dict[str, list[str]]:
-    """State names of the blocks composed by ``loop_analysis._build`` (same order)."""
+    """State names of the blocks composed by ``loop_analysis.build_loops`` (same order)."""
     plant = list(lin.batch.states)
     kc = ["current_pi"] + [f"computation_delay_{k + 1}" for k in range(design.computation_delay_samples)]
     kv, kx, full = ["velocity_pi"], ["position_delay"], plant + ["nut_position"]
@@ -93,10 +93,10 @@ def _setup(loop, condition, design, params, level, effects, model):
     if model is None:
         model = plant_model(level, effects, params)
     lin = linearize_conditions(model, [cond])
-    why = lin.reasons[0] + _saturation(lin, design, params)[0]
+    why = lin.reasons[0] + saturation_flags(lin, design, params)[0]
     if not lin.valid[0] or why:
         raise DesignError("operating point", f"{cond.label()} has no linear loop: {'; '.join(why)}")
-    loops = _build(lin, design, AnalysisSettings(level=model.level or DEFAULT_LEVEL, effects=model.effects))
+    loops = build_loops(lin, design, AnalysisSettings(level=model.level or DEFAULT_LEVEL, effects=model.effects))
     return name, cond, design, loops, _state_names(lin, design)
 
 
@@ -151,7 +151,7 @@ def open_loop(loop: str, condition, design: Design | None = None, params: Parame
     >>> L = open_loop("velocity", OperatingCondition(10e-3, 20e3, 25.0))
     >>> L.dt, L.input_labels, L.output_labels
     (0.0001, ['speed_error'], ['motor_speed'])
-    >>> gm, pm, sm, wpc, wgc, wms = ct.stability_margins(L, method="frd")
+    >>> gm, pm, sm, wpc, wgc, wms = ct.stability_margins(loop_frequency_response(L))  # no ss -> tf conversion
     >>> round(float(wgc) / (2 * 3.141592653589793), 1)  # crossover [Hz]; the design aimed at 30 Hz
     29.0
     """
@@ -201,3 +201,43 @@ def closed_loop(loop: str, condition, design: Design | None = None, params: Para
         inputs = [_REF[name], "load_force", "disturbance_torque"]
         outputs = ["motor_current", "motor_speed", "nut_speed"] + (["nut_position"] if sys.C.shape[1] == 4 else [])
     return _to_ct(sys, loops.h, inputs, outputs, names[f"closed {name}"], f"T_{name}")
+
+
+def loop_frequency_response(sys: ct.StateSpace, omega=None, *, points: int = 4000) -> ct.FrequencyResponseData:
+    """Frequency response of a discrete loop from its state space, for margins and Bode plots without warnings.
+
+    ``control.stability_margins(loop_frequency_response(L))`` gives the
+    margins of :func:`open_loop` (equal to the grid analysis') without the
+    transfer-function conversion that makes scipy warn (see the module
+    docstring); ``control.bode_plot(loop_frequency_response(L),
+    display_margins=True)`` draws them.
+
+    Parameters
+    ----------
+    sys : control.StateSpace
+        A discrete system (:func:`open_loop`, :func:`closed_loop` or a channel of it).
+    omega : array_like, optional
+        Frequencies [rad/s] below Nyquist; default ``points`` log-spaced from 0.01 Hz to Nyquist.
+
+    Returns
+    -------
+    control.FrequencyResponseData
+        With the system's ``dt`` and signal names.
+
+    Examples
+    --------
+    >>> import control as ct
+    >>> L = open_loop("velocity", OperatingCondition(10e-3, 20e3, 25.0))
+    >>> gm, pm, sm, wpc, wgc, wms = ct.stability_margins(loop_frequency_response(L))
+    >>> round(float(wgc) / (2 * 3.141592653589793), 1)
+    29.0
+    """
+    if not sys.isdtime(strict=True):
+        raise ValueError("loop_frequency_response takes a discrete system (open_loop / closed_loop)")
+    nyquist = np.pi / sys.dt
+    if omega is None:
+        omega = np.logspace(np.log10(2 * np.pi * 0.01), np.log10(nyquist), points)
+    omega = np.asarray(omega, float)
+    if np.any(omega <= 0) or np.any(omega > nyquist * (1 + 1e-12)):
+        raise ValueError(f"omega must lie in (0, {nyquist:g}] rad/s (Nyquist of dt = {sys.dt:g} s)")
+    return ct.frd(sys, omega, name=sys.name)

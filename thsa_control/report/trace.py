@@ -6,15 +6,11 @@ import html
 import math
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-
-import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from .build import write_json  # noqa: E402
-from .identification import figure_png, write_html_report  # noqa: E402
+from .figure import subplots  # noqa: E402
+from .identification import Html, figure_png, write_html_report  # noqa: E402
 
 __all__ = ["write_trace_folder", "format_trace_summary", "plot_residual_before_after", "conclusion_table_html",
            "plot_candidate_drops", "plot_signature"]
@@ -29,7 +25,7 @@ def plot_residual_before_after(before: dict, after: dict, run_name: str, channel
     from ..data.rigformat import COLUMNS
 
     spec = next((c for c in COLUMNS.values() if c.signal == channel), None)  # the rig format's unit (rpm, mm)
-    fig, ax = plt.subplots(figsize=(10, 3.2))
+    fig, ax = subplots(figsize=(10, 3.2))
     for label, fit, kw in (("declared model", before, {"color": "0.6"}), ("with added effects", after, {"color": "C3"})):
         p = fit["predictions"][run_name]
         if channel not in p["measured"]:
@@ -40,7 +36,6 @@ def plot_residual_before_after(before: dict, after: dict, run_name: str, channel
     ax.set_ylabel(f"{channel} residual [{spec.unit if spec else 'SI'}]")
     ax.set_title(f"{run_name}: {channel} residual of the multiple-shooting segments")
     ax.legend(loc="upper right")
-    fig.tight_layout()
     return fig
 
 
@@ -95,7 +90,7 @@ def _errors_cell(before: dict, after: dict) -> str:
 def plot_candidate_drops(doc: dict):
     """Each round's candidates: held-out chi2 drop (log scale, significant ones coloured)."""
     rounds = doc["rounds"]
-    fig, axes = plt.subplots(len(rounds), 1, figsize=(9, 0.5 + 2.6 * len(rounds)), squeeze=False)
+    fig, axes = subplots(len(rounds), 1, figsize=(9, 0.5 + 2.6 * len(rounds)), squeeze=False)
     for ax, r in zip(axes[:, 0], rounds):
         cands = [c for c in r["candidates"] if c.get("holdout_chi2_drop") is not None]
         chosen = {e["name"] for e in doc["effects_added"]} if r is rounds[-1] else set(rounds[rounds.index(r) + 1]["model"])
@@ -111,7 +106,6 @@ def plot_candidate_drops(doc: dict):
         ax.axvline(0, color="0.3", lw=0.6)
         ax.set_xlabel("held-out chi2 drop, symmetric log (green: significant, red: implausible, grey: not significant)")
         ax.set_title(f"round {r['round']}: model {', '.join(r['model']) or 'functional'}", fontsize=9, wrap=True)
-    fig.tight_layout()
     return fig
 
 
@@ -119,7 +113,7 @@ def plot_signature(sig: dict):
     """The remaining residual's signature: binned by nut position, by motor and screw angle, and the redundant
     sensors' cross-correlation."""
     curves = sig.get("curves") or {}
-    fig, axes = plt.subplots(2, 2, figsize=(11, 6.5))
+    fig, axes = subplots(2, 2, figsize=(11, 6.5))
     ax = axes[0, 0]
     if "nut_position" in curves:
         c = curves["nut_position"]
@@ -147,7 +141,6 @@ def plot_signature(sig: dict):
     ax.set_title("redundant sensors: cross-correlation", fontsize=9)
     if ax.get_legend_handles_labels()[0]:
         ax.legend(fontsize=7, loc="lower left")
-    fig.tight_layout()
     return fig
 
 
@@ -246,6 +239,6 @@ def write_trace_folder(folder: str | Path, result) -> dict:
     figs["signature of the remaining residual (missing torque at the motor shaft)"] = figure_png(
         plot_signature(doc["residual_signature"]))
     write_html_report(folder / "report.html", title=f"Residual trace: {', '.join(d['name'] for d in doc['datasets'])}",
-                      sections=[("Summary", format_trace_summary(doc))], figures=figs,
-                      html_sections=[("Conclusion", conclusion_table_html(doc))])
+                      sections=[("Conclusion", Html(conclusion_table_html(doc))),
+                                ("Summary", format_trace_summary(doc))], figures=figs)
     return doc
