@@ -231,7 +231,7 @@ class TraceSettings:
     signature: SignatureSettings = field(default_factory=SignatureSettings)
     base_corrections: bool | None = None
     undetermined_relative_stderr: float = 1.0
-    window_tolerance: float = 0.0
+    window_tolerance: float = 0.01
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad field."""
