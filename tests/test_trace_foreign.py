@@ -49,17 +49,23 @@ def _truth_effects(name: str) -> list[str]:
 
 
 @pytest.fixture(scope="session")
-def traced(params):
-    """``traced(name)`` -> trace.json of ``thsa trace RUN.csv --model A`` (memoised per session)."""
-    cache: dict[str, dict] = {}
+def traced_result(params):
+    """``traced_result(name)`` -> TraceResult of ``thsa trace RUN.csv --model A`` (memoised per session)."""
+    cache: dict = {}
 
-    def _go(name: str) -> dict:
+    def _go(name: str):
         if name not in cache:
             run = run_kinematics(read_run(DATA / f"{name}.csv"), params)
-            cache[name] = trace(run, "A", params=params, settings=TraceSettings(workers=2)).to_dict()
+            cache[name] = trace(run, "A", params=params, settings=TraceSettings(workers=2))
         return cache[name]
 
     return _go
+
+
+@pytest.fixture(scope="session")
+def traced(traced_result):
+    """``traced(name)`` -> its trace.json document."""
+    return lambda name: traced_result(name).to_dict()
 
 
 def _found(doc: dict) -> list[str]:
@@ -193,3 +199,23 @@ def test_pair_of_library_effects_found_in_the_order_of_what_they_explain(traced)
     first, second = ("coulomb_friction", "screw_friction_ripple") if a < b else ("screw_friction_ripple",
                                                                               "coulomb_friction")
     assert r1[first] >= r1[second], r1
+
+
+@pytest.mark.slow
+def test_trace_json_and_report_say_what_was_done(traced_result, tmp_path):
+    """trace.json follows its schema and reports the base corrections with their bounds' sources; the report has
+    the conclusion table, the candidates' drops and the signature plots (the short cogging run)."""
+    from thsa_control.report.trace import write_trace_folder
+
+    res = traced_result("rig_cogging")
+    doc = res.to_dict()
+    jsonschema = pytest.importorskip("jsonschema")
+    jsonschema.validate(json.loads(json.dumps(doc, default=float)),
+                        json.loads((DATA.parents[2] / "docs" / "trace_schema.json").read_text()))
+    bc = doc["base_corrections"]
+    assert bc is not None and all(c["bound_source"] for c in bc["corrections"]), bc
+    assert all("signature_after" in r for r in doc["rounds"] if r is not doc["rounds"][-1] or doc["effects_added"])
+    write_trace_folder(tmp_path, res)
+    html = (tmp_path / "report.html").read_text()
+    assert ">Conclusion</h2>" in html and "<table>" in html and "base correction" in html
+    assert "held-out chi2 drops" in html and "signature of the remaining residual" in html
