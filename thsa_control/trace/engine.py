@@ -993,12 +993,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             null_base = _run_jobs([job("null base", cur_effects, cur_free, cur_params, null)], 1, None)[0]
             nb = sum(_chi2_by_channel(null_base, noise, "holdout").values()) if "error" not in null_base else math.nan
             todo = list(promising)
-            while todo:
-                batch = todo[:max(st.workers, 2)]
-                phys = next((c for c in todo if not _is_explainer(c)), None)
-                if phys is not None and phys not in batch:
-                    batch.append(phys)
-                todo = [c for c in todo if c not in batch]
+
+            def calibrate(batch):
                 say(f"calibrating {', '.join(c['name'] for c in batch)} on a null run")
                 null_fits = _run_jobs([{**c["_job"], "label": f"null {c['name']}", "runs": null,
                                         "free": tuple(c["_fit"]["free"]), "judge": {},
@@ -1007,8 +1003,26 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 for c, nf in zip(batch, null_fits):
                     nd = (nb - sum(_chi2_by_channel(nf, noise, "holdout").values())) if "error" not in nf else math.nan
                     c["null_chi2_drop"] = nd
-                if any(math.isfinite(c["null_chi2_drop"]) and c["holdout_chi2_drop"] > st.null_factor
-                       * max(c["null_chi2_drop"], 0.0) for c in batch):
+                return [c for c in batch if math.isfinite(c["null_chi2_drop"]) and c["holdout_chi2_drop"]
+                        > st.null_factor * max(c["null_chi2_drop"], 0.0)]
+
+            while todo:
+                batch = todo[:max(st.workers, 2)]
+                phys = next((c for c in todo if not _is_explainer(c)), None)
+                if phys is not None and phys not in batch:
+                    batch.append(phys)
+                todo = [c for c in todo if c not in batch]
+                passed = calibrate(batch)
+                if passed:
+                    # the ones the data cannot tell from the strongest that passed are calibrated too: the
+                    # ambiguity rule reports them with their significance
+                    top = max(passed, key=lambda c: c["holdout_chi2_drop"])
+                    _rivals(top, [], st.alpha)
+                    near = [c for c in todo if top["holdout_chi2_drop"] - c["holdout_chi2_drop"]
+                            < top["_indistinct_below"]]
+                    if near:
+                        calibrate(near)
+                    todo = [c for c in todo if c not in near]
                     break
             for c in todo:
                 c["not_calibrated"] = "a stronger candidate passed its null calibration"
