@@ -91,6 +91,8 @@ KNOWN_FAILING = {
                          "temperature_friction makes the held-out error worse",
     "rig_coulomb": "on one load the no-back's aiding friction takes the retraction half of the Coulomb friction; "
                    "a direction drag is added for the extension half",
+    "rig_axial_offset": "the no-back's mismatch dominates the base correction, whose axial force goes to the "
+                        "opposite bound (-406 N); the 1500 N offset beyond it is not significant after the no-back",
     "null_rig_trim_s1": "on one compressive load the no-back's aiding friction is a direction drag: the direction "
                         "drag's window drop is more than a point above the no-back's, so it is added",
     "null_papers_trim_s1": "a 6-per-revolution cogging (5 % window drop, 0.07 N m) is fitted to the start and stop "
