@@ -44,6 +44,7 @@ def provenance(result, scenarios, design_path: str, metrics_before: dict | None 
     and tuned designs at the tuning temperature and level.
     """
     from .check import PROVENANCE_MARKER
+    from .optimize import linear_temperatures
     from .validation import COST_TERMS
 
     s = result.settings
@@ -69,12 +70,21 @@ def provenance(result, scenarios, design_path: str, metrics_before: dict | None 
         "effects": list(s.effects),
         "tuned": list(result.tuned),
         "bound_factor": s.bound_factor,
-        "constraints": ("int (|i| - clamp)+^2 dt <= %g A^2 s and int (overshoot above %g %%)+^2 dt <= %g (mm/s)^2 s "
-                        "on the runs and on the runs at level %s at %s degC; velocity-loop [requirements] phase "
-                        "margin, gain margin, Ms at every robust temperature (smooth, frequency-response)"
-                        % (s.excess_tolerance, 100 * s.objective.overshoot_limit, s.excess_tolerance,
-                           s.constraint_level, ", ".join(f"{t:g}" for t in (s.constraint_temperatures or (
-                               min(s.robust_temperatures), 25.0))))),
+        "constraints": ("int (|i| - %g x clamp)+^2 dt <= %g A^2 s and int (overshoot above %g %%)+^2 dt <= %g "
+                        "(mm/s)^2 s on the objective's runs and on the constraint runs (the validation suite at "
+                        "level %s at the coldest check temperature and 25 degC, plus every run the verdict failed "
+                        "on); every [requirements.velocity_loop] key the grid analysis judges (phase, |gain|, "
+                        "delay margins, Ms, bandwidth; step overshoot and settling) at every valid point of the "
+                        "design's analysis grid at %s degC (two-rotor plant, computation delay), smooth; then "
+                        "the verdict of thsa check on every requirement, failing runs added and failing linear "
+                        "constraints tightened until it passes"
+                        % (s.objective.current_fraction, s.excess_tolerance, 100 * s.objective.overshoot_limit,
+                           s.excess_tolerance, s.constraint_level,
+                           ", ".join(f"{t:g}" for t in linear_temperatures(result.source, s)))),
+        "verdict": "PASS" if result.verdict is not None and result.verdict.passed else "FAIL",
+        "rounds": [{"round": r["round"], "gains": r["gains"],
+                    "constraint_runs": [f"{lv} {T:g} degC {n}" for lv, T, n in r["constraint_runs"]],
+                    "failing": r["failing"]} for r in result.rounds],
         "solver": "ipopt via casadi nlpsol, limited-memory Hessian",
         "status": best.status,
         "iterations": best.iterations,
@@ -105,8 +115,7 @@ def tune_command(args) -> int:
     from dataclasses import replace
 
     from .check import PROVENANCE_MARKER, write_design
-    from .objective import ObjectiveSettings
-    from .optimize import TuneSettings, tune
+    from .optimize import TuneSettings, objective_settings_for, tune
     from .validation import DEFAULT_VALIDATION_REQUIREMENTS, get_validation_scenario
 
     params, design = _common(args)
@@ -132,9 +141,9 @@ def tune_command(args) -> int:
             raise DesignError("--require", f"{item!r} is not KEY=VALUE with a number") from None
     requirements = dict(design.requirements)
     requirements["velocity_loop"] = req
-    from ..loops.design import _check_requirements
+    from ..verdict import validate_requirements
 
-    _check_requirements(requirements, "--require")
+    validate_requirements(requirements, "--require")
     source = replace(design, requirements=requirements)
     from ..loops.analysis import DEFAULT_ANALYSIS_EFFECTS
 
@@ -142,12 +151,7 @@ def tune_command(args) -> int:
     settings = TuneSettings(
         temperature=args.temperature, robust_temperatures=_floats(args.robust_temperatures, "--robust-temperatures"),
         level=args.level, effects=effects, bound_factor=args.bound_factor, max_iter=args.max_iter,
-        objective=ObjectiveSettings(current_weight=args.current_weight, rate_weight=args.rate_weight,
-                                    overshoot_limit=0.9 * design.validation.get(
-                                        "max_overshoot_percent",
-                                        DEFAULT_VALIDATION_REQUIREMENTS["max_overshoot_percent"]) / 100.0))
-    # 0.9: the constraint keeps 10 % of the check's overshoot limit in reserve for the levels and
-    # temperatures the constraint runs do not cover
+        objective=objective_settings_for(design, current_weight=args.current_weight, rate_weight=args.rate_weight))
     try:
         result = tune(source, params, scenarios, settings)
     except SolverError as exc:
@@ -162,6 +166,15 @@ def tune_command(args) -> int:
     after = suite_metrics(result.design, params, settings.level, settings.temperature, scenarios=names,
                           effects=effects)
     prov = provenance(result, names, str(args.design or "designs/nominal.toml"), before, after)
+    robust_report = None
+    if not args.no_robustness:
+        from .robust import robustness_spread
+
+        print("tune: robustness beyond the grid (friction, inertia, stiffness, delay spread) ...", file=sys.stderr,
+              flush=True)
+        robust_report = robustness_spread(source, result.design, params, temperature=settings.temperature,
+                                          scenario=names[0], level=settings.level, effects=effects)
+        prov["robustness"] = robust_report.as_dict()
     tuned = replace(result.design, name=out.stem, source=str(out),
                     description=(f"velocity loop tuned by thsa tune for {', '.join(names)} at {args.temperature:g} degC, "
                                  f"margins kept at {args.robust_temperatures} degC (from {design.name})"),
@@ -185,6 +198,11 @@ def tune_command(args) -> int:
     for mb, ma in zip(result.margins_before, result.margins_after):
         print(f"  {ma.temperature:6.1f} degC: PM {mb.phase_margin_deg:.1f} -> {ma.phase_margin_deg:.1f} deg, "
               f"GM {mb.gain_margin_db:.1f} -> {ma.gain_margin_db:.1f} dB, Ms {mb.ms:.3f} -> {ma.ms:.3f}")
+    print(f"every requirement met (the verdict of thsa check, {len(result.verdict.rows)} requirements, "
+          f"{len(result.rounds)} round(s)):")
+    print("\n".join("  " + r.text() for r in result.verdict.rows))
+    if robust_report is not None:
+        print(robust_report.text())
     print(f"wrote {out}")
     return 0
 
@@ -223,7 +241,9 @@ def add_parsers(sub) -> None:
     p.add_argument("--current-weight", type=float, default=1e-6, help="weight of int i^2 dt")
     p.add_argument("--rate-weight", type=float, default=0.05, help="weight of int (di/dt / 1 kA/s)^2 dt")
     p.add_argument("--bound-factor", type=float, default=10.0, help="gains stay within this factor of the source")
-    p.add_argument("--max-iter", type=int, default=60, help="IPOPT iteration limit")
+    p.add_argument("--max-iter", type=int, default=60, help="IPOPT iteration limit (no wall-clock limit)")
+    p.add_argument("--no-robustness", action="store_true",
+                   help="skip the side-by-side under friction/inertia/stiffness/delay spread")
     p.add_argument("--out", required=True, help="design TOML to write (only replaces a file thsa tune wrote)")
     p.set_defaults(fn=tune_command)
     p = sub.add_parser("check", help="validation suite in nonlinear simulation at every level and temperature")
