@@ -449,11 +449,19 @@ def _cmd_report(args) -> int:
     progress.phase(f"linearising level {settings.level} over the grid and analysing the loops"
                    + ("" if args.no_switching else ", then the switch-over transient"))
     result = analyse_design(design, params, settings=settings, switching=not args.no_switching)
+    verdict = None
+    if args.check:  # the verdict of thsa check: this grid's linear requirements + the validation runs
+        from .tuning.cli import report_verdict
+
+        progress.phase("judging every requirement (the validation runs of thsa check)")
+        verdict = report_verdict(result, params)
     progress.phase("writing the report")
     opts = _out_options(args)
-    out = write_analysis_report(result, args.out, force=opts["force"], inputs=opts["inputs"])
+    out = write_analysis_report(result, args.out, force=opts["force"], inputs=opts["inputs"], verdict=verdict)
     progress.done()
     print(result.requirements.summary())
+    if verdict is not None:
+        print(verdict.text())
     for loop in ("current_loop", "velocity_loop", "position_loop"):
         for metric in ("phase_margin_deg", "gain_margin_db"):
             w = result.loops.worst(loop, metric)
@@ -463,7 +471,7 @@ def _cmd_report(args) -> int:
     print(f"{n_bad} of {len(result.loops)} grid points not analysed (zero speed, backlash edge or saturated), "
           "listed with their reason in the report")
     print(f"wrote {out / 'report.html'} and {out / 'analysis.json'}")
-    return EXIT_REQUIREMENT_FAILED if args.check and not result.requirements.passed else EXIT_OK
+    return EXIT_REQUIREMENT_FAILED if args.check and not (result.requirements.passed and verdict.passed) else EXIT_OK
 
 
 def _cmd_linearize(args) -> int:
@@ -580,7 +588,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--temperatures", help="grid temperatures [degC] (default -55,-30,0,25,70)")
     p.add_argument("--temperature", type=float, help="analyse at this one temperature [degC] only")
     p.add_argument("--no-switching", action="store_true", help="skip the nonlinear switch-over transient")
-    p.add_argument("--check", action="store_true", help="exit with status 1 when a requirement is not met")
+    p.add_argument("--check", action="store_true", help="judge every requirement as thsa check does (linear "
+                   "requirements on this grid + the nonlinear validation runs); exit with status 1 when one is not met")
     out_arg(p)
     p = add("linearize", "print the linear model at one operating point (and save it)", _cmd_linearize)
     p.add_argument("--level", required=True, help="model level A, B, C or D")

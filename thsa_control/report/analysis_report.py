@@ -191,7 +191,7 @@ def _margin_table(result: DesignAnalysis, loop: str) -> str:
     return _table(f"margins_{loop}", header, rows, classes, cap)
 
 
-def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
+def _html(result: DesignAnalysis, figures: dict[str, bytes], verdict=None) -> str:
     a, d, check = result.loops, result.design, result.requirements
     lin = a.linearization
     parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>THSA loop analysis: {html.escape(d.name)}"
@@ -209,6 +209,10 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
         f"({check.checked_points} points checked, {check.skipped_points} invalid points not checked).</p>")
     if not check.passed:
         parts.append("<pre>" + html.escape(check.summary()) + "</pre>")
+    if verdict is not None:  # --check: the verdict of thsa check on every requirement (linear + validation runs)
+        from .check_report import verdict_section
+
+        parts.append(verdict_section(verdict))
     # requirements table
     rows, classes = [], []
     for r in check.rows:
@@ -358,8 +362,11 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
 
 
 def write_analysis_report(result: DesignAnalysis, out_dir: str | Path, *, force: bool = False,
-                          inputs: tuple | list = ()) -> Path:
+                          inputs: tuple | list = (), verdict=None) -> Path:
     """Write ``report.html`` (figures embedded), ``analysis.json`` and ``figures/*.png`` to ``out_dir``.
+
+    With ``verdict`` (:class:`thsa_control.verdict.Verdict`, ``thsa report --check``) the page shows it and
+    ``check.json`` holds it, as ``thsa check --out`` writes it.
 
     The folder is replaced atomically: on failure nothing is written.
 
@@ -388,11 +395,13 @@ def write_analysis_report(result: DesignAnalysis, out_dir: str | Path, *, force:
     if result.switching is not None:
         figures["switching_transient"] = _png(plot_switching(result.switching))
     doc = analysis_to_dict(result)
-    page = _html(result, figures)
+    page = _html(result, figures, verdict)
     with atomic_folder(out_dir, force=force, inputs=inputs, command="thsa report") as tmp:
         (tmp / "figures").mkdir()
         for name, data in figures.items():
             (tmp / "figures" / f"{name}.png").write_bytes(data)
         (tmp / "report.html").write_text(page, encoding="utf-8")
         write_json(tmp / "analysis.json", doc)
+        if verdict is not None:
+            write_json(tmp / "check.json", verdict.as_dict())
     return Path(out_dir).resolve()

@@ -6,11 +6,13 @@
                --temperature -30 [--robust-temperatures -55,-30,25,70] [--level B] [--effects E ...]
                [--require min_phase_margin_deg=50 ...] --out designs/NAME.toml
     thsa check --design FILE [--levels A,B,C,D] [--temperatures -55,-30,25,70] [--scenarios a,b]
+               [--runs RUN.csv ...] [--out DIR]
 
 ``tune`` prints its progress on stderr, the before/after numbers on stdout,
 and exits 1 (one message, no traceback) when IPOPT does not converge or a
-requirement cannot be met; ``check`` prints the pass/fail table and exits 1
-when a check fails, naming the failing point.
+requirement cannot be met (naming it, writing nothing); ``check`` prints one row per requirement
+(:mod:`thsa_control.verdict`: worst point, value, limit, pass/fail) and exits 1 when one is not met
+or could not be judged.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from pathlib import Path
 
 from ..errors import DesignError, SolverError
 
-__all__ = ["add_parsers", "tune_command", "check_command", "provenance"]
+__all__ = ["add_parsers", "tune_command", "check_command", "provenance", "report_verdict"]
 
 
 def _floats(text: str, what: str) -> tuple[float, ...]:
@@ -208,22 +210,58 @@ def tune_command(args) -> int:
 
 
 def check_command(args) -> int:
-    """``thsa check``: validation suite at every level and temperature; exit 1 on a failure."""
+    """``thsa check``: every requirement of the design (linear grid + validation runs [+ measured runs]);
+    exit 1 when one is not met or could not be judged."""
+    from dataclasses import replace
+
+    from ..loops.analysis import DEFAULT_ANALYSIS_EFFECTS
+    from ..report.build import check_output_folder
     from .check import check_design
     from .validation import VALIDATION_SUITE
 
     params, design = _common(args)
+    inputs = [design.source] + [str(p) for p in (args.runs or [])] + [
+        str(Path(p).with_suffix(".json")) for p in (args.runs or [])]
+    if args.out:
+        check_output_folder(args.out, force=args.force, inputs=inputs)  # refuse early, before any work
     levels = tuple(v.strip().upper() for v in args.levels.split(",") if v.strip())
     temps = _floats(args.temperatures, "--temperatures")
     scen = tuple(v.strip() for v in args.scenarios.split(",")) if args.scenarios else VALIDATION_SUITE
-    from ..loops.analysis import DEFAULT_ANALYSIS_EFFECTS
-
     effects = tuple(e for v in (args.effects or DEFAULT_ANALYSIS_EFFECTS) for e in v.split(",") if e)
-    report = check_design(design, params, levels=levels, temperatures=temps, scenarios=scen, effects=effects,
-                          progress=lambda m: print(m, file=sys.stderr, flush=True))
+    say = (lambda m: print(m, file=sys.stderr, flush=True))
+    verdict = check_design(design, params, levels=levels, temperatures=temps, scenarios=scen, effects=effects,
+                           progress=say)
+    measured = ()
+    if args.runs:
+        from .measured import judge_runs
+
+        say(f"check: {len(args.runs)} measured run(s) against the validation limits, beside the model's prediction ...")
+        rows, measured = judge_runs(design, params, args.runs, level=args.run_level, effects=effects)
+        verdict = replace(verdict, rows=verdict.rows + tuple(rows),
+                          scope=verdict.scope | {"measured": [str(p) for p in args.runs]})
     print(f"design {design.source} ({design.name})")
-    print(report.text())
-    return 0 if report.passed else 1
+    print(verdict.text())
+    for m in measured:
+        p = m.predicted
+        print(f"  run {m.name} ({m.temperature:.3g} degC): speed error {m.measured.speed_error_percent:.3g} % "
+              f"(model {p.speed_error_percent:.3g} %), ISE {m.measured.ise:.4g} (model {p.ise:.4g}) (mm/s)^2 s, "
+              f"current peak {m.measured.current_peak_A:.3g} A (model {p.current_peak_A:.3g} A), oscillation "
+              f"{m.oscillation_percent:.3g} % (model {m.predicted_oscillation_percent:.3g} %)" if p is not None else
+              f"  run {m.name}: model prediction failed: {m.prediction_error}")
+    if args.out:
+        from ..report.check_report import write_check_report
+
+        out = write_check_report(verdict, args.out, measured=measured, force=args.force, inputs=inputs)
+        print(f"wrote {out / 'check.json'} and {out / 'check.html'}")
+    return 0 if verdict.passed else 1
+
+
+def report_verdict(result, params):
+    """The verdict of ``thsa check`` for ``thsa report --check``: the report's grid analysis (its linear
+    requirements) and the validation runs at the check's default levels and temperatures."""
+    from .check import check_design
+
+    return check_design(result.design, params, analysis=result.loops, effects=result.settings.effects)
 
 
 def add_parsers(sub) -> None:
@@ -253,4 +291,9 @@ def add_parsers(sub) -> None:
     p.add_argument("--temperatures", default="-55,-30,25,70", help="[degC], e.g. --temperatures=-55,25 (with =)")
     p.add_argument("--scenarios", help="comma-separated runs (default: the validation suite)")
     p.add_argument("--effects", nargs="*", help="effects added (default temperature_friction standby_motor)")
+    p.add_argument("--runs", nargs="+", help="measured runs RUN.csv (RUN.json beside) recorded with this design: "
+                                             "judged against the validation limits, beside the model's prediction")
+    p.add_argument("--run-level", default="B", help="model level of the prediction beside measured runs (default B)")
+    p.add_argument("--out", help="folder for check.json and check.html")
+    p.add_argument("--force", action="store_true", help="replace a non-empty --out folder not written by thsa")
     p.set_defaults(fn=check_command)
