@@ -472,3 +472,157 @@ def exact_margins(design: Design, params: ParameterSet, temperatures, *, level: 
                                  int(np.count_nonzero([c.temperature == T for c in a.conditions])) - int(idx.size),
                                  fails))
     return out
+
+
+# ------------------------------------------------------------------------------------------------ beyond the grid
+#: Parameter spread of :func:`robustness_spread`: case -> (description, parameter factors, extra effects, extra delay).
+#: Friction: every drag and loss of the drive scaled (viscous drags, the cold breakaway torque, the no-back disk
+#: coefficients, the gear and screw losses 1 - eta).  Inertia: rotors, screw and ratchets.  Stiffness: the
+#: drivetrain_compliance effect at the ends of the assumed ranges of gear.torsional_stiffness (3e4..3e5 N m/rad)
+#: and screw.torsional_stiffness (2e4..8e4 N m/rad), as their sources state.
+_FRICTION = ("motor.bearing_viscous_friction", "gear.viscous_friction", "friction.cold_coulomb_torque",
+             "noback.mu_coulomb_pos", "noback.mu_coulomb_neg")
+_LOSSES = ("gear.efficiency", "screw.efficiency_direct", "screw.efficiency_inverse")
+_INERTIA = ("motor.rotor_inertia", "screw.inertia", "noback.ratchet_inertia")
+SPREAD_CASES: dict[str, tuple[str, dict, tuple, int]] = {
+    "model as is": ("the tuning plant", {}, (), 0),
+    "friction -50 %": ("every drag and loss x0.5", {"friction": 0.5}, (), 0),
+    "friction +50 %": ("every drag and loss x1.5", {"friction": 1.5}, (), 0),
+    "inertia -20 %": ("rotors, screw, ratchets x0.8", {"inertia": 0.8}, (), 0),
+    "inertia +20 %": ("rotors, screw, ratchets x1.2", {"inertia": 1.2}, (), 0),
+    "soft drive train": ("drivetrain_compliance, gear 3e4, screw 2e4 N m/rad",
+                         {"gear.torsional_stiffness": 3e4, "screw.torsional_stiffness": 2e4}, ("drivetrain_compliance",), 0),
+    "stiff drive train": ("drivetrain_compliance, gear 3e5, screw 8e4 N m/rad",
+                          {"gear.torsional_stiffness": 3e5, "screw.torsional_stiffness": 8e4}, ("drivetrain_compliance",), 0),
+    "one more sample of delay": ("computation delay + 1 sample (margins only: the simulator's controller has 0 or 1)",
+                                 {}, (), 1),
+}
+
+
+def spread_parameters(params: ParameterSet, changes: dict) -> ParameterSet:
+    """``params`` with a case of :data:`SPREAD_CASES` applied."""
+    vals = {}
+    for key, v in changes.items():
+        if key == "friction":
+            vals.update({n: params.value(n) * v for n in _FRICTION})
+            vals.update({n: 1.0 - (1.0 - params.value(n)) * v for n in _LOSSES})
+        elif key == "inertia":
+            vals.update({n: params.value(n) * v for n in _INERTIA})
+        else:
+            vals[key] = v
+    return params.replace(vals)
+
+
+@dataclass(frozen=True)
+class SpreadRow:
+    """One design under one case: worst velocity-loop margins over the grid and the cold-run ISE."""
+
+    case: str
+    design: str
+    phase_margin_deg: float
+    gain_margin_db: float
+    delay_margin_s: float
+    ms: float
+    unstable_points: int
+    cold_ise: float  # nan when not simulated
+
+
+@dataclass(frozen=True)
+class SpreadReport:
+    rows: tuple[SpreadRow, ...]
+    scenario: str
+    temperature: float
+    temperatures: tuple[float, ...]
+    flagged: tuple[str, ...]
+
+    def text(self) -> str:
+        lines = [f"robustness beyond the grid (worst over the grid at {', '.join(f'{t:g}' for t in self.temperatures)} "
+                 f"degC; ISE of {self.scenario} at {self.temperature:g} degC):",
+                 f"  {'case':26s} {'design':8s} {'PM deg':>7s} {'|GM| dB':>8s} {'DM ms':>7s} {'Ms':>6s} {'unst':>4s} "
+                 f"{'cold ISE':>10s}"]
+        for r in self.rows:
+            lines.append(f"  {r.case:26s} {r.design:8s} {r.phase_margin_deg:7.1f} {r.gain_margin_db:8.1f} "
+                         f"{1e3 * r.delay_margin_s:7.2f} {r.ms:6.3f} {r.unstable_points:4d} "
+                         + (f"{r.cold_ise:10.4g}" if math.isfinite(r.cold_ise) else f"{'-':>10s}"))
+        lines.append("  FLAG: " + "; ".join(self.flagged) if self.flagged else
+                     "  the tuned design keeps its advantage in every case")
+        return "\n".join(lines)
+
+    def as_dict(self) -> dict:
+        return {"scenario": self.scenario, "temperature_C": self.temperature,
+                "margin_temperatures_C": list(self.temperatures), "flagged": list(self.flagged),
+                "cases": {k: v[0] for k, v in SPREAD_CASES.items()},
+                "rows": [{"case": r.case, "design": r.design, "phase_margin_deg": round(r.phase_margin_deg, 3),
+                          "gain_margin_db": round(r.gain_margin_db, 3), "delay_margin_s": float(f"{r.delay_margin_s:.6g}"),
+                          "sensitivity_peak": round(r.ms, 4), "unstable_points": r.unstable_points,
+                          "cold_ise": float(f"{r.cold_ise:.6g}") if math.isfinite(r.cold_ise) else -1.0}
+                         for r in self.rows]}
+
+
+def _worst_margins(design: Design, params, temps, level, effects, extra_delay: int):
+    from ..loops._loopmath import _dcgain, _gain_delay, _margins, _Response, _series
+
+    settings = _settings(level, effects, temps, design=design)
+    model = plant_model(level, effects, params, settings=settings.linearization)
+    lin = linearize_conditions(model, settings.grid())
+    loops = _build(lin, design, settings)
+    sysL = loops.open["velocity_loop"]
+    if extra_delay:
+        sysL = _series(_gain_delay(len(lin), 1.0, extra_delay), sysL)
+    h = design.control_period
+    z = np.exp(1j * loops.omega * h)
+    resp = _Response(sysL)
+    L = resp.grid(z)
+    cl, fb = loops.closed["velocity_loop"]
+    m = _margins(lambda i, w: resp.at(i, np.exp(1j * w * h)), loops.omega, L, _dcgain(cl, fb, 0))
+    valid = lin.valid & ~np.array([bool(r) for r in _saturation(lin, design, params)])
+    # closed-loop stability with the extra delay: the poles of L / (1 + L) from the series system
+    from ..loops._loopmath import _close
+
+    A = _close(sysL, _gain_delay(len(lin), 1.0, 0), 0, 0).A if extra_delay else cl.A
+    unstable = int(np.count_nonzero(valid & (np.max(np.abs(np.linalg.eigvals(A)), axis=1) >= 1 - 1e-12)))
+    v = valid
+    return (float(np.nanmin(m.phase_margin_deg[v])), float(np.nanmin(np.abs(m.gain_margin_db[v]))),
+            float(np.nanmin(m.delay_margin_s[v])), float(np.nanmax(m.ms[v])), unstable)
+
+
+def robustness_spread(nominal: Design, tuned: Design, params: ParameterSet, *, temperature: float = -30.0,
+                      scenario: str = "cold_ramp", level: str = "B", effects=DEFAULT_ANALYSIS_EFFECTS,
+                      temperatures=(-55.0, -30.0, 25.0, 70.0), cases=None) -> SpreadReport:
+    """Nominal and tuned designs side by side under the parameter spread of :data:`SPREAD_CASES`.
+
+    Flags the tuned design when, in some case, its cold-run ISE is not at least 10 % below the nominal's
+    (its advantage vanished) or it has fewer margin than a requirement asks where the nominal has enough.
+    """
+    from ..model import build_plant
+    from ..sim.simulate import SimulationSettings, Simulator
+    from .validation import get_validation_scenario, run_metrics
+
+    rows, flags = [], []
+    req = tuned.requirements.get("velocity_loop", {})
+    for case in (cases or SPREAD_CASES):
+        desc, changes, extra_eff, extra_delay = SPREAD_CASES[case]
+        p = spread_parameters(params, changes)
+        eff = tuple(effects) + tuple(e for e in extra_eff if e not in effects)
+        by = {}
+        for label, d in (("nominal", nominal), ("tuned", tuned)):
+            pm, gm, dm, ms, unst = _worst_margins(d, p, temperatures, level, eff, extra_delay)
+            ise = float("nan")
+            if not extra_delay:
+                sim = Simulator(build_plant(level, eff, params=p), SimulationSettings(output_period=None))
+                ise = run_metrics(sim.run(get_validation_scenario(scenario).with_temperature(temperature), d, p)).ise
+            by[label] = SpreadRow(case, label, pm, gm, dm, ms, unst, ise)
+            rows.append(by[label])
+        n, t = by["nominal"], by["tuned"]
+        if math.isfinite(t.cold_ise) and not t.cold_ise <= 0.9 * n.cold_ise:
+            flags.append(f"{case}: cold ISE {t.cold_ise:.4g} tuned vs {n.cold_ise:.4g} nominal (advantage vanished)")
+        checks = (("min_phase_margin_deg", "phase_margin_deg", 1), ("min_gain_margin_db", "gain_margin_db", 1),
+                  ("min_delay_margin_s", "delay_margin_s", 1), ("max_sensitivity_peak", "ms", -1))
+        for key, attr, sgn in checks:
+            if key in req:
+                ok_t = sgn * (getattr(t, attr) - req[key]) >= 0 and t.unstable_points == 0
+                ok_n = sgn * (getattr(n, attr) - req[key]) >= 0 and n.unstable_points == 0
+                if ok_n and not ok_t:
+                    flags.append(f"{case}: tuned velocity_loop.{key} {getattr(t, attr):.4g} misses {req[key]:g} "
+                                 f"(nominal {getattr(n, attr):.4g} keeps it)")
+    return SpreadReport(tuple(rows), scenario, float(temperature), tuple(float(t) for t in temperatures), tuple(flags))
