@@ -155,7 +155,14 @@ def judge_runs(design: Design, params, paths, *, level: str = "B", effects=None)
         o = oscillation_percent(run.time, sig["speed_cmd"], w * r, sig["load_force"])
         pred, po, perr = None, float("nan"), ""
         try:
-            rep = replay_closed_loop(run, plant, params, design=design, settings=ReplaySettings())
+            # the logged housing temperature carries sensor noise (0.05 degC): a -55 degC run reads -55.1; the
+            # model's range is -55..70 degC, so the prediction takes it clipped to that range
+            from dataclasses import replace as _replace
+
+            sig_model = dict(run.signals)
+            sig_model["temperature"] = np.clip(np.asarray(sig["temperature"], float), -55.0, 70.0)
+            rep = replay_closed_loop(_replace(run, signals=MappingProxyType(sig_model)), plant, params,
+                                     design=design, settings=ReplaySettings())
             s = rep.simulated
             i = np.asarray(s["motor_current"]) + (np.asarray(s["standby_current"]) if "standby_current" in s else 0)
             pres = _Signals(run.name, run.time, {"speed_cmd": sig["speed_cmd"],
