@@ -385,6 +385,7 @@ def tune(design: Design, params: ParameterSet, scenarios, settings: TuneSettings
     verdict = None
     best = None
     extras = []
+    _linear_feasibility(robust, q, kp, ki, starts, g_src, settings, design, params, lb)
     for rnd in range(1, settings.max_rounds + 1):
         extras = extras_for(run_set) if run_set else []
         _say(settings, f"tune: round {rnd}: constraint runs " + (", ".join(
@@ -505,6 +506,42 @@ def tune(design: Design, params: ParameterSet, scenarios, settings: TuneSettings
                         float(np.sum(T_before @ w)), float(np.sum(T_after @ w)), tuple(s.name for s in scen),
                         m_before, m_after, settings, time.perf_counter() - t_all, _evaluations(objective, extras),
                         verdict, tuple(rounds))
+
+
+def _linear_feasibility(robust: RobustConstraints, q, kp, ki, starts, g_src, settings: TuneSettings, design: Design,
+                        params, lb: float) -> None:
+    """Raise :class:`InfeasibleRequirement` when no gains within the bounds meet the linear requirements.
+
+    Cheap (no simulation): maximise ``t`` subject to every smooth linear constraint ``>= t``; a negative optimum
+    names the constraint that stays violated, before any simulation-based iteration can blame another one.
+    """
+    g_rob = robust.casadi_constraints(kp, ki)
+    t = ca.MX.sym("t")
+    n = q.size1()
+    nlp = {"x": ca.vertcat(q, t), "f": -t, "g": g_rob - t}
+    opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
+            "ipopt.hessian_approximation": "limited-memory", "ipopt.max_iter": 200, "error_on_fail": False}
+    solver = ca.nlpsol("tune_linear_feasibility", "ipopt", nlp, opts)
+    rob_fn = ca.Function("robust_feas", [q], [g_rob])
+    best = None
+    for label, start in starts.items():
+        x0 = np.log(np.clip(gains_of(start, settings.tuned) / g_src, 1.0 / settings.bound_factor, settings.bound_factor))
+        c0 = np.asarray(rob_fn(x0), float).ravel()
+        sol = solver(x0=np.concatenate([x0, [min(c0.min(), 1.0)]]), lbx=[lb] * n + [-np.inf], ubx=[-lb] * n + [1.0],
+                     lbg=0.0, ubg=np.inf)
+        qf = np.asarray(sol["x"], float).ravel()[:n]
+        c = np.asarray(rob_fn(qf), float).ravel()
+        if best is None or c.min() > best[1].min():
+            best = (qf, c)
+    qf, c = best
+    if c.min() < -1e-6:
+        k = int(np.argmin(c))
+        name = robust.names[k]
+        cand = design_with_gains(design, settings.tuned, g_src * np.exp(qf))
+        raise InfeasibleRequirement(name, _shortfall(name, cand, params, settings)
+                                    + " (no gains within the bounds meet the linear requirements)")
+    _say(settings, f"tune: the linear requirements can be met (worst smooth constraint {c.min():.3g} at the most "
+                   "feasible gains)")
 
 
 def linear_temperatures(design: Design, settings: TuneSettings) -> tuple[float, ...]:
