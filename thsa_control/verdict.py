@@ -245,8 +245,9 @@ def _rows_from_metrics(limits, metrics: dict, errors, kind: str, label) -> list[
             if score > worst:
                 worst, wk = score, k
         if wk is None:
-            rows.append(RequirementVerdict(f"validation.{key}", kind, limit, float("nan"), unit, "-", "error", 0, 0,
-                                           origin, "no run to judge it on"))
+            why = "; ".join(f"{w}: {e}" for w, e in errors[:3]) if errors else "no run to judge it on"
+            rows.append(RequirementVerdict(f"validation.{key}", kind, limit, float("nan"), unit, "-", "error",
+                                           len(errors), len(errors), origin, why))
             continue
         m = metrics[wk]
         where = label(wk) + (f" [{m.worst_plateau}]" if attr == "speed_error_percent" else "")
