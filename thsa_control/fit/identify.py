@@ -65,6 +65,8 @@ __all__ = ["IdentificationSettings", "ParameterEstimate", "IdentificationResult"
 #: Channels the mechanics are fitted on (RigRun signals, compared with the plant
 #: outputs of :data:`~thsa_control.fit.replay.COMPARED_OUTPUT`: the LVDT with the surface position).
 MECH_CHANNELS = ("motor_speed", "nut_position", "screw_speed")
+#: A parameter whose standard error exceeds this fraction of its value is not determined by the data.
+NOT_DETERMINED_REL_STDERR = 0.5
 _FREE_STATE_KINDS = ("speed", "velocity", "position")
 
 
@@ -118,6 +120,10 @@ class IdentificationSettings:
     no_prior : tuple of str
         Free parameters without a prior (an effect being tried, whose file
         value is only a seed).
+    priors : mapping name -> (mean, sd), optional
+        Explicit Gaussian priors of these free parameters (SI), replacing the
+        ``prior_relative_sd`` rule for them (the tracer's base corrections:
+        centred at 0 with a standard deviation of half their plausible size).
     holdout_every : int
         0: every segment is fitted.  k >= 2: every k-th segment is held out of
         the parameter fit; its initial state is fitted afterwards at the
@@ -142,6 +148,7 @@ class IdentificationSettings:
     prior_relative_sd: float | None = None
     no_prior: tuple[str, ...] = ()
     holdout_every: int = 0
+    priors: Mapping[str, tuple[float, float]] | None = None
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad field."""
@@ -318,10 +325,17 @@ class IdentificationResult:
 
     @property
     def not_identifiable(self) -> tuple[str, ...]:
-        """Parameters in a flagged pair, or with an undetermined stderr."""
-        out = {a for a, b, _ in self.high_correlations} | {b for a, b, _ in self.high_correlations}
-        out |= {n for n, e in self.estimates.items() if not math.isfinite(e.stderr)}
-        return tuple(n for n in self.estimates if n in out)
+        """Parameters the data do not determine: undetermined stderr, or stderr above half the value.
+
+        A high correlation (:attr:`high_correlations`) alone does not make a
+        parameter unidentifiable: its standard error comes from the
+        covariance, which already counts the correlation, so a correlated
+        parameter with a small standard error is determined (reported as
+        "correlated with ...").  An inseparable pair has an undetermined or
+        huge standard error and is flagged here.
+        """
+        return tuple(n for n, e in self.estimates.items()
+                     if not math.isfinite(e.stderr) or e.relative_stderr > NOT_DETERMINED_REL_STDERR)
 
     def to_parameter_set(self, source: str | None = None) -> ParameterSet:
         """The initial set with the estimates as values; their ``source`` says where they come from."""
@@ -412,9 +426,13 @@ class IdentificationResult:
                 flags.append("AT INITIAL VALUE")
             if n in self.not_identifiable:
                 flags.append("NOT IDENTIFIABLE")
+            partners = [b if a == n else a for a, b, _ in self.high_correlations if n in (a, b)]
+            if partners:
+                flags.append(f"CORRELATED WITH {', '.join(partners)}")
             lines.append(f"    {n}: {e.value:.6g} {err} [{e.unit}] (init = {e.init:.6g})"
                          + (f"  <- {', '.join(flags)}" if flags else ""))
-        lines.append(f"[[Correlations]] (|rho| > {self.settings.correlation_threshold:g}: not identifiable together)")
+        lines.append(f"[[Correlations]] (|rho| > {self.settings.correlation_threshold:g}: flagged, the pair moves together; "
+                     "the standard errors count it)")
         names = self.names
         pairs = [(names[i], names[j], self.correlation[i, j]) for i in range(len(names)) for j in range(i + 1, len(names))]
         pairs = sorted((p for p in pairs if np.isfinite(p[2]) and abs(p[2]) > 0.1), key=lambda p: -abs(p[2]))
@@ -743,10 +761,12 @@ class Identifier:
 
     def _priors(self, scale: np.ndarray) -> dict[str, tuple[float, float]]:
         r = self.settings.prior_relative_sd
+        explicit = {n: (float(m), float(sd)) for n, (m, sd) in (self.settings.priors or {}).items()
+                    if n in self.free and sd > 0}
         if r is None:
-            return {}
-        return {n: (self.params[n].value, float(r * s)) for n, s in zip(self.free, scale)
-                if n not in self.settings.no_prior}
+            return explicit
+        return {**{n: (self.params[n].value, float(r * s)) for n, s in zip(self.free, scale)
+                   if n not in self.settings.no_prior}, **explicit}
 
     def fit(self, runs: RigRun | Sequence[RigRun], *, progress=None) -> IdentificationResult:
         """Fit the free parameters to ``runs`` together.
@@ -798,6 +818,9 @@ class Identifier:
         # prior rows (scaled decision units); a parameter without a prior gets a zero row
         prior_w = np.array([scale[k] / priors[n][1] if n in priors else 0.0 for k, n in enumerate(self.free)]) \
             if priors else None
+        # prior centres in decision units (the initial value unless an explicit prior names another)
+        prior_z0 = np.array([(priors[n][0] - self.params[n].value) / scale[k] if n in priors else 0.0
+                             for k, n in enumerate(self.free)]) if priors else None
         p0 = plant.p_vector(self.params)
         box = [self.params[n].search_interval() for n in self.free]
         lo = np.array([(b[0] - self.params[n].value) / s for (n, s), b in zip(zip(self.free, scale), box)])
@@ -823,7 +846,7 @@ class Identifier:
             parts = [np.asarray(pb.f_res(d, p0, scale, sg)).ravel() * w
                      for pb, d, sg, w in zip(problems, split(z), sigmas, weights)]
             if prior_w is not None:
-                parts.append(z[:nf] * prior_w)
+                parts.append((z[:nf] - prior_z0) * prior_w)
             r = np.concatenate(parts)
             r = np.where(np.isfinite(r), r, 1e10)
             if tracking["on"]:

@@ -33,7 +33,7 @@ def _floats(text: str, what: str) -> tuple[float, ...]:
 
 
 def _common(args):
-    from ..cli import load_params_design
+    from .common import load_params_design
 
     return load_params_design(args)
 
@@ -45,9 +45,9 @@ def provenance(result, scenarios, design_path: str, metrics_before: dict | None 
     ``metrics_before``/``metrics_after``: run name -> :class:`~.validation.RunMetrics` of the source
     and tuned designs at the tuning temperature and level.
     """
-    from .check import PROVENANCE_MARKER
-    from .optimize import linear_temperatures
-    from .validation import COST_TERMS
+    from ..tuning.check import PROVENANCE_MARKER
+    from ..tuning.optimize import linear_temperatures
+    from ..tuning.validation import COST_TERMS
 
     s = result.settings
     best = result.best
@@ -116,9 +116,9 @@ def tune_command(args) -> int:
     """``thsa tune``: optimise, check, write the design with its provenance."""
     from dataclasses import replace
 
-    from .check import PROVENANCE_MARKER, write_design
-    from .optimize import TuneSettings, objective_settings_for, tune
-    from .validation import DEFAULT_VALIDATION_REQUIREMENTS, get_validation_scenario
+    from ..tuning.check import PROVENANCE_MARKER, write_design
+    from ..tuning.optimize import TuneSettings, objective_settings_for, tune
+    from ..tuning.validation import DEFAULT_VALIDATION_REQUIREMENTS, get_validation_scenario
 
     params, design = _common(args)
     out = Path(args.out)
@@ -162,7 +162,7 @@ def tune_command(args) -> int:
     validation = dict(DEFAULT_VALIDATION_REQUIREMENTS)
     validation["max_current_peak_A"] = design.current_limit
     validation.update(design.validation)
-    from .check import suite_metrics
+    from ..tuning.check import suite_metrics
 
     before = suite_metrics(source, params, settings.level, settings.temperature, scenarios=names, effects=effects)
     after = suite_metrics(result.design, params, settings.level, settings.temperature, scenarios=names,
@@ -170,7 +170,7 @@ def tune_command(args) -> int:
     prov = provenance(result, names, str(args.design or "designs/nominal.toml"), before, after)
     robust_report = None
     if not args.no_robustness:
-        from .robust import robustness_spread
+        from ..tuning.robust import robustness_spread
 
         print("tune: robustness beyond the grid (friction, inertia, stiffness, delay spread) ...", file=sys.stderr,
               flush=True)
@@ -216,8 +216,8 @@ def check_command(args) -> int:
 
     from ..loops.analysis import DEFAULT_ANALYSIS_EFFECTS
     from ..report.build import check_output_folder
-    from .check import check_design
-    from .validation import VALIDATION_SUITE
+    from ..tuning.check import check_design
+    from ..tuning.validation import VALIDATION_SUITE
 
     params, design = _common(args)
     inputs = [design.source] + [str(p) for p in (args.runs or [])] + [
@@ -233,7 +233,7 @@ def check_command(args) -> int:
                            progress=say)
     measured = ()
     if args.runs:
-        from .measured import judge_runs
+        from ..tuning.measured import judge_runs
 
         say(f"check: {len(args.runs)} measured run(s) against the validation limits, beside the model's prediction ...")
         rows, measured = judge_runs(design, params, args.runs, level=args.run_level, effects=effects)
@@ -259,7 +259,7 @@ def check_command(args) -> int:
 def report_verdict(result, params):
     """The verdict of ``thsa check`` for ``thsa report --check``: the report's grid analysis (its linear
     requirements) and the validation runs at the check's default levels and temperatures."""
-    from .check import check_design
+    from ..tuning.check import check_design
 
     return check_design(result.design, params, analysis=result.loops, effects=result.settings.effects)
 
