@@ -168,3 +168,25 @@ def test_two_tune_runs_one_under_load_give_identical_gains(tmp_path):
     assert a == b
     committed = tomllib.loads(TUNED.read_text())["velocity_loop"]
     assert a[1] == committed
+
+
+def test_check_judges_rig_runs_beside_the_prediction(tmp_path, capsys):
+    """thsa check --runs on the tuned design's rig-sim runs: every measured row passes, the JSON holds each run
+    measured and predicted; a run file that cannot be read is bad input (exit 2, nothing written)."""
+    runs = [str(RIG / "tuned_cold_ramp_m30C.csv"), str(RIG / "tuned_reversals_under_load_m55C.csv")]
+    rc = main(["check", "--design", str(TUNED), "--levels", "B", "--temperatures=-30", "--scenarios", "cold_ramp",
+               "--runs", *runs, "--out", str(tmp_path / "c")])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    doc = json.loads((tmp_path / "c" / "check.json").read_text())
+    measured = [r for r in doc["requirements"] if r["kind"] == "measured"]
+    assert {r["requirement"] for r in measured} >= {"measured.validation.max_current_peak_A",
+                                                    "measured.sustained_oscillation", "measured.model_prediction"}
+    assert all(r["status"] == "pass" for r in measured)
+    assert [m["run"] for m in doc["measured_runs"]] == ["tuned_cold_ramp_m30C", "tuned_reversals_under_load_m55C"]
+    assert all(m["predicted"]["ise"] > 0 for m in doc["measured_runs"])
+    bad = tmp_path / "bad.csv"
+    bad.write_text("time_s,speed_cmd_mm_s\n0,0\n")
+    rc = main(["check", "--design", str(TUNED), "--runs", str(bad), "--out", str(tmp_path / "d")])
+    assert rc == 2 and "bad" in capsys.readouterr().err
+    assert not (tmp_path / "d").exists()

@@ -74,7 +74,7 @@ def provenance(result, scenarios, design_path: str, metrics_before: dict | None 
         "bound_factor": s.bound_factor,
         "constraints": ("int (|i| - %g x clamp)+^2 dt <= %g A^2 s and int (overshoot above %g %%)+^2 dt <= %g "
                         "(mm/s)^2 s on the objective's runs and on the constraint runs (the validation suite at "
-                        "level %s at the coldest check temperature and 25 degC, plus every run the verdict failed "
+                        "level %s at the coldest check temperature, plus every run the verdict failed "
                         "on); every [requirements.velocity_loop] key the grid analysis judges (phase, |gain|, "
                         "delay margins, Ms, bandwidth; step overshoot and settling) at every valid point of the "
                         "design's analysis grid at %s degC (two-rotor plant, computation delay), smooth; then "
@@ -229,15 +229,16 @@ def check_command(args) -> int:
     scen = tuple(v.strip() for v in args.scenarios.split(",")) if args.scenarios else VALIDATION_SUITE
     effects = tuple(e for v in (args.effects or DEFAULT_ANALYSIS_EFFECTS) for e in v.split(",") if e)
     say = (lambda m: print(m, file=sys.stderr, flush=True))
-    verdict = check_design(design, params, levels=levels, temperatures=temps, scenarios=scen, effects=effects,
-                           progress=say)
-    measured = ()
-    if args.runs:
+    measured, mrows = (), []
+    if args.runs:  # first: an unreadable run is bad input (exit 2) before any simulation
         from ..tuning.measured import judge_runs
 
         say(f"check: {len(args.runs)} measured run(s) against the validation limits, beside the model's prediction ...")
-        rows, measured = judge_runs(design, params, args.runs, level=args.run_level, effects=effects)
-        verdict = replace(verdict, rows=verdict.rows + tuple(rows),
+        mrows, measured = judge_runs(design, params, args.runs, level=args.run_level, effects=effects)
+    verdict = check_design(design, params, levels=levels, temperatures=temps, scenarios=scen, effects=effects,
+                           progress=say)
+    if args.runs:
+        verdict = replace(verdict, rows=verdict.rows + tuple(mrows),
                           scope=verdict.scope | {"measured": [str(p) for p in args.runs]})
     print(f"design {design.source} ({design.name})")
     print(verdict.text())

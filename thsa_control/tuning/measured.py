@@ -28,7 +28,7 @@ from types import MappingProxyType
 
 import numpy as np
 
-from ..errors import RigDataError, ThsaError
+from ..errors import ThsaError
 from ..loops.design import Design
 from ..sim.metrics import plateaus
 from .validation import run_metrics
@@ -112,7 +112,12 @@ def judge_runs(design: Design, params, paths, *, level: str = "B", effects=None)
     -------
     rows : list of thsa_control.verdict.RequirementVerdict
         Kind ``measured``: every validation limit (worst over the runs) and ``measured.sustained_oscillation``;
-        a run not recorded with ``design`` or unreadable is an ``error`` row (a failure).
+        a run not recorded with ``design`` or without a plateau to judge is an ``error`` row (a failure).
+
+    Raises
+    ------
+    RigDataError
+        A run that cannot be read (FORMAT.md), naming the file and the field.
     runs : list of MeasuredRun
     """
     from ..data.rigdata import read_run
@@ -128,11 +133,8 @@ def judge_runs(design: Design, params, paths, *, level: str = "B", effects=None)
     kin = (params.value("screw.lead") * 1e3, params.value("gear.ratio"))
     out, metrics, errors, osc = [], {}, [], {}
     for path in paths:
-        try:
-            run = run_kinematics(read_run(path, default_kinematics=kin), params)
-        except (RigDataError, ThsaError) as exc:
-            errors.append((str(path), str(exc)))
-            continue
+        # an unreadable run is bad input (RigDataError: exit 2 from the CLI, nothing judged)
+        run = run_kinematics(read_run(path, default_kinematics=kin), params)
         bad = _design_mismatch(run, design)
         if bad:
             errors.append((run.name, "not recorded with design " + design.name + ": " + "; ".join(bad)))
@@ -191,4 +193,10 @@ def judge_runs(design: Design, params, paths, *, level: str = "B", effects=None)
         rows.append(RequirementVerdict("measured.sustained_oscillation", "measured", OSCILLATION_LIMIT_PERCENT,
                                        float("nan"), "%", "-", "error", len(errors), len(errors), "assumed",
                                        "; ".join(f"{w}: {e}" for w, e in errors[:3])))
+    failed = [m for m in out if m.predicted is None]
+    if out:
+        rows.append(RequirementVerdict("measured.model_prediction", "measured", float("nan"), float(len(failed)),
+                                       "runs", failed[0].name if failed else "-", "error" if failed else "pass",
+                                       len(out), len(failed), "the model's prediction beside each run",
+                                       "; ".join(f"{m.name}: {m.prediction_error}" for m in failed[:3])))
     return rows, out

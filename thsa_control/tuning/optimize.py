@@ -73,7 +73,8 @@ class TuneSettings:
         breakaway's current spike, the velocity PI saturating and the current
         loop overshooting the clamp, and the low-speed plateau overshoot) ...
     constraint_temperatures : tuple of float or None
-        ... at these temperatures (None: the coldest robust temperature and 25 degC).
+        ... at these temperatures (None: the coldest check temperature; the verdict adds every other
+        run it fails on).
     check_levels, check_temperatures : what ``thsa check`` judges the validation runs at: the tuned
         design is judged there (:func:`thsa_control.verdict.evaluate_design`) before it is returned, and
         every run whose current peak or overshoot fails becomes a constraint run of the next round.
@@ -350,7 +351,7 @@ def tune(design: Design, params: ParameterSet, scenarios, settings: TuneSettings
     _fixed_requirements(design, params, settings)
     run_set: dict[tuple[str, float, str], None] = {}
     if settings.constraint_level:
-        temps = settings.constraint_temperatures or tuple(dict.fromkeys((min(settings.check_temperatures), 25.0)))
+        temps = settings.constraint_temperatures or (min(settings.check_temperatures),)
         for T in temps:
             for name in suite:
                 run_set[(settings.constraint_level, float(T), name)] = None
