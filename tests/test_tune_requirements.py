@@ -36,7 +36,7 @@ README_TUNE = ["tune", "--design", str(ROOT / "designs" / "nominal.toml"), "--sc
 
 
 def _failing(text: str) -> set[str]:
-    return set(re.findall(r"^FAIL\s+(\S+)", text, flags=re.M))
+    return set(re.findall(r"^FAIL\s+(\S+)", text, flags=re.MULTILINE))
 
 
 def test_step_constraints_are_the_analysis_step_metrics(params, design):

@@ -31,8 +31,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import DesignError
-from .loops.design import (REQUIREMENT_KEYS, REQUIREMENT_LOOPS, VALIDATION_KEYS, Design, validate_requirements,
-                           validate_validation)
+from .loops.design import (
+    REQUIREMENT_KEYS,
+    REQUIREMENT_LOOPS,
+    VALIDATION_KEYS,
+    Design,
+    validate_requirements,
+    validate_validation,
+)
 
 __all__ = ["RequirementVerdict", "Verdict", "evaluate_design", "linear_verdict", "simulation_verdict",
            "validation_limits", "validate_requirements", "validate_validation", "REQUIREMENT_KEYS",
@@ -50,7 +56,7 @@ VALIDATION_METRICS: dict[str, tuple[str, str]] = {
     "max_current_peak_A": ("current_peak_A", "A"),
     "max_current_rate_A_per_s": ("current_rate_peak_A_per_s", "A/s"),
 }
-assert set(VALIDATION_METRICS) == set(VALIDATION_KEYS)  # noqa: S101 - import-time consistency of two constants
+assert set(VALIDATION_METRICS) == set(VALIDATION_KEYS)
 
 _UNITS = {"min_phase_margin_deg": "deg", "min_gain_margin_db": "dB", "min_delay_margin_s": "s",
           "min_bandwidth_hz": "Hz", "max_sensitivity_peak": "-", "max_overshoot_percent": "%",
@@ -222,7 +228,7 @@ def simulation_verdict(design: Design, params, *, levels: Sequence[str] = DEFAUL
                 try:
                     sc = get_validation_scenario(name).with_temperature(T)
                     m = run_metrics(sim.run(sc, design, params))
-                except Exception as exc:  # noqa: BLE001 - a crashed run is a failed check, named
+                except Exception as exc:
                     errors.append((where, f"{type(exc).__name__}: {exc}"))
                     continue
                 metrics[(level, float(T), name)] = m

@@ -173,7 +173,7 @@ def judge_runs(design: Design, params, paths, *, level: str = "B", effects=None)
                                                  "temperature": sig["temperature"]})
             pred = run_metrics(pres)
             po = oscillation_percent(run.time, sig["speed_cmd"], np.asarray(s["motor_speed"]) * r, sig["load_force"])
-        except Exception as exc:  # noqa: BLE001 - the prediction is shown beside, its failure is stated
+        except Exception as exc:
             perr = f"{type(exc).__name__}: {exc}"
         metrics[run.name] = m
         osc[run.name] = o

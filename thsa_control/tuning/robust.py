@@ -47,9 +47,9 @@ import numpy as np
 from ..errors import DesignError
 from ..loops._loopmath import _freq, _frequency_grid
 from ..loops.analysis import DEFAULT_ANALYSIS_EFFECTS
-from ..loops.loop_analysis import AnalysisSettings, _build, _saturation, analyse_loops
 from ..loops.design import Design
 from ..loops.linear import linearize_conditions, plant_model
+from ..loops.loop_analysis import AnalysisSettings, _build, _saturation, analyse_loops
 from ..model.params import ParameterSet
 
 __all__ = ["ROBUST_REQUIREMENTS", "RobustConstraints", "exact_margins", "MarginSummary"]
