@@ -41,7 +41,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-__all__ = ["cache_dir", "compile_run_loop", "RunLoop"]
+__all__ = ["cache_dir", "compile_run_loop", "RunLoop", "library_files", "install_library"]
 
 _NOTED: set[str] = set()  # fallbacks already reported in this process (said once)
 _PRIVATE_DIR: list[Path] = []  # per-process fallback cache, removed at exit
@@ -288,3 +288,56 @@ def compile_run_loop(sample: ca.Function, sample_x: ca.Function, *, flags: tuple
                 return loaded, info
         info.update(compiled=True, path=str(built), cache="")
         return loop, info  # loaded from the build folder; the file stays mapped after the folder goes
+
+
+def library_files(path: str | os.PathLike) -> dict[str, bytes]:
+    """The bytes of a cached library and of its manifest, by file name, to ship to another machine.
+
+    Returns ``{}`` when ``path`` is not a verified library of the cache layout
+    (``thsa_run_<hash>.so`` with its ``.json`` beside it).
+    """
+    lib = Path(path)
+    manifest = lib.with_suffix(".json")
+    try:
+        meta = json.loads(manifest.read_text(encoding="utf-8"))
+        if not _verified(lib, manifest, meta.get("source_sha256")):
+            return {}
+        return {lib.name: lib.read_bytes(), manifest.name: manifest.read_bytes()}
+    except (OSError, ValueError, AttributeError):
+        return {}
+
+
+def install_library(files: dict[str, bytes]) -> bool:
+    """Put shipped library files (:func:`library_files`) into this machine's cache, atomically.
+
+    A library already there and verified is kept.  The shipped bytes are
+    checked against their manifest before they are published; whether they
+    load here (same architecture, same casadi) is checked by
+    :func:`compile_run_loop` as for any cached file, which rebuilds from the
+    generated source otherwise.  Returns True when the library is in the cache.
+    """
+    libs = [n for n in files if n.startswith("thsa_run_") and n.endswith(".so")]
+    if len(libs) != 1 or libs[0][:-3] + ".json" not in files:
+        return False
+    name = libs[0]
+    meta_name = name[:-3] + ".json"
+    try:
+        meta = json.loads(files[meta_name].decode("utf-8"))
+        folder = cache_dir()
+    except (OSError, ValueError, UnicodeDecodeError):
+        return False
+    lib, manifest = folder / name, folder / meta_name
+    if lib.exists() and _verified(lib, manifest, meta.get("source_sha256")):
+        return True
+    data = files[name]
+    if len(data) != meta.get("library_size") or hashlib.sha256(data).hexdigest() != meta.get("library_sha256"):
+        return False
+    with tempfile.TemporaryDirectory(prefix="thsa-ship-") as tmp:
+        for n in (name, meta_name):
+            (Path(tmp) / n).write_bytes(files[n])
+        try:
+            _publish(Path(tmp) / name, lib)
+            _publish(Path(tmp) / meta_name, manifest)
+        except OSError:
+            return False
+    return True
