@@ -14,6 +14,7 @@ Commands::
                    [--remove E ...] [--params FILE] --out DIR
     thsa report    --design designs/nominal.toml --out DIR [--level B] [--effects E ...] [--params FILE]
                    [--no-switching] [--check]
+    thsa sweep     SPEC.toml --out DIR [--scheduler ADDRESS | --workers N] [--force] [--check]
     thsa linearize --level A --speed 5 --load 20000 --temperature -30 [--effects E ...] [--active standby]
                    [--params FILE] [--save FILE.npz]
 
@@ -486,6 +487,14 @@ def _cmd_linearize(args) -> int:
     return 0
 
 
+def _cmd_sweep(args) -> int:
+    from .sweep.command import sweep_command
+
+    return sweep_command(args.spec, args.out, scheduler=args.scheduler, workers=args.workers, force=args.force,
+                         check=args.check, quiet=getattr(args, "quiet", False),
+                         command=" ".join(["thsa", *getattr(args, "argv", [])]))
+
+
 def _parser() -> argparse.ArgumentParser:
     from . import __version__
 
@@ -591,6 +600,11 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--active", choices=["primary", "standby"], default="primary", help="energised motor channel")
     p.add_argument("--params", help="parameter TOML overriding the embedded actuator")
     p.add_argument("--save", help="write the linear model to this .npz file")
+
+    from .sweep.command import add_arguments as _sweep_arguments  # thsa sweep (issue #19)
+
+    _sweep_arguments(add("sweep", "campaigns (Monte Carlo, grids, fault timings) on the local cores or a Dask "
+                                  "cluster: Parquet table, HTML + JSON report", _cmd_sweep))
 
     # Subcommands of other packages register here: each module offers
     # add_parser(subparsers) and sets ``fn`` (e.g. ``from .tuning.cli import add_parser; add_parser(sub)``).

@@ -43,7 +43,7 @@ from ..errors import ScenarioError
 from .events import FaultEvent
 from .settings import MonitorSettings
 
-__all__ = ["load_scenario_file", "scenario_from_dict"]
+__all__ = ["load_scenario_file", "scenario_from_dict", "scenario_to_dict"]
 
 _BREAKPOINTS = ("speed_target", "load", "primary_enable", "standby_enable", "position_cmd")
 
@@ -136,3 +136,28 @@ def load_scenario_file(path) -> "Scenario":  # noqa: F821 - Scenario imported la
     if "base" not in data:
         data.setdefault("name", path.stem)
     return scenario_from_dict(data, where=f"scenario file {str(path)!r}")
+
+
+def scenario_to_dict(scenario) -> dict:
+    """The TOML-ready table of a :class:`Scenario` that :func:`scenario_from_dict` reads back to an equal one
+    (``inf`` as the string ``"inf"`` where TOML writers would refuse it)."""
+    out = {}
+    for f in fields(scenario):
+        value = getattr(scenario, f.name)
+        if f.name in _BREAKPOINTS:
+            if value is not None:
+                out[f.name] = [[float(a), float(b)] for a, b in value]
+        elif f.name == "faults":
+            if value:
+                out["faults"] = [{g.name: ("inf" if g.name == "end" and math.isinf(getattr(ev, g.name))
+                                           else getattr(ev, g.name)) for g in fields(ev)} for ev in value]
+        elif f.name == "monitors":
+            if value is not None:
+                out["monitors"] = {g.name: getattr(value, g.name) for g in fields(value)}
+        elif f.name == "required_effects":
+            out[f.name] = list(value)
+        elif f.name == "jerk_limit" and math.isinf(value):
+            continue  # the default
+        else:
+            out[f.name] = value
+    return out
