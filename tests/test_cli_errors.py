@@ -125,7 +125,7 @@ def test_internal_error_exit_3_one_line(monkeypatch, capsys):
     def boom(args):
         raise ZeroDivisionError("division by zero")
 
-    monkeypatch.setattr(cli, "_cmd_scenarios", boom)
+    monkeypatch.setattr("thsa_control.cli.sim.cmd_scenarios", boom)
     monkeypatch.delenv("THSA_DEBUG", raising=False)
     assert main(["scenarios"]) == cli.EXIT_INTERNAL == 3
     err = capsys.readouterr().err
@@ -141,7 +141,7 @@ def test_exit_codes_are_distinct():
 
 
 def test_help_imports_no_numerics_and_version():
-    code = ("import sys\nfrom thsa_control.cli import _parser\n_parser().format_help()\n"
+    code = ("import sys\nfrom thsa_control.cli import build_parser\nbuild_parser().format_help()\n"
             "print(sorted(m for m in ('casadi', 'control', 'scipy', 'matplotlib', 'numpy') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=_env(), timeout=60)
     assert out.returncode == 0 and out.stdout.strip() == "[]", out.stderr

@@ -96,9 +96,10 @@ def test_plant_model_and_cli_share_the_default_effects(monkeypatch):
     import inspect
 
     from thsa_control import cli
+    from thsa_control.cli.common import analysis_effects
     from thsa_control.loops.analysis import AnalysisSettings
 
     assert inspect.signature(plant_model).parameters["level"].default == DEFAULT_LEVEL
     assert AnalysisSettings().level == DEFAULT_LEVEL and AnalysisSettings().effects == DEFAULT_EFFECTS
-    args = cli._parser().parse_args(["linearize", "--level", "B", "--speed", "1", "--load", "0"])
-    assert tuple(cli._analysis_effects(args)) == DEFAULT_EFFECTS
+    args = cli.build_parser().parse_args(["linearize", "--level", "B", "--speed", "1", "--load", "0"])
+    assert tuple(analysis_effects(args)) == DEFAULT_EFFECTS

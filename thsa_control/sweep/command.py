@@ -1,4 +1,4 @@
-"""``thsa sweep SPEC.toml --out DIR [--scheduler ADDRESS | --workers N]``: run, resume, report.
+"""What ``thsa sweep SPEC.toml --out DIR [--scheduler ADDRESS | --workers N]`` does: run, resume, report.
 
 :func:`sweep_command` is the whole command behind the parser: validate the
 spec, run or resume it (``engine.run_sweep``), read the table, analyse it and
@@ -15,21 +15,7 @@ import math
 import sys
 from pathlib import Path
 
-__all__ = ["sweep_command", "add_arguments"]
-
-
-def add_arguments(p) -> None:
-    """The options of ``thsa sweep`` on an argparse parser."""
-    p.add_argument("spec", help="sweep description (TOML; see examples/sweeps/)")
-    p.add_argument("--out", required=True, help="results folder: new or empty, or the folder of the same sweep "
-                   "(then it resumes where it stopped)")
-    where = p.add_mutually_exclusive_group()
-    where.add_argument("--scheduler", help="address of a running Dask scheduler, e.g. tcp://host:8786 "
-                       "(default: a local cluster on this machine's cores)")
-    where.add_argument("--workers", type=int, help="worker processes of the local cluster (default: one per core)")
-    p.add_argument("--force", action="store_true",
-                   help="discard the results of another sweep in --out (only files thsa wrote)")
-    p.add_argument("--check", action="store_true", help="exit with status 1 when a run misses a limit of the spec")
+__all__ = ["sweep_command"]
 
 
 def sweep_command(spec_path: str, out: str, *, scheduler: str | None = None, workers: int | None = None,

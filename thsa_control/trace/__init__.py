@@ -1,7 +1,7 @@
 """Trace a residual to the effect the model lacks (numerics only; the report is thsa_control.report.trace).
 
 The names are imported lazily, so that ``thsa --help`` (which registers ``thsa trace`` from
-:mod:`thsa_control.trace.cli`) loads no numerics.
+:mod:`thsa_control.cli.trace`) loads no numerics.
 """
 
 __all__ = ["trace", "TraceSettings", "TraceResult", "CANDIDATES", "DEFAULT_UNCERTAIN", "TRACE_FORMAT",

@@ -31,7 +31,7 @@ def _floats(text: str, what: str) -> tuple[float, ...]:
 
 
 def _common(args):
-    from ..cli import load_params_design
+    from .common import load_params_design
 
     return load_params_design(args)
 
@@ -43,8 +43,8 @@ def provenance(result, scenarios, design_path: str, metrics_before: dict | None 
     ``metrics_before``/``metrics_after``: run name -> :class:`~.validation.RunMetrics` of the source
     and tuned designs at the tuning temperature and level.
     """
-    from .check import PROVENANCE_MARKER
-    from .validation import COST_TERMS
+    from ..tuning.check import PROVENANCE_MARKER
+    from ..tuning.validation import COST_TERMS
 
     s = result.settings
     best = result.best
@@ -104,10 +104,10 @@ def tune_command(args) -> int:
     """``thsa tune``: optimise, check, write the design with its provenance."""
     from dataclasses import replace
 
-    from .check import PROVENANCE_MARKER, write_design
-    from .objective import ObjectiveSettings
-    from .optimize import TuneSettings, tune
-    from .validation import DEFAULT_VALIDATION_REQUIREMENTS, get_validation_scenario
+    from ..tuning.check import PROVENANCE_MARKER, write_design
+    from ..tuning.objective import ObjectiveSettings
+    from ..tuning.optimize import TuneSettings, tune
+    from ..tuning.validation import DEFAULT_VALIDATION_REQUIREMENTS, get_validation_scenario
 
     params, design = _common(args)
     out = Path(args.out)
@@ -156,7 +156,7 @@ def tune_command(args) -> int:
     validation = dict(DEFAULT_VALIDATION_REQUIREMENTS)
     validation["max_current_peak_A"] = design.current_limit
     validation.update(design.validation)
-    from .check import suite_metrics
+    from ..tuning.check import suite_metrics
 
     before = suite_metrics(source, params, settings.level, settings.temperature, scenarios=names, effects=effects)
     after = suite_metrics(result.design, params, settings.level, settings.temperature, scenarios=names,
@@ -191,8 +191,8 @@ def tune_command(args) -> int:
 
 def check_command(args) -> int:
     """``thsa check``: validation suite at every level and temperature; exit 1 on a failure."""
-    from .check import check_design
-    from .validation import VALIDATION_SUITE
+    from ..tuning.check import check_design
+    from ..tuning.validation import VALIDATION_SUITE
 
     params, design = _common(args)
     levels = tuple(v.strip().upper() for v in args.levels.split(",") if v.strip())

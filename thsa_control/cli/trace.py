@@ -42,7 +42,7 @@ def run(args) -> int:
     from ..report import atomic_folder
     from ..report.build import check_output_folder
     from ..report.trace import format_trace_summary, write_trace_folder
-    from .engine import TraceSettings, trace
+    from ..trace.engine import TraceSettings, trace
 
     inputs = [q for r in args.runs for q in (Path(r), Path(r).with_suffix(".json"))] + list(args.params or ())
     out_opts = {"force": bool(args.force), "inputs": inputs}

@@ -1,6 +1,6 @@
 """``thsa faults``: the fault report (detection times, loads, recovery, false-alarm margins, sweep).
 
-Registered in ``thsa_control/cli.py`` with ``add_parser(subparsers)``; the
+Registered in ``thsa_control/cli/__init__.py`` with ``add_parser(subparsers)``; the
 handler parses, calls :func:`thsa_control.faults.analysis.analyse_faults`,
 writes the report (``report/faults.py``) and prints the key numbers.
 """
@@ -48,18 +48,18 @@ def _ms(v: float) -> str:
 def run(args) -> int:
     """Handler of ``thsa faults``; returns the exit status."""
     from ..report.faults import write_fault_report
-    from .analysis import analyse_faults
+    from ..faults.analysis import analyse_faults
 
-    from ..cli import _out_options, _preflight_out
+    from .common import out_options, preflight_out
 
-    _preflight_out(args)  # refuse a foreign output folder before the long computation
-    from ..cli import load_params_design
+    preflight_out(args)  # refuse a foreign output folder before the long computation
+    from .common import load_params_design
 
     params, design = load_params_design(args)
     scales = _floats(args.scales, "scales")
     delays = tuple(d * 1e-3 for d in _floats(args.delays, "delays"))
     a = analyse_faults(design, params, scales=scales, delays_s=delays, sweep=not args.no_sweep)
-    write_fault_report(a, params, args.out, **_out_options(args))
+    write_fault_report(a, params, args.out, **out_options(args))
     print(f"plant: level {a.level} + {', '.join(a.effects)}")
     for c in a.cases + a.rigid_cases:
         det = ", ".join(f"{m} {_ms(t)}" for m, t in c.detection_s.items() if math.isfinite(t)) or "no trip"

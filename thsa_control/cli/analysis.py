@@ -1,0 +1,102 @@
+"""``thsa report`` (the main job: loop analysis of a design over speed, load and temperature) and
+``thsa linearize`` (one linear model)."""
+
+from __future__ import annotations
+
+
+from ..errors import ThsaError
+from .common import (EXIT_OK, EXIT_REQUIREMENT_FAILED, analysis_effects, load_params, out_arg, out_options,
+                     preflight_out, progress_for, scaled_floats)
+
+__all__ = ["add_parsers", "cmd_report", "cmd_linearize"]
+
+
+def cmd_report(args) -> int:
+    from ..loops.analysis import AnalysisSettings, analyse_design
+    from ..loops.design import load_design, nominal_design_path
+    from ..model import resolve_effects
+    from ..report.analysis_report import write_analysis_report
+
+    preflight_out(args)
+    progress = progress_for(args, "thsa report")
+    params = load_params(args)
+    design = load_design(args.design or nominal_design_path())
+    design.check_against(params)
+    grid = {name: scaled_floats(getattr(args, opt), opt, scale) for name, opt, scale in (
+        ("nut_speeds", "speeds", 1e-3), ("load_forces", "loads", 1e3), ("temperatures", "temperatures", 1.0))}
+    if args.temperature is not None:
+        grid["temperatures"] = (args.temperature,)
+    settings = AnalysisSettings.from_design(design, level=args.level and args.level.upper(),
+                                            effects=None if args.effects is None else tuple(analysis_effects(args)),
+                                            **grid)
+    resolve_effects(settings.level, add=list(settings.effects))  # validate names before any work
+    progress.phase(f"linearising level {settings.level} over the grid and analysing the loops"
+                   + ("" if args.no_switching else ", then the switch-over transient"))
+    result = analyse_design(design, params, settings=settings, switching=not args.no_switching)
+    progress.phase("writing the report")
+    opts = out_options(args)
+    out = write_analysis_report(result, args.out, force=opts["force"], inputs=opts["inputs"])
+    progress.done()
+    print(result.requirements.summary())
+    for loop in ("current_loop", "velocity_loop", "position_loop"):
+        for metric in ("phase_margin_deg", "gain_margin_db"):
+            w = result.loops.worst(loop, metric)
+            if w is not None:
+                print(f"worst {w.text()}")
+    n_bad = int((~result.loops.valid).sum())
+    print(f"{n_bad} of {len(result.loops)} grid points not analysed (zero speed, backlash edge or saturated), "
+          "listed with their reason in the report")
+    print(f"wrote {out / 'report.html'} and {out / 'analysis.json'}")
+    return EXIT_REQUIREMENT_FAILED if args.check and not result.requirements.passed else EXIT_OK
+
+
+def cmd_linearize(args) -> int:
+    from ..loops.linear import OperatingCondition, format_linear_model, linearize_condition, plant_model
+    from ..model import resolve_effects
+
+    params = load_params(args)
+    effects = analysis_effects(args)
+    if args.active == "standby" and "standby_motor" not in effects:
+        effects.append("standby_motor")
+    resolve_effects(args.level, add=effects)
+    try:
+        cond = OperatingCondition(args.speed * 1e-3, args.load, args.temperature, args.active)
+    except ValueError as exc:
+        raise ThsaError(str(exc)) from None
+    lin = linearize_condition(plant_model(args.level, effects, params), cond)
+    print(format_linear_model(lin))
+    if args.save:
+        print(f"saved {lin[0].save(args.save)}")
+    return 0
+
+
+def add_parsers(sub, shared) -> None:
+    """``thsa report``, ``thsa linearize``."""
+    def add(name: str, help: str, fn):
+        p = sub.add_parser(name, help=help, parents=[shared])
+        p.set_defaults(fn=fn)
+        return p
+
+    p = add("report", "loop analysis of a design over speed, load and temperature: HTML + JSON", cmd_report)
+    p.add_argument("--design", help="design TOML (default designs/nominal.toml)")
+    p.add_argument("--level", help="model level A, B, C or D (default: the design's [analysis], else B)")
+    p.add_argument("--effects", nargs="*", help="effects added to the level (default: the design's [analysis], "
+                                                "else temperature_friction standby_motor)")
+    p.add_argument("--params", help="parameter TOML overriding the embedded actuator")
+    p.add_argument("--speeds", help="grid trim speeds [mm/s], comma-separated (default 0,0.5,1,2,5,10,15)")
+    p.add_argument("--loads", help="grid loads [kN], compressive positive (default -55,-20,0,20,55)")
+    p.add_argument("--temperatures", help="grid temperatures [degC] (default -55,-30,0,25,70)")
+    p.add_argument("--temperature", type=float, help="analyse at this one temperature [degC] only")
+    p.add_argument("--no-switching", action="store_true", help="skip the nonlinear switch-over transient")
+    p.add_argument("--check", action="store_true", help="exit with status 1 when a requirement is not met")
+    out_arg(p)
+    p = add("linearize", "print the linear model at one operating point (and save it)", cmd_linearize)
+    p.add_argument("--level", required=True, help="model level A, B, C or D")
+    p.add_argument("--speed", type=float, required=True, help="trim nut speed [mm/s], positive extending")
+    p.add_argument("--load", type=float, required=True, help="load [N], compressive positive (opposes extension)")
+    p.add_argument("--temperature", type=float, default=25.0, help="temperature [degC], -55..70 (default 25)")
+    p.add_argument("--effects", nargs="*", help="effects added to the level (default: temperature_friction standby_motor)")
+    p.add_argument("--active", choices=["primary", "standby"], default="primary", help="energised motor channel")
+    p.add_argument("--params", help="parameter TOML overriding the embedded actuator")
+    p.add_argument("--save", help="write the linear model to this .npz file")
+
