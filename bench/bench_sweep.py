@@ -1,0 +1,133 @@
+"""Sweep throughput at level D: in-process vs the local Dask default vs a Dask cluster, 1 -> 2 workers.
+
+    python bench/bench_sweep.py [--runs 160] [--chunk 16] [--scenario cold_ramp]
+
+Measures, in one run of this script (ratios, not absolute targets):
+
+* ``serial``: ``engine.simulate_chunk`` over every run in this process (one
+  core, no Dask): simulations per second per core;
+* ``local 1``: ``thsa sweep``'s default, a ``LocalCluster`` of one worker
+  process (Parquet appends included), and its overhead ratio to serial;
+* ``cluster 1``: a scheduler and one worker started here as separate
+  processes (``dask scheduler`` / ``dask worker``), reached by address as a
+  remote cluster would be;
+* ``local 2``: two workers: the scaling 1 -> 2;
+* the projection of a 10^5-run campaign on N cores from the measured rate per
+  core and the measured parallel efficiency (cluster start-up not included;
+  it is printed apart).
+
+The compile happens once before the timings (the cache is warm).  The
+machine may be shared: every figure is from this one run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from thsa_control.sweep.engine import read_results, run_sweep, simulate_chunk  # noqa: E402
+from thsa_control.sweep.spec import parse_spec  # noqa: E402
+
+
+def _spec(runs: int, chunk: int, scenario: str):
+    doc = {"name": "bench", "seed": 1, "level": "D", "effects": ["temperature_friction"], "designs": ["nominal"],
+           "scenarios": [scenario],
+           "sampling": {"method": "random", "samples": runs, "chunk_runs": chunk},
+           "parameters": {"gear.viscous_friction": {"distribution": "uniform", "min": 4e-5, "max": 2e-4},
+                          "screw.efficiency_direct": {"distribution": "uniform", "min": 0.85, "max": 0.94}},
+           "metrics": {"keep": ["current_peak_A", "speed_error_percent"]}}
+    return parse_spec(doc, source=str(ROOT / "bench" / "bench_sweep.py"), base_dir=ROOT)
+
+
+def _cluster(tmp: Path, workers: int):
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    sfile = tmp / "scheduler.json"
+    procs = [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
+                               "--port", "0", "--no-dashboard", "--scheduler-file", str(sfile)], env=env,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)]
+    while not sfile.exists():
+        time.sleep(0.1)
+    address = json.loads(sfile.read_text())["address"]
+    for _ in range(workers):
+        procs.append(subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address, "--nthreads",
+                                       "1", "--no-dashboard"], env=env, stdout=subprocess.DEVNULL,
+                                      stderr=subprocess.DEVNULL, start_new_session=True))
+    from distributed import Client
+
+    with Client(address, timeout=30) as c:
+        c.wait_for_workers(workers, timeout=120)
+    return address, procs
+
+
+def _stop(procs):
+    for p in reversed(procs):
+        os.killpg(p.pid, signal.SIGTERM)
+    for p in procs:
+        p.wait(timeout=30)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", type=int, default=160)
+    ap.add_argument("--chunk", type=int, default=16)
+    ap.add_argument("--scenario", default="cold_ramp")
+    args = ap.parse_args()
+    spec = _spec(args.runs, args.chunk, args.scenario)
+    runs = spec.run_specs(range(spec.total_runs))
+    simulate_chunk(spec, runs[:1])  # compile (or load the cache) before timing
+    t0 = time.perf_counter()
+    rows = simulate_chunk(spec, runs)
+    serial = time.perf_counter() - t0
+    rate1 = len(rows) / serial
+    print(f"level D, {args.scenario}, {spec.total_runs} runs in chunks of {spec.chunk_runs}; "
+          f"{os.cpu_count()} cores on this machine, load average {os.getloadavg()[0]:.1f} at the start")
+    print(f"serial in-process:  {serial:6.2f} s  {rate1:7.1f} sims/s per core")
+    out = {}
+    with tempfile.TemporaryDirectory(prefix="bench-sweep-") as tmp:
+        tmp = Path(tmp)
+        for label, kw in (("local 1", {"workers": 1}), ("local 2", {"workers": 2})):
+            t0 = time.perf_counter()
+            st = run_sweep(spec, tmp / label.replace(" ", "_"), **kw)
+            out[label] = (st.compute_s, time.perf_counter() - t0 - st.compute_s)
+        t0 = time.perf_counter()
+        address, procs = _cluster(tmp, 1)
+        start = time.perf_counter() - t0
+        try:
+            st = run_sweep(spec, tmp / "cluster_1", scheduler=address)
+            out["cluster 1"] = (st.compute_s, start)
+        finally:
+            _stop(procs)
+        same = read_results(tmp / "local_1").equals(read_results(tmp / "cluster_1")) and \
+            read_results(tmp / "local_1").equals(read_results(tmp / "local_2"))
+    for label in ("local 1", "cluster 1", "local 2"):
+        c, s = out[label]
+        rate = spec.total_runs / c
+        per_core = rate / int(label[-1])
+        print(f"{label + ':':19s} {c:6.2f} s  {rate:7.1f} sims/s ({per_core:.1f} per core), overhead ratio "
+              f"{c * int(label[-1]) / serial:.2f} x serial per core; start-up, compile check and report "
+              f"outside the loop {s:.1f} s")
+    eff = (out["local 1"][0] / out["local 2"][0]) / 2.0
+    print(f"scaling 1 -> 2 workers: speed-up {out['local 1'][0] / out['local 2'][0]:.2f} (efficiency {eff:.2f})")
+    print(f"tables bit-identical (local 1, local 2, cluster 1): {same}")
+    per_core = spec.total_runs / out["local 1"][0]
+    print(f"load average at the end {os.getloadavg()[0]:.1f} (above {os.cpu_count()}: the cores were shared, "
+          "the rates and the scaling are lower bounds)")
+    for n in (2, 16, 64):
+        e = min(1.0, eff) if n > 1 else 1.0
+        t = 1e5 / (per_core * n * e)
+        print(f"projection: 1e5 runs of {args.scenario} on {n:3d} cores: {t / 3600:6.2f} h "
+              f"({t:.0f} s at {per_core:.1f} sims/s per core, efficiency {e:.2f})")
+
+
+if __name__ == "__main__":
+    main()
