@@ -14,7 +14,8 @@
 * **Sensitivity**: Spearman's rank correlation of each varied quantity with
   each metric per group, ranked by magnitude; with ``saltelli`` sampling the
   first-order and total Sobol' indices (Saltelli 2010 and Jansen
-  estimators, from the A, B, AB_i blocks).
+  estimators, from the A, B, AB_i blocks, averaged over the grid points),
+  ranked by the total index.
 """
 
 from __future__ import annotations
@@ -220,7 +221,13 @@ def analyse_sweep(spec: SweepSpec, table, *, worst_n: int = 3) -> SweepAnalysis:
                     r = stats.spearmanr(x[ok], v[ok])
                     rho, p = float(r.statistic), float(r.pvalue)
                 sens.append(Sensitivity(m, g, c, rho, p, s1.get(c, math.nan), st.get(c, math.nan)))
-    sens.sort(key=lambda s: (s.metric, s.group, -abs(s.spearman) if math.isfinite(s.spearman) else 1.0))
+    order = {m: k for k, m in enumerate(spec.metrics)}
+
+    def strength(s):  # the total Sobol' index where computed, else |rank correlation|; nan last
+        x = s.total if math.isfinite(s.total) else abs(s.spearman)
+        return -x if math.isfinite(x) else 1.0
+
+    sens.sort(key=lambda s: (order[s.metric], s.group, strength(s)))
     errs = tuple((int(r), str(e)) for r, e in zip(runs[failed][:20], errors[failed][:20]))
     return SweepAnalysis(spec.describe(), n, int(failed.sum()), tuple(summaries), tuple(failures), tuple(worst),
                          tuple(sens), errs)

@@ -113,9 +113,10 @@ def _simulator(spec: SweepSpec, effects: tuple[str, ...]):
 
 def _simulate_one(spec: SweepSpec, rs: RunSpec):
     """``(result or None, error text, fault time)`` of one run."""
-    design, scenario, params = run_inputs(spec, rs)
-    t_fault = min((f.time for f in scenario.faults), default=math.nan)
+    t_fault = math.nan
     try:
+        design, scenario, params = run_inputs(spec, rs)
+        t_fault = min((f.time for f in scenario.faults), default=math.nan)
         sim = _simulator(spec, spec.plant_effects(scenario))
         return sim.run(scenario, design, params), "", t_fault
     except ThsaError as exc:  # a run that diverges or that the actuator cannot do: a failed run, kept
@@ -402,10 +403,6 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
     if not pending:
         stats.wall_s = time.perf_counter() - t_start
         return stats
-    if progress is not None:
-        progress.phase("compiling the model and checking the metrics on the first run of each plant")
-    libraries = _warm_up(spec)
-    samples, grid = spec.sample_matrix(), spec.grid_matrix()
 
     # SIGTERM/SIGHUP end the sweep like Ctrl-C: the cluster is shut down, finished chunks stay on disk
     previous = {}
@@ -420,11 +417,16 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
         if progress is not None:
             progress.phase(f"connecting to {scheduler}" if scheduler else
                            f"starting a local Dask cluster of {workers or os.cpu_count()} worker process(es)")
-        client, cluster = _connect(scheduler, workers)
+        client, cluster = _connect(scheduler, workers)  # first: an unreachable scheduler fails within seconds
+        if progress is not None:
+            progress.phase("compiling the model and checking the metrics on the first run of each plant")
+        libraries = _warm_up(spec)
+        samples, grid = spec.sample_matrix(), spec.grid_matrix()
         stats.address = client.scheduler.address
         stats.workers = len(client.scheduler_info(n_workers=-1).get("workers", {})) if scheduler else \
             (workers or os.cpu_count() or 1)
         from distributed import as_completed
+        from distributed.scheduler import KilledWorker
 
         spec_f = client.scatter(spec, broadcast=True, hash=False)
         libs_f = client.scatter(libraries, broadcast=True, hash=False)
@@ -442,12 +444,10 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
                 continue
             try:
                 rows = fut.result()
-            except ThsaError:
-                raise
-            except Exception as exc:  # noqa: BLE001 - a task that failed on every retry (KilledWorker, a bug)
-                raise SweepError(f"chunk {c} (runs {ranges[c].start}..{ranges[c].stop - 1}) failed: "
-                                 f"{type(exc).__name__}: {str(exc).strip()[:300]}; the finished chunks are kept, "
-                                 "rerun the same command to resume") from None
+            except KilledWorker as exc:  # its workers kept dying (allowed-failures retries)
+                raise SweepError(f"chunk {c} (runs {ranges[c].start}..{ranges[c].stop - 1}) killed every worker "
+                                 f"that ran it ({str(exc).strip()[:300]}); the finished chunks are kept, rerun the "
+                                 "same command to resume") from None
             _write_chunk(folder, c, _rows_table(spec, rows))
             done.add(c)
             n_done += len(rows)
