@@ -26,7 +26,7 @@ import numpy as np  # noqa: E402
 
 import thsa_control as thsa  # noqa: E402
 from thsa_control.faults.analysis import FAULT_PLANT_EFFECTS  # noqa: E402
-from thsa_control.faults.settings import MonitorSettings  # noqa: E402
+from thsa_control.sim.monitor_settings import MonitorSettings  # noqa: E402
 from thsa_control.loops.design import load_design, nominal_design_path  # noqa: E402
 from thsa_control.sim.simulate import Simulator  # noqa: E402
 

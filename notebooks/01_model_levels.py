@@ -54,6 +54,7 @@ for level, res in results.items():
 
 # %%
 fig = plot_levels(results)
+fig
 
 # %% [markdown]
 # What the levels show:

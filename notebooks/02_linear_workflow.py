@@ -90,12 +90,15 @@ for w in analysis.worst_points():
 
 # %%
 fig = plot_loop_bode(analysis, "velocity_loop")
+fig
 
 # %%
 fig = plot_margin_maps(analysis)
+fig
 
 # %%
 fig = plot_steps(analysis)
+fig
 
 # %% [markdown]
 # Points without a small-signal loop are listed with their reason: zero speed,

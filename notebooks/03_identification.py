@@ -92,6 +92,7 @@ for n, e in result.estimates.items():
 
 # %%
 fig = plot_segments(result.predictions[run.name], title="multiple-shooting segments: initial and identified")
+fig
 
 # %% [markdown]
 # ## 4. Replay and residuals with the identified parameters
@@ -104,6 +105,7 @@ for c in after.fits:
     print(f"{c:14s} fit {before.fits[c].fit_percent:7.2f} -> {after.fits[c].fit_percent:7.2f} %")
 fig = plot_overlay(after.time, after.measured, {"default": before.simulated, "identified": after.simulated},
                    channels=["motor_current", "motor_speed"], title="closed-loop replay")
+fig
 
 # %%
 analysis = analyse_replay(run, after)

@@ -55,7 +55,8 @@ result = trace(run, "A", remove=["noback_ideal"], params=params,
 print(format_trace_summary(result.to_dict()))
 
 # %%
-plot_residual_before_after(result.fits["before"], result.fits["after"], run.name);
+fig = plot_residual_before_after(result.fits["before"], result.fits["after"], run.name)
+fig
 
 # %% [markdown]
 # The truth was 0.1 N m of Coulomb friction and 600 N of offset; the table above gives the identified

@@ -95,6 +95,7 @@ for b, a in zip(before, after):
           f"ISE {mb.ise:.3g} -> {ma.ise:.3g}, overshoot {mb.overshoot_percent:.3g} -> {ma.overshoot_percent:.3g} %, "
           f"current peak {mb.current_peak_A:.3g} -> {ma.current_peak_A:.3g} A")
 fig = plot_before_after(before, after)
+fig
 
 # %% [markdown]
 # ## 4. `thsa check` at levels B and D, -55..70 degC

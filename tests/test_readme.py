@@ -13,9 +13,11 @@ run, after two explicit steps:
   short (fewer grid points, a cut of the rig run) without changing what it
   exercises.
 
-Checks: exit status 0, no traceback, something printed, and every ``--out``
-folder / ``--save`` file written and not empty.  ``python`` blocks (the Python
-API example) are executed as scripts.  Commands whose subcommand is not in
+Checks: exit status 0, no traceback, no warning on stderr, something printed,
+and every ``--out`` folder / ``--save`` file written and not empty.  ``python``
+blocks (the Python API example) are executed as scripts with warnings as
+errors (``python -W error``).  The workspace holds no ``shared/`` folder and
+``THSA_SHARED_DIR`` is unset: the README works from a clean clone.  Commands whose subcommand is not in
 :data:`FAST` are marked slow.
 """
 
@@ -109,6 +111,7 @@ def _env() -> dict:
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
     env["MPLBACKEND"] = "Agg"
+    env.pop("THSA_SHARED_DIR", None)  # a clean clone: no shared/ folder beside the repository
     return env
 
 
@@ -160,6 +163,7 @@ def test_readme_command_runs(n, cmd, tmp_path):
     detail = f"\n$ thsa {' '.join(args)}\n--- stdout\n{proc.stdout[-3000:]}\n--- stderr\n{proc.stderr[-3000:]}"
     assert proc.returncode == 0, detail
     assert "Traceback" not in proc.stderr, detail
+    assert not re.search(r"\w+Warning\b", proc.stderr), "the command printed a warning" + detail
     assert proc.stdout.strip(), detail
     for out in outputs:
         path = tmp_path / out
@@ -172,6 +176,7 @@ def test_readme_command_runs(n, cmd, tmp_path):
 def test_readme_python_block_runs(k, code, tmp_path):
     script = tmp_path / f"block_{k}.py"
     script.write_text(code)
-    proc = subprocess.run([sys.executable, str(script)], cwd=tmp_path, env=_env(), capture_output=True, text=True,
-                          timeout=600)
+    # warnings are errors: the example must not greet a new user with one (scipy's BadCoefficients was one)
+    proc = subprocess.run([sys.executable, "-W", "error", str(script)], cwd=tmp_path, env=_env(), capture_output=True,
+                          text=True, timeout=600)
     assert proc.returncode == 0, f"--- stdout\n{proc.stdout[-3000:]}\n--- stderr\n{proc.stderr[-3000:]}"

@@ -205,7 +205,7 @@ max = 0.98
 def test_compiled_library_shipped_to_a_fresh_cache_is_used(tmp_path, monkeypatch, params, design):
     """What a remote worker does: the client's library bytes, checked, put into its own (empty) cache."""
     from thsa_control.model import build_plant
-    from thsa_control.sim._compile import install_library, library_files
+    from thsa_control.sim.codegen import install_library, library_files
     from thsa_control.sim.scenarios import get_scenario
     from thsa_control.sim.simulate import Simulator
 

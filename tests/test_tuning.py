@@ -48,6 +48,25 @@ def test_objective_equals_compiled_simulator(objective, design):
         np.testing.assert_allclose(T2, T, rtol=1e-12, atol=1e-15)
 
 
+def test_toml_fault_scenario_in_the_objective_equals_the_simulator(params, design, tmp_path):
+    """A scenario file with a fault and monitors (the monitor loop extension) runs in the tuning objective
+    as in the simulator, and its fault acts there: ``thsa tune --scenario FILE.toml`` reads what
+    ``thsa simulate`` reads."""
+    f = tmp_path / "short_channel_failure.toml"
+    f.write_text('name = "short_channel_failure"\nbase = "motor_fault_monitored"\nduration = 0.5\n'
+                 'speed_target = [[0.0, 0.0], [0.05, -0.005]]\nload = [[0.0, 0.0], [0.1, 5000.0]]\n'
+                 '[[faults]]\nkind = "channel_failure"\nchannel = "primary"\ntime = 0.3\n', encoding="utf-8")
+    sc = get_validation_scenario(str(f))
+    assert sc.faults and sc.monitors is not None
+    sim = Simulator(build_plant("B", ("standby_motor",), params=params))
+    obj = Objective(sim, params, design, [sc], settings=ObjectiveSettings(compiled=False))
+    healthy = Objective(sim, params, design, [replace(sc, faults=())], settings=ObjectiveSettings(compiled=False))
+    g = gains_of(design, obj.tuned)
+    T, R = obj.terms(g), obj.reference_terms(g)
+    np.testing.assert_allclose(T, R, rtol=1e-9, atol=1e-15)
+    assert T[0, 0] > 1.5 * healthy.terms(g)[0, 0]  # the channel failure and take-over add speed error
+
+
 def test_gradient_matches_finite_differences(objective, design):
     g = gains_of(design, objective.tuned) * np.array([1.1, 1.6])
     _, dT = objective.terms(g, gradient=True)

@@ -25,7 +25,7 @@ _LAZY = {
                       "linearize_conditions", "plant_model"),
     ".loops.analysis": ("AnalysisSettings", "DesignAnalysis", "LoopAnalysis", "analyse_configurations",
                         "analyse_design", "analyse_loops", "check_requirements", "describing_functions"),
-    ".loops.statespace": ("open_loop", "closed_loop"),
+    ".loops.statespace": ("open_loop", "closed_loop", "loop_frequency_response"),
 }
 _WHERE = {name: module for module, names in _LAZY.items() for name in names}
 
@@ -59,6 +59,6 @@ __all__ = [
     "VirtualRig", "excitation_inputs",
     "ConditionGrid", "OperatingCondition", "PlantLinearization", "current_driven", "linearize_conditions", "plant_model",
     "AnalysisSettings", "DesignAnalysis", "LoopAnalysis", "analyse_configurations", "analyse_design", "analyse_loops",
-    "check_requirements", "describing_functions", "open_loop", "closed_loop",
+    "check_requirements", "describing_functions", "open_loop", "closed_loop", "loop_frequency_response",
     "__version__",
 ]

@@ -47,9 +47,8 @@ def _ms(v: float) -> str:
 
 def run(args) -> int:
     """Handler of ``thsa faults``; returns the exit status."""
-    from ..report.faults import write_fault_report
     from ..faults.analysis import analyse_faults
-
+    from ..report.faults import monitor_display, write_fault_report
     from .common import out_options, preflight_out
 
     preflight_out(args)  # refuse a foreign output folder before the long computation
@@ -58,13 +57,24 @@ def run(args) -> int:
     params, design = load_params_design(args)
     scales = _floats(args.scales, "scales")
     delays = tuple(d * 1e-3 for d in _floats(args.delays, "delays"))
-    a = analyse_faults(design, params, scales=scales, delays_s=delays, sweep=not args.no_sweep)
+    from ..progress import Progress
+
+    progress = Progress("thsa faults", enabled=not getattr(args, "quiet", False))
+    a = analyse_faults(design, params, scales=scales, delays_s=delays, sweep=not args.no_sweep, progress=progress)
+    progress.phase("writing the report")
     write_fault_report(a, params, args.out, **out_options(args))
+    progress.done()
     print(f"plant: level {a.level} + {', '.join(a.effects)}")
+    heading = None
     for c in a.cases + a.rigid_cases:
+        if c.label != heading:  # the sections of the HTML report
+            heading = c.label
+            print(f"-- {heading} --")
         det = ", ".join(f"{m} {_ms(t)}" for m, t in c.detection_s.items() if math.isfinite(t)) or "no trip"
-        line = (f"{c.scenario}: {', '.join(c.faults)} at {c.fault_time_s:g} s; trips: {det}; "
-                f"take-over {_ms(c.takeover_s)}, safed {_ms(c.safed_s)}")
+        how = " (scheduled by the scenario; the monitors only watch)" if c.takeover_source == "schedule" else ""
+        name = c.scenario if c.label == "fault plant" else c.title  # the rigid-drive cases repeat scenario names
+        line = (f"{name}: {', '.join(c.faults)} at {c.fault_time_s:g} s; trips: {det}; "
+                f"take-over {_ms(c.takeover_s)}{how}, safed {_ms(c.safed_s)}")
         if not math.isnan(c.recovery_s):
             line += f", recovery {_ms(c.recovery_s)}"
         print(line)
@@ -75,8 +85,9 @@ def run(args) -> int:
               f"energy residual {c.energy_residual * 100:.3f} %")
     for m in sorted({x.monitor for x in a.margins}):
         worst = min((x for x in a.margins if x.monitor == m), key=lambda x: x.margin)
-        print(f"false-alarm margin {m}: {a.min_margin(m):.2f} (threshold {worst.threshold:g} / "
-              f"{worst.persisted:.4g} held on {worst.scenario})")
+        du = monitor_display(m)
+        print(f"false-alarm margin {m}: {a.min_margin(m):.2f} (threshold {du.to_display(worst.threshold):g} {du.unit} / "
+              f"{du.to_display(worst.persisted):.4g} {du.unit} held on {worst.scenario})")
     for p in a.sweep:
         if p.normal_trips:
             print(f"sweep: thresholds x {p.scale:g} trip on {', '.join(p.normal_trips)}")

@@ -2,7 +2,8 @@
 
 This is the only module of thsa-control that parses rig-run files (component-rig
 tables are read by ``component_id``).  It owns the
-format of ``shared/rig-data/FORMAT.md``: a run is ``NAME.csv`` (samples, in
+format described in full in ``docs/rig_format.md`` (the shared contract is
+``rig-data/FORMAT.md``): a run is ``NAME.csv`` (samples, in
 FORMAT units: mm, mm/s, rpm, N, A, degC) plus ``NAME.json`` (metadata).
 Everything downstream receives a :class:`RigRun` whose signals are SI (the one
 exception is ``temperature``, kept in degC as everywhere in the project).  It

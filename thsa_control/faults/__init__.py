@@ -1,11 +1,11 @@
-"""Faults and monitoring (the papers' model F): fault schedules, sensor faults, the
-position-monitoring logic with its reconfiguration, run in the closed loop.
+"""Fault analysis (the papers' model F): detection times, peak loads, false-alarm margins, sweeps.
 
-Modules: ``events`` (scheduled fault inputs of a scenario), ``settings``
-(monitor thresholds), ``monitors`` (the casadi monitor and reconfiguration
-logic), ``loop`` (the closed loop with sensors, monitors and faults, compiled),
-``scenario_file`` (scenarios written in TOML), ``analysis`` (detection times,
-peak loads, false-alarm margins, sweeps); the command is ``thsa_control/cli/faults.py``.
-This ``__init__`` imports nothing, so that ``sim.scenarios`` can use
-``events`` and ``settings`` without an import cycle.
+Modules: ``analysis`` (detection times, peak loads, false-alarm margins,
+sweeps, on runs of the closed loop with the monitors in it); the command
+is ``thsa_control/cli/faults.py``.  The fault schedule of a scenario (``sim/events.py``), the
+monitor settings (``sim/monitor_settings.py``), the monitors and
+reconfiguration as a loop extension (``sim/monitors.py``) and the scenario
+files (``sim/scenarios.py``) are part of the simulator, which never imports
+this package; ``events``, ``settings``, ``monitors`` and ``scenario_file``
+here re-export them for existing imports.
 """

@@ -2,7 +2,7 @@
 
 Numbers only (frozen result dataclasses); ``report/faults.py`` draws and
 writes them.  Every run is the closed loop with the monitors in it
-(``loop.py``), on one *fault plant*: level D with the compliant drive train,
+(``sim/monitors.py``), on one *fault plant*: level D with the compliant drive train,
 the torque limiter, the secondary load path, the jam, the brakes, the claw
 stops and the standby motor, so that the normal scenarios (false alarms) and
 the fault scenarios (detections) run on the same model.
@@ -30,17 +30,17 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..sim.metrics import energy_residual  # noqa: F401 (one definition; re-exported here)
 from ..errors import ScenarioError
 from ..model import build_plant
+from ..sim.metrics import energy_residual  # noqa: F401 (one definition; re-exported here)
 from ..sim.scenarios import SCENARIOS, Scenario, get_scenario
 from ..sim.simulate import SimulationSettings, Simulator
-from .settings import MonitorSettings
+from ..sim.monitor_settings import MonitorSettings
 
 __all__ = [
     "FAULT_PLANT_EFFECTS", "RIGID_EFFECTS", "MONITORS", "FaultCase", "MonitorMargin", "SweepPoint", "FaultAnalysis",
     "normal_scenarios", "fault_scenarios", "analyse_fault_case", "recovery_time", "false_alarm_margins", "sweep_monitors",
-    "analyse_faults", "energy_residual", "persisted_peak",
+    "analyse_faults", "energy_residual", "persisted_peak", "CASE_LABELS",
 ]
 
 FAULT_PLANT_EFFECTS = ("standby_motor", "drivetrain_compliance", "torque_limiter", "secondary_load_path", "surface_jam",
@@ -136,6 +136,16 @@ class FaultCase:
     energy_residual: float
     final_motor_speed: float
     series: dict = field(repr=False, default_factory=dict)
+    #: Which plant and take-over the case ran with, as the report names it ("fault plant", "rigid drive train", ...).
+    label: str = "fault plant"
+    #: What enabled the standby: ``"monitor"`` (the reconfiguration logic, flag ``standby_active``),
+    #: ``"schedule"`` (the scenario's ``standby_enable`` input: the monitors' flag stays low) or ``""`` (no take-over).
+    takeover_source: str = "monitor"
+
+    @property
+    def title(self) -> str:
+        """``scenario [label]``: unique among the cases of a report."""
+        return f"{self.scenario} [{self.label}]"
 
     @property
     def first_monitor(self) -> str:
@@ -234,8 +244,10 @@ def _simulator(params, level, effects, output_period):
 
 def analyse_fault_case(scenario: Scenario | str, design, params, *, sim: Simulator | None = None,
                        monitors: MonitorSettings | None = None, tolerance: float = 0.05, smooth_s: float = 0.1,
-                       level: str = "D", effects=FAULT_PLANT_EFFECTS) -> FaultCase:
+                       level: str = "D", effects=FAULT_PLANT_EFFECTS, label: str = "fault plant") -> FaultCase:
     """Run a fault scenario and the same scenario without its faults; see :class:`FaultCase`.
+
+    ``label`` names the plant and take-over of the case in reports (:attr:`FaultCase.title`).
 
     ``sim`` must have a 1-sample output (``output_period=None``) for the energy
     balance; by default one is built on the fault plant.
@@ -254,6 +266,11 @@ def analyse_fault_case(scenario: Scenario | str, design, params, *, sim: Simulat
     after = t >= t_f
     detection = {m: _first(t, run[sig[0]], t_f) for m, sig in MONITORS.items()}
     takeover = _first(t, np.asarray(run["standby_active"]), t_f)
+    takeover_source = "monitor" if math.isfinite(takeover) else ""
+    if not math.isfinite(takeover):  # a take-over scheduled by the scenario (monitors without reconfiguration)
+        scheduled = _first(t, np.asarray(run["energised_standby"]) > 0.5, t_f)
+        if math.isfinite(scheduled):
+            takeover, takeover_source = scheduled, "schedule"
     safed = _first(t, np.asarray(run["safed"]), t_f)
     peaks = {k: float(np.max(np.abs(run[s][after]))) for k, s in _PEAKS.items()}
     peaks_before = {k: float(np.max(np.abs(run[s][~after]))) if np.any(~after) else 0.0 for k, s in _PEAKS.items()}
@@ -272,7 +289,7 @@ def analyse_fault_case(scenario: Scenario | str, design, params, *, sim: Simulat
         "motor_current", "standby_current", "motor_torque", "limiter_torque", "limiter_slip_torque", "limiter_slipping",
         "loadpath_force", "primary_attachment_force", "secondary_path_force", "jam_force", "gimbal_displacement",
         "monitor_discrepancy", "monitor_speed_error", "trip_discrepancy", "trip_lvdt", "trip_speed", "standby_active",
-        "safed", "brakes_engaged", "surface_position")}
+        "safed", "brakes_engaged", "surface_position", "energised_standby")}
     series["time"] = t[keep]
     series["nut_speed_no_fault"] = np.asarray(ref["nut_speed"])[keep]
     return FaultCase(
@@ -280,7 +297,7 @@ def analyse_fault_case(scenario: Scenario | str, design, params, *, sim: Simulat
         float(surf[-1] - surf[i_f]), float(np.max(np.abs(surf[after] - surf[i_f]))),
         float(np.sum(np.abs(np.asarray(run["limiter_slip_speed"])[after])) * h), recovery,
         float(np.max(np.abs(err_v[after]))), float(np.max(np.abs(err_x[after]))), energy_residual(run),
-        float(run["motor_speed"][-1]), series,
+        float(run["motor_speed"][-1]), series, label, takeover_source,
     )
 
 
@@ -352,30 +369,59 @@ def sweep_monitors(design, params, *, scales=(0.5, 0.75, 1.0, 1.5, 2.0), delays_
     return tuple(points)
 
 
+#: Labels of the three kinds of cases of :func:`analyse_faults` (as the report and ``thsa faults`` print them).
+CASE_LABELS = {"fault": "fault plant", "rigid": "rigid drive train",
+               "papers": "rigid drive train, papers' fixed 15 ms take-over"}
+
+
 def analyse_faults(design, params, *, monitors: MonitorSettings | None = None, scales=(0.5, 0.75, 1.0, 1.5, 2.0),
                    delays_s=(0.0, 0.005, 0.01, 0.02), tolerance: float = 0.05, smooth_s: float = 0.1,
-                   level: str = "D", effects=FAULT_PLANT_EFFECTS, sweep: bool = True) -> FaultAnalysis:
-    """The fault report's numbers: every fault scenario, the margins, the sweep."""
+                   level: str = "D", effects=FAULT_PLANT_EFFECTS, sweep: bool = True, progress=None) -> FaultAnalysis:
+    """The fault report's numbers: every fault scenario, the margins, the sweep.
+
+    ``progress`` (a :class:`thsa_control.progress.Progress` or None) gets one line per case and phase.
+    """
+    def step(k, n, text):
+        if progress is not None:
+            progress.step(k, n, text)
+
+    def phase(text):
+        if progress is not None:
+            progress.phase(text)
+
     settings = monitors or MonitorSettings()
+    phase("building the fault plant's simulators")
     fine = _simulator(params, level, effects, None)
     coarse = _simulator(params, level, effects, 1e-3)
-    cases = tuple(analyse_fault_case(s, design, params, sim=fine, monitors=settings, tolerance=tolerance,
-                                     smooth_s=smooth_s) for s in fault_scenarios())
+    scen = fault_scenarios()
+    cases = []
+    for k, s in enumerate(scen, 1):
+        step(k, len(scen), f"{s.name} [{CASE_LABELS['fault']}]")
+        cases.append(analyse_fault_case(s, design, params, sim=fine, monitors=settings, tolerance=tolerance,
+                                        smooth_s=smooth_s, label=CASE_LABELS["fault"]))
+    cases = tuple(cases)
+    phase("false-alarm margins on the normal scenarios")
     margins = false_alarm_margins(design, params, monitors=settings, sim=coarse)
     normal_res = max(abs(energy_residual(fine.run(replace(s, monitors=settings), design, params)))
                      for s in normal_scenarios()[:1])
+    phase("channel failures on the rigid drive train")
     rigid = _simulator(params, level, RIGID_EFFECTS, None)
     rigid_cases = []
-    for s in fault_scenarios():
-        if not any(f.kind == "channel_failure" for f in s.faults):
-            continue
+    channel = [s for s in scen if any(f.kind == "channel_failure" for f in s.faults)]
+    for k, s in enumerate(channel, 1):
+        step(k, len(channel), f"{s.name} [{CASE_LABELS['rigid']}, and the papers' 15 ms]")
         # no limit cycle on the rigid drive train: the recovery needs no averaging
         rigid_cases.append(analyse_fault_case(s, design, params, sim=rigid, monitors=settings, tolerance=tolerance,
-                                              smooth_s=0.0))
+                                              smooth_s=0.0, label=CASE_LABELS["rigid"]))
         t_f = min(f.time for f in s.faults)
+        # the papers' comparison: the standby enabled by the scenario 15 ms after the fault, the monitors only
+        # watch (reconfigure=False), so their 'standby active' flag stays low: the take-over is the schedule's
         papers = replace(s, name=f"{s.name}_papers_15ms", standby_enable=((0.0, 0.0), (t_f + 0.015, 1.0)))
         rigid_cases.append(analyse_fault_case(papers, design, params, sim=rigid, tolerance=tolerance, smooth_s=0.0,
-                                              monitors=replace(settings, reconfigure=False)))
+                                              monitors=replace(settings, reconfigure=False),
+                                              label=CASE_LABELS["papers"]))
+    if sweep:
+        phase(f"sweep: {len(scales)} threshold scales x {len(delays_s)} take-over delays")
     points = sweep_monitors(design, params, scales=scales, delays_s=delays_s, monitors=settings, sim=coarse,
                             tolerance=tolerance, smooth_s=smooth_s,
                             rigid_sim=_simulator(params, level, RIGID_EFFECTS, 1e-3)) if sweep else ()

@@ -65,6 +65,8 @@ __all__ = ["IdentificationSettings", "ParameterEstimate", "IdentificationResult"
 #: Channels the mechanics are fitted on (RigRun signals, compared with the plant
 #: outputs of :data:`~thsa_control.fit.replay.COMPARED_OUTPUT`: the LVDT with the surface position).
 MECH_CHANNELS = ("motor_speed", "nut_position", "screw_speed")
+#: A parameter whose standard error exceeds this fraction of its value is not determined by the data.
+NOT_DETERMINED_REL_STDERR = 0.5
 _FREE_STATE_KINDS = ("speed", "velocity", "position")
 
 
@@ -318,10 +320,17 @@ class IdentificationResult:
 
     @property
     def not_identifiable(self) -> tuple[str, ...]:
-        """Parameters in a flagged pair, or with an undetermined stderr."""
-        out = {a for a, b, _ in self.high_correlations} | {b for a, b, _ in self.high_correlations}
-        out |= {n for n, e in self.estimates.items() if not math.isfinite(e.stderr)}
-        return tuple(n for n in self.estimates if n in out)
+        """Parameters the data do not determine: undetermined stderr, or stderr above half the value.
+
+        A high correlation (:attr:`high_correlations`) alone does not make a
+        parameter unidentifiable: its standard error comes from the
+        covariance, which already counts the correlation, so a correlated
+        parameter with a small standard error is determined (reported as
+        "correlated with ...").  An inseparable pair has an undetermined or
+        huge standard error and is flagged here.
+        """
+        return tuple(n for n, e in self.estimates.items()
+                     if not math.isfinite(e.stderr) or e.relative_stderr > NOT_DETERMINED_REL_STDERR)
 
     def to_parameter_set(self, source: str | None = None) -> ParameterSet:
         """The initial set with the estimates as values; their ``source`` says where they come from."""
@@ -412,9 +421,13 @@ class IdentificationResult:
                 flags.append("AT INITIAL VALUE")
             if n in self.not_identifiable:
                 flags.append("NOT IDENTIFIABLE")
+            partners = [b if a == n else a for a, b, _ in self.high_correlations if n in (a, b)]
+            if partners:
+                flags.append(f"CORRELATED WITH {', '.join(partners)}")
             lines.append(f"    {n}: {e.value:.6g} {err} [{e.unit}] (init = {e.init:.6g})"
                          + (f"  <- {', '.join(flags)}" if flags else ""))
-        lines.append(f"[[Correlations]] (|rho| > {self.settings.correlation_threshold:g}: not identifiable together)")
+        lines.append(f"[[Correlations]] (|rho| > {self.settings.correlation_threshold:g}: flagged, the pair moves together; "
+                     "the standard errors count it)")
         names = self.names
         pairs = [(names[i], names[j], self.correlation[i, j]) for i in range(len(names)) for j in range(i + 1, len(names))]
         pairs = sorted((p for p in pairs if np.isfinite(p[2]) and abs(p[2]) > 0.1), key=lambda p: -abs(p[2]))

@@ -25,7 +25,7 @@ from ..errors import DesignError
 from .linear import OperatingCondition
 from .loop_analysis import METRICS, LoopAnalysis
 
-__all__ = ["Violation", "RequirementRow", "RequirementCheck", "check_requirements"]
+__all__ = ["Violation", "RequirementRow", "RequirementCheck", "check_requirements", "REQUIREMENT_METRICS"]
 
 #: requirement key -> (metric, comparison)
 _REQUIREMENTS = {
@@ -39,6 +39,8 @@ _REQUIREMENTS = {
     "max_rise_time_s": ("rise_time_s", "<="),
 }
 assert set(_REQUIREMENTS) == set(REQUIREMENT_KEYS)  # noqa: S101 - import-time consistency of two constants
+#: Requirement key -> (metric it limits, comparison ``'>='``, ``'<='`` or ``'abs>='``), for reports.
+REQUIREMENT_METRICS = dict(_REQUIREMENTS)
 
 
 @dataclass(frozen=True)

@@ -45,7 +45,7 @@ from .design import Design, load_design, nominal_design_path
 from .linear import DEFAULT_LEVEL, OperatingCondition, PlantModel, linearize_conditions, plant_model
 from .loop_analysis import LOOPS, AnalysisSettings, _build, _saturation
 
-__all__ = ["open_loop", "closed_loop"]
+__all__ = ["open_loop", "closed_loop", "loop_frequency_response"]
 
 _ERROR = {"current_loop": ("current_error", "motor_current"), "velocity_loop": ("speed_error", "motor_speed"),
           "position_loop": ("position_error", "nut_position")}
@@ -151,7 +151,7 @@ def open_loop(loop: str, condition, design: Design | None = None, params: Parame
     >>> L = open_loop("velocity", OperatingCondition(10e-3, 20e3, 25.0))
     >>> L.dt, L.input_labels, L.output_labels
     (0.0001, ['speed_error'], ['motor_speed'])
-    >>> gm, pm, sm, wpc, wgc, wms = ct.stability_margins(L, method="frd")
+    >>> gm, pm, sm, wpc, wgc, wms = ct.stability_margins(loop_frequency_response(L))  # no ss -> tf conversion
     >>> round(float(wgc) / (2 * 3.141592653589793), 1)  # crossover [Hz]; the design aimed at 30 Hz
     29.0
     """
@@ -201,3 +201,43 @@ def closed_loop(loop: str, condition, design: Design | None = None, params: Para
         inputs = [_REF[name], "load_force", "disturbance_torque"]
         outputs = ["motor_current", "motor_speed", "nut_speed"] + (["nut_position"] if sys.C.shape[1] == 4 else [])
     return _to_ct(sys, loops.h, inputs, outputs, names[f"closed {name}"], f"T_{name}")
+
+
+def loop_frequency_response(sys: ct.StateSpace, omega=None, *, points: int = 4000) -> ct.FrequencyResponseData:
+    """Frequency response of a discrete loop from its state space, for margins and Bode plots without warnings.
+
+    ``control.stability_margins(loop_frequency_response(L))`` gives the
+    margins of :func:`open_loop` (equal to the grid analysis') without the
+    transfer-function conversion that makes scipy warn (see the module
+    docstring); ``control.bode_plot(loop_frequency_response(L),
+    display_margins=True)`` draws them.
+
+    Parameters
+    ----------
+    sys : control.StateSpace
+        A discrete system (:func:`open_loop`, :func:`closed_loop` or a channel of it).
+    omega : array_like, optional
+        Frequencies [rad/s] below Nyquist; default ``points`` log-spaced from 0.01 Hz to Nyquist.
+
+    Returns
+    -------
+    control.FrequencyResponseData
+        With the system's ``dt`` and signal names.
+
+    Examples
+    --------
+    >>> import control as ct
+    >>> L = open_loop("velocity", OperatingCondition(10e-3, 20e3, 25.0))
+    >>> gm, pm, sm, wpc, wgc, wms = ct.stability_margins(loop_frequency_response(L))
+    >>> round(float(wgc) / (2 * 3.141592653589793), 1)
+    29.0
+    """
+    if not sys.isdtime(strict=True):
+        raise ValueError("loop_frequency_response takes a discrete system (open_loop / closed_loop)")
+    nyquist = np.pi / sys.dt
+    if omega is None:
+        omega = np.logspace(np.log10(2 * np.pi * 0.01), np.log10(nyquist), points)
+    omega = np.asarray(omega, float)
+    if np.any(omega <= 0) or np.any(omega > nyquist * (1 + 1e-12)):
+        raise ValueError(f"omega must lie in (0, {nyquist:g}] rad/s (Nyquist of dt = {sys.dt:g} s)")
+    return ct.frd(sys, omega, name=sys.name)

@@ -2,21 +2,30 @@
 
 from __future__ import annotations
 
+import numpy as np
+from matplotlib.collections import LineCollection
+from matplotlib.colors import ListedColormap
+from matplotlib.patches import Patch, Rectangle
+from matplotlib.ticker import MultipleLocator
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.collections import LineCollection  # noqa: E402
-
-from ..loops.analysis import LOOPS, METRIC_LABELS, METRICS, LoopAnalysis  # noqa: E402
+from ..data.units import display_unit, label
+from ..loops.analysis import LOOPS, METRIC_LABELS, LoopAnalysis  # noqa: E402
+from .display import (
+    STATUS_COLORS,
+    STATUS_LABELS,
+    gain_margins_text,
+    metric_display,
+    requirement_for,
+    requirement_limit_text,
+    requirement_status,
+)
+from .figure import colormap, new_figure, subplots
 
 __all__ = ["plot_loop_bode", "plot_steps", "plot_margin_maps", "plot_velocity_poles", "plot_friction_slopes",
            "plot_switching"]
 
 _LOOP_TITLE = {"current_loop": "current loop", "velocity_loop": "velocity loop", "position_loop": "position loop"}
-_CMAP = plt.get_cmap("coolwarm")
+_CMAP = colormap("coolwarm")
 
 
 def _tcolor(t: float):
@@ -88,7 +97,7 @@ def plot_loop_bode(analysis: LoopAnalysis, loop: str, axes=None):
     matplotlib.figure.Figure
     """
     if axes is None:
-        fig, axes = plt.subplots(2, 1, figsize=(9, 6.8), sharex=True, constrained_layout=True)
+        fig, axes = subplots(2, 1, figsize=(9, 6.8), sharex=True, constrained_layout=True)
     else:
         fig = axes[0].figure
     ax_m, ax_p = axes
@@ -113,10 +122,13 @@ def plot_loop_bode(analysis: LoopAnalysis, loop: str, axes=None):
         ax_p.semilogx(f, ph[k], color=c, lw=1.3, zorder=3)
     # the worst case, highlighted, with its crossings and margins
     w = analysis.worst(loop, "phase_margin_deg")
+    wg = analysis.worst(loop, "gain_margin_db")  # the gain margin nearest 0 dB: its point may differ from the PM's
     if w is not None:
         k = w.index
         where = "every valid point alike" if w.uniform else w.condition.label()
-        ax_m.semilogx(f, mag[k], color="k", lw=2.2, zorder=5, label=f"worst PM {w.value:.1f} deg: {where}")
+        also = (f" and worst GM ({gain_margins_text(mg.gain_margin_lower_db[k], mg.gain_margin_upper_db[k])})"
+                if wg is not None and wg.index == k else "")
+        ax_m.semilogx(f, mag[k], color="k", lw=2.2, zorder=5, label=f"worst PM {w.value:.1f} deg{also}: {where}")
         ax_p.semilogx(f, ph[k], color="k", lw=2.2, zorder=5)
         wc = mg.crossover_hz[k]
         if np.isfinite(wc):
@@ -126,7 +138,15 @@ def plot_loop_bode(analysis: LoopAnalysis, loop: str, axes=None):
             ax_p.annotate(f"PM {w.value:.1f} deg", (wc, ph_c), xytext=(6, 6), textcoords="offset points",
                           fontsize=8, color="tab:green", zorder=8,
                           bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.85))
-        m_lo = max(np.nanpercentile(mag[ks], 1) - 5, -120) if ks.size else -120
+    m_lo = max(np.nanpercentile(mag[ks], 1) - 5, -120) if ks.size else -120
+    if wg is not None:
+        k = wg.index
+        color = "k" if (w is not None and w.index == k) else "tab:purple"
+        if color != "k":
+            where = "every valid point alike" if wg.uniform else wg.condition.label()
+            ax_m.semilogx(f, mag[k], color=color, lw=1.8, ls="--", zorder=4,
+                          label=f"worst gain margin ({gain_margins_text(mg.gain_margin_lower_db[k], mg.gain_margin_upper_db[k])}): {where}")
+            ax_p.semilogx(f, ph[k], color=color, lw=1.8, ls="--", zorder=4)
         for fc, gm in _phase_crossings(L[k], f):
             if not -gm > m_lo or (fc == f[-1] and np.isnan(ph[k][-1])):
                 continue  # off the magnitude axis (a zero near z = -1), or at an unresolved Nyquist turn
@@ -135,8 +155,8 @@ def plot_loop_bode(analysis: LoopAnalysis, loop: str, axes=None):
             m_x = -gm
             ax_m.plot([fc, fc], [min(m_x, 0.0), max(m_x, 0.0)], color="tab:red", lw=2.5, zorder=6)
             ax_m.plot([fc], [m_x], "X", color="tab:red", ms=8, zorder=7)
-            kind = " (lower: conditionally stable)" if gm < 0 else ""
-            ax_m.annotate(f"GM {gm:+.1f} dB{kind}", (fc, m_x), xytext=(-8, 8 if gm > 0 else -16),
+            kind = "lower GM" if gm < 0 else "upper GM"
+            ax_m.annotate(f"{kind} {gm:+.1f} dB", (fc, m_x), xytext=(-8, 8 if gm > 0 else -16),
                           textcoords="offset points", ha="right", fontsize=8, color="tab:red", zorder=8,
                           bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.85))
     ax_m.axhline(0, color="k", lw=0.7)
@@ -151,14 +171,16 @@ def plot_loop_bode(analysis: LoopAnalysis, loop: str, axes=None):
     ax_p.set_xlabel("frequency [Hz] (dotted: Nyquist)")
     ph_ok = ph[ks][np.isfinite(ph[ks])] if ks.size else np.array([-180.0])
     ax_p.set_ylim(max(np.min(ph_ok) - 15, -405), min(np.max(ph_ok) + 15, 45))
-    ax_p.yaxis.set_major_locator(plt.MultipleLocator(90))
+    ax_p.yaxis.set_major_locator(MultipleLocator(90))
     for a in axes:
         a.grid(True, which="both", alpha=0.3)
     ref = analysis.conditions[next(iter(refs.values()))] if refs else None
     where = f"{ref.nut_speed * 1e3:g} mm/s, {ref.load_force * 1e-3:g} kN" if ref else "-"
     ax_m.legend(fontsize=7, loc="lower left", title=f"reference point {where}", title_fontsize=7)
-    ax_m.set_title(f"{_LOOP_TITLE[loop]}: open loop L(z); grey: every valid grid point; black: worst phase margin; "
-                   "red: -180 deg crossings and gain margins", fontsize=9)
+    ax_m.set_title(f"{_LOOP_TITLE[loop]}: open loop L(z); grey: every valid grid point; black: worst phase margin"
+                   f"{'' if wg is None or (w is not None and w.index == wg.index) else '; dashed: worst gain margin'}"
+                   "\nred: -180 deg crossings at the worst gain margin (lower GM < 0 dB: the gain may fall that much; "
+                   "upper: rise)", fontsize=9)
     return fig
 
 
@@ -169,7 +191,7 @@ def plot_steps(analysis: LoopAnalysis):
     -------
     matplotlib.figure.Figure
     """
-    fig, axes = plt.subplots(2, 3, figsize=(14, 7.5), constrained_layout=True)
+    fig, axes = subplots(2, 3, figsize=(14, 7.5), constrained_layout=True)
     refs = analysis.reference_indices()
     scale = {"current_loop": (1e3, "ms"), "velocity_loop": (1e3, "ms"), "position_loop": (1.0, "s")}
     for j, loop in enumerate(LOOPS):
@@ -218,11 +240,21 @@ def plot_steps(analysis: LoopAnalysis):
 
 
 def plot_margin_maps(analysis: LoopAnalysis, loop: str = "velocity_loop",
-                     metrics=("phase_margin_deg", "gain_margin_db", "ms")):
-    """Maps of ``metrics`` of ``loop`` over speed x load, one column per temperature.
+                     metrics=("phase_margin_deg", "gain_margin_db", "ms"), requirements: dict | None = None):
+    """Maps of ``metrics`` of ``loop`` over speed x load, one column per temperature, coloured by the requirement.
 
-    Invalid points are hatched; the worst valid point of each metric is framed.
-    Needs a grid analysis.
+    Each cell is coloured against the design's requirement on that metric,
+    not scaled to the data: red fails, amber passes within
+    :data:`~thsa_control.report.display.NEAR_FRACTION` of the limit, green
+    passes with room, blue-grey has no requirement.  The cell shows the value
+    (a gain margin signed: negative is the lower margin of a conditionally
+    stable loop, compared by magnitude).  Invalid points are hatched; the worst
+    valid point of each metric is framed.  Needs a grid analysis.
+
+    Parameters
+    ----------
+    requirements : dict, optional
+        The loop's requirement table; default ``analysis.design.requirements[loop]``.
 
     Returns
     -------
@@ -231,42 +263,51 @@ def plot_margin_maps(analysis: LoopAnalysis, loop: str = "velocity_loop",
     grid = analysis.grid
     if grid is None:
         raise ValueError("plot_margin_maps needs an analysis over a ConditionGrid")
+    if requirements is None:
+        requirements = dict(getattr(analysis.design, "requirements", {}).get(loop, {}))
     nT, nV, nF = grid.shape
-    fig, axes = plt.subplots(len(metrics), nT, figsize=(3.1 * nT + 1, 2.9 * len(metrics)), squeeze=False,
-                             constrained_layout=True)
+    fig, axes = subplots(len(metrics), nT, figsize=(2.9 * nT + 0.6, 2.7 * len(metrics) + 1.1), squeeze=False)
     valid = analysis.valid.reshape(nT, nV, nF)
+    cmap = ListedColormap(STATUS_COLORS)
     for i, name in enumerate(metrics):
         vals = np.asarray(analysis.metric(loop, name), float).reshape(nT, nV, nF)
-        shown = np.where(valid, np.abs(vals) if name == "gain_margin_db" else vals, np.nan)
-        finite = shown[np.isfinite(shown)]
-        vmin, vmax = (np.min(finite), np.max(finite)) if finite.size else (0, 1)
-        cmap = plt.get_cmap("RdYlGn_r" if METRICS[name][1].startswith("max") else "RdYlGn")
+        req = requirement_for(requirements, name)
+        status = requirement_status(vals, *(req[1:] if req else (None, None))).astype(float)
+        status[~valid] = np.nan
         w = analysis.worst(loop, name)
+        du = metric_display(loop, name)
         for t in range(nT):
             ax = axes[i, t]
-            im = ax.imshow(shown[t], origin="lower", aspect="auto", cmap=cmap, vmin=vmin, vmax=vmax)
+            ax.imshow(status[t], origin="lower", aspect="auto", cmap=cmap, vmin=-0.5, vmax=3.5,
+                      interpolation="nearest")
             for a in range(nV):
                 for b in range(nF):
                     if not valid[t, a, b]:
-                        ax.add_patch(plt.Rectangle((b - 0.5, a - 0.5), 1, 1, fill=False, hatch="///", color="0.6"))
+                        ax.add_patch(Rectangle((b - 0.5, a - 0.5), 1, 1, fill=False, hatch="///", color="0.7", lw=0))
                     elif np.isfinite(vals[t, a, b]):
-                        ax.text(b, a, f"{vals[t, a, b]:.3g}", ha="center", va="center", fontsize=6)
-            if w is not None and w.index // (nV * nF) == t:
+                        v = du.to_display(vals[t, a, b])
+                        text = f"{v:+.1f}" if name.startswith("gain_margin") else f"{v:.3g}"
+                        ax.text(b, a, text, ha="center", va="center", fontsize=8.5)
+            if w is not None and not w.uniform and w.index // (nV * nF) == t:
                 a, b = divmod(w.index % (nV * nF), nF)
-                ax.add_patch(plt.Rectangle((b - 0.5, a - 0.5), 1, 1, fill=False, lw=2.2, color="k"))
-            ax.set_xticks(range(nF), [f"{f * 1e-3:g}" for f in grid.load_forces], fontsize=7)
-            ax.set_yticks(range(nV), [f"{v * 1e3:g}" for v in grid.nut_speeds], fontsize=7)
+                ax.add_patch(Rectangle((b - 0.5, a - 0.5), 1, 1, fill=False, lw=2.4, color="k"))
+            ax.set_xticks(range(nF), [f"{f * 1e-3:g}" for f in grid.load_forces], fontsize=8)
+            ax.set_yticks(range(nV), [f"{v * 1e3:g}" for v in grid.nut_speeds], fontsize=8)
             if i == len(metrics) - 1:
-                ax.set_xlabel("load [kN] (< 0 aids)", fontsize=8)
+                ax.set_xlabel(label("load", "force") + " (< 0 aids)", fontsize=9)
             if t == 0:
-                ax.set_ylabel(f"{METRIC_LABELS[name]}\nspeed [mm/s]", fontsize=8)
+                limit = f"\nrequired {requirement_limit_text(loop, req[0], req[1])}" if req else "\n(no requirement)"
+                ax.set_ylabel(f"{du.label(METRIC_LABELS[name])}{limit}\n\n" + label("speed", "nut_speed"),
+                              fontsize=9)
             if i == 0:
-                ax.set_title(f"{grid.temperatures[t]:g} degC", fontsize=9)
-        unit = METRICS[name][0]
-        label = f"|{METRIC_LABELS[name]}|" if name == "gain_margin_db" else METRIC_LABELS[name]
-        fig.colorbar(im, ax=axes[i, :], shrink=0.8, label=f"{label} [{unit}]" if unit != "-" else label)
-    fig.suptitle(f"{_LOOP_TITLE[loop]} over the grid (hatched: not analysed, see the invalid points; framed: worst point"
-                 f"{'; gain margin shown by magnitude' if 'gain_margin_db' in metrics else ''})", fontsize=10)
+                ax.set_title(f"{grid.temperatures[t]:g} {display_unit('temperature').unit}", fontsize=10)
+    handles = [Patch(facecolor=c, edgecolor="0.5", label=lab) for c, lab in zip(STATUS_COLORS, STATUS_LABELS)]
+    handles.append(Patch(facecolor="white", edgecolor="0.6", hatch="///", label="not analysed (see invalid points)"))
+    handles.append(Patch(facecolor="white", edgecolor="k", lw=2, label="worst valid point"))
+    fig.legend(handles=handles, loc="outside lower center", ncol=3, fontsize=9, frameon=False)
+    note = "; gain margin signed (< 0: lower margin, conditionally stable), compared by magnitude" \
+        if "gain_margin_db" in metrics else ""
+    fig.suptitle(f"{_LOOP_TITLE[loop]} over the grid, coloured against the design's requirements{note}", fontsize=11)
     return fig
 
 
@@ -278,7 +319,7 @@ def plot_velocity_poles(analysis: LoopAnalysis, ax=None):
     matplotlib.figure.Figure
     """
     if ax is None:
-        fig, ax = plt.subplots(1, 2, figsize=(12, 5.2), constrained_layout=True)
+        fig, ax = subplots(1, 2, figsize=(12, 5.2), constrained_layout=True)
     else:
         fig = ax[0].figure
     lm = analysis.loops["velocity_loop"]
@@ -336,7 +377,7 @@ def plot_friction_slopes(analysis: LoopAnalysis):
     lin = analysis.linearization
     loads = sorted({c.load_force for c in analysis.conditions})
     temps = sorted({c.temperature for c in analysis.conditions})
-    fig, axes = plt.subplots(2, len(loads), figsize=(3.2 * len(loads) + 1, 6), sharex=True, squeeze=False,
+    fig, axes = subplots(2, len(loads), figsize=(3.2 * len(loads) + 1, 6), sharex=True, squeeze=False,
                              constrained_layout=True)
     for j, f in enumerate(loads):
         for temp in temps:
@@ -372,11 +413,11 @@ def plot_switching(switching):
     -------
     matplotlib.figure.Figure
     """
-    fig = plt.figure(figsize=(13, 7.5), constrained_layout=True)
+    fig = new_figure(figsize=(13, 7.5), constrained_layout=True)
     gs = fig.add_gridspec(2, 2, height_ratios=(2.2, 1))
     cases = list(switching.cases)
     delays = sorted({c.delay_s for c in cases})
-    cmap = plt.get_cmap("viridis")
+    cmap = colormap("viridis")
     t_fault = getattr(switching, "fault_time_s", None)
     for j, hand in enumerate((False, True)):
         ax = fig.add_subplot(gs[0, j])

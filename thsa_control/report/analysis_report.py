@@ -29,17 +29,19 @@ from __future__ import annotations
 
 import base64
 import html
-import io
-import math
+import re
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..loops.analysis import LOOPS, METRIC_LABELS, DesignAnalysis, check_requirements, metric_unit  # noqa: E402
+from ..data.units import display_unit, label, to_display
+from ..loops.analysis import (  # noqa: E402
+    LOOPS,
+    METRIC_LABELS,
+    DesignAnalysis,
+    check_requirements,
+)
+from ..loops.requirements import REQUIREMENT_METRICS
 from .analysis_json import ANALYSIS_FORMAT, analysis_to_dict  # noqa: E402
 from .analysis_plots import (  # noqa: E402
     _LOOP_TITLE,
@@ -51,6 +53,18 @@ from .analysis_plots import (  # noqa: E402
     plot_velocity_poles,
 )
 from .build import atomic_folder, write_json  # noqa: E402
+from .display import (
+    GAIN_MARGIN_MEANING,
+    NEAR_FRACTION,
+    fmt,
+    fmt_metric,
+    gain_margins_text,
+    metric_display,
+    metric_heading,
+    requirement_status,
+    requirement_text,
+)
+from .figure import png_bytes
 
 __all__ = [
     "ANALYSIS_FORMAT",
@@ -70,7 +84,7 @@ __all__ = [
 FIGURES = ("bode_current_loop", "bode_velocity_loop", "bode_position_loop", "step_responses", "margin_maps",
            "velocity_poles", "friction_slopes", "switching_transient")
 #: Tables of the report (HTML ids ``table-<name>``).
-TABLES = ("requirements", "worst_points", "margins_current_loop", "margins_velocity_loop", "margins_position_loop",
+TABLES = ("at_a_glance", "requirements", "worst_points", "margins_current_loop", "margins_velocity_loop", "margins_position_loop",
           "invalid_points", "stribeck_points", "limit_cycles", "configurations", "switching_recovery")
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -87,27 +101,41 @@ figure{margin:0.8em 0}figcaption{font-size:12px;color:#555}img{max-width:100%}
 details{margin:0.5em 0}summary{cursor:pointer;font-weight:600}.note{font-size:12px;color:#555}
 .scroll{overflow-x:auto;max-width:100%}th{max-width:11em;white-space:normal;vertical-align:bottom}
 td.why{max-width:28em;white-space:normal;text-align:left;color:#555}
+nav{position:sticky;top:0;background:#fff;border-bottom:1px solid #ccc;padding:6px 0;z-index:5;font-size:13px}
+nav a{margin-right:1.1em;color:#1a4f8b;text-decoration:none;white-space:nowrap}nav a:hover{text-decoration:underline}
+.verdict{font-size:1.15em;padding:8px 12px;border-radius:4px;display:inline-block;margin:0.3em 0}
+.verdict.ok{background:#e3f4e5;border:1px solid #a5d6a7}.verdict.bad{background:#fde7e6;border:1px solid #ef9a9a}
+td.near{background:#fff3c4}h2{scroll-margin-top:2.6em}p.fold{font-size:13px;margin:0.3em 0}
 """
 
 
 def _png(fig) -> bytes:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100)
-    plt.close(fig)
-    return buf.getvalue()
+    return png_bytes(fig, dpi=100)
 
 
-def _fmt(x, digits: int = 4) -> str:
-    if x is None:
-        return "-"
-    if isinstance(x, (bool, np.bool_)):
-        return "yes" if x else "no"
-    x = float(x)
-    if math.isnan(x):
-        return "-"
-    if math.isinf(x):
-        return "inf" if x > 0 else "-inf"
-    return f"{x:.{digits}g}"
+_fmt = fmt
+#: A cell that reads as a number (right-aligned); anything else is text (left-aligned).
+_NUMBER = re.compile(r"^\s*([-+]?(\d|\.\d|inf)[\w.+\-%/ ]{0,14}|-|yes|no|NO|PASS|FAIL)\s*$")
+
+#: Sections of the page: (HTML id, title in the navigation bar).
+SECTIONS = (("summary", "Summary"), ("requirements", "Requirements"), ("worst", "Worst points"),
+            ("bode", "Bode"), ("steps", "Steps"), ("maps", "Margin maps"), ("poles", "Poles"),
+            ("friction", "Friction"), ("switching", "Switch-over"), ("configurations", "Active/standby"),
+            ("invalid", "Invalid points"), ("limit-cycles", "Limit cycles"))
+
+
+def _nav(extra=()) -> str:
+    links = "".join(f"<a href='#{i}'>{html.escape(t)}</a>" for i, t in tuple(SECTIONS) + tuple(extra))
+    return f"<nav id='toc'>{links}</nav>"
+
+
+def _h2(section: str, title: str) -> str:
+    return f"<h2 id='{section}'>{html.escape(title)}</h2>"
+
+
+def _folded(line: str, body: str) -> str:
+    """A table folded into one line (empty or uniform): the line shows, the table opens on a click."""
+    return f"<details class='fold'><summary>{html.escape(line)}</summary>\n{body}\n</details>"
 
 
 def _table(name: str, header, rows, classes=None, caption: str = "") -> str:
@@ -122,7 +150,7 @@ def _table(name: str, header, rows, classes=None, caption: str = "") -> str:
         cells = []
         for j, cell in enumerate(row):
             cls = [] if ccls is None or not ccls[j] else [ccls[j]]
-            if j == 0 or (isinstance(cell, str) and len(cell) > 24):
+            if j == 0 or (isinstance(cell, str) and not _NUMBER.match(cell)):
                 cls.append("l")
             attr = f" class='{' '.join(cls)}'" if cls else ""
             cells.append(f"<td{attr}>{cell}</td>")
@@ -142,8 +170,7 @@ def _details(summary: str, body: str, *, open_: bool = False) -> str:
 
 
 def _header(loop: str, name: str) -> str:
-    unit = metric_unit(loop, name)
-    return f"{METRIC_LABELS[name]} [{unit}]" if unit != "-" else METRIC_LABELS[name]
+    return metric_heading(loop, name)
 
 
 def _margin_table(result: DesignAnalysis, loop: str) -> str:
@@ -171,7 +198,7 @@ def _margin_table(result: DesignAnalysis, loop: str) -> str:
             ccls[5] = "fail"
         for name in cols:
             val = lm.metric(name)[k]
-            row.append(_fmt(val) if a.valid[k] else "-")
+            row.append(fmt_metric(loop, name, val) if a.valid[k] else "-")
             cl = ""
             if a.valid[k] and name in fails.get(k, ()):
                 cl = "fail"
@@ -183,7 +210,8 @@ def _margin_table(result: DesignAnalysis, loop: str) -> str:
                                                     and not worst_pm.uniform else "")
         rows.append(row)
         classes.append((rcls, ccls))
-    header = ["speed [mm/s]", "load [kN]", "T [degC]", "valid", "invalid because", "stable"] + [
+    header = [label("speed", "nut_speed"), label("load", "force"), label("T", "temperature"), "valid",
+              "invalid because", "stable"] + [
         _header(loop, n) for n in cols]
     cap = (f"{_LOOP_TITLE[loop]}: every grid point. Red: requirement not met; bold yellow: worst valid point of the "
            "column; framed row: worst phase margin; grey rows: not analysed (invalid linearisation or saturated "
@@ -191,49 +219,101 @@ def _margin_table(result: DesignAnalysis, loop: str) -> str:
     return _table(f"margins_{loop}", header, rows, classes, cap)
 
 
-def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
-    a, d, check = result.loops, result.design, result.requirements
-    lin = a.linearization
-    parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>THSA loop analysis: {html.escape(d.name)}"
-             f"</title><style>{_CSS}</style></head><body>"]
-    status = "<span class='pass'>PASS</span>" if check.passed else "<span class='failtxt'>FAIL</span>"
-    parts.append(f"<h1>THSA loop analysis: design <code>{html.escape(d.name)}</code></h1>")
-    parts.append(
-        f"<p>Design file <code>{html.escape(d.source)}</code>; control period {d.control_period * 1e6:g} us, "
-        f"computation delay {d.computation_delay_samples} sample(s). Plant: {html.escape(lin.model.describe())}. "
-        f"Grid: {len(a)} points ({int(a.valid.sum())} valid): speeds "
-        f"{', '.join(f'{v * 1e3:g}' for v in result.settings.nut_speeds)} mm/s, loads "
-        f"{', '.join(f'{f * 1e-3:g}' for f in result.settings.load_forces)} kN (compressive positive: negative loads "
-        f"aid the positive motion), temperatures {', '.join(f'{t:g}' for t in result.settings.temperatures)} degC."
-        f"</p><p>Requirements at every valid grid point: {status} "
-        f"({check.checked_points} points checked, {check.skipped_points} invalid points not checked).</p>")
-    if not check.passed:
-        parts.append("<pre>" + html.escape(check.summary()) + "</pre>")
-    # requirements table
+def _glance(result: DesignAnalysis) -> str:
+    """The table a reader sees first: per loop, the worst margins and where."""
+    a = result.loops
+    rows = []
+    for loop in LOOPS:
+        lm = a.loops[loop]
+        m = lm.margins
+
+        def worst(name, digits=3):
+            w = a.worst(loop, name)
+            if w is None:
+                return "-", ""
+            where = "every point" if w.uniform else w.condition.label()
+            return fmt_metric(loop, name, w.value, digits, unit=True), where
+        pm, pm_at = worst("phase_margin_deg")
+        wg = a.worst(loop, "gain_margin_db")
+        gm = gain_margins_text(m.gain_margin_lower_db[wg.index], m.gain_margin_upper_db[wg.index]) if wg else "-"
+        gm_at = ("every point" if wg.uniform else wg.condition.label()) if wg else ""
+        ms, ms_at = worst("ms")
+        bw, _ = worst("bandwidth_hz")
+        xo, _ = worst("crossover_hz")
+        rows.append([_LOOP_TITLE[loop], xo, bw, f"{pm}<br><span class='note'>{html.escape(pm_at)}</span>",
+                     f"{html.escape(gm)}<br><span class='note'>{html.escape(gm_at)}</span>",
+                     f"{ms}<br><span class='note'>{html.escape(ms_at)}</span>"])
+    return _table("at_a_glance", ["loop", "lowest gain crossover", "lowest bandwidth", "worst phase margin",
+                                  "worst gain margins", "worst sensitivity peak Ms"], rows,
+                  caption="Worst valid point of each margin over the grid (the point under each value). "
+                          + GAIN_MARGIN_MEANING)
+
+
+def _requirement_rows(result: DesignAnalysis):
+    a, check = result.loops, result.requirements
     rows, classes = [], []
     for r in check.rows:
         where = "same at every valid point" if r.uniform else (r.worst_condition.label() if r.worst_condition else "-")
-        worst = _fmt(r.worst_value)
-        if r.metric == "gain_margin_db" and r.worst_value < 0:
-            worst += " (lower: conditionally stable)"
-        rows.append([r.loop, html.escape(r.requirement), _fmt(r.limit), worst,
-                     html.escape(where), str(r.n_failed),
-                     "PASS" if r.passed else "FAIL"])
-        classes.append(("", [""] * 6 + ["" if r.passed else "fail"]))
-    parts.append("<h2>Requirements</h2>")
-    parts.append(_table("requirements", ["loop", "requirement", "limit", "worst value", "worst point",
+        if r.metric == "gain_margin_db" and r.worst_condition is not None:
+            m = a.loops[r.loop].margins
+            worst = gain_margins_text(m.gain_margin_lower_db[r.worst_index], m.gain_margin_upper_db[r.worst_index])
+            if r.worst_value < 0:
+                worst += " (lower: conditionally stable)"
+        else:
+            worst = fmt_metric(r.loop, r.metric, r.worst_value, unit=True)
+        status = requirement_status([r.worst_value], r.limit, REQUIREMENT_METRICS[r.requirement][1])[0]
+        verdict = "FAIL" if not r.passed else ("PASS (close to the limit)" if status == 1 else "PASS")
+        rows.append([_LOOP_TITLE[r.loop], html.escape(requirement_text(r.loop, r.requirement, r.limit)),
+                     html.escape(worst), html.escape(where), str(r.n_failed), verdict])
+        classes.append(("", [""] * 5 + ["fail" if not r.passed else ("near" if status == 1 else "")]))
+    return rows, classes
+
+
+def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
+    a, d, check = result.loops, result.design, result.requirements
+    lin = a.linearization
+    extra_nav = (("tuning", "Tuning"),) if "objective_before" in (getattr(d, "tuning", None) or {}) else ()
+    parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>THSA loop analysis: {html.escape(d.name)}"
+             f"</title><style>{_CSS}</style></head><body>", _nav(extra_nav)]
+    status = "<span class='pass'>PASS</span>" if check.passed else "<span class='failtxt'>FAIL</span>"
+    parts.append(f"<h1 id='summary'>THSA loop analysis: design <code>{html.escape(d.name)}</code></h1>")
+    n_fail = sum(1 for r in check.rows if not r.passed)
+    parts.append(
+        f"<p class='verdict {'ok' if check.passed else 'bad'}'>Requirements at every valid grid point: {status} "
+        f"&mdash; {len(check.rows) - n_fail} of {len(check.rows)} requirements met at the "
+        f"{check.checked_points} analysed points; {check.skipped_points} points not analysed "
+        f"(<a href='#invalid'>why</a>).</p>")
+    if not check.passed:
+        parts.append("<pre>" + html.escape(check.summary()) + "</pre>")
+    parts.append(_glance(result))
+    parts.append(
+        f"<p class='note'>Design file <code>{html.escape(d.source)}</code>; control period "
+        f"{d.control_period * 1e6:g} us, computation delay {d.computation_delay_samples} sample(s). Plant: "
+        f"{html.escape(lin.model.describe())}. Grid: {len(a)} points ({int(a.valid.sum())} valid): speeds "
+        f"{', '.join(f'{v:g}' for v in to_display('nut_speed', result.settings.nut_speeds))} "
+        f"{display_unit('nut_speed').unit}, loads "
+        f"{', '.join(f'{f:g}' for f in to_display('force', result.settings.load_forces))} "
+        f"{display_unit('force').unit} (compressive positive: negative loads aid the positive motion), temperatures "
+        f"{', '.join(f'{t:g}' for t in result.settings.temperatures)} {display_unit('temperature').unit}. "
+        "Units: SI in <code>analysis.json</code> (each key names its unit), display units here.</p>")
+    # requirements table
+    rows, classes = _requirement_rows(result)
+    parts.append(_h2("requirements", "Requirements"))
+    parts.append(_table("requirements", ["loop", "requirement", "worst value", "worst point",
                                          "failing points", "result"], rows, classes,
-                        "Gain margins are compared by magnitude: the margin nearest 0 dB of the lower (negative, "
-                        "the loop is conditionally stable) and the upper one. A closed-loop-unstable valid point "
-                        "fails every requirement."))
+                        "Each requirement at every valid grid point. Amber: met within "
+                        f"{NEAR_FRACTION:.0%} of the limit. A closed-loop-unstable valid point fails every "
+                        "requirement. " + GAIN_MARGIN_MEANING))
     # worst points
-    rows = [[w.loop, html.escape(METRIC_LABELS[w.metric]), _fmt(w.value), html.escape(w.unit),
-             "same at every valid point" if w.uniform else html.escape(w.condition.label()), html.escape(w.note)]
-            for w in a.worst_points()]
-    parts.append("<h2>Worst operating point of each metric</h2>")
-    parts.append(_details(f"Table: worst valid point of each metric ({len(rows)} rows)",
-                          _table("worst_points", ["loop", "metric", "value", "unit", "where", "note"], rows),
-                          open_=True))
+    rows = []
+    for w in a.worst_points():
+        du = metric_display(w.loop, w.metric)
+        rows.append([_LOOP_TITLE[w.loop], html.escape(METRIC_LABELS[w.metric]), fmt_metric(w.loop, w.metric, w.value),
+                     html.escape(du.unit), "same at every valid point" if w.uniform else html.escape(w.condition.label()),
+                     html.escape(w.note)])
+    parts.append(_h2("worst", "Worst operating point of each metric"))
+    parts.append(_details(f"Table: worst valid point of each metric ({len(rows)} rows; click to open)",
+                          _table("worst_points", ["loop", "metric", "value", "unit", "where", "note"], rows)))
     # figures
     captions = {
         "bode_current_loop": "Current loop: discrete PI around the ZOH RL plant of the linearisation.",
@@ -242,7 +322,9 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
         "bode_position_loop": "Position-monitoring loop: P gain and the shaper's one-sample delay around the closed "
                               "velocity loop and the nut kinematics.",
         "step_responses": "Step responses of the three loops (linear, discrete) and the response to a load step.",
-        "margin_maps": "Velocity-loop phase margin, |gain margin| and Ms over speed and load at each temperature.",
+        "margin_maps": "Velocity-loop phase margin, gain margin and Ms over speed and load at each temperature, "
+                       "coloured against the design's requirements (red fails, amber within "
+                       f"{NEAR_FRACTION:.0%} of the limit, green passes with room).",
         "velocity_poles": "Closed-loop poles of the velocity loop at every valid grid point, coloured by temperature.",
         "friction_slopes": "Local friction slope and net damping at the motor shaft: negative slopes (Stribeck "
                            "region) remove damping and destabilise the mechanical mode.",
@@ -250,17 +332,17 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
     }
     for name in FIGURES:
         if name == "bode_current_loop":
-            parts.append("<h2>Open-loop Bode plots across temperature</h2>")
+            parts.append(_h2("bode", "Open-loop Bode plots across temperature"))
         if name == "step_responses":
-            parts.append("<h2>Step responses</h2>")
+            parts.append(_h2("steps", "Step responses"))
         if name == "margin_maps":
-            parts.append("<h2>Margins over the grid</h2>")
+            parts.append(_h2("maps", "Margins over the grid"))
         if name == "velocity_poles":
-            parts.append("<h2>Velocity loop poles over temperature</h2>")
+            parts.append(_h2("poles", "Velocity loop poles over temperature"))
         if name == "friction_slopes":
-            parts.append("<h2>Friction: Stribeck region</h2>")
+            parts.append(_h2("friction", "Friction: Stribeck region"))
         if name == "switching_transient":
-            parts.append("<h2>Active/standby switch-over</h2>")
+            parts.append(_h2("switching", "Active/standby switch-over"))
         if name in figures:
             b64 = base64.b64encode(figures[name]).decode("ascii")
             parts.append(f"<figure id='fig-{name}'><img alt='{name}' src='data:image/png;base64,{b64}'>"
@@ -279,7 +361,9 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
                              _fmt(lin.net_damping[k] * 1e3), "yes" if lin.net_damping[k] < 0 else "no",
                              _fmt(vl.margins.phase_margin_deg[k]), _fmt(vl.margins.gain_margin_db[k]),
                              _fmt(vl.step_info.overshoot_percent[k])])
-            parts.append(_details(f"Table: Stribeck points ({len(rows)} rows)", _table(
+            fold = (f"No valid point with a negative friction slope or net damping ({int(a.valid.sum())} points)."
+                    if not rows else f"Table: Stribeck points ({len(rows)} rows; click to open)")
+            parts.append(_details(fold, _table(
                 "stribeck_points", ["point", "friction slope [mN m s/rad]", "net damping [mN m s/rad]",
                                     "unstable mechanical mode", "velocity PM [deg]",
                                     "velocity GM nearest 0 dB [dB]", "velocity overshoot [%]"],
@@ -306,7 +390,7 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
         elif name == "switching_transient":
             parts.append("<p class='note' id='table-switching_recovery'>switching_recovery: not computed.</p>")
     # configurations (linear side of the switch-over)
-    parts.append("<h2>Active/standby configurations (linear models)</h2>")
+    parts.append(_h2("configurations", "Active/standby configurations (linear models)"))
     if result.configurations is not None:
         rows, classes = [], []
         for name, la in (("primary active, standby dragged", result.configurations.primary),
@@ -336,7 +420,7 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
         parts.append("<p class='note' id='table-configurations'>configurations: not computed.</p>")
     # invalid points
     rows = [[html.escape(c.label()), html.escape(" | ".join(reasons))] for c, reasons in a.invalid_points()]
-    parts.append("<h2>Invalid operating points</h2>")
+    parts.append(_h2("invalid", "Invalid operating points"))
     parts.append(_details(f"Table: invalid points ({len(rows)} rows)", _table(
         "invalid_points", ["point", "why the linear model is not valid there"], rows,
         caption=f"{len(rows)} points: a linear model there would be silently wrong.")))
@@ -344,13 +428,23 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
     rows = [[c.loop, c.nonlinearity, html.escape(c.condition.label()), "yes" if c.predicted else "no",
              _fmt(c.amplitude), html.escape(c.amplitude_unit), _fmt(c.frequency_hz), html.escape(c.note)]
             for c in result.limit_cycles]
-    parts.append("<h2>Describing functions: predicted limit cycles</h2>")
-    parts.append(_details(f"Table: limit cycles ({len(rows)} rows)", _table(
+    parts.append(_h2("limit-cycles", "Describing functions: predicted limit cycles"))
+    predicted = [c for c in result.limit_cycles if c.predicted]
+    table = _table(
         "limit_cycles", ["loop", "nonlinearity", "condition", "limit cycle", "amplitude", "unit", "frequency [Hz]",
                          "note"], rows,
         caption="Friction: the plant's set-valued friction vs motor speed around zero speed; "
-                "backlash: the load-path play (2 x backlash) in the position feedback."), open_=True))
-    from .tuning_report import tuning_section  # before/after of a tuned design (issue #9)
+                "backlash: the load-path play (2 x backlash) in the position feedback.")
+    if predicted or not rows:
+        parts.append(_details(f"Table: limit cycles ({len(rows)} rows, {len(predicted)} predicted)", table,
+                              open_=bool(predicted)))
+    else:  # uniform: one line
+        kinds = sorted({f"{c.loop.replace('_', ' ')} / {c.nonlinearity}" for c in result.limit_cycles})
+        parts.append(_folded(f"No limit cycle predicted at any of the {len(rows)} points checked "
+                             f"({'; '.join(kinds)}). Click for the table.", table))
+    from .tuning_report import (
+        tuning_section,  # before/after of a tuned design (issue #9)
+    )
     parts.append(tuning_section(d))
     notes = "; ".join(f"{k} {v:.2f} s" for k, v in result.timings.items())
     parts.append(f"<p class='note'>Computed in: {html.escape(notes)}.</p></body></html>")

@@ -13,24 +13,23 @@ import html
 import math
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from ..data.units import display_unit, label, to_display
 from .build import atomic_folder, write_json  # noqa: E402
+from .figure import subplots
 from .identification import figure_png  # noqa: E402
 
 __all__ = ["plot_fault_run", "plot_fault_case", "plot_sweep", "fault_analysis_to_dict", "write_fault_report"]
 
 _FLAGS = (("trip_discrepancy", "discrepancy trip"), ("trip_lvdt", "LVDT trip"), ("trip_speed", "speed trip"),
-          ("standby_active", "standby active"), ("safed", "safed"), ("brakes_engaged", "brakes on"),
+          ("standby_active", "standby active\n(monitor's take-over)"), ("energised_standby", "standby energised"),
+          ("safed", "safed"), ("brakes_engaged", "brakes on"),
           ("limiter_slipping", "limiter slipping"))
 
 
 def _panels(t, get, r, N, title, fault_times=()):
-    fig, axes = plt.subplots(5, 1, figsize=(10, 12), sharex=True, constrained_layout=True)
+    fig, axes = subplots(5, 1, figsize=(10, 12), sharex=True, constrained_layout=True)
     ax = axes[0]
     ax.plot(t, get("speed_cmd") * 1e3, "k--", lw=1, label="command")
     ax.plot(t, get("measured_motor_speed") * r * 1e3, label="motor sensor (x lead/2 pi N)")
@@ -57,8 +56,8 @@ def _panels(t, get, r, N, title, fault_times=()):
     ax.plot(t, get("monitor_speed_error") / 100.0, lw=0.8, label="speed error [100 rad/s]")
     ax.set_ylabel("monitored")
     ax = axes[4]
-    for k, (sig, label) in enumerate(_FLAGS):
-        ax.step(t, get(sig) * 0.8 + k, where="post", label=label)
+    for k, (sig, name) in enumerate(_FLAGS):
+        ax.step(t, get(sig) * 0.8 + k, where="post", label=name)
     ax.set_yticks(range(len(_FLAGS)), [lab for _, lab in _FLAGS], fontsize=8)
     ax.set_xlabel("time [s]")
     for a in axes:
@@ -89,8 +88,11 @@ def plot_fault_case(case, params):
     N = params.value("gear.ratio")
     r = params.value("screw.lead") / (2 * math.pi * N)
     s = case.series
-    fig = _panels(s["time"], lambda n: np.asarray(s[n]) if n in s else np.zeros_like(s["time"]), r, N,
-                  f"{case.scenario}: {', '.join(case.faults)} at {case.fault_time_s:g} s", (case.fault_time_s,))
+    title = f"{case.title}: {', '.join(case.faults)} at {case.fault_time_s:g} s"
+    if case.takeover_source == "schedule":
+        title += "\n(standby enabled by the scenario's schedule: the monitors only watch, their take-over flag stays low)"
+    fig = _panels(s["time"], lambda n: np.asarray(s[n]) if n in s else np.zeros_like(s["time"]), r, N, title,
+                  (case.fault_time_s,))
     fig.axes[0].plot(s["time"], s["nut_speed_no_fault"] * 1e3, color="0.5", lw=0.8, label="nut, no fault")
     fig.axes[0].legend(loc="upper left", fontsize=7)
     return fig
@@ -99,7 +101,7 @@ def plot_fault_case(case, params):
 def plot_sweep(analysis):
     """Detection time of each fault scenario vs threshold scale (false alarms marked); recovery vs take-over delay."""
     pts = list(analysis.sweep)  # detection does not depend on the take-over delay: any point of the scale
-    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
+    fig, (ax, ax2) = subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
     names = sorted({n for p in pts for n in p.detection_s})
     scales = sorted({p.scale for p in pts})
     for n in names:
@@ -117,12 +119,39 @@ def plot_sweep(analysis):
     for n in sorted({n for p in analysis.sweep for n in p.recovery_s}):
         y = [next((p.recovery_s[n] for p in analysis.sweep if p.delay_s == d and abs(p.scale - 1.0) < 1e-12
                    and n in p.recovery_s), math.nan) for d in delays]
-        ax2.plot([d * 1e3 for d in delays], [v if math.isfinite(v) else np.nan for v in y], "o-", label=n)
+        ax2.plot([d * 1e3 for d in delays], [to_display("time", v) if math.isfinite(v) else np.nan for v in y], "o-",
+                 label=n)
     ax2.set_xlabel("take-over delay after detection [ms] (thresholds x 1; rigid drive train)")
-    ax2.set_ylabel("recovery time [s]")
+    ax2.set_ylabel(label("recovery time", "time"))
     ax2.legend(fontsize=7)
     ax2.grid(True, alpha=0.3)
     return fig
+
+
+#: Monitor -> quantity of its monitored signal (display-unit table).
+_MONITOR_QUANTITY = {"discrepancy": "angle", "lvdt": "position", "speed": "rotational_speed"}
+_MONITOR_WHAT = {"discrepancy": "motor - RVDT angle at the screw", "lvdt": "upper-gimbal displacement (LVDT)",
+                 "speed": "speed reference - motor speed"}
+
+
+def monitor_display(monitor: str):
+    """Display unit of a monitor's signal and threshold."""
+    return display_unit(_MONITOR_QUANTITY.get(monitor, "dimensionless"))
+
+
+def _setting_rows(settings) -> list:
+    """Monitor settings with their units (thresholds in the monitored signal's display unit, times in ms)."""
+    rows = []
+    for key, value in settings.as_dict().items():
+        monitor = key.split("_")[0]
+        if isinstance(value, bool):
+            rows.append([key, "yes" if value else "no", "-", ""])
+        elif key.endswith("_threshold"):
+            du = monitor_display(monitor)
+            rows.append([key, f"{du.to_display(value):.4g}", du.unit, _MONITOR_WHAT.get(monitor, "")])
+        else:
+            rows.append([key, f"{to_display('time', value):.4g}", display_unit("time").unit, ""])
+    return rows
 
 
 def _num(v):
@@ -173,8 +202,9 @@ def _table(head, rows):
 def _case_rows(cases):
     rows = []
     for c in cases:
+        takeover = _ms(c.takeover_s) + (" (scheduled)" if c.takeover_source == "schedule" else "")
         rows.append([c.scenario, ", ".join(c.faults), f"{c.fault_time_s:g}", _ms(c.detection_s["discrepancy"]),
-                     _ms(c.detection_s["lvdt"]), _ms(c.detection_s["speed"]), _ms(c.takeover_s), _ms(c.safed_s),
+                     _ms(c.detection_s["lvdt"]), _ms(c.detection_s["speed"]), takeover, _ms(c.safed_s),
                      f"{c.peaks['loadpath'] / 1e3:.1f}", f"{c.peaks['primary_attachment'] / 1e3:.1f}",
                      f"{c.peaks['secondary_path'] / 1e3:.1f}", f"{c.peaks['jam'] / 1e3:.1f}",
                      f"{c.peaks['limiter_torque']:.0f}", f"{c.limiter_slip_rad:.3f}",
@@ -199,39 +229,66 @@ def write_fault_report(analysis, params, out_dir, **folder_options) -> Path:
             fig = plot_fault_case(c, params)
             name = f"case_{c.scenario}{'_rigid' if c in analysis.rigid_cases else ''}.png"
             fig.savefig(tmp / name, dpi=100)
-            figs.append((name, fig, f"{c.scenario}: {', '.join(c.faults)}"))
+            figs.append((name, fig, f"{c.title}: {', '.join(c.faults)}"))
         if analysis.sweep:
             fig = plot_sweep(analysis)
             fig.savefig(tmp / "sweep.png", dpi=100)
             figs.append(("sweep.png", fig, "monitor sweep"))
         write_json(tmp / "faults.json", fault_analysis_to_dict(analysis))
         m = analysis.monitors
+        css = ("body{font-family:system-ui,Segoe UI,Helvetica,Arial,sans-serif;max-width:1250px;margin:1em auto;color:#222}"
+               "table{border-collapse:collapse;margin:0.4em 0}td,th{font-size:12px;border:1px solid #ccc;padding:2px 6px}"
+               "th{background:#f0f0f0}h2{font-size:1.15em;border-bottom:1px solid #ccc;scroll-margin-top:2.6em}"
+               "nav{position:sticky;top:0;background:#fff;border-bottom:1px solid #ccc;padding:6px 0;font-size:13px}"
+               "nav a{margin-right:1em;color:#1a4f8b;text-decoration:none}.note{font-size:12px;color:#555}"
+               "img{max-width:100%}")
+        nav = ("<nav><a href='#table-cases'>Fault cases</a><a href='#table-rigid'>Rigid drive train</a>"
+               "<a href='#table-margins'>False-alarm margins</a><a href='#table-sweep'>Sweep</a>"
+               "<a href='#settings'>Monitor settings</a><a href='#figures'>Figures</a></nav>")
+        scheduled = [c.title for c in analysis.rigid_cases if c.takeover_source == "schedule"]
+        worst_margin = min(((mon, analysis.min_margin(mon)) for mon in sorted({x.monitor for x in analysis.margins})),
+                           key=lambda p: p[1], default=None)
         parts = ["<!DOCTYPE html><html><head><meta charset='utf-8'><title>Faults and monitoring</title>",
-                 "<style>body{font-family:sans-serif;max-width:1200px;margin:auto} td,th{font-size:12px}</style></head><body>",
+                 f"<style>{css}</style></head><body>", nav,
                  "<h1>Faults and monitoring (model F)</h1>",
                  f"<p>Plant: level {html.escape(analysis.level)} + {html.escape(', '.join(analysis.effects))}. "
-                 "Monitors in the closed loop at the control period. Times from the fault onset. "
+                 "Monitors in the closed loop at the control period. Times from the fault onset, in ms. "
                  f"Recovery: centred {analysis.smooth_s * 1e3:.0f} ms average of the nut-speed error against the run "
-                 f"without the fault within {analysis.tolerance * 100:.0f} % of the command.</p>",
-                 "<h2>Monitor settings</h2>",
-                 _table(["setting", "value"], [[k, v] for k, v in m.as_dict().items()]),
+                 f"without the fault within {analysis.tolerance * 100:.0f} % of the command."
+                 + (f" Smallest false-alarm margin: <b>{html.escape(worst_margin[0])} {worst_margin[1]:.2f}</b> "
+                    "(threshold / level held on a normal scenario; above 1: no false alarm)." if worst_margin else "")
+                 + "</p>",
                  "<h2 id='table-cases'>Fault cases (fault plant)</h2>", _table(_CASE_HEAD, _case_rows(analysis.cases)),
                  "<h2 id='table-rigid'>Channel failures on a rigid drive train (papers' comparison; recovery without averaging)</h2>",
                  _table(_CASE_HEAD, _case_rows(analysis.rigid_cases)),
+                 ("<p class='note'>The cases named <code>*_papers_15ms</code> enable the standby channel by the "
+                  "scenario's schedule 15 ms after the fault, as the papers do, with the monitors watching only "
+                  "(no reconfiguration): their flag 'standby active' is the reconfiguration logic's and stays low, "
+                  "although the standby drives and the torque recovers; the take-over time shown is the schedule's "
+                  "('scheduled'), and the figures show the channel's enable as 'standby energised'.</p>"
+                  if scheduled else ""),
                  "<h2 id='table-margins'>False-alarm margins on the normal scenarios</h2>",
-                 _table(["scenario", "monitor", "threshold", "level held for the confirmation time", "margin", "tripped"],
-                        [[x.scenario, x.monitor, f"{x.threshold:g}", f"{x.persisted:.4g}",
-                          "inf" if not math.isfinite(x.margin) else f"{x.margin:.2f}", x.tripped] for x in analysis.margins]),
+                 _table(["scenario", "monitor", "monitored signal", "threshold", "level held for the confirmation time",
+                         "unit", "margin [-]", "tripped"],
+                        [[x.scenario, x.monitor, _MONITOR_WHAT.get(x.monitor, ""),
+                          f"{monitor_display(x.monitor).to_display(x.threshold):.4g}",
+                          f"{monitor_display(x.monitor).to_display(x.persisted):.4g}", monitor_display(x.monitor).unit,
+                          "inf" if not math.isfinite(x.margin) else f"{x.margin:.2f}", "yes" if x.tripped else "no"]
+                         for x in analysis.margins]),
                  "<h2 id='table-sweep'>Sweep</h2>",
-                 _table(["scale", "take-over delay [ms]", "normal scenarios tripping", "first trip [ms]", "recovery [ms]"],
+                 _table(["threshold scale [-]", "take-over delay [ms]", "normal scenarios tripping", "first trip [ms]",
+                         "recovery [ms]"],
                         [[f"{p.scale:g}", f"{p.delay_s * 1e3:g}", ", ".join(p.normal_trips) or "none",
                           "; ".join(f"{k}: {_ms(v)}" for k, v in p.detection_s.items()),
-                          "; ".join(f"{k}: {_ms(v)}" for k, v in p.recovery_s.items())] for p in analysis.sweep])]
+                          "; ".join(f"{k}: {_ms(v)}" for k, v in p.recovery_s.items())] for p in analysis.sweep]),
+                 "<h2 id='settings'>Monitor settings</h2>",
+                 _table(["setting", "value", "unit", "monitored signal"], _setting_rows(m)),
+                 "<h2 id='figures'>Figures</h2>"]
         for name, fig, caption in figs:
             data = base64.b64encode(figure_png(fig)).decode()
             parts.append(f"<figure id='fig-{html.escape(name[:-4])}'><img alt='{html.escape(caption)}' "
                          f"src='data:image/png;base64,{data}'><figcaption>{html.escape(caption)}</figcaption></figure>")
-            plt.close(fig)
+            fig.clear()
         parts.append("</body></html>\n")
         (tmp / "report.html").write_text("\n".join(parts), encoding="utf-8")
     return Path(out_dir)

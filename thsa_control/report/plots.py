@@ -1,18 +1,16 @@
 """Figures of simulation results.  The only module of thsa-control that imports matplotlib.
 
 Functions take results (data) and return a ``Figure``; they never compute
-physics.  They use the non-interactive Agg backend.
+physics.  They use matplotlib's object API (:mod:`.figure`): no backend is chosen.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+
+from .figure import subplots
 
 __all__ = ["plot_run", "plot_levels", "close"]
 
@@ -20,8 +18,8 @@ _LEVEL_COLORS = {"A": "tab:gray", "B": "tab:blue", "C": "tab:orange", "D": "tab:
 
 
 def close(fig) -> None:
-    """Release a figure's memory."""
-    plt.close(fig)
+    """Release a figure's memory (figures live outside pyplot: drop the artists, nothing to unregister)."""
+    fig.clear()
 
 
 def _mark_stops(ax, result):
@@ -38,7 +36,7 @@ def plot_run(result, *, title: str | None = None):
     Grey bands mark the motors de-energised (trim stops, faults).
     """
     t = np.asarray(result.time)
-    fig, axes = plt.subplots(4, 1, figsize=(10, 10), sharex=True, constrained_layout=True)
+    fig, axes = subplots(4, 1, figsize=(10, 10), sharex=True, constrained_layout=True)
     ax = axes[0]
     ax.plot(t, np.asarray(result["speed_cmd"]) * 1e3, "k--", lw=1, label="command")
     ax.plot(t, np.asarray(result["nut_speed"]) * 1e3, label="nut")
@@ -81,7 +79,7 @@ def plot_levels(results: Mapping[str, object], *, title: str | None = None):
     no-back) does not flatten the others.
     """
     labels = list(results)
-    fig, axes = plt.subplots(3, len(labels), figsize=(4.2 * len(labels), 8), sharex=True, squeeze=False,
+    fig, axes = subplots(3, len(labels), figsize=(4.2 * len(labels), 8), sharex=True, squeeze=False,
                              constrained_layout=True)
     for col, label in enumerate(labels):
         r = results[label]

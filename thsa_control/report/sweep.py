@@ -85,7 +85,7 @@ def plot_sensitivity(analysis, metric: str, group: str, top: int = 10):
 
 
 def _replay_files(spec, run: int, folder: Path) -> tuple[str, str]:
-    from ..faults.scenario_file import scenario_to_dict
+    from ..sim.scenarios import scenario_to_dict
     from ..sweep.engine import run_inputs
 
     rs, = spec.run_specs([run])

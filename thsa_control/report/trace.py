@@ -5,14 +5,10 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-
-import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from .build import write_json  # noqa: E402
+from .figure import subplots  # noqa: E402
 from .identification import figure_png, write_html_report  # noqa: E402
 
 __all__ = ["write_trace_folder", "format_trace_summary", "plot_residual_before_after"]
@@ -27,7 +23,7 @@ def plot_residual_before_after(before: dict, after: dict, run_name: str, channel
     from ..data.rigformat import COLUMNS
 
     spec = next((c for c in COLUMNS.values() if c.signal == channel), None)  # the rig format's unit (rpm, mm)
-    fig, ax = plt.subplots(figsize=(10, 3.2))
+    fig, ax = subplots(figsize=(10, 3.2))
     for label, fit, kw in (("declared model", before, {"color": "0.6"}), ("with added effects", after, {"color": "C3"})):
         p = fit["predictions"][run_name]
         if channel not in p["measured"]:

@@ -86,11 +86,11 @@ def plot_before_after(before, after, *, signals=("nut_speed", "motor_current"), 
     ``before``/``after``: sequences of :class:`~thsa_control.sim.simulate.SimulationResult` of the same runs.
     Returns the figure.
     """
-    import matplotlib.pyplot as plt
+    from .figure import subplots
 
     n = len(before)
     if axes is None:
-        fig, axes = plt.subplots(len(signals), n, figsize=(4.2 * n, 2.6 * len(signals)), squeeze=False,
+        fig, axes = subplots(len(signals), n, figsize=(4.2 * n, 2.6 * len(signals)), squeeze=False,
                                  constrained_layout=True)
     else:
         fig = axes[0][0].figure

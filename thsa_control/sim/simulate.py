@@ -1,13 +1,14 @@
 """Closed-loop simulation: sampled-data cascade + fixed-step plant, compiled.
 
-One control period is one casadi ``sample`` Function: the controller
-(``controllers.py``) reads the measurements at ``t_k`` and its voltages are
-held (zero-order hold) while the plant advances ``substeps`` fixed steps of
-its discrete map (``model/plant.py``).  ``mapaccum`` strings the periods
-into blocks of one output period and the blocks into chunks; the chunk
-Function is compiled to C once and cached on disk (``_compile.py``).  The
-same ``sample`` Function, uncompiled, is what gradient-based tuning and
-identification differentiate through.
+One control period is one casadi ``sample`` Function of the closed loop
+(``loop.py``: the controller of ``loops/controllers.py`` reads the
+measurements at ``t_k``, its voltages are held while the plant advances
+``substeps`` fixed steps of its discrete map, plus the loop extensions a
+scenario asks for, e.g. the monitors of the fault cases).  A C driver loops
+over the periods; it is compiled once and cached on disk (``codegen.py``).
+Without a C compiler, ``mapaccum`` strings the periods into chunks run by
+casadi's virtual machine.  The same ``sample`` Function, uncompiled, is what
+gradient-based tuning and identification differentiate through.
 
 Examples
 --------
@@ -34,20 +35,16 @@ from types import MappingProxyType
 import casadi as ca
 import numpy as np
 
-from ._compile import compile_run_loop
-from ..loops.controllers import CONTROLLER_PARAMETERS, CONTROLLER_SIGNALS, CONTROLLER_STATES, REFERENCE_INPUTS, build_controller
 from ..loops.design import Design
 from ..errors import ScenarioError, ThsaError
 from ..model.plant import Plant
 from ..model.params import ParameterSet
+from .loop import (OPTIONAL_INPUTS, RUN_INPUTS, ClosedLoop, LoopExtension, extensions_for, output_decimation,
+                   plant_input_vector)
 from .scenarios import TEMPERATURE_RANGE, Scenario
 
-__all__ = ["SimulationSettings", "InputSeries", "SimulationResult", "Simulator", "simulate", "plant_input_vector"]
-
-#: Per-sample inputs of a run: the controller's references, then load and temperature.
-RUN_INPUTS = REFERENCE_INPUTS + ("load_force", "temperature")
-#: Inputs an :class:`InputSeries` may omit (zero): the current added at the velocity PI's output [A].
-OPTIONAL_INPUTS = ("current_ff",)
+__all__ = ["SimulationSettings", "InputSeries", "SimulationResult", "Simulator", "simulate", "plant_input_vector",
+           "RUN_INPUTS", "OPTIONAL_INPUTS", "output_decimation"]
 
 
 @dataclass(frozen=True)
@@ -179,35 +176,12 @@ class SimulationResult:
         return (self.time >= t0) & (self.time < t1)
 
 
-def plant_input_vector(plant: Plant, u_ctrl, load_force, temperature, **faults):
-    """The plant's input vector, by name: the controller's four outputs, load, temperature,
-    fault inputs (``faults``, by name) and every other input at its healthy value 0."""
-    values = dict(zip(("voltage_primary", "voltage_standby", "enable_primary", "enable_standby"), ca.vertsplit(u_ctrl)))
-    values.update(load_force=load_force, temperature=temperature, **faults)
-    unknown = set(values) - set(plant.inputs)
-    if unknown:
-        raise ThsaError(f"no plant input(s) {sorted(unknown)}; inputs are {', '.join(plant.inputs)}")
-    return ca.vertcat(*(values.get(n, ca.SX(0.0)) for n in plant.inputs))
-
-
-def output_decimation(output_period: float | None, h: float) -> tuple[float, int]:
-    """``(output period, control periods per output sample)``; None means every control period.
-
-    Raises ``ValueError`` when the output period is not a whole multiple of ``h``.
-    """
-    out_period = output_period if output_period is not None else h
-    decimation = int(round(out_period / h))
-    if decimation < 1 or abs(decimation * h - out_period) > 1e-9 * out_period:
-        raise ValueError(f"output_period {out_period:g} s is not a multiple of the control period {h:g} s")
-    return out_period, decimation
-
-
 class Simulator:
     """Closed-loop simulator of one plant (effect set).
 
-    The constructor only stores its configuration; the casadi Functions are
-    built, and compiled, on first use and kept for later runs of the same
-    control/output periods.
+    The constructor only stores its configuration; the closed loop of each
+    set of loop extensions (none, or the monitors of a fault scenario) is
+    built, and compiled, on first use and kept for later runs.
 
     Parameters
     ----------
@@ -219,75 +193,55 @@ class Simulator:
         self.plant = plant
         self.settings = settings or SimulationSettings()
         self.settings.validate()
-        self._compiled: dict = {}
-        self._sample = None
+        self._loops: dict = {}
+        self._chunks: dict = {}
 
-    # ---- symbolic pieces (also for tuning and identification)
-    def sample_function(self) -> ca.Function:
+    # ---- the closed loop (also for tuning and identification)
+    def closed_loop(self, extensions: tuple[LoopExtension, ...] = ()) -> ClosedLoop:
+        """The :class:`~thsa_control.sim.loop.ClosedLoop` of this plant with ``extensions`` (kept)."""
+        key = tuple(e.key() for e in extensions)
+        loop = self._loops.get(key)
+        if loop is None:
+            loop = self._loops[key] = ClosedLoop(self.plant, self.settings.substeps, tuple(extensions))
+        return loop
+
+    def sample_function(self, extensions: tuple[LoopExtension, ...] = ()) -> ca.Function:
         """``sample(z, w, theta) -> (z_next, y)`` for one control period.
 
         ``z = [x; xc]`` (plant then controller states), ``w`` the run inputs
         of one period (``RUN_INPUTS``), ``theta = [p; k; h]`` (plant
         parameters, controller parameters, control period).  ``y`` is the
-        plant outputs followed by ``CONTROLLER_SIGNALS``.
+        plant outputs followed by ``CONTROLLER_SIGNALS``.  With
+        ``extensions``, their states, inputs, parameters and signals follow
+        (``loop.py``).
         """
-        if self._sample is not None:
-            return self._sample
-        plant = self.plant
-        nx, nc = len(plant.states), len(CONTROLLER_STATES)
-        n_p, n_k = len(plant.parameters), len(CONTROLLER_PARAMETERS)
-        z = ca.SX.sym("z", nx + nc)
-        w = ca.SX.sym("w", len(RUN_INPUTS))
-        theta = ca.SX.sym("theta", n_p + n_k + 1)
-        x, xc = z[:nx], z[nx:]
-        p, k, h = theta[:n_p], theta[n_p:n_p + n_k], theta[n_p + n_k]
-        names = plant.state_names
-        standby = x[names.index("standby_current")] if "standby_current" in names else ca.SX(0.0)
-        speed_sensor = "rotor_speed" if "rotor_speed" in names else "motor_speed"  # the motor sensor reads the rotors
-        meas = ca.vertcat(x[names.index(speed_sensor)], x[names.index("motor_current")], standby,
-                          x[names.index("nut_position")])
-        xc_next, u_ctrl, sig = build_controller()(xc, w[:len(REFERENCE_INPUTS)], meas, k, h)
-        u = plant_input_vector(plant, u_ctrl, w[RUN_INPUTS.index("load_force")], w[RUN_INPUTS.index("temperature")])
-        hs = h / self.settings.substeps
-        x_next, y = plant.step(x, u, p, hs)
-        for _ in range(self.settings.substeps - 1):
-            x_next, _ = plant.step(x_next, u, p, hs)
-        self._sample = ca.Function("sample", [z, w, theta], [ca.vertcat(x_next, xc_next), ca.vertcat(y, sig)],
-                                   ["z", "w", "theta"], ["z_next", "y"])
-        # the same period without outputs (casadi drops what only the outputs need)
-        self._sample_x = ca.Function("sample_x", [z, w, theta], [ca.vertcat(x_next, xc_next)],
-                                     ["z", "w", "theta"], ["z_next"])
-        return self._sample
+        return self.closed_loop(extensions).functions()[0]
 
-    def chunk_function(self, decimation: int, blocks: int) -> ca.Function:
+    def chunk_function(self, decimation: int, blocks: int, extensions: tuple[LoopExtension, ...] = ()) -> ca.Function:
         """``chunk(z0, W, theta) -> (Z, Y)`` over ``blocks`` output periods of ``decimation`` control periods."""
-        sample = self.sample_function()
+        sample, sample_x = self.closed_loop(extensions).functions()
         z = ca.MX.sym("z", sample.size1_in(0))
         W = ca.MX.sym("W", sample.size1_in(1), decimation)
         theta = ca.MX.sym("theta", sample.size1_in(2))
         z1, y0 = sample(z, W[:, 0], theta)
         if decimation > 1:
-            zs = self._sample_x.mapaccum("periods", decimation - 1)(z1, W[:, 1:], theta)
+            zs = sample_x.mapaccum("periods", decimation - 1)(z1, W[:, 1:], theta)
             z1 = zs[:, -1]
         block = ca.Function("block", [z, W, theta], [z1, y0])
         return block.mapaccum(f"thsa_chunk_{decimation}_{blocks}", blocks)
 
-    def _loop(self):
-        if "loop" not in self._compiled:
-            self.sample_function()
-            if self.settings.compiled:
-                self._compiled["loop"] = compile_run_loop(self._sample, self._sample_x)
-            else:
-                self._compiled["loop"] = (None, {"compiled": False, "cached": False, "codegen_s": 0.0, "compile_s": 0.0})
-        return self._compiled["loop"]
+    def _compiled_loop(self, loop: ClosedLoop):
+        if self.settings.compiled:
+            return loop.compiled()
+        return None, {"compiled": False, "cached": False, "codegen_s": 0.0, "compile_s": 0.0}
 
-    def _run_interpreted(self, z, W, theta, decimation):
+    def _run_interpreted(self, extensions, z, W, theta, decimation):
         """casadi virtual machine fallback (no C compiler), chunked mapaccum."""
         nb = self.settings.chunk_blocks
-        key = ("vm", decimation)
-        if key not in self._compiled:
-            self._compiled[key] = self.chunk_function(decimation, nb)
-        f = self._compiled[key]
+        key = (tuple(e.key() for e in extensions), decimation)
+        if key not in self._chunks:
+            self._chunks[key] = self.chunk_function(decimation, nb, extensions)
+        f = self._chunks[key]
         n_out = -(-W.shape[1] // decimation)
         n_chunks = -(-n_out // nb)
         total = n_chunks * nb * decimation
@@ -302,7 +256,7 @@ class Simulator:
 
     # ---- runs
     def run(self, inputs: InputSeries | Scenario, design: Design, params: ParameterSet, *,
-            x0: np.ndarray | None = None) -> SimulationResult:
+            x0: np.ndarray | None = None, extensions: tuple[LoopExtension, ...] | None = None) -> SimulationResult:
         """Simulate a run in closed loop.
 
         Parameters
@@ -316,6 +270,10 @@ class Simulator:
         x0 : ndarray, optional
             Initial plant state; default at rest in equilibrium with the
             initial load.
+        extensions : tuple of LoopExtension, optional
+            Blocks added to the loop; default: those the scenario asks for
+            (:func:`~thsa_control.sim.loop.extensions_for`: the monitors when
+            it has faults or monitor settings), none for an ``InputSeries``.
 
         Returns
         -------
@@ -329,12 +287,14 @@ class Simulator:
             The design asks more than the actuator has.
         """
         h = design.control_period
-        if isinstance(inputs, Scenario) and (inputs.faults or inputs.monitors is not None):
-            from ..faults.loop import run_fault_loop  # faults and monitors in the loop (issue #10)
-            return run_fault_loop(self, inputs, design, params, x0=x0)
-        if isinstance(inputs, Scenario):
-            inputs = InputSeries.from_scenario(inputs, h)
-        missing = [e for e in inputs.required_effects if e not in self.plant.effects]
+        scenario = inputs if isinstance(inputs, Scenario) else None
+        if extensions is None:
+            extensions = extensions_for(scenario) if scenario is not None else ()
+        extensions = tuple(extensions)
+        if scenario is not None:
+            inputs = InputSeries.from_scenario(scenario, h)
+        needed = tuple(inputs.required_effects) + tuple(e for x in extensions for e in x.required_effects(scenario))
+        missing = [e for e in dict.fromkeys(needed) if e not in self.plant.effects]
         if missing:
             raise ScenarioError(f"run {inputs.name!r} needs effect(s) {missing}; the plant has {list(self.plant.effects)}")
         if len(inputs.time) > 1 and not np.allclose(np.diff(inputs.time), h, rtol=1e-6, atol=1e-12):
@@ -342,29 +302,26 @@ class Simulator:
         out_period, decimation = output_decimation(self.settings.output_period, h)
         k = design.controller_vector(params, accel_limit=inputs.accel_limit, jerk_limit=inputs.jerk_limit,
                                      motor_off_at_zero=inputs.motor_off_at_zero)
-        theta = np.concatenate([self.plant.p_vector(params), k, [h]])
-        W = inputs.matrix()
+        loop = self.closed_loop(extensions)
+        theta = loop.theta(self.plant.p_vector(params), k, h)
+        W = loop.input_matrix(inputs, scenario)
         if x0 is None:
             x0 = self.plant.initial_state(params, load_force=float(W[RUN_INPUTS.index("load_force"), 0]))
-        z = np.concatenate([np.asarray(x0, float), np.zeros(len(CONTROLLER_STATES))])
+        z = loop.initial_state(x0, k)
 
-        loop, cinfo = self._loop()
+        run_loop, cinfo = self._compiled_loop(loop)
         t0 = time.perf_counter()
-        if loop is not None:
-            Y, z = loop(z, W, theta, decimation)
+        if run_loop is not None:
+            Y, z = run_loop(z, W, theta, decimation)
         else:
-            Y, z = self._run_interpreted(z, W, theta, decimation)
+            Y, z = self._run_interpreted(extensions, z, W, theta, decimation)
         wall = time.perf_counter() - t0
         n_out = Y.shape[1]
         if not np.all(np.isfinite(Y)):
             bad = np.argwhere(~np.isfinite(Y))[0]
             raise ThsaError(f"simulation of {inputs.name!r} diverged (non-finite signal at t = {bad[1] * decimation * h:g} s)")
-        names = self.plant.outputs + CONTROLLER_SIGNALS
-        units = dict(self.plant.output_units)
-        units.update({"speed_cmd": "m/s", "motor_speed_ref": "rad/s", "current_ref": "A", "voltage_cmd_primary": "V",
-                      "voltage_cmd_standby": "V", "energised_primary": "-", "energised_standby": "-"})
         signals = {}
-        for i, name in enumerate(names):
+        for i, name in enumerate(loop.signals):
             arr = Y[i].copy()
             arr.setflags(write=False)
             signals[name] = arr
@@ -372,7 +329,9 @@ class Simulator:
         t.setflags(write=False)
         info = {"wall_s": wall, "compile": dict(cinfo), "control_period_s": h, "output_period_s": decimation * h,
                 "substeps": self.settings.substeps, "final_state": z}
-        return SimulationResult(t, MappingProxyType(signals), MappingProxyType(units), self.plant.effects,
+        for e in extensions:
+            info.update(e.info(scenario))
+        return SimulationResult(t, MappingProxyType(signals), MappingProxyType(dict(loop.units)), self.plant.effects,
                                 inputs.name, design, params, inputs, info)
 
 

@@ -17,7 +17,7 @@ The compiled model on the workers
     anything (the compile happens there once, and a bad metric name or
     design fails before any task is sent), reads the compiled libraries'
     bytes and ships them with the spec; each worker puts them into its own
-    cache (``sim/_compile.install_library``: verified, atomic), so a remote
+    cache (``sim/codegen.install_library``: verified, atomic), so a remote
     worker neither needs the client's file system nor, when its platform
     matches, a C compiler; when they do not load there it builds its own.
 
@@ -74,7 +74,7 @@ class SweepError(ThsaError, RuntimeError):
 # ------------------------------------------------------------------ one run
 def run_inputs(spec: SweepSpec, rs: RunSpec):
     """``(design, scenario, params)`` of one run: the spec's with the run's values applied."""
-    from ..faults.events import FaultEvent
+    from ..sim.events import FaultEvent
 
     values = dict(rs.values)
     label, design = spec.designs[rs.design]
@@ -130,7 +130,7 @@ def simulate_chunk(spec: SweepSpec, runs: list[RunSpec], libraries: tuple = ()) 
     values, the metrics (nan for a failed run), ``pass:METRIC`` per limit
     (False for nan), ``error`` (empty when the run simulated).
     """
-    from ..sim._compile import install_library
+    from ..sim.codegen import install_library
     from .metrics import compute_metrics
 
     if libraries and not _WORKER_SIMULATORS.get(("installed", spec.sha256)):
@@ -317,7 +317,7 @@ class SweepRun:
 
 def _warm_up(spec: SweepSpec) -> tuple:
     """Simulate the first run of each plant here (compile once, fail early); the libraries' bytes to ship."""
-    from ..sim._compile import library_files
+    from ..sim.codegen import library_files
     from .metrics import compute_metrics
 
     seen, libraries = set(), []

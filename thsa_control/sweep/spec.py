@@ -203,7 +203,7 @@ class SweepSpec:
 
     def plant_effects(self, scenario) -> tuple[str, ...]:
         """Effects of the plant that runs ``scenario``: the spec's, the scenario's and its faults' needs."""
-        from ..faults.events import effects_for_faults
+        from ..sim.events import effects_for_faults
 
         out = list(self.effects)
         for e in tuple(scenario.required_effects) + effects_for_faults(scenario.faults):
@@ -348,7 +348,7 @@ def _designs(src, base, value):
 
 
 def _scenarios(src, base, value):
-    from ..faults.scenario_file import load_scenario_file, scenario_from_dict
+    from ..sim.scenarios import load_scenario_file, scenario_from_dict
     from ..tuning.validation import get_validation_scenario
 
     if isinstance(value, str):
@@ -383,7 +383,7 @@ def _scenarios(src, base, value):
 
 
 def _faults(src, table_list, variables):
-    from ..faults.events import FaultEvent
+    from ..sim.events import FaultEvent
 
     if not isinstance(table_list, list) or not all(isinstance(t, dict) for t in table_list) or not table_list:
         raise SweepSpecError(src, "faults", "must be a non-empty array of tables ([[faults]])")
@@ -414,7 +414,7 @@ def _faults(src, table_list, variables):
 
 def parse_spec(doc: dict, *, source: str = "<dict>", base_dir: str | Path = ".") -> SweepSpec:
     """Validate a parsed sweep TOML and build a :class:`SweepSpec` (see the module docstring)."""
-    from ..faults.settings import MonitorSettings
+    from ..sim.monitor_settings import MonitorSettings
     from ..model import resolve_effects
     from ..model.params import default_parameters, load_parameters
     from ..sim.assumptions import ASSUMED_RANGES
@@ -512,7 +512,7 @@ def parse_spec(doc: dict, *, source: str = "<dict>", base_dir: str | Path = ".")
         except ValueError as exc:
             raise SweepSpecError(src, "monitors", str(exc)) from None
     if faults or monitors is not None:
-        from ..faults.events import FaultEvent
+        from ..sim.events import FaultEvent
 
         fixed = tuple(FaultEvent(**ev) for ev in faults)
         scenarios = [replace(s, faults=fixed if faults else s.faults,

@@ -29,15 +29,9 @@ any acceleration it changes the shaped command by < 1e-12 relative.
 
 from __future__ import annotations
 
-import hashlib
 import math
-import os
-import shutil
-import subprocess
-import tempfile
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -46,8 +40,9 @@ from ..errors import ThsaError
 from ..loops.controllers import CONTROLLER_PARAMETERS, CONTROLLER_SIGNALS, CONTROLLER_STATES
 from ..loops.design import Design
 from ..model.params import ParameterSet
-from ..sim._compile import cache_dir
+from ..sim.codegen import compile_functions
 from ..sim.scenarios import Scenario
+from ..sim.loop import extensions_for
 from ..sim.simulate import RUN_INPUTS, InputSeries, SimulationSettings, Simulator
 from .validation import COST_TERMS, RATE_SCALE, cost_terms
 
@@ -117,33 +112,11 @@ class ObjectiveSettings:
         return np.array([1.0, self.current_weight, self.rate_weight, 0.0, 0.0])
 
 
-def _compile_functions(functions: list[ca.Function], tag: str):
-    """C code of ``functions``, compiled once per source hash; returns external Functions or None."""
-    cc = shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
-    if cc is None:
-        return None
-    with tempfile.TemporaryDirectory() as tmp:
-        cg = ca.CodeGenerator(f"{tag}.c", {"with_header": False})
-        for f in functions:
-            cg.add(f)
-        src = Path(cg.generate(tmp + os.sep))
-        digest = hashlib.sha256((src.read_text() + ca.__version__).encode()).hexdigest()[:24]
-        lib = cache_dir() / f"{tag}_{digest}.so"
-        if not lib.exists():
-            out = Path(tmp) / lib.name
-            proc = subprocess.run([cc, "-O2", "-fPIC", "-shared", str(src), "-o", str(out), "-lm"],
-                                  capture_output=True, text=True)
-            if proc.returncode != 0:
-                return None
-            staged = lib.with_name(f"{lib.name}.{os.getpid()}.tmp")
-            shutil.copyfile(out, staged)
-            os.replace(staged, lib)
-    return [ca.external(f.name(), str(lib)) for f in functions]
-
-
 @dataclass(frozen=True)
 class _Run:
     inputs: InputSeries
+    scenario: Scenario | None
+    extensions: tuple
     W: np.ndarray
     theta: np.ndarray
     s0: np.ndarray
@@ -178,21 +151,24 @@ class Objective:
         self.settings = settings or ObjectiveSettings()
         self.settings.validate()
         self.scenarios = tuple(scenarios)
-        self._fns = None
+        self._fns: dict = {}
         self._runs = None
         self.evaluations = {"value": 0, "gradient": 0, "value_s": 0.0, "gradient_s": 0.0}
 
     # ---- symbolic pieces
-    def stage_functions(self) -> dict[str, ca.Function]:
+    def stage_functions(self, extensions=()) -> dict[str, ca.Function]:
         """``stage(s, w, theta, g) -> s_next`` and ``sens(s, S, w, theta, g) -> (s_next, S_next)``.
 
-        ``s = [z; cost]``: simulator state (plant, controller) and the running
-        cost integrals; ``S = ds/dg`` (column-major flattened).
+        ``s = [z; cost]``: simulator state (plant, controller, the loop
+        extensions' states of a scenario that asks for them, e.g. the
+        monitors of a fault scenario) and the running cost integrals;
+        ``S = ds/dg`` (column-major flattened).
         """
-        if self._fns is not None:
-            return self._fns
+        key = tuple(e.key() for e in extensions)
+        if key in self._fns:
+            return self._fns[key]
         sim, plant = self.simulator, self.simulator.plant
-        sample = sim.sample_function()
+        sample = sim.sample_function(tuple(extensions))
         nz, nw, nth = sample.size1_in(0), sample.size1_in(1), sample.size1_in(2)
         n_p = len(plant.parameters)
         ng, nc = len(self.tuned), len(COST_TERMS)
@@ -206,7 +182,7 @@ class Objective:
             th_g[n_p + CONTROLLER_PARAMETERS.index(n)] = g[j]
         z, c = s[:nz], s[nz:]
         z_next, y = sample(z, w, th_g)
-        h = th[nth - 1]
+        h = th[n_p + len(CONTROLLER_PARAMETERS)]
         e = (y[outs.index("speed_cmd")] - y[outs.index("nut_speed")]) * 1e3
         names = plant.state_names
         i = y[outs.index("motor_current")]
@@ -239,11 +215,11 @@ class Objective:
             out = acc(x, Wb, T, G)
             fns[key + "_block"] = ca.Function(f"{f.name()}_block{B}", [x, Wb, T, G], [out[:, B - 1]])
         if self.settings.compiled:
-            tag = "thsa_tune_" + "_".join(self.tuned)
-            compiled = _compile_functions([fns["stage"], fns["sens"], fns["stage_block"], fns["sens_block"]], tag)
+            tag = "thsa_tune_" + "_".join(self.tuned + tuple(e.name for e in extensions))
+            compiled, _ = compile_functions([fns["stage"], fns["sens"], fns["stage_block"], fns["sens_block"]], tag)
             if compiled is not None:
                 fns = dict(zip(("stage", "sens", "stage_block", "sens_block"), compiled))
-        self._fns = fns
+        self._fns[key] = fns
         return fns
 
     def runs(self) -> list[_Run]:
@@ -253,24 +229,28 @@ class Objective:
         plant, h = self.simulator.plant, self.design.control_period
         out = []
         for sc in self.scenarios:
-            inp = InputSeries.from_scenario(sc, h) if isinstance(sc, Scenario) else sc
-            missing = [e for e in inp.required_effects if e not in plant.effects]
+            scenario = sc if isinstance(sc, Scenario) else None
+            inp = InputSeries.from_scenario(sc, h) if scenario is not None else sc
+            extensions = extensions_for(scenario) if scenario is not None else ()
+            loop = self.simulator.closed_loop(extensions)
+            needed = tuple(inp.required_effects) + tuple(e for x in extensions for e in x.required_effects(scenario))
+            missing = [e for e in dict.fromkeys(needed) if e not in plant.effects]
             if missing:
                 raise ThsaError(f"run {inp.name!r} needs effect(s) {missing}; the plant has {list(plant.effects)}")
             jerk = inp.jerk_limit if math.isfinite(inp.jerk_limit) else _FINITE_JERK
             k = self.design.controller_vector(self.params, accel_limit=inp.accel_limit, jerk_limit=jerk,
                                               motor_off_at_zero=inp.motor_off_at_zero)
-            theta = np.concatenate([plant.p_vector(self.params), k, [h]])
-            W = inp.matrix()
+            theta = loop.theta(plant.p_vector(self.params), k, h)
+            W = loop.input_matrix(inp, scenario)
             x0 = plant.initial_state(self.params, load_force=float(W[RUN_INPUTS.index("load_force"), 0]))
-            s0 = np.concatenate([x0, np.zeros(len(CONTROLLER_STATES)), np.zeros(len(COST_TERMS))])
-            out.append(_Run(inp, W, theta, s0))
+            s0 = np.concatenate([loop.initial_state(x0, k), np.zeros(len(COST_TERMS))])
+            out.append(_Run(inp, scenario, extensions, W, theta, s0))
         self._runs = out
         return out
 
     # ---- evaluation
     def _chain(self, run: _Run, g: np.ndarray, sens: bool) -> np.ndarray:
-        fns = self.stage_functions()
+        fns = self.stage_functions(run.extensions)
         B = self.settings.block
         ng = len(g)
         x = run.s0 if not sens else np.concatenate([run.s0, np.zeros(run.s0.size * ng)])
@@ -334,7 +314,8 @@ class Objective:
                                                                  output_period=None))
         out = []
         for run in self.runs():
-            res = sim.run(run.inputs, design, self.params)
+            res = sim.run(run.scenario if run.scenario is not None else run.inputs, design, self.params,
+                          extensions=run.extensions)
             terms = cost_terms(res, self.settings.current_fraction * design.current_limit,
                                self.simulator.plant.state_names,
                                self.settings.overshoot_limit)

@@ -45,7 +45,7 @@ import numpy as np
 
 from ..errors import ScenarioError
 from ..sim.metrics import plateaus
-from ..sim.scenarios import SCENARIOS, Scenario
+from ..sim.scenarios import SCENARIOS, Scenario, get_scenario
 
 __all__ = ["VALIDATION_SCENARIOS", "VALIDATION_SUITE", "DEFAULT_VALIDATION_REQUIREMENTS", "get_validation_scenario",
            "RunMetrics", "run_metrics", "cost_terms", "COST_TERMS", "RATE_SCALE"]
@@ -97,7 +97,10 @@ RATE_SCALE = 1e3
 
 
 def get_validation_scenario(name: str) -> Scenario:
-    """A validation scenario, or one of the papers' scenarios (``sim/scenarios.py``) of that name."""
+    """A validation scenario, one of the papers' scenarios (``sim/scenarios.py``) of that name, or a
+    scenario file (``*.toml``, read by :func:`~thsa_control.sim.scenarios.get_scenario`)."""
+    if str(name).lower().endswith(".toml"):
+        return get_scenario(name)
     if name in VALIDATION_SCENARIOS:
         return VALIDATION_SCENARIOS[name]
     if name in SCENARIOS:

@@ -1,4 +1,8 @@
-"""Compile the simulator's casadi Functions to C, cached on disk, and verify what is loaded.
+"""Compile casadi Functions to C, cached on disk, and verify what is loaded: the one C build of the workbench.
+
+The simulator's run loop (:func:`compile_run_loop`) and the tuning
+objective's stage Functions (:func:`compile_functions`, loaded as casadi
+``external`` Functions) go through the same generation, cache and checks.
 
 casadi generates the C source of one control period (``sample``, with
 outputs, and ``sample_x``, the state update alone); a small C driver added
@@ -41,7 +45,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-__all__ = ["cache_dir", "compile_run_loop", "RunLoop", "library_files", "install_library"]
+__all__ = ["cache_dir", "compile_run_loop", "compile_functions", "RunLoop", "library_files", "install_library"]
 
 _NOTED: set[str] = set()  # fallbacks already reported in this process (said once)
 _PRIVATE_DIR: list[Path] = []  # per-process fallback cache, removed at exit
@@ -197,35 +201,26 @@ class RunLoop:
         return Y.T, z
 
 
-def compile_run_loop(sample: ca.Function, sample_x: ca.Function, *, flags: tuple[str, ...] = ("-O2",)):
-    """Generate, compile (or find in the cache, verified) and load the run loop.
+def _find_or_build(functions, stem_tag: str, driver: str, flags: tuple[str, ...], load):
+    """Generate the C code of ``functions`` (+ ``driver``), find it in the cache (verified) or build it, load it.
 
-    Returns
-    -------
-    loop : RunLoop or None
-        None when no working C compiler is available (the caller then uses
-        casadi's interpreter; a note says so once on stderr).
-    info : dict
-        ``{"compiled", "cached", "codegen_s", "compile_s", "path", "cache", "error"?}``;
-        ``cache`` is ``"shared"``, ``"private"`` (unwritable cache) or ``""``.
+    ``load(path, source_sha)`` returns the loaded object, or None when the file
+    does not load or is another build's.  Returns ``(object or None, info)``.
     """
     cc = shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
     t0 = time.perf_counter()
-    f1 = ca.Function("thsa_sample", sample.sx_in(), sample.call(sample.sx_in()))
-    f2 = ca.Function("thsa_sample_x", sample_x.sx_in(), sample_x.call(sample_x.sx_in()))
-    dims = (sample.size1_in(0), sample.size1_in(1), sample.size1_out(1))
     with tempfile.TemporaryDirectory(prefix="thsa-build-") as tmp:
-        cg = ca.CodeGenerator("thsa_run.c", {"with_header": False})
-        cg.add(f1)
-        cg.add(f2)
+        cg = ca.CodeGenerator(f"{stem_tag}.c", {"with_header": False})
+        for f in functions:
+            cg.add(f)
         src_path = Path(cg.generate(tmp + os.sep))
-        source = src_path.read_text() + _DRIVER
+        source = src_path.read_text() + driver
         source_sha = hashlib.sha256((source + " ".join(flags) + ca.__version__).encode()).hexdigest()
         source += f'\nconst char* thsa_source_sha256(void) {{ return "{source_sha}"; }}\n'
         src_path.write_text(source)
         codegen_s = time.perf_counter() - t0
         info = {"compiled": False, "cached": False, "codegen_s": codegen_s, "compile_s": 0.0, "path": "", "cache": ""}
-        stem = f"thsa_run_{source_sha[:24]}"
+        stem = f"{stem_tag}_{source_sha[:24]}"
         try:
             shared = cache_dir()
         except OSError as exc:
@@ -238,10 +233,10 @@ def compile_run_loop(sample: ca.Function, sample_x: ca.Function, *, flags: tuple
                 continue
             lib, manifest = folder / f"{stem}.so", folder / f"{stem}.json"
             if lib.exists() and _verified(lib, manifest, source_sha):
-                loop = _load(lib, source_sha, dims)
-                if loop is not None:
+                obj = load(lib, source_sha)
+                if obj is not None:
                     info.update(compiled=True, cached=True, path=str(lib), cache=where)
-                    return loop, info
+                    return obj, info
         if cc is None:
             info["error"] = "no C compiler found (set CC)"
             _note_once("no-cc", "no C compiler found (set CC): simulating with casadi's interpreter, "
@@ -256,8 +251,8 @@ def compile_run_loop(sample: ca.Function, sample_x: ca.Function, *, flags: tuple
             error = proc.stderr[-2000:]
         except OSError as exc:
             failed, error = True, str(exc)
-        loop = None if failed or not built.is_file() else _load(built, source_sha, dims)
-        if loop is None:
+        obj = None if failed or not built.is_file() else load(built, source_sha)
+        if obj is None:
             info["error"] = error or f"{cc} wrote no loadable library"
             _note_once(f"bad-cc-{cc}", f"the C compiler {cc} did not build a loadable simulator "
                                        f"({(error.strip().splitlines() or ['empty or broken output'])[-1][:200]}): "
@@ -282,19 +277,61 @@ def compile_run_loop(sample: ca.Function, sample_x: ca.Function, *, flags: tuple
                     _note_once("cache-unwritable", f"compiled-simulator cache {folder} is not writable "
                                                    f"({exc.strerror}): using a temporary folder for this run")
                 continue
-            loaded = _load(lib, source_sha, dims)
+            loaded = load(lib, source_sha)
             if loaded is not None:
                 info.update(compiled=True, path=str(lib), cache=where)
                 return loaded, info
         info.update(compiled=True, path=str(built), cache="")
-        return loop, info  # loaded from the build folder; the file stays mapped after the folder goes
+        return obj, info  # loaded from the build folder; the file stays mapped after the folder goes
+
+
+def compile_run_loop(sample: ca.Function, sample_x: ca.Function, *, flags: tuple[str, ...] = ("-O2",)):
+    """Generate, compile (or find in the cache, verified) and load the run loop.
+
+    Returns
+    -------
+    loop : RunLoop or None
+        None when no working C compiler is available (the caller then uses
+        casadi's interpreter; a note says so once on stderr).
+    info : dict
+        ``{"compiled", "cached", "codegen_s", "compile_s", "path", "cache", "error"?}``;
+        ``cache`` is ``"shared"``, ``"private"`` (unwritable cache) or ``""``.
+    """
+    f1 = ca.Function("thsa_sample", sample.sx_in(), sample.call(sample.sx_in()))
+    f2 = ca.Function("thsa_sample_x", sample_x.sx_in(), sample_x.call(sample_x.sx_in()))
+    dims = (sample.size1_in(0), sample.size1_in(1), sample.size1_out(1))
+    return _find_or_build([f1, f2], "thsa_run", _DRIVER, flags, lambda lib, sha: _load(lib, sha, dims))
+
+
+def _load_external(lib: Path, source_sha: str, names: list[str]):
+    """casadi ``external`` Functions of a verified library (its embedded source hash checked first)."""
+    try:
+        probe = ctypes.CDLL(str(lib))
+        fn = probe.thsa_source_sha256
+        fn.restype = ctypes.c_char_p
+        if fn().decode("ascii", "replace") != source_sha:
+            return None
+        return [ca.external(n, str(lib)) for n in names]
+    except (OSError, AttributeError, RuntimeError):
+        return None
+
+
+def compile_functions(functions: list[ca.Function], tag: str, *, flags: tuple[str, ...] = ("-O2",)):
+    """casadi Functions compiled to C in one library, through the same verified cache as the run loop.
+
+    Returns ``(list of casadi external Functions or None, info)``; None (with a
+    note on stderr) when no working C compiler is available, and the caller
+    keeps the uncompiled Functions.
+    """
+    names = [f.name() for f in functions]
+    return _find_or_build(list(functions), tag, "", flags, lambda lib, sha: _load_external(lib, sha, names))
 
 
 def library_files(path: str | os.PathLike) -> dict[str, bytes]:
     """The bytes of a cached library and of its manifest, by file name, to ship to another machine.
 
     Returns ``{}`` when ``path`` is not a verified library of the cache layout
-    (``thsa_run_<hash>.so`` with its ``.json`` beside it).
+    (``<tag>_<hash>.so`` with its ``.json`` beside it).
     """
     lib = Path(path)
     manifest = lib.with_suffix(".json")
@@ -312,11 +349,11 @@ def install_library(files: dict[str, bytes]) -> bool:
 
     A library already there and verified is kept.  The shipped bytes are
     checked against their manifest before they are published; whether they
-    load here (same architecture, same casadi) is checked by
-    :func:`compile_run_loop` as for any cached file, which rebuilds from the
-    generated source otherwise.  Returns True when the library is in the cache.
+    load here (same architecture, same casadi) is checked when they are used,
+    as for any cached file, which rebuilds from the generated source
+    otherwise.  Returns True when the library is in the cache.
     """
-    libs = [n for n in files if n.startswith("thsa_run_") and n.endswith(".so")]
+    libs = [n for n in files if n.endswith(".so") and "/" not in n and not n.startswith(".")]
     if len(libs) != 1 or libs[0][:-3] + ".json" not in files:
         return False
     name = libs[0]
@@ -325,6 +362,9 @@ def install_library(files: dict[str, bytes]) -> bool:
         meta = json.loads(files[meta_name].decode("utf-8"))
         folder = cache_dir()
     except (OSError, ValueError, UnicodeDecodeError):
+        return False
+    if not isinstance(meta, dict) or not str(meta.get("source_sha256", "")) or \
+            not name.endswith(f"_{str(meta.get('source_sha256'))[:24]}.so"):
         return False
     lib, manifest = folder / name, folder / meta_name
     if lib.exists() and _verified(lib, manifest, meta.get("source_sha256")):

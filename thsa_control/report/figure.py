@@ -1,0 +1,57 @@
+"""Figures made with matplotlib's object API: no backend chosen, no pyplot state.
+
+Every plotting function of :mod:`thsa_control.report` builds its figure here.
+A :class:`ReportFigure` is a plain :class:`matplotlib.figure.Figure` that is
+not registered with pyplot, so
+
+* a command-line run needs no GUI backend and leaves the user's backend alone
+  (``plt.show()`` in a user's script keeps working after importing the
+  package);
+* a Jupyter notebook or IPython shows it as a PNG when it is the value of a
+  cell (``_repr_png_``), whatever backend the kernel uses;
+* figures are freed with the object: nothing accumulates in pyplot's figure
+  manager over a long report run.
+
+To show one in a script's window, draw it onto a pyplot figure:
+``plt.figure(); ...`` or save it with ``fig.savefig("name.png")``.
+"""
+
+from __future__ import annotations
+
+import io
+
+import matplotlib
+from matplotlib.figure import Figure
+
+__all__ = ["ReportFigure", "new_figure", "subplots", "colormap", "png_bytes"]
+
+
+class ReportFigure(Figure):
+    """A figure outside pyplot that IPython/Jupyter display as a PNG."""
+
+    def _repr_png_(self) -> bytes:
+        return png_bytes(self, dpi=90)
+
+
+def new_figure(figsize=(8.0, 6.0), *, constrained_layout: bool = True, **kwargs) -> ReportFigure:
+    """An empty :class:`ReportFigure` (``layout="constrained"`` by default)."""
+    return ReportFigure(figsize=figsize, layout="constrained" if constrained_layout else None, **kwargs)
+
+
+def subplots(nrows: int = 1, ncols: int = 1, *, figsize=(8.0, 6.0), constrained_layout: bool = True,
+             **kwargs):
+    """``(fig, axes)`` like :func:`matplotlib.pyplot.subplots`, on a :class:`ReportFigure`."""
+    fig = new_figure(figsize, constrained_layout=constrained_layout)
+    return fig, fig.subplots(nrows, ncols, **kwargs)
+
+
+def colormap(name: str):
+    """A registered colormap by name (no pyplot)."""
+    return matplotlib.colormaps[name]
+
+
+def png_bytes(fig: Figure, *, dpi: int = 100) -> bytes:
+    """The figure as PNG bytes (Agg canvas, whatever the session's backend)."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    return buf.getvalue()
