@@ -120,6 +120,10 @@ class IdentificationSettings:
     no_prior : tuple of str
         Free parameters without a prior (an effect being tried, whose file
         value is only a seed).
+    priors : mapping name -> (mean, sd), optional
+        Explicit Gaussian priors of these free parameters (SI), replacing the
+        ``prior_relative_sd`` rule for them (the tracer's base corrections:
+        centred at 0 with a standard deviation of half their plausible size).
     holdout_every : int
         0: every segment is fitted.  k >= 2: every k-th segment is held out of
         the parameter fit; its initial state is fitted afterwards at the
@@ -144,6 +148,7 @@ class IdentificationSettings:
     prior_relative_sd: float | None = None
     no_prior: tuple[str, ...] = ()
     holdout_every: int = 0
+    priors: Mapping[str, tuple[float, float]] | None = None
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad field."""
@@ -756,10 +761,12 @@ class Identifier:
 
     def _priors(self, scale: np.ndarray) -> dict[str, tuple[float, float]]:
         r = self.settings.prior_relative_sd
+        explicit = {n: (float(m), float(sd)) for n, (m, sd) in (self.settings.priors or {}).items()
+                    if n in self.free and sd > 0}
         if r is None:
-            return {}
-        return {n: (self.params[n].value, float(r * s)) for n, s in zip(self.free, scale)
-                if n not in self.settings.no_prior}
+            return explicit
+        return {**{n: (self.params[n].value, float(r * s)) for n, s in zip(self.free, scale)
+                   if n not in self.settings.no_prior}, **explicit}
 
     def fit(self, runs: RigRun | Sequence[RigRun], *, progress=None) -> IdentificationResult:
         """Fit the free parameters to ``runs`` together.
@@ -811,6 +818,9 @@ class Identifier:
         # prior rows (scaled decision units); a parameter without a prior gets a zero row
         prior_w = np.array([scale[k] / priors[n][1] if n in priors else 0.0 for k, n in enumerate(self.free)]) \
             if priors else None
+        # prior centres in decision units (the initial value unless an explicit prior names another)
+        prior_z0 = np.array([(priors[n][0] - self.params[n].value) / scale[k] if n in priors else 0.0
+                             for k, n in enumerate(self.free)]) if priors else None
         p0 = plant.p_vector(self.params)
         box = [self.params[n].search_interval() for n in self.free]
         lo = np.array([(b[0] - self.params[n].value) / s for (n, s), b in zip(zip(self.free, scale), box)])
@@ -836,7 +846,7 @@ class Identifier:
             parts = [np.asarray(pb.f_res(d, p0, scale, sg)).ravel() * w
                      for pb, d, sg, w in zip(problems, split(z), sigmas, weights)]
             if prior_w is not None:
-                parts.append(z[:nf] * prior_w)
+                parts.append((z[:nf] - prior_z0) * prior_w)
             r = np.concatenate(parts)
             r = np.where(np.isfinite(r), r, 1e10)
             if tracking["on"]:
