@@ -10,20 +10,16 @@ renamed at the end (nothing half-written).
 
 from __future__ import annotations
 
-import base64
 import html
 import math
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+import tomli_w
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import tomli_w  # noqa: E402
-
-from .build import atomic_folder, write_json  # noqa: E402
-from .identification import figure_png  # noqa: E402
+from .build import atomic_folder, write_json
+from .figure import subplots
+from .identification import Html, figure_png, html_table, write_html_report
 
 __all__ = ["plot_distribution", "plot_sensitivity", "write_sweep_report"]
 
@@ -34,12 +30,8 @@ def _fmt(x) -> str:
     return str(x)
 
 
-def _table(head, rows) -> str:
-    out = ["<table border='1' cellspacing='0' cellpadding='3'><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head)
-           + "</tr>"]
-    for row in rows:
-        out.append("<tr>" + "".join(f"<td>{html.escape(_fmt(c))}</td>" for c in row) + "</tr>")
-    return "\n".join(out) + "</table>"
+def _table(head, rows) -> Html:
+    return html_table(head, [[c if isinstance(c, Html) else _fmt(c) for c in row] for row in rows])
 
 
 def plot_distribution(analysis, metric: str, limits=()):
@@ -48,7 +40,7 @@ def plot_distribution(analysis, metric: str, limits=()):
 
     groups = [s for s in analysis.summaries if s.metric == metric]
     shown = [s for s in groups if s.group != "all"] or groups
-    fig, ax = plt.subplots(figsize=(8, 3.6), constrained_layout=True)
+    fig, ax = subplots(figsize=(8, 3.6))
     finite = [s.values[np.isfinite(s.values)] for s in shown]
     allv = np.concatenate(finite) if finite else np.zeros(0)
     if allv.size:
@@ -71,7 +63,7 @@ def plot_distribution(analysis, metric: str, limits=()):
 def plot_sensitivity(analysis, metric: str, group: str, top: int = 10):
     """Bars of the rank correlations (and Sobol' indices when computed) of ``metric`` in ``group``."""
     rows = [s for s in analysis.sensitivity if s.metric == metric and s.group == group][:top]
-    fig, ax = plt.subplots(figsize=(8, 0.4 * max(len(rows), 2) + 1.2), constrained_layout=True)
+    fig, ax = subplots(figsize=(8, 0.4 * max(len(rows), 2) + 1.2))
     y = np.arange(len(rows))
     ax.barh(y - 0.2, [s.spearman for s in rows], height=0.4, label="Spearman rank correlation")
     if any(math.isfinite(s.total) for s in rows):
@@ -128,53 +120,44 @@ def write_sweep_report(spec, analysis, out_dir, **folder_options) -> Path:
                         name = f"sens_{m.replace(':', '_')}_{len(figs)}.png"
                         figs.append((name, plot_sensitivity(analysis, m, g), f"sensitivity of {m}, {g}"))
         s = data["spec"]
-        parts = ["<!DOCTYPE html><html><head><meta charset='utf-8'>"
-                 f"<title>Sweep {html.escape(s['name'])}</title>",
-                 "<style>body{font-family:sans-serif;max-width:1200px;margin:auto} td,th{font-size:12px}"
-                 "code{font-size:11px}</style></head><body>",
-                 f"<h1>Sweep {html.escape(s['name'])}</h1>",
-                 f"<p>{html.escape(s['description'])}</p>",
-                 f"<p>{analysis.runs} runs ({analysis.failed_runs} failed to simulate): level {html.escape(s['level'])}"
-                 f" + {html.escape(', '.join(s['effects']) or 'no added effects')}; designs "
-                 f"{html.escape(', '.join(s['designs']))}; scenarios {html.escape(', '.join(s['scenarios']))}; "
-                 f"{html.escape(s['sampling'])} sampling, {s['samples']} samples x {s['grid_points']} grid points, "
-                 f"seed {s['seed']}; parameters: {html.escape(s['params'])}. Spec SHA-256 {s['spec_sha256'][:16]}.</p>",
-                 "<h2>What varies</h2>",
-                 _table(["quantity", "kind", "distribution"], [[v["name"], v["kind"], v["distribution"]]
-                                                               for v in s["variables"]]) if s["variables"] else
-                 "<p>nothing (a single deterministic run per design and scenario)</p>",
-                 "<h2 id='failures'>Failure probabilities (exact Clopper-Pearson 95 % intervals)</h2>",
-                 "<p>A run that failed to simulate, or whose metric is not a number, counts as a failure.</p>",
-                 _table(["requirement", "group", "failures", "runs", "probability", "95 % interval"],
-                        [[f.requirement, f.group, f.failures, f.runs, f.probability,
-                          f"[{f.interval[0]:.4g}, {f.interval[1]:.4g}]"] for f in analysis.failures]),
-                 "<h2 id='distributions'>Metric distributions</h2>",
-                 _table(["metric", "group", "runs", "finite", "mean", "sd", "5 %", "median", "95 %", "min", "max"],
-                        [[x.metric, x.group, x.n, x.finite, x.mean, x.sd, x.p05, x.p50, x.p95, x.min, x.max]
-                         for x in analysis.summaries]),
-                 "<h2 id='worst'>Worst cases</h2>",
-                 _table(["metric", "rank", "run", "design", "scenario", "value", "varied values", "error"],
-                        [[w.metric, w.rank, w.run, w.design, w.scenario, w.value,
-                          ", ".join(f"{k} = {v:.6g}" for k, v in w.inputs.items()), w.error] for w in analysis.worst]),
-                 "<p>Replay one run alone (its scenario and parameters are in <code>replay/</code>):</p><ul>"]
-        parts += [f"<li>run {r}: <code>{html.escape(c)}</code></li>" for r, c in commands.items()]
-        parts.append("</ul>")
-        parts.append("<h2 id='sensitivity'>Sensitivity ranking</h2>")
-        if analysis.sensitivity:
-            parts.append(_table(["metric", "group", "input", "Spearman rho", "p-value", "Sobol' S1", "Sobol' ST"],
-                                [[x.metric, x.group, x.input, x.spearman, x.p_value, x.first_order, x.total]
-                                 for x in analysis.sensitivity]))
-        else:
-            parts.append("<p>nothing varies</p>")
+        lead = (f"{analysis.runs} runs ({analysis.failed_runs} failed to simulate): level {html.escape(s['level'])}"
+                f" + {html.escape(', '.join(s['effects']) or 'no added effects')}; designs "
+                f"{html.escape(', '.join(s['designs']))}; scenarios {html.escape(', '.join(s['scenarios']))}; "
+                f"{html.escape(s['sampling'])} sampling, {s['samples']} samples x {s['grid_points']} grid points, "
+                f"seed {s['seed']}; parameters: {html.escape(s['params'])}; spec SHA-256 {s['spec_sha256'][:16]}. "
+                f"{html.escape(s['description'])}")
+        sections = [
+            ("What varies", _table(["quantity", "kind", "distribution"],
+                                   [[v["name"], v["kind"], v["distribution"]] for v in s["variables"]])
+             if s["variables"] else Html("<p>nothing (one deterministic run per design and scenario)</p>")),
+            ("Failure probabilities (exact Clopper-Pearson 95 % intervals)", Html(
+                "<p class='note'>A run that failed to simulate, or whose metric is not a number, counts as a "
+                "failure.</p>" + _table(["requirement", "group", "failures", "runs", "probability", "95 % interval"],
+                                        [[f.requirement, f.group, f.failures, f.runs, f.probability,
+                                          f"[{f.interval[0]:.4g}, {f.interval[1]:.4g}]"] for f in analysis.failures]))),
+            ("Metric distributions", _table(
+                ["metric", "group", "runs", "finite", "mean", "sd", "5 %", "median", "95 %", "min", "max"],
+                [[x.metric, x.group, x.n, x.finite, x.mean, x.sd, x.p05, x.p50, x.p95, x.min, x.max]
+                 for x in analysis.summaries])),
+            ("Worst cases", Html(
+                _table(["metric", "rank", "run", "design", "scenario", "value", "varied values", "error"],
+                       [[w.metric, w.rank, w.run, w.design, w.scenario, w.value,
+                         ", ".join(f"{k} = {v:.6g}" for k, v in w.inputs.items()), w.error] for w in analysis.worst])
+                + "<p>Replay one run alone (its scenario and parameters are in <code>replay/</code>):</p><ul>"
+                + "".join(f"<li>run {r}: <code>{html.escape(c)}</code></li>" for r, c in commands.items()) + "</ul>")),
+            ("Sensitivity ranking", _table(
+                ["metric", "group", "input", "Spearman rho", "p-value", "Sobol' S1", "Sobol' ST"],
+                [[x.metric, x.group, x.input, x.spearman, x.p_value, x.first_order, x.total]
+                 for x in analysis.sensitivity]) if analysis.sensitivity else Html("<p>nothing varies</p>")),
+        ]
         if analysis.errors:
-            parts.append("<h2>Runs that failed to simulate (first 20)</h2>")
-            parts.append(_table(["run", "error"], [list(e) for e in analysis.errors]))
+            sections.append(("Runs that failed to simulate (first 20)",
+                             _table(["run", "error"], [list(e) for e in analysis.errors])))
+        pngs = {}
         for name, fig, caption in figs:
             png = figure_png(fig)
             (tmp / name).write_bytes(png)
-            parts.append(f"<figure><img alt='{html.escape(caption)}' src='data:image/png;base64,"
-                         f"{base64.b64encode(png).decode()}'><figcaption>{html.escape(caption)}</figcaption></figure>")
-        parts.append("</body></html>\n")
-        (tmp / "report.html").write_text("\n".join(parts), encoding="utf-8")
-    plt.close("all")
+            pngs[caption] = png
+        write_html_report(tmp / "report.html", title=f"Sweep {s['name']}", sections=sections, figures=pngs,
+                          figures_first=False, lead=lead)
     return out_dir
