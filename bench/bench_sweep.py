@@ -35,8 +35,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from thsa_control.sweep.engine import read_results, run_sweep, simulate_chunk  # noqa: E402
-from thsa_control.sweep.spec import parse_spec  # noqa: E402
+from thsa_control.sweep.engine import read_results, run_sweep, simulate_chunk
+from thsa_control.sweep.spec import parse_spec
 
 
 def _spec(runs: int, chunk: int, scenario: str):

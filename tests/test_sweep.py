@@ -9,7 +9,6 @@ uniformly distributed current between the two hand-computed ends.
 from __future__ import annotations
 
 import json
-import math
 import os
 import signal
 import socket
@@ -20,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from handcalc import hand_current
 from scipy import stats
 
-from handcalc import hand_current
 from thsa_control.cli import main
 from thsa_control.errors import OutputError
 from thsa_control.sweep.analysis import clopper_pearson, sobol_indices
@@ -366,7 +365,7 @@ def test_worker_killed_mid_sweep_loses_nothing_and_counts_nothing_twice(tmp_path
                             text=True)
     at_kill = _wait_for_chunks(out, proc, 1)
     cluster.kill(1)  # one of the two workers, with its nanny
-    stdout, stderr = proc.communicate(timeout=300)
+    _, stderr = proc.communicate(timeout=300)
     assert proc.returncode == 0, stderr
     assert at_kill < n // 2  # the worker died mid-sweep
     t = _complete(out, n)

@@ -28,8 +28,17 @@ from scipy import stats
 
 from .spec import SweepSpec
 
-__all__ = ["clopper_pearson", "MetricSummary", "FailureRate", "WorstCase", "Sensitivity", "SweepAnalysis",
-           "analyse_sweep", "replay_command", "sobol_indices"]
+__all__ = [
+    "FailureRate",
+    "MetricSummary",
+    "Sensitivity",
+    "SweepAnalysis",
+    "WorstCase",
+    "analyse_sweep",
+    "clopper_pearson",
+    "replay_command",
+    "sobol_indices",
+]
 
 CONFIDENCE = 0.95
 
@@ -263,7 +272,7 @@ def replay_command(spec: SweepSpec, run: int, scenario_file: str, params_file: s
     from .engine import run_inputs
 
     rs, = spec.run_specs([run])
-    design, scenario, _ = run_inputs(spec, rs)
+    _, scenario, _ = run_inputs(spec, rs)
     effects = spec.plant_effects(scenario)
     parts = ["thsa simulate", f"--scenario {scenario_file}", f"--level {spec.level}"]
     if effects:

@@ -45,7 +45,6 @@ import os
 import re
 import shutil
 import signal
-import sys
 import threading
 import time
 from dataclasses import replace
@@ -56,8 +55,17 @@ import numpy as np
 from ..errors import OutputError, ThsaError
 from .spec import RunSpec, SweepSpec
 
-__all__ = ["SweepError", "simulate_chunk", "run_sweep", "read_results", "prepare_folder", "chunk_ranges",
-           "results_schema", "run_inputs", "SweepRun"]
+__all__ = [
+    "SweepError",
+    "SweepRun",
+    "chunk_ranges",
+    "prepare_folder",
+    "read_results",
+    "results_schema",
+    "run_inputs",
+    "run_sweep",
+    "simulate_chunk",
+]
 
 FORMAT = "thsa-sweep/1"
 _CHUNK_RE = re.compile(r"^chunk-(\d{6})\.parquet$")
@@ -77,7 +85,7 @@ def run_inputs(spec: SweepSpec, rs: RunSpec):
     from ..sim.events import FaultEvent
 
     values = dict(rs.values)
-    label, design = spec.designs[rs.design]
+    design = spec.designs[rs.design][1]
     scenario = spec.scenarios[rs.scenario]
     pvals = {v.name: values[v.name] for v in spec.variables if v.kind == "parameter"}
     params = spec.params.replace(pvals) if pvals else spec.params
@@ -328,7 +336,7 @@ def _warm_up(spec: SweepSpec) -> tuple:
         if key in seen:
             continue
         seen.add(key)
-        result, error, t_fault = _simulate_one(spec, rs)
+        result, _, t_fault = _simulate_one(spec, rs)
         if result is None:
             continue  # a failing run is a result of the sweep, not an error of it
         compute_metrics(result, design, spec.metrics, fault_time=t_fault)  # names every missing signal
@@ -472,7 +480,7 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
             if thing is not None:
                 try:
                     thing.close()
-                except Exception:  # noqa: BLE001 - shutting down; the results are on disk
+                except Exception:  # noqa: BLE001, S110 - shutting down; the results are on disk
                     pass
     stats.wall_s = time.perf_counter() - t_start
     if len(done) != len(ranges):

@@ -27,7 +27,7 @@ import numpy as np
 
 from ..errors import ScenarioError, ThsaError
 
-__all__ = ["METRICS", "GENERIC_FORMS", "DEFAULT_METRICS", "check_metric_name", "compute_metrics", "metric_unit"]
+__all__ = ["DEFAULT_METRICS", "GENERIC_FORMS", "METRICS", "check_metric_name", "compute_metrics", "metric_unit"]
 
 
 @dataclass(frozen=True)

@@ -30,7 +30,7 @@ import numpy as np
 from scipy import stats
 from scipy.stats import qmc
 
-__all__ = ["Distribution", "DISTRIBUTIONS", "SAMPLING_METHODS", "unit_samples", "saltelli_blocks"]
+__all__ = ["DISTRIBUTIONS", "SAMPLING_METHODS", "Distribution", "saltelli_blocks", "unit_samples"]
 
 #: distribution -> required keys (``grid``: ``values``)
 DISTRIBUTIONS = {

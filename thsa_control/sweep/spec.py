@@ -57,7 +57,7 @@ from ..errors import ThsaError
 from .metrics import DEFAULT_METRICS, check_metric_name
 from .sampling import DISTRIBUTIONS, SAMPLING_METHODS, Distribution, unit_samples
 
-__all__ = ["SweepSpecError", "Variable", "Limit", "RunSpec", "SweepSpec", "load_spec", "parse_spec"]
+__all__ = ["Limit", "RunSpec", "SweepSpec", "SweepSpecError", "Variable", "load_spec", "parse_spec"]
 
 _TOP = {"name", "description", "seed", "level", "effects", "designs", "scenarios", "params", "output_period_s",
         "sampling", "parameters", "conditions", "faults", "monitors", "metrics", "limits"}
@@ -414,10 +414,10 @@ def _faults(src, table_list, variables):
 
 def parse_spec(doc: dict, *, source: str = "<dict>", base_dir: str | Path = ".") -> SweepSpec:
     """Validate a parsed sweep TOML and build a :class:`SweepSpec` (see the module docstring)."""
-    from ..sim.monitor_settings import MonitorSettings
     from ..model import resolve_effects
     from ..model.params import default_parameters, load_parameters
     from ..sim.assumptions import ASSUMED_RANGES
+    from ..sim.monitor_settings import MonitorSettings
     from ..sim.scenarios import TEMPERATURE_RANGE
 
     src = source
