@@ -98,35 +98,38 @@ def main() -> None:
         for label, kw in (("local 1", {"workers": 1}), ("local 2", {"workers": 2})):
             t0 = time.perf_counter()
             st = run_sweep(spec, tmp / label.replace(" ", "_"), **kw)
-            out[label] = (st.compute_s, time.perf_counter() - t0 - st.compute_s)
+            out[label] = (st.compute_s, time.perf_counter() - t0 - st.compute_s, st.steady_rate())
         t0 = time.perf_counter()
         address, procs = _cluster(tmp, 1)
         start = time.perf_counter() - t0
         try:
             st = run_sweep(spec, tmp / "cluster_1", scheduler=address)
-            out["cluster 1"] = (st.compute_s, start)
+            out["cluster 1"] = (st.compute_s, start, st.steady_rate())
         finally:
             _stop(procs)
         same = read_results(tmp / "local_1").equals(read_results(tmp / "cluster_1")) and \
             read_results(tmp / "local_1").equals(read_results(tmp / "local_2"))
     for label in ("local 1", "cluster 1", "local 2"):
-        c, s = out[label]
+        c, s, steady = out[label]
+        w = int(label[-1])
         rate = spec.total_runs / c
-        per_core = rate / int(label[-1])
-        print(f"{label + ':':19s} {c:6.2f} s  {rate:7.1f} sims/s ({per_core:.1f} per core), overhead ratio "
-              f"{c * int(label[-1]) / serial:.2f} x serial per core; start-up, compile check and report "
-              f"outside the loop {s:.1f} s")
-    eff = (out["local 1"][0] / out["local 2"][0]) / 2.0
-    print(f"scaling 1 -> 2 workers: speed-up {out['local 1'][0] / out['local 2'][0]:.2f} (efficiency {eff:.2f})")
+        print(f"{label + ':':19s} {c:6.2f} s  {rate:7.1f} sims/s ({rate / w:.1f} per core, overhead ratio "
+              f"{c * w / serial:.2f} x serial); after each worker's first chunk {steady:.1f} sims/s "
+              f"({steady / w:.1f} per core, overhead ratio {rate1 / (steady / w):.2f}); cluster start, compile "
+              f"check and report outside the loop {s:.1f} s")
+    speedup = out["local 2"][2] / out["local 1"][2]
+    eff = speedup / 2.0
+    print(f"scaling 1 -> 2 workers (after the first chunks): speed-up {speedup:.2f} (efficiency {eff:.2f})")
     print(f"tables bit-identical (local 1, local 2, cluster 1): {same}")
-    per_core = spec.total_runs / out["local 1"][0]
     print(f"load average at the end {os.getloadavg()[0]:.1f} (above {os.cpu_count()}: the cores were shared, "
           "the rates and the scaling are lower bounds)")
+    per_core = out["local 1"][2]
     for n in (2, 16, 64):
-        e = min(1.0, eff) if n > 1 else 1.0
+        e = min(1.0, eff)
         t = 1e5 / (per_core * n * e)
         print(f"projection: 1e5 runs of {args.scenario} on {n:3d} cores: {t / 3600:6.2f} h "
-              f"({t:.0f} s at {per_core:.1f} sims/s per core, efficiency {e:.2f})")
+              f"({t:.0f} s at {per_core:.1f} sims/s per core, efficiency {e:.2f}; at efficiency 1: "
+              f"{1e5 / (per_core * n) / 60:.1f} min)")
 
 
 if __name__ == "__main__":

@@ -321,6 +321,16 @@ class SweepRun:
         self.compute_s = 0.0
         self.workers = 0
         self.address = ""
+        self.completions: list[tuple[float, int]] = []  # (seconds since the tasks were sent, runs) per chunk
+
+    def steady_rate(self) -> float:
+        """Runs per second after each worker's first chunk (its start-up: imports, plant, library) [1/s]."""
+        k = max(self.workers, 1)
+        if len(self.completions) <= k:
+            return math.nan
+        t0 = self.completions[k - 1][0]
+        n = sum(r for _, r in self.completions[k:])
+        return n / (self.completions[-1][0] - t0) if self.completions[-1][0] > t0 else math.nan
 
 
 def _warm_up(spec: SweepSpec) -> tuple:
@@ -351,6 +361,14 @@ class _Terminate(BaseException):
     pass
 
 
+def local_cores() -> int:
+    """Cores this process may run on (the affinity mask; ``os.cpu_count()`` where there is none)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
 def _connect(scheduler: str | None, workers: int | None):
     """``(client, cluster or None)``; SweepError within ``CONNECT_TIMEOUT_S`` when unreachable."""
     from distributed import Client, LocalCluster
@@ -362,7 +380,7 @@ def _connect(scheduler: str | None, workers: int | None):
             raise SweepError(f"--scheduler {scheduler}: cannot reach the Dask scheduler within "
                              f"{CONNECT_TIMEOUT_S:g} s ({str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__})") from None
         return client, None
-    n = workers or os.cpu_count() or 1
+    n = workers or local_cores()
     cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
                            silence_logs=logging.ERROR)
     return Client(cluster, set_as_default=False), cluster
@@ -424,7 +442,7 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
     try:
         if progress is not None:
             progress.phase(f"connecting to {scheduler}" if scheduler else
-                           f"starting a local Dask cluster of {workers or os.cpu_count()} worker process(es)")
+                           f"starting a local Dask cluster of {workers or local_cores()} worker process(es)")
         client, cluster = _connect(scheduler, workers)  # first: an unreachable scheduler fails within seconds
         if progress is not None:
             progress.phase("compiling the model and checking the metrics on the first run of each plant")
@@ -432,7 +450,7 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
         samples, grid = spec.sample_matrix(), spec.grid_matrix()
         stats.address = client.scheduler.address
         stats.workers = len(client.scheduler_info(n_workers=-1).get("workers", {})) if scheduler else \
-            (workers or os.cpu_count() or 1)
+            (workers or local_cores())
         from distributed import as_completed
         from distributed.scheduler import KilledWorker
 
@@ -452,6 +470,9 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
                 continue
             try:
                 rows = fut.result()
+            except ImportError as exc:  # a cluster whose workers lack the package
+                raise SweepError(f"the Dask workers cannot import what a sweep needs ({exc}); install thsa-control "
+                                 "(the same version) in the workers' environment") from None
             except KilledWorker as exc:  # its workers kept dying (allowed-failures retries)
                 raise SweepError(f"chunk {c} (runs {ranges[c].start}..{ranges[c].stop - 1}) killed every worker "
                                  f"that ran it ({str(exc).strip()[:300]}); the finished chunks are kept, rerun the "
@@ -460,6 +481,7 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
             done.add(c)
             n_done += len(rows)
             stats.simulated += len(rows)
+            stats.completions.append((time.perf_counter() - t0, len(rows)))
             fut.release()
             if progress is not None:
                 el = time.perf_counter() - t0
