@@ -12,9 +12,12 @@ Measures, in one run of this script (ratios, not absolute targets):
   processes (``dask scheduler`` / ``dask worker``), reached by address as a
   remote cluster would be;
 * ``local 2``: two workers: the scaling 1 -> 2;
-* the projection of a 10^5-run campaign on N cores from the measured rate per
-  core and the measured parallel efficiency (cluster start-up not included;
-  it is printed apart).
+* CPU seconds of the workers' tasks and of this process: on a shared machine
+  wall-clock rates measure the contention, CPU seconds what a dedicated core
+  spends, so the overhead of Dask shows in them;
+* the projection of a 10^5-run campaign on N dedicated cores from the
+  workers' CPU seconds per run (cluster start-up not included; it is printed
+  apart), and with this machine's measured 1 -> 2 efficiency.
 
 The compile happens once before the timings (the cache is warm).  The
 machine may be shared: every figure is from this one run.
@@ -85,30 +88,40 @@ def main() -> None:
     spec = _spec(args.runs, args.chunk, args.scenario)
     runs = spec.run_specs(range(spec.total_runs))
     simulate_chunk(spec, runs[:1])  # compile (or load the cache) before timing
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     rows = simulate_chunk(spec, runs)
-    serial = time.perf_counter() - t0
+    serial, serial_cpu = time.perf_counter() - t0, time.process_time() - c0
     rate1 = len(rows) / serial
     print(f"level D, {args.scenario}, {spec.total_runs} runs in chunks of {spec.chunk_runs}; "
           f"{os.cpu_count()} cores on this machine, load average {os.getloadavg()[0]:.1f} at the start")
-    print(f"serial in-process:  {serial:6.2f} s  {rate1:7.1f} sims/s per core")
-    out = {}
+    print(f"serial in-process:  {serial:6.2f} s  {rate1:7.1f} sims/s per core (wall); CPU {serial_cpu:.2f} s: "
+          f"{len(rows) / serial_cpu:.1f} sims per CPU second")
+    out, cpu = {}, {}
     with tempfile.TemporaryDirectory(prefix="bench-sweep-") as tmp:
         tmp = Path(tmp)
         for label, kw in (("local 1", {"workers": 1}), ("local 2", {"workers": 2})):
             t0 = time.perf_counter()
             st = run_sweep(spec, tmp / label.replace(" ", "_"), **kw)
             out[label] = (st.compute_s, time.perf_counter() - t0 - st.compute_s, st.steady_rate())
+            cpu[label] = (st.task_cpu_s, st.worker_cpu_s, st.client_cpu_s, st.steady_cpu_per_run())
         t0 = time.perf_counter()
         address, procs = _cluster(tmp, 1)
         start = time.perf_counter() - t0
         try:
             st = run_sweep(spec, tmp / "cluster_1", scheduler=address)
             out["cluster 1"] = (st.compute_s, start, st.steady_rate())
+            cpu["cluster 1"] = (st.task_cpu_s, st.worker_cpu_s, st.client_cpu_s, st.steady_cpu_per_run())
         finally:
             _stop(procs)
         same = read_results(tmp / "local_1").equals(read_results(tmp / "cluster_1")) and \
             read_results(tmp / "local_1").equals(read_results(tmp / "local_2"))
+    # the serial run again, after the Dask runs: on a shared machine the load drifts, and CPU seconds with it
+    c0 = time.process_time()
+    simulate_chunk(spec, runs)
+    serial_cpu_end = time.process_time() - c0
+    print(f"serial in-process again: CPU {serial_cpu_end:.2f} s ({len(rows) / serial_cpu_end:.1f} sims per CPU second); "
+          f"the CPU ratios below use the mean {0.5 * (serial_cpu + serial_cpu_end):.2f} s")
+    serial_cpu = 0.5 * (serial_cpu + serial_cpu_end)
     for label in ("local 1", "cluster 1", "local 2"):
         c, s, steady = out[label]
         w = int(label[-1])
@@ -117,19 +130,26 @@ def main() -> None:
               f"{c * w / serial:.2f} x serial); after each worker's first chunk {steady:.1f} sims/s "
               f"({steady / w:.1f} per core, overhead ratio {rate1 / (steady / w):.2f}); cluster start, compile "
               f"check and report outside the loop {s:.1f} s")
+    for label in ("local 1", "cluster 1", "local 2"):
+        task, proc, client, steady = cpu[label]
+        print(f"{label + ':':19s} CPU: tasks {task:.2f} s ({task / serial_cpu:.2f} x serial; after each worker's "
+              f"first chunk, which builds its plant: {steady * len(rows) / serial_cpu:.2f} x serial), worker "
+              f"processes {proc:.2f} s ({proc / serial_cpu:.2f} x serial: Dask's threads), "
+              f"this process {client:.2f} s (scheduler of a local cluster, Parquet)")
     speedup = out["local 2"][2] / out["local 1"][2]
     eff = speedup / 2.0
     print(f"scaling 1 -> 2 workers (after the first chunks): speed-up {speedup:.2f} (efficiency {eff:.2f})")
     print(f"tables bit-identical (local 1, local 2, cluster 1): {same}")
     print(f"load average at the end {os.getloadavg()[0]:.1f} (above {os.cpu_count()}: the cores were shared, "
           "the rates and the scaling are lower bounds)")
-    per_core = out["local 1"][2]
+    # a dedicated core does what the workers' CPU seconds say; the client's share is not per core
+    task, proc, _, steady = cpu["cluster 1"]
+    per_core = 1.0 / (steady * proc / task)  # a dedicated core: the task's CPU and the worker's Dask share
     for n in (2, 16, 64):
-        e = min(1.0, eff)
-        t = 1e5 / (per_core * n * e)
-        print(f"projection: 1e5 runs of {args.scenario} on {n:3d} cores: {t / 3600:6.2f} h "
-              f"({t:.0f} s at {per_core:.1f} sims/s per core, efficiency {e:.2f}; at efficiency 1: "
-              f"{1e5 / (per_core * n) / 60:.1f} min)")
+        t = 1e5 / (per_core * n)
+        print(f"projection: 1e5 runs of {args.scenario} on {n:3d} dedicated cores: {t / 60:6.1f} min "
+              f"({per_core:.1f} sims per CPU second of a worker process; this machine's measured 1 -> 2 efficiency "
+              f"{min(eff, 1.0):.2f} would make it {t / min(eff, 1.0) / 60:.1f} min)")
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ uniformly distributed current between the two hand-computed ends.
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import socket
@@ -222,6 +223,27 @@ def test_compiled_library_shipped_to_a_fresh_cache_is_used(tmp_path, monkeypatch
     assert Path(info2["path"]).parent == tmp_path / "remote"
 
 
+def test_a_run_that_cannot_simulate_is_a_failed_row_not_a_crash(tmp_path):
+    """A sampled motor current limit below the design's clamp: the design refuses those runs; they are kept,
+    named, without metrics and failing every limit."""
+    from thsa_control.sweep.engine import simulate_chunk
+
+    text = _spec_text(6, 6) + """
+[parameters."motor.max_current"]
+distribution = "uniform"
+min = 10.0
+max = 20.0
+"""
+    spec = load_spec(_write(tmp_path, text))
+    rows = simulate_chunk(spec, spec.run_specs(range(6)))
+    bad = [r for r in rows if r["motor.max_current"] < 15.0]
+    good = [r for r in rows if r["motor.max_current"] >= 15.0]
+    assert bad and good
+    assert all("motor.max_current" in r["error"] and math.isnan(r["plateau_current_A"])
+               and r["pass:plateau_current_A"] is False for r in bad)
+    assert all(r["error"] == "" and math.isfinite(r["plateau_current_A"]) for r in good)
+
+
 # ---------------------------------------------------------------- sweeps (Dask)
 def _cli(args, **kw):
     return subprocess.run([sys.executable, "-m", "thsa_control.cli", *args], env=ENV, capture_output=True, text=True,
@@ -274,6 +296,9 @@ def test_known_distribution_of_the_steady_current(tmp_path, params):
     peak = next(x for x, r in zip(t["current_peak_A"], t["run"]) if r == worst["run"])
     assert summary["levels"]["A"]["peak_abs_current_A"] == peak
     assert (out / "report" / "report.html").stat().st_size > 10_000
+    # --check: the runs above the limit fail the command (the rerun finds every run done and simulates none)
+    assert main(["sweep", str(spec), "--out", str(out), "--check", "-q"]) == 1
+    assert _table(out).num_rows == n
 
 
 class _Cluster:

@@ -162,6 +162,14 @@ def simulate_chunk(spec: SweepSpec, runs: list[RunSpec], libraries: tuple = ()) 
     return rows
 
 
+def _task(spec: SweepSpec, runs: list[RunSpec], libraries: tuple = ()) -> tuple[list[dict], float, float, float]:
+    """A worker's task: :func:`simulate_chunk`, and the CPU seconds of its thread, of the whole worker process
+    (Dask's own threads included) and the wall seconds it took there."""
+    t0, c0, w0 = time.thread_time(), time.process_time(), time.perf_counter()
+    rows = simulate_chunk(spec, runs, libraries)
+    return rows, time.thread_time() - t0, time.process_time() - c0, time.perf_counter() - w0
+
+
 # ------------------------------------------------------------------ table
 def results_schema(spec: SweepSpec):
     """The Arrow schema of the results table."""
@@ -321,7 +329,11 @@ class SweepRun:
         self.compute_s = 0.0
         self.workers = 0
         self.address = ""
-        self.completions: list[tuple[float, int]] = []  # (seconds since the tasks were sent, runs) per chunk
+        self.completions: list[tuple[float, int, float]] = []  # per chunk: (s since the tasks were sent, runs, CPU s)
+        self.task_cpu_s = 0.0  # CPU seconds of the tasks' threads (the simulations and their metrics)
+        self.worker_cpu_s = 0.0  # CPU seconds of the worker processes meanwhile (Dask's own threads included)
+        self.task_wall_s = 0.0
+        self.client_cpu_s = 0.0  # CPU seconds of this process meanwhile (scheduler of a local cluster, Parquet)
 
     def steady_rate(self) -> float:
         """Runs per second after each worker's first chunk (its start-up: imports, plant, library) [1/s]."""
@@ -329,8 +341,14 @@ class SweepRun:
         if len(self.completions) <= k:
             return math.nan
         t0 = self.completions[k - 1][0]
-        n = sum(r for _, r in self.completions[k:])
+        n = sum(c[1] for c in self.completions[k:])
         return n / (self.completions[-1][0] - t0) if self.completions[-1][0] > t0 else math.nan
+
+    def steady_cpu_per_run(self) -> float:
+        """Workers' CPU seconds per run after each worker's first chunk (what a dedicated core spends) [s]."""
+        rest = self.completions[max(self.workers, 1):]
+        n = sum(c[1] for c in rest)
+        return sum(c[2] for c in rest) / n if n else math.nan
 
 
 def _warm_up(spec: SweepSpec) -> tuple:
@@ -458,18 +476,18 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
         libs_f = client.scatter(libraries, broadcast=True, hash=False)
         futures = {}
         for c in pending:
-            f = client.submit(simulate_chunk, spec_f, spec.run_specs(ranges[c], samples, grid), libs_f,
+            f = client.submit(_task, spec_f, spec.run_specs(ranges[c], samples, grid), libs_f,
                               key=f"thsa-sweep-{spec.sha256[:12]}-chunk-{c:06d}-{os.getpid()}-{t_start:.0f}",
                               pure=False)
             futures[f] = c
         n_done = stats.resumed
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         for fut in as_completed(list(futures), loop=client.loop):
             c = futures[fut]
             if c in done:  # never twice
                 continue
             try:
-                rows = fut.result()
+                rows, cpu_s, proc_s, wall_s = fut.result()
             except ImportError as exc:  # a cluster whose workers lack the package
                 raise SweepError(f"the Dask workers cannot import what a sweep needs ({exc}); install thsa-control "
                                  "(the same version) in the workers' environment") from None
@@ -481,7 +499,10 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
             done.add(c)
             n_done += len(rows)
             stats.simulated += len(rows)
-            stats.completions.append((time.perf_counter() - t0, len(rows)))
+            stats.completions.append((time.perf_counter() - t0, len(rows), cpu_s))
+            stats.task_cpu_s += cpu_s
+            stats.worker_cpu_s += proc_s
+            stats.task_wall_s += wall_s
             fut.release()
             if progress is not None:
                 el = time.perf_counter() - t0
@@ -489,6 +510,7 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
                 eta = (spec.total_runs - n_done) / rate if rate > 0 else math.inf
                 progress.step(n_done, spec.total_runs, f"runs, {rate:.1f} runs/s, ETA {_fmt_s(eta)}")
         stats.compute_s = time.perf_counter() - t0
+        stats.client_cpu_s = time.process_time() - c0
     except _Terminate as exc:
         signum = exc.args[0]
         if progress is not None:
