@@ -398,9 +398,17 @@ def _connect(scheduler: str | None, workers: int | None):
             raise SweepError(f"--scheduler {scheduler}: cannot reach the Dask scheduler within "
                              f"{CONNECT_TIMEOUT_S:g} s ({str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__})") from None
         return client, None
+    import dask
+
     n = workers or local_cores()
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                           silence_logs=logging.ERROR)
+    # Dask's nannies set MALLOC_TRIM_THRESHOLD_=65536 in their workers: glibc then hands every freed
+    # block back to the OS, and each run's arrays fault their pages in again (about 20 % more CPU per run,
+    # bench/bench_sweep.py); the local workers keep glibc's own adaptive threshold
+    environ = {k: v for k, v in dask.config.get("distributed.nanny.pre-spawn-environ", {}).items()
+               if k != "MALLOC_TRIM_THRESHOLD_"}
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                               silence_logs=logging.ERROR)
     return Client(cluster, set_as_default=False), cluster
 
 
