@@ -9,8 +9,10 @@ Measures, in one run of this script (ratios, not absolute targets):
 * ``local 1``: ``thsa sweep``'s default, a ``LocalCluster`` of one worker
   process (Parquet appends included), and its overhead ratio to serial;
 * ``cluster 1``: a scheduler and one worker started here as separate
-  processes (``dask scheduler`` / ``dask worker``), reached by address as a
-  remote cluster would be;
+  processes (``dask scheduler`` / ``dask worker``, Dask's default
+  configuration, so its nanny sets ``MALLOC_TRIM_THRESHOLD_=65536``, which
+  the local default leaves out), reached by address as a remote cluster
+  would be;
 * ``local 2``: two workers: the scaling 1 -> 2;
 * CPU seconds of the workers' tasks and of this process: on a shared machine
   wall-clock rates measure the contention, CPU seconds what a dedicated core
@@ -142,14 +144,19 @@ def main() -> None:
     print(f"tables bit-identical (local 1, local 2, cluster 1): {same}")
     print(f"load average at the end {os.getloadavg()[0]:.1f} (above {os.cpu_count()}: the cores were shared, "
           "the rates and the scaling are lower bounds)")
-    # a dedicated core does what the workers' CPU seconds say; the client's share is not per core
-    task, proc, _, steady = cpu["cluster 1"]
-    per_core = 1.0 / (steady * proc / task)  # a dedicated core: the task's CPU and the worker's Dask share
+    # a dedicated core does what a worker process's CPU seconds say (the task's and Dask's threads)
+    rates = {}
+    for label in ("local 1", "cluster 1"):
+        task, proc, _, steady = cpu[label]
+        rates[label] = 1.0 / (steady * proc / task)
+    print(f"CPU cost of a second worker: {cpu['local 2'][1] / cpu['local 1'][1]:.2f} x the worker CPU per run "
+          "(what the wall-clock scaling measures on a loaded machine is the load)")
     for n in (2, 16, 64):
-        t = 1e5 / (per_core * n)
-        print(f"projection: 1e5 runs of {args.scenario} on {n:3d} dedicated cores: {t / 60:6.1f} min "
-              f"({per_core:.1f} sims per CPU second of a worker process; this machine's measured 1 -> 2 efficiency "
-              f"{min(eff, 1.0):.2f} would make it {t / min(eff, 1.0) / 60:.1f} min)")
+        print(f"projection: 1e5 runs of {args.scenario} on {n:3d} dedicated cores: "
+              f"{1e5 / (rates['local 1'] * n) / 60:5.1f} min with thsa's local workers "
+              f"({rates['local 1']:.1f} sims per CPU second), {1e5 / (rates['cluster 1'] * n) / 60:5.1f} min on a "
+              f"default Dask cluster ({rates['cluster 1']:.1f}); at this machine's 1 -> 2 efficiency "
+              f"{min(eff, 1.0):.2f}: {1e5 / (rates['local 1'] * n * min(eff, 1.0)) / 60:.1f} min")
 
 
 if __name__ == "__main__":
