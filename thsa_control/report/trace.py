@@ -36,7 +36,6 @@ def plot_residual_before_after(before: dict, after: dict, run_name: str, channel
     ax.set_ylabel(f"{channel} residual [{spec.unit if spec else 'SI'}]")
     ax.set_title(f"{run_name}: {channel} residual of the multiple-shooting segments")
     ax.legend(loc="upper right")
-    fig.tight_layout()
     return fig
 
 
@@ -91,7 +90,7 @@ def _errors_cell(before: dict, after: dict) -> str:
 def plot_candidate_drops(doc: dict):
     """Each round's candidates: held-out chi2 drop (log scale, significant ones coloured)."""
     rounds = doc["rounds"]
-    fig, axes = plt.subplots(len(rounds), 1, figsize=(9, 0.5 + 2.6 * len(rounds)), squeeze=False)
+    fig, axes = subplots(len(rounds), 1, figsize=(9, 0.5 + 2.6 * len(rounds)), squeeze=False)
     for ax, r in zip(axes[:, 0], rounds):
         cands = [c for c in r["candidates"] if c.get("holdout_chi2_drop") is not None]
         names = [c["name"] + (" (beyond base)" if c.get("beyond_base_correction") else "") for c in cands]
@@ -104,7 +103,6 @@ def plot_candidate_drops(doc: dict):
         ax.set_xscale("log")
         ax.set_xlabel("held-out chi2 drop (green: significant, red: implausible, grey: not significant)")
         ax.set_title(f"round {r['round']}: model {', '.join(r['model']) or 'functional'}", fontsize=9, wrap=True)
-    fig.tight_layout()
     return fig
 
 
@@ -112,7 +110,7 @@ def plot_signature(sig: dict):
     """The remaining residual's signature: binned by nut position, by motor and screw angle, and the redundant
     sensors' cross-correlation."""
     curves = sig.get("curves") or {}
-    fig, axes = plt.subplots(2, 2, figsize=(11, 6.5))
+    fig, axes = subplots(2, 2, figsize=(11, 6.5))
     ax = axes[0, 0]
     if "nut_position" in curves:
         c = curves["nut_position"]
@@ -140,7 +138,6 @@ def plot_signature(sig: dict):
     ax.set_title("redundant sensors: cross-correlation", fontsize=9)
     if ax.get_legend_handles_labels()[0]:
         ax.legend(fontsize=7, loc="lower left")
-    fig.tight_layout()
     return fig
 
 
