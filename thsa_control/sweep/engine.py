@@ -6,9 +6,9 @@ Where the work runs
     an existing Dask cluster, unchanged.  Both run the same tasks.
 
 What a task does
-    :func:`simulate_chunk` simulates a chunk of :class:`~.spec.RunSpec` and
-    returns one row (dict) per run.  It is the one place that simulates: a
-    batched simulator replaces its loop without touching the rest.  The
+    :func:`simulate_chunk` simulates a chunk of :class:`~.spec.RunSpec` (the
+    runs of one plant in one batched call of the compiled library) and
+    returns one row (dict) per run.  It is the one place that simulates.  The
     simulators (plant, compiled loop) are built once per worker process and
     spec, kept in :data:`_WORKER_SIMULATORS`.
 
@@ -134,9 +134,12 @@ def _simulate_one(spec: SweepSpec, rs: RunSpec):
 def simulate_chunk(spec: SweepSpec, runs: list[RunSpec], libraries: tuple = ()) -> list[dict]:
     """Simulate ``runs`` and return one row per run (the task of a worker).
 
-    Row: ``run``, ``design``, ``scenario``, ``grid``, ``sample``, the varied
-    values, the metrics (nan for a failed run), ``pass:METRIC`` per limit
-    (False for nan), ``error`` (empty when the run simulated).
+    The runs of one plant go to the compiled library together
+    (``Simulator.run_batch``, one thread: a worker is one core), each result
+    bit-identical to a single run.  Row: ``run``, ``design``, ``scenario``,
+    ``grid``, ``sample``, the varied values, the metrics (nan for a run that
+    failed), ``pass:METRIC`` per limit (False for nan), ``error`` (empty when
+    the run simulated).
     """
     from ..sim.codegen import install_library
     from .metrics import compute_metrics
@@ -145,12 +148,35 @@ def simulate_chunk(spec: SweepSpec, runs: list[RunSpec], libraries: tuple = ()) 
         for files in libraries:
             install_library(files)
         _WORKER_SIMULATORS[("installed", spec.sha256)] = True
+    results: dict[int, tuple] = {}  # index in runs -> (result or None, error, fault time)
+    groups: dict[tuple, list] = {}
+    for k, rs in enumerate(runs):
+        try:
+            design, scenario, params = run_inputs(spec, rs)
+        except ThsaError as exc:  # values the actuator cannot have: a failed run, kept
+            results[k] = (None, str(exc).strip() or type(exc).__name__, math.nan)
+            continue
+        t_fault = min((f.time for f in scenario.faults), default=math.nan)
+        groups.setdefault(spec.plant_effects(scenario), []).append((k, design, scenario, params, t_fault))
+    for effects, items in groups.items():
+        try:
+            sim = _simulator(spec, effects)
+            batch = sim.run_batch([it[2] for it in items], [it[1] for it in items], [it[3] for it in items],
+                                  threads=1)
+            for it, res in zip(items, batch):
+                results[it[0]] = (res, "", it[4])
+        except ThsaError:  # one run or more fails (diverges, refused): find them, keep the others
+            for k, design, scenario, params, t_fault in items:
+                try:
+                    results[k] = (_simulator(spec, effects).run(scenario, design, params), "", t_fault)
+                except ThsaError as exc:
+                    results[k] = (None, str(exc).strip() or type(exc).__name__, t_fault)
     rows = []
-    for rs in runs:
+    for k, rs in enumerate(runs):
         label, design = spec.designs[rs.design]
         row = {"run": rs.run, "design": label, "scenario": spec.scenarios[rs.scenario].name, "grid": rs.grid,
                "sample": rs.sample, **dict(rs.values)}
-        result, error, t_fault = _simulate_one(spec, rs)
+        result, error, t_fault = results[k]
         if result is None:
             row.update({m: math.nan for m in spec.metrics})
         else:
