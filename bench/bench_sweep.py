@@ -4,8 +4,8 @@
 
 Measures, in one run of this script (ratios, not absolute targets):
 
-* ``serial``: ``engine.simulate_chunk`` over every run in this process (one
-  core, no Dask): simulations per second per core;
+* ``serial``: ``engine.simulate_chunk`` over the same chunks in this process
+  (one core, no Dask): simulations per second per core;
 * ``local 1``: ``thsa sweep``'s default, a ``LocalCluster`` of one worker
   process (Parquet appends included), and its overhead ratio to serial;
 * ``cluster 1``: a scheduler and one worker started here as separate
@@ -90,8 +90,9 @@ def main() -> None:
     spec = _spec(args.runs, args.chunk, args.scenario)
     runs = spec.run_specs(range(spec.total_runs))
     simulate_chunk(spec, runs[:1])  # compile (or load the cache) before timing
+    chunks = [runs[i:i + spec.chunk_runs] for i in range(0, len(runs), spec.chunk_runs)]
     t0, c0 = time.perf_counter(), time.process_time()
-    rows = simulate_chunk(spec, runs)
+    rows = [r for ch in chunks for r in simulate_chunk(spec, ch)]  # the same chunks as the workers
     serial, serial_cpu = time.perf_counter() - t0, time.process_time() - c0
     rate1 = len(rows) / serial
     print(f"level D, {args.scenario}, {spec.total_runs} runs in chunks of {spec.chunk_runs}; "
@@ -119,7 +120,8 @@ def main() -> None:
             read_results(tmp / "local_1").equals(read_results(tmp / "local_2"))
     # the serial run again, after the Dask runs: on a shared machine the load drifts, and CPU seconds with it
     c0 = time.process_time()
-    simulate_chunk(spec, runs)
+    for ch in chunks:
+        simulate_chunk(spec, ch)
     serial_cpu_end = time.process_time() - c0
     print(f"serial in-process again: CPU {serial_cpu_end:.2f} s ({len(rows) / serial_cpu_end:.1f} sims per CPU second); "
           f"the CPU ratios below use the mean {0.5 * (serial_cpu + serial_cpu_end):.2f} s")
@@ -151,12 +153,19 @@ def main() -> None:
         rates[label] = 1.0 / (steady * proc / task)
     print(f"CPU cost of a second worker: {cpu['local 2'][1] / cpu['local 1'][1]:.2f} x the worker CPU per run "
           "(what the wall-clock scaling measures on a loaded machine is the load)")
+    # the client writes each chunk's Parquet file and (local cluster) runs the scheduler: a cost per chunk
+    n_chunks = -(-spec.total_runs // spec.chunk_runs)
+    per_chunk = {label: cpu[label][2] / n_chunks for label in ("local 1", "cluster 1")}
+    print(f"client CPU per chunk: {per_chunk['local 1'] * 1e3:.1f} ms with the local cluster's scheduler in it, "
+          f"{per_chunk['cluster 1'] * 1e3:.1f} ms with a separate scheduler")
     for n in (2, 16, 64):
-        print(f"projection: 1e5 runs of {args.scenario} on {n:3d} dedicated cores: "
-              f"{1e5 / (rates['local 1'] * n) / 60:5.1f} min with thsa's local workers "
-              f"({rates['local 1']:.1f} sims per CPU second), {1e5 / (rates['cluster 1'] * n) / 60:5.1f} min on a "
-              f"default Dask cluster ({rates['cluster 1']:.1f}); at this machine's 1 -> 2 efficiency "
-              f"{min(eff, 1.0):.2f}: {1e5 / (rates['local 1'] * n * min(eff, 1.0)) / 60:.1f} min")
+        for chunk in (spec.chunk_runs, 256):
+            compute = 1e5 / (rates["cluster 1"] * n)
+            client = -(-100000 // chunk) * per_chunk["cluster 1"]
+            print(f"projection: 1e5 runs of {args.scenario} on {n:3d} dedicated cores, chunks of {chunk:3d}: "
+                  f"{max(compute, client) / 60:5.2f} min (workers {compute:.0f} s at {rates['cluster 1']:.0f} sims per "
+                  f"CPU second of a default Dask worker, {rates['local 1']:.0f} for thsa's local ones; client "
+                  f"{client:.0f} s{', the bottleneck' if client > compute else ''})")
 
 
 if __name__ == "__main__":

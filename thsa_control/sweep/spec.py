@@ -14,7 +14,7 @@ Example (``examples/sweeps/`` has complete ones)::
     [sampling]
     method = "lhs"                  # random | lhs | sobol | saltelli | grid
     samples = 64                    # points per design x scenario x grid point (saltelli: base points)
-    chunk_runs = 16                 # runs per task (optional)
+    chunk_runs = 16                 # runs per task (optional; default: total / 400, within 16 .. 256)
 
     [parameters."gear.efficiency"]  # any parameter of the actuator
     distribution = "uniform"        # uniform, loguniform [min, max]; normal (mean, sd);
@@ -62,8 +62,10 @@ __all__ = ["Limit", "RunSpec", "SweepSpec", "SweepSpecError", "Variable", "load_
 _TOP = {"name", "description", "seed", "level", "effects", "designs", "scenarios", "params", "output_period_s",
         "sampling", "parameters", "conditions", "faults", "monitors", "metrics", "limits"}
 _CONDITIONS = {"temperature": "temperature_C", "load_scale": "load_scale"}
-#: Runs per task when the spec does not say (a chunk of a few seconds of work at level D).
-DEFAULT_CHUNK_RUNS = 16
+#: Runs per task when the spec does not say: about 400 chunks, within these bounds (small chunks show
+#: progress and balance the workers; large ones keep the client, which writes one Parquet file per chunk,
+#: off the critical path of a big campaign: bench/bench_sweep.py, docs/sweep_notes.md).
+CHUNKS_TARGET, CHUNK_RUNS_MIN, CHUNK_RUNS_MAX = 400, 16, 256
 
 
 class SweepSpecError(ThsaError, ValueError):
@@ -470,8 +472,8 @@ def parse_spec(doc: dict, *, source: str = "<dict>", base_dir: str | Path = ".")
     if method not in SAMPLING_METHODS:
         raise SweepSpecError(src, "sampling.method", f"{method!r} unknown; methods are {', '.join(SAMPLING_METHODS)}")
     samples = _num(src, "sampling.samples", sampling.get("samples", 1), positive=True, integer=True)
-    chunk_runs = _num(src, "sampling.chunk_runs", sampling.get("chunk_runs", DEFAULT_CHUNK_RUNS), positive=True,
-                      integer=True)
+    chunk_runs = _num(src, "sampling.chunk_runs", sampling["chunk_runs"], positive=True, integer=True) \
+        if "chunk_runs" in sampling else None
 
     variables: list[Variable] = []
     assumed = {a.parameter: a for a in ASSUMED_RANGES}
@@ -567,12 +569,15 @@ def parse_spec(doc: dict, *, source: str = "<dict>", base_dir: str | Path = ".")
     h = hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode())
     for p in (*design_paths, *(s for s in scenario_sources if s.endswith(".toml")), *( [params_path] if params_path else [])):
         h.update(Path(p).read_bytes())
-    return SweepSpec(source=src, name=name, description=str(doc.get("description", "")), seed=seed, level=level,
+    spec = SweepSpec(source=src, name=name, description=str(doc.get("description", "")), seed=seed, level=level,
                      effects=tuple(effects), designs=designs, design_paths=design_paths, scenarios=tuple(scenarios),
                      scenario_sources=scenario_sources, params=params, params_path=params_path,
                      output_period=output_period, method=method, samples=samples if method != "grid" else 1,
-                     chunk_runs=chunk_runs, variables=tuple(variables), faults=faults, metrics=tuple(metrics),
-                     limits=tuple(limits), sha256=h.hexdigest())
+                     chunk_runs=chunk_runs or CHUNK_RUNS_MIN, variables=tuple(variables), faults=faults,
+                     metrics=tuple(metrics), limits=tuple(limits), sha256=h.hexdigest())
+    if chunk_runs is None:
+        spec = replace(spec, chunk_runs=min(CHUNK_RUNS_MAX, max(CHUNK_RUNS_MIN, -(-spec.total_runs // CHUNKS_TARGET))))
+    return spec
 
 
 def load_spec(path: str | Path) -> SweepSpec:
