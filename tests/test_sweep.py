@@ -99,6 +99,7 @@ def _doc(**changes) -> dict:
     ({"faults": [{"kind": "surface_jam", "time": {"distribution": "uniform", "min": 0.5, "max": 2.0}}]},
      "faults[0].time"),
     ({"colour": "blue"}, "colour"),
+    ({"metrics": {"keep": ["plateau_current_A", "first_detection_s"]}}, "metrics.keep[1]"),
 ])
 def test_bad_spec_names_the_key(change, key):
     with pytest.raises(SweepSpecError) as err:
@@ -152,6 +153,55 @@ def test_plan_is_fixed_by_seed_and_run_index(tmp_path):
     assert [r.values for r in a] == [r.values for r in b]  # random sampling: sample j does not depend on n
     vals = [dict(r.values)["gear.viscous_friction"] for r in a]
     assert all(FRICTION[0] <= v <= FRICTION[1] for v in vals) and len(set(vals)) == 10
+
+
+def test_a_run_gets_its_values(tmp_path):
+    """Temperature, load scale, fault instant and parameters of the plan reach the run's scenario and parameters."""
+    from thsa_control.sweep.engine import run_inputs
+
+    text = """name = "campaign"
+seed = 3
+level = "D"
+scenarios = ["jam"]
+[sampling]
+samples = 4
+[[faults]]
+kind = "surface_jam"
+time = { distribution = "uniform", min = 1.5, max = 4.5 }
+[[faults]]
+kind = "sensor"
+sensor = "rvdt"
+mode = "noise"
+value = 0.001
+time = 1.0
+end = 1.2
+[conditions.temperature]
+distribution = "grid"
+values = [-55.0, 70.0]
+[conditions.load_scale]
+distribution = "grid"
+values = [-1.0, 0.5]
+[parameters."limiter.mu_static"]
+distribution = "uniform"
+min = 0.1
+max = 0.15
+[metrics]
+keep = ["first_detection_s"]
+"""
+    spec = load_spec(_write(tmp_path, text))
+    assert spec.total_runs == 16 and spec.grid_points == 4
+    base = spec.scenarios[0]
+    seeds = set()
+    for rs in spec.run_specs(range(16)):
+        v = dict(rs.values)
+        _, sc, p = run_inputs(spec, rs)
+        assert sc.temperature == v["temperature_C"] and p.value("limiter.mu_static") == v["limiter.mu_static"]
+        assert [f for _, f in sc.load] == [f * v["load_scale"] for _, f in base.load]
+        jam, noise = sc.faults
+        assert jam.kind == "surface_jam" and jam.time == v["fault_time_s"] and 1.5 <= jam.time <= 4.5
+        seeds.add(noise.seed)  # sensor noise: one seed per run, from the spec's seed and the run index
+    assert len(seeds) == 16
+    assert [dict(r.values)["temperature_C"] for r in spec.run_specs(range(0, 16, 4))] == [-55.0, -55.0, 70.0, 70.0]
 
 
 def test_sobol_estimators_on_a_linear_function():

@@ -63,7 +63,8 @@ METRICS: dict[str, _Metric] = {
 GENERIC_FORMS = ("peak_abs", "mean", "final")
 DEFAULT_METRICS = ("current_peak_A", "speed_error_percent", "overshoot_percent", "settling_time_s",
                    "plateau_current_A", "final_position_mm")
-_FAULT_METRICS = ("detection_discrepancy_s", "detection_lvdt_s", "detection_speed_s", "first_detection_s",
+#: Metrics timed from the first fault of a run: they need faults (and the monitors) in the runs.
+FAULT_METRICS = ("detection_discrepancy_s", "detection_lvdt_s", "detection_speed_s", "first_detection_s",
                   "takeover_s", "safed_s", "surface_excursion_mm")
 
 

@@ -54,7 +54,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ThsaError
-from .metrics import DEFAULT_METRICS, check_metric_name
+from .metrics import DEFAULT_METRICS, FAULT_METRICS, check_metric_name
 from .sampling import DISTRIBUTIONS, SAMPLING_METHODS, Distribution, unit_samples
 
 __all__ = ["Limit", "RunSpec", "SweepSpec", "SweepSpecError", "Variable", "load_spec", "parse_spec"]
@@ -543,6 +543,10 @@ def parse_spec(doc: dict, *, source: str = "<dict>", base_dir: str | Path = ".")
             metrics.append(check_metric_name(m))
         except ValueError as exc:
             raise SweepSpecError(src, f"metrics.keep[{i}]", str(exc)) from None
+    for i, m in enumerate(metrics):
+        if m in FAULT_METRICS and not any(s.faults for s in scenarios):
+            raise SweepSpecError(src, f"metrics.keep[{i}]", f"{m} is timed from a run's first fault, and no scenario "
+                                 "has one: add [[faults]] or a fault scenario (e.g. jam)")
     limits = []
     for mname, lt in _table(src, "limits", doc.get("limits", {})).items():
         key = f"limits.{mname}"
