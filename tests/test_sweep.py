@@ -296,7 +296,7 @@ max = 20.0
 
 # ---------------------------------------------------------------- sweeps (Dask)
 def _cli(args, **kw):
-    return subprocess.run([sys.executable, "-m", "thsa_control.cli", *args], env=ENV, capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "thsa_control.cli", *args], env=ENV, capture_output=True, text=True, check=False,
                           **kw)
 
 

@@ -551,6 +551,11 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
             progress.phase(f"stopped by signal {signum}: {len(done)} of {len(ranges)} chunks on disk; "
                            "rerun the same command to resume")
         raise SystemExit(128 + signum) from None
+    except KeyboardInterrupt:
+        if progress is not None:
+            progress.phase(f"interrupted: {len(done)} of {len(ranges)} chunks on disk; rerun the same command to "
+                           "resume")
+        raise
     finally:
         for sig, old in previous.items():
             signal.signal(sig, old)
