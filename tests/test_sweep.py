@@ -296,8 +296,8 @@ max = 20.0
 
 # ---------------------------------------------------------------- sweeps (Dask)
 def _cli(args, **kw):
-    return subprocess.run([sys.executable, "-m", "thsa_control.cli", *args], env=ENV, capture_output=True, text=True, check=False,
-                          **kw)
+    return subprocess.run([sys.executable, "-m", "thsa_control.cli", *args], env=ENV, capture_output=True, text=True,
+                          check=False, **kw)
 
 
 def _table(out):
