@@ -21,7 +21,7 @@ from .build import atomic_folder, write_json
 from .figure import subplots
 from .identification import Html, figure_png, html_table, write_html_report
 
-__all__ = ["plot_distribution", "plot_sensitivity", "write_sweep_report"]
+__all__ = ["plot_distribution", "plot_sensitivity", "plot_against_input", "write_sweep_report"]
 
 
 def _fmt(x) -> str:
@@ -76,6 +76,29 @@ def plot_sensitivity(analysis, metric: str, group: str, top: int = 10):
     return fig
 
 
+def plot_against_input(analysis, metric: str, name: str, limits=()):
+    """``metric`` of every run against the varied quantity ``name``, one colour per design x scenario group."""
+    from ..sweep.metrics import metric_unit
+
+    y = next(s.values for s in analysis.summaries if s.metric == metric and s.group == "all")
+    x = analysis.inputs[name]
+    fig, ax = subplots(figsize=(8, 3.6))
+    groups = list(dict.fromkeys(analysis.groups.tolist()))
+    for g in groups:
+        m = analysis.groups == g
+        ax.plot(x[m], y[m], ".", ms=5, label=g if len(groups) > 1 else None)
+    for lim in limits:
+        for v in (lim.min, lim.max):
+            if math.isfinite(v):
+                ax.axhline(v, color="r", ls="--", lw=1)
+    ax.set_xlabel(name)
+    ax.set_ylabel(f"{metric} [{metric_unit(metric)}]")
+    ax.set_title(f"{metric} against {name}", fontsize=10)
+    if len(groups) > 1:
+        ax.legend(fontsize=8)
+    return fig
+
+
 def _replay_files(spec, run: int, folder: Path) -> tuple[str, str]:
     from ..sim.scenarios import scenario_to_dict
     from ..sweep.engine import run_inputs
@@ -112,6 +135,12 @@ def write_sweep_report(spec, analysis, out_dir, **folder_options) -> Path:
         for m in spec.metrics:
             lims = [lim for lim in spec.limits if lim.metric == m]
             figs.append((f"dist_{m.replace(':', '_')}.png", plot_distribution(analysis, m, lims), f"distribution of {m}"))
+        for m in spec.metrics:  # against the quantity it is most sensitive to (first group's ranking)
+            top = next((x for x in analysis.sensitivity if x.metric == m and math.isfinite(x.spearman)), None)
+            if top is not None:
+                lims = [lim for lim in spec.limits if lim.metric == m]
+                figs.append((f"vs_{m.replace(':', '_')}.png", plot_against_input(analysis, m, top.input, lims),
+                             f"{m} against {top.input} (its strongest rank correlation, {top.group})"))
         groups = sorted({s.group for s in analysis.sensitivity})
         if spec.input_columns:
             for m in spec.metrics:

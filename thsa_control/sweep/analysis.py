@@ -123,6 +123,8 @@ class SweepAnalysis:
     worst: tuple[WorstCase, ...]
     sensitivity: tuple[Sensitivity, ...]
     errors: tuple[tuple[int, str], ...]  # first failed runs (run, error)
+    inputs: dict = field(default_factory=dict, repr=False)  # varied quantity -> values, one per run (run order)
+    groups: np.ndarray = field(default_factory=lambda: np.zeros(0, str), repr=False)  # "design / scenario" per run
 
     def to_dict(self) -> dict:
         """JSON-ready (non-finite numbers as strings)."""
@@ -239,7 +241,7 @@ def analyse_sweep(spec: SweepSpec, table, *, worst_n: int = 3) -> SweepAnalysis:
     sens.sort(key=lambda s: (order[s.metric], s.group, strength(s)))
     errs = tuple((int(r), str(e)) for r, e in zip(runs[failed][:20], errors[failed][:20]))
     return SweepAnalysis(spec.describe(), n, int(failed.sum()), tuple(summaries), tuple(failures), tuple(worst),
-                         tuple(sens), errs)
+                         tuple(sens), errs, inputs, np.char.add(np.char.add(designs, " / "), scenarios))
 
 
 def _saltelli(spec: SweepSpec, table, v: np.ndarray, mask: np.ndarray) -> tuple[dict, dict]:
