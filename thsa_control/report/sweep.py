@@ -21,7 +21,7 @@ from .build import atomic_folder, write_json
 from .figure import subplots
 from .identification import Html, figure_png, html_table, write_html_report
 
-__all__ = ["plot_distribution", "plot_sensitivity", "plot_against_input", "write_sweep_report"]
+__all__ = ["plot_against_input", "plot_distribution", "plot_sensitivity", "write_sweep_report"]
 
 
 def _fmt(x) -> str:
