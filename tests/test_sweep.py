@@ -329,6 +329,8 @@ def test_known_distribution_of_the_steady_current(tmp_path, params):
         assert a <= q <= b
     # the limit 2.19 A: its probability from the hand distribution lies in the reported interval
     rep = json.loads((out / "report" / "report.json").read_text())
+    jsonschema = pytest.importorskip("jsonschema")  # in the test extra
+    jsonschema.Draft202012Validator(json.loads((ROOT / "docs" / "sweep_report_schema.json").read_text())).validate(rep)
     f = next(x for x in rep["failure_probabilities"] if x["requirement"].startswith("plateau_current_A")
              and x["group"] == "all")
     p_hand = (hi - 2.19) / (hi - lo)

@@ -215,14 +215,16 @@ class SweepSpec:
 
     def describe(self) -> dict:
         """Plain summary (JSON-ready) for the report."""
+        timed = {v.index: v.dist.describe() for v in self.variables if v.kind == "fault_time"}
         return {"name": self.name, "description": self.description, "source": self.source, "seed": self.seed,
                 "level": self.level, "effects": list(self.effects), "designs": list(self.design_paths),
                 "scenarios": list(self.scenario_sources), "params": self.params_path or "embedded actuator",
                 "sampling": self.method, "samples": self.samples, "grid_points": self.grid_points,
                 "total_runs": self.total_runs, "chunk_runs": self.chunk_runs,
                 "variables": [{"name": v.name, "kind": v.kind, "distribution": v.dist.describe()} for v in self.variables],
-                "faults": [{k: (v if not isinstance(v, float) or math.isfinite(v) else str(v)) for k, v in f.items()}
-                           for f in self.faults],
+                "faults": [{k: (timed[i] if k == "time" and i in timed else
+                                v if not isinstance(v, float) or math.isfinite(v) else str(v)) for k, v in f.items()}
+                           for i, f in enumerate(self.faults)],
                 "metrics": list(self.metrics), "limits": [lim.describe() for lim in self.limits],
                 "spec_sha256": self.sha256}
 
