@@ -18,7 +18,8 @@ parameters and output signals, appended after the plain loop's:
 With no extension this is exactly the plain loop.  The sensors, monitors and
 reconfiguration logic of the fault cases are one extension
 (``sim/monitors.py``: :class:`~thsa_control.sim.monitors.MonitorLoop`);
-:func:`extensions_for` gives a scenario the extensions it asks for.
+:func:`~thsa_control.sim.monitors.extensions_for` gives a scenario the extensions it asks for
+(beside the monitors, so that this module imports no extension).
 
 :class:`ClosedLoop` holds the Functions of one (plant, substeps, extensions)
 and their compiled run loop (``codegen.py``); the simulator keeps one per
@@ -37,7 +38,7 @@ from ..loops.controllers import CONTROLLER_PARAMETERS, CONTROLLER_SIGNALS, CONTR
 from ..model.plant import Plant
 
 __all__ = ["RUN_INPUTS", "OPTIONAL_INPUTS", "CONTROLLER_UNITS", "LoopStage", "LoopExtension", "ClosedLoop",
-           "plant_input_vector", "output_decimation", "extensions_for"]
+           "plant_input_vector", "output_decimation"]
 
 #: Per-sample inputs of a run: the controller's references, then load and temperature.
 RUN_INPUTS = REFERENCE_INPUTS + ("load_force", "temperature")
@@ -150,15 +151,6 @@ class LoopExtension:
     def info(self, scenario) -> dict:
         """Run metadata added to ``SimulationResult.info``."""
         return {}
-
-
-def extensions_for(scenario) -> tuple[LoopExtension, ...]:
-    """The loop extensions a scenario asks for: the monitors when it has faults or monitor settings."""
-    if getattr(scenario, "faults", ()) or getattr(scenario, "monitors", None) is not None:
-        from .monitors import MonitorLoop
-
-        return (MonitorLoop(scenario.monitors),)
-    return ()
 
 
 class ClosedLoop:
