@@ -42,9 +42,9 @@ import numpy as np
 
 from ..loops.design import Design
 from ..errors import RigDataError, ThsaError
-from ..model.plant import Plant
+from ..model.plant import SENSOR_OUTPUTS, Plant
 from ..model.params import ParameterSet
-from ..data.rigdata import RigRun
+from ..data.rigdata import RigRun, motor_speed_from
 from .kinematics import run_kinematics
 from ..sim.simulate import InputSeries, SimulationSettings, Simulator
 
@@ -77,12 +77,9 @@ FIT_CHANNELS = ("motor_speed", "motor_current", "nut_position", "screw_speed")
 #: and end of the sample period [A], which motor carries it (1: standby), load
 #: force at start and end [N, compressive positive], temperature [degC].
 MECH_INPUTS = ("current_start", "current_end", "standby_active", "load_start", "load_end", "temperature")
-#: Plant output each measured channel is compared with: the LVDT
-#: (``nut_position_mm``) reads the output rod, which is the surface position
-#: when the load path is compliant (level D) and the nut position otherwise
-#: (the structure defines ``surface_position`` as the nut position then).
-COMPARED_OUTPUT = {"motor_speed": "motor_speed", "motor_current": "motor_current",
-                   "nut_position": "surface_position", "screw_speed": "screw_speed"}
+#: Plant output each measured channel is compared with: what its sensor reads in the model's measurement
+#: map (:data:`thsa_control.model.plant.SENSOR_OUTPUTS`; the LVDT reads the surface position).
+COMPARED_OUTPUT = SENSOR_OUTPUTS
 #: Shaper rate limit that passes a recorded (already shaped) command through [m/s^2].
 PASS_THROUGH_ACCEL = 1e9
 #: Speed cap [m/s] of a run's position loop that states none (the Design needs a finite one).
@@ -400,7 +397,8 @@ def compared_signals(run: RigRun, simulated: dict, channels) -> dict[str, np.nda
     return out
 
 
-def _measured(run: RigRun) -> dict[str, np.ndarray]:
+def measured_signals(run: RigRun) -> dict[str, np.ndarray]:
+    """The run's measured fit channels (FIT_CHANNELS it has a column for) as float arrays."""
     return {c: np.asarray(run.signals[c], float) for c in FIT_CHANNELS if c in run.source_columns}
 
 
@@ -475,7 +473,7 @@ def replay_closed_loop(run: RigRun, plant: Plant, params: ParameterSet, *, desig
         else:
             y = np.interp(t_run, t_sim, y)
         simulated[name] = y
-    measured = _measured(run)
+    measured = measured_signals(run)
     compared = compared_signals(run, simulated, measured)
     fits = {c: channel_fit(c, measured[c], compared[c]) for c in measured}
     info = {"wall_s": res.info["wall_s"], "substeps": settings.substeps, "design": design.name,
@@ -611,7 +609,7 @@ def replay_open_loop(run: RigRun, plant: Plant, params: ParameterSet, *, setting
     if not np.all(np.isfinite(Y)):
         raise ThsaError(f"open-loop replay of {run.name!r} diverged")
     simulated = {name: Y[i] for i, name in enumerate(plant.outputs)}
-    measured = _measured(run)
+    measured = measured_signals(run)
     compared = compared_signals(run, simulated, [c for c in measured if c != "motor_current"])
     fits = {c: channel_fit(c, measured[c], compared[c]) for c in compared}
     info = {"wall_s": wall, "substeps": settings.substeps, "open_loop_replay": "whole_run", "segment_s": None,
@@ -669,8 +667,8 @@ def residual_signals(run: RigRun, result: ReplayResult) -> tuple[dict, dict]:
     deadband = 0.05 * float(np.max(np.abs(cmd))) if cmd.size and np.any(cmd) else 0.0
     pole_pairs = result.params.value("motor.pole_pairs")
     meas = result.measured
-    speed = (np.asarray(meas["motor_speed"], float) if "motor_speed" in meas else
-             np.asarray(meas["screw_speed"], float) * run.gear_ratio if "screw_speed" in meas else cmd)
+    speed = motor_speed_from(lambda c: np.asarray(meas[c], float) if c in meas else None, run.gear_ratio)
+    speed = cmd if speed is None else speed
     speed = np.nan_to_num(speed)
     moving = 0.05 * float(np.max(np.abs(speed))) if speed.size else 0.0
     conditioning = {

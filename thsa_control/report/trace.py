@@ -36,7 +36,6 @@ def plot_residual_before_after(before: dict, after: dict, run_name: str, channel
     ax.set_ylabel(f"{channel} residual [{spec.unit if spec else 'SI'}]")
     ax.set_title(f"{run_name}: {channel} residual of the multiple-shooting segments")
     ax.legend(loc="upper right")
-    fig.tight_layout()
     return fig
 
 
@@ -104,7 +103,6 @@ def plot_candidate_drops(doc: dict):
         ax.set_xscale("log")
         ax.set_xlabel("held-out chi2 drop (green: significant, red: implausible, grey: not significant)")
         ax.set_title(f"round {r['round']}: model {', '.join(r['model']) or 'functional'}", fontsize=9, wrap=True)
-    fig.tight_layout()
     return fig
 
 
@@ -140,7 +138,6 @@ def plot_signature(sig: dict):
     ax.set_title("redundant sensors: cross-correlation", fontsize=9)
     if ax.get_legend_handles_labels()[0]:
         ax.legend(fontsize=7, loc="lower left")
-    fig.tight_layout()
     return fig
 
 

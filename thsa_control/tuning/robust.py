@@ -45,11 +45,11 @@ import casadi as ca
 import numpy as np
 
 from ..errors import DesignError
-from ..loops._loopmath import _freq, _frequency_grid
+from ..loops.loopmath import freq_response, frequency_grid
 from ..loops.analysis import DEFAULT_ANALYSIS_EFFECTS
 from ..loops.design import Design
 from ..loops.linear import linearize_conditions, plant_model
-from ..loops.loop_analysis import AnalysisSettings, _build, _saturation, analyse_loops
+from ..loops.loop_analysis import AnalysisSettings, analyse_loops, build_loops, saturation_flags
 from ..model.params import ParameterSet
 
 __all__ = ["ROBUST_REQUIREMENTS", "RobustConstraints", "exact_margins", "MarginSummary"]
@@ -122,7 +122,7 @@ class RobustConstraints:
         self.rho, self.sigma = rho, sigma
         h = design.control_period
         self.h = h
-        self.omega = _frequency_grid(h, f_min, n_frequencies)
+        self.omega = frequency_grid(h, f_min, n_frequencies)
         z = np.exp(1j * self.omega * h)
         self._kv_unit = (np.ones_like(z), h / (z - 1.0))  # d Kv / d kp, d Kv / d ki
         settings = _settings(level, effects, self.temperatures, speeds=grid_speeds or _SPEEDS,
@@ -130,11 +130,11 @@ class RobustConstraints:
         self.analysis_settings = settings
         model = plant_model(level, effects, params, settings=settings.linearization)
         lin = linearize_conditions(model, settings.grid())
-        loops = _build(lin, design, settings)
-        L = _freq(loops.open["velocity_loop"], z)
+        loops = build_loops(lin, design, settings)
+        L = freq_response(loops.open["velocity_loop"], z)
         kv = design.velocity_kp * self._kv_unit[0] + design.velocity_ki * self._kv_unit[1]
         G = L / kv[None, :]
-        valid = lin.valid & ~np.array([bool(r) for r in _saturation(lin, design, params)])
+        valid = lin.valid & ~np.array([bool(r) for r in saturation_flags(lin, design, params)])
         self.blocks = []
         idx_all = []
         for T in self.temperatures:
@@ -147,7 +147,7 @@ class RobustConstraints:
             n_fft = int(round(fft_horizon / h))
             zu = np.exp(2j * np.pi * np.arange(n_fft // 2 + 1) / n_fft)
             flat = [k for idx in idx_all for k in idx]
-            Lu = _freq(loops.open["velocity_loop"], zu[1:])  # z = 1 excluded: the PI's integrator
+            Lu = freq_response(loops.open["velocity_loop"], zu[1:])  # z = 1 excluded: the PI's integrator
             kvu = design.velocity_kp + design.velocity_ki * h / (zu[1:] - 1.0)
             Gu = np.zeros((len(flat), zu.size), complex)
             Gu[:, 1:] = (Lu / kvu[None, :])[flat]
@@ -564,12 +564,12 @@ class SpreadReport:
 
 
 def _worst_margins(design: Design, params, temps, level, effects, extra_delay: int):
-    from ..loops._loopmath import _dcgain, _gain_delay, _margins, _Response, _series
+    from ..loops.loopmath import _dcgain, _gain_delay, _margins, _Response, _series
 
     settings = _settings(level, effects, temps, design=design)
     model = plant_model(level, effects, params, settings=settings.linearization)
     lin = linearize_conditions(model, settings.grid())
-    loops = _build(lin, design, settings)
+    loops = build_loops(lin, design, settings)
     sysL = loops.open["velocity_loop"]
     if extra_delay:
         sysL = _series(_gain_delay(len(lin), 1.0, extra_delay), sysL)
@@ -579,9 +579,9 @@ def _worst_margins(design: Design, params, temps, level, effects, extra_delay: i
     L = resp.grid(z)
     cl, fb = loops.closed["velocity_loop"]
     m = _margins(lambda i, w: resp.at(i, np.exp(1j * w * h)), loops.omega, L, _dcgain(cl, fb, 0))
-    valid = lin.valid & ~np.array([bool(r) for r in _saturation(lin, design, params)])
+    valid = lin.valid & ~np.array([bool(r) for r in saturation_flags(lin, design, params)])
     # closed-loop stability with the extra delay: the poles of L / (1 + L) from the series system
-    from ..loops._loopmath import _close
+    from ..loops.loopmath import _close
 
     A = _close(sysL, _gain_delay(len(lin), 1.0, 0), 0, 0).A if extra_delay else cl.A
     unstable = int(np.count_nonzero(valid & (np.max(np.abs(np.linalg.eigvals(A)), axis=1) >= 1 - 1e-12)))
