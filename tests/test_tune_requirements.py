@@ -165,9 +165,13 @@ def test_two_tune_runs_one_under_load_give_identical_gains(tmp_path):
 
     a = run(tmp_path / "a.toml", False)
     b = run(tmp_path / "b.toml", True)
-    assert a == b
+    assert a == b  # the same printed line and the same gains to the bit
+    # the committed design is the README command's output: the same to the digits tune prints (a refactoring of
+    # the simulator's generated code may move the last bits, not the printed digits)
     committed = tomllib.loads(TUNED.read_text())["velocity_loop"]
-    assert a[1] == committed
+    for key in ("kp_A_per_rad_s", "ki_A_per_rad"):
+        assert f"{a[1][key]:.5g}" == f"{committed[key]:.5g}"
+        assert a[1][key] == pytest.approx(committed[key], rel=1e-6)
 
 
 def test_check_judges_rig_runs_beside_the_prediction(tmp_path, capsys):

@@ -126,7 +126,6 @@ def judge_runs(design: Design, params, paths, *, level: str = "B", effects=None)
     from ..fit.segment_states import measured_speed
     from ..loops.analysis import DEFAULT_ANALYSIS_EFFECTS
     from ..model import build_plant
-    from ..model.structure import kinematic_ratio
     from ..verdict import RequirementVerdict, _rows_from_metrics, validation_limits
 
     effects = tuple(DEFAULT_ANALYSIS_EFFECTS if effects is None else effects)
@@ -145,7 +144,7 @@ def judge_runs(design: Design, params, paths, *, level: str = "B", effects=None)
             errors.append((run.name, "no motor or screw speed channel"))
             continue
         # the run's kinematics are the parameter set's (run_kinematics refuses others): one ratio, the model's
-        r = kinematic_ratio({n: params.value(n) for n in ("screw.lead", "gear.ratio")})
+        r = plant.kinematic_ratio(params)
         sig = run.signals
         temp = float(np.nanmedian(sig["temperature"]))
         mres = _Signals(run.name, run.time, {"speed_cmd": sig["speed_cmd"], "nut_speed": w * r,
