@@ -86,7 +86,7 @@ def provenance(result, scenarios, design_path: str, metrics_before: dict | None 
         "verdict": "PASS" if result.verdict is not None and result.verdict.passed else "FAIL",
         "rounds": [{"round": r["round"], "gains": r["gains"],
                     "constraint_runs": [f"{lv} {T:g} degC {n}" for lv, T, n in r["constraint_runs"]],
-                    "failing": r["failing"]} for r in result.rounds],
+                    "failing": r["failing"], "excess_tolerance": r["excess_tolerance"]} for r in result.rounds],
         "solver": "ipopt via casadi nlpsol, limited-memory Hessian",
         "status": best.status,
         "iterations": best.iterations,

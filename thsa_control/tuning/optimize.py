@@ -339,7 +339,9 @@ def tune(design: Design, params: ParameterSet, scenarios, settings: TuneSettings
     t_all = time.perf_counter()
     scen = [s.with_temperature(settings.temperature) for s in scenarios]
     plant = build_plant(settings.level, settings.effects, params=params)
-    objective = Objective(Simulator(plant), params, design, scen, tuned=settings.tuned, settings=settings.objective)
+    osettings = settings.objective  # its excess limits tighten when a constrained run still fails the verdict
+    main_sim = Simulator(plant)
+    objective = Objective(main_sim, params, design, scen, tuned=settings.tuned, settings=osettings)
     _say(settings, f"tune: {len(scen)} run(s) at {settings.temperature:g} degC, level {settings.level} "
                    f"+ {', '.join(settings.effects) or 'no effect'}; compiling the objective ...")
     objective.stage_functions()
@@ -365,7 +367,7 @@ def tune(design: Design, params: ParameterSet, scenarios, settings: TuneSettings
         for lv, runs in sorted(by_level.items()):
             if lv not in plants:
                 plants[lv] = Simulator(build_plant(lv, settings.effects, params=params))
-            ob = Objective(plants[lv], params, design, runs, tuned=settings.tuned, settings=settings.objective)
+            ob = Objective(plants[lv], params, design, runs, tuned=settings.tuned, settings=osettings)
             ob.stage_functions()
             out.append(ob)
         return out
@@ -383,6 +385,7 @@ def tune(design: Design, params: ParameterSet, scenarios, settings: TuneSettings
     results = []
     ok_status = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
     rounds = []
+    tol_ex = settings.excess_tolerance
     verdict = None
     best = None
     extras = []
@@ -397,14 +400,14 @@ def tune(design: Design, params: ParameterSet, scenarios, settings: TuneSettings
 
         def margins_of(qv, sim_val, rob_fn=rob_fn):
             """Constraint values (>= 0 feasible) at q from the cached simulation values."""
-            ex = np.asarray(sim_val[1:], float) / settings.excess_tolerance
+            ex = np.asarray(sim_val[1:], float) / tol_ex
             return np.concatenate([1.0 - ex, np.asarray(rob_fn(qv), float).ravel()])
 
         def solve(cache, x0, lo, hi, g_rob=g_rob, margins_of=margins_of):
             sim = _Sim(cache, n)
             simq = sim(q)
             # sqrt(1 + excess / tol) <= sqrt(2): smooth, and it grows like sqrt far from feasibility (better scaled)
-            nlp = {"x": q, "f": simq[0], "g": ca.vertcat(ca.sqrt(1.0 + simq[1:] / settings.excess_tolerance), g_rob)}
+            nlp = {"x": q, "f": simq[0], "g": ca.vertcat(ca.sqrt(1.0 + simq[1:] / tol_ex), g_rob)}
             opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
                     "ipopt.hessian_approximation": "limited-memory", "ipopt.max_iter": settings.max_iter,
                     "ipopt.tol": settings.tol, "ipopt.acceptable_tol": 1e-5, "error_on_fail": False}
@@ -480,12 +483,25 @@ def tune(design: Design, params: ParameterSet, scenarios, settings: TuneSettings
                        "(the verdict of thsa check) ...")
         verdict = _judge(tuned, params, settings, suite)
         rounds.append({"round": rnd, "gains": list(best.gains), "constraint_runs": [list(k) for k in run_set],
-                       "failing": list(verdict.failing())})
+                       "failing": list(verdict.failing()), "excess_tolerance": tol_ex,
+                       "overshoot_limit": osettings.overshoot_limit, "current_fraction": osettings.current_fraction})
         if verdict.passed:
             _say(settings, f"tune: round {rnd}: every requirement met")
             break
         _say(settings, f"tune: round {rnd}: not met: {', '.join(verdict.failing())}")
-        added = _add_failing_runs(verdict, run_set, settings, design)
+        n_before = len(run_set)
+        failing_runs = _add_failing_runs(verdict, run_set, settings, design)
+        added = len(run_set) > n_before
+        if failing_runs and not added:
+            # a constrained run still fails its peak current or overshoot as the verdict measures it: aim the
+            # excess constraints lower by the shortfall (at least 0.5 % of the command / of the clamp)
+            osettings = _tighter_excess(osettings, verdict, design)
+            _say(settings, f"tune: round {rnd}: constrained runs still exceed; overshoot constraint now "
+                           f"{100 * osettings.overshoot_limit:.3g} %, current constraint "
+                           f"{osettings.current_fraction:.4g} x clamp")
+            objective = Objective(main_sim, params, design, scen, tuned=settings.tuned, settings=osettings)
+            objective.stage_functions()
+            added = True
         tightened = _tighten(verdict, robust)
         if not added and not tightened:
             break
@@ -579,19 +595,38 @@ def _fixed_requirements(design: Design, params, settings: TuneSettings) -> None:
 _EXCESS_METRICS = {"max_current_peak_A": "current_peak_A", "max_overshoot_percent": "overshoot_percent"}
 
 
-def _add_failing_runs(verdict, run_set: dict, settings: TuneSettings, design: Design) -> bool:
-    """Add every validation run whose current peak or overshoot failed to the constraint runs; True if any new."""
+def _add_failing_runs(verdict, run_set: dict, settings: TuneSettings, design: Design) -> list:
+    """Add every validation run whose current peak or overshoot failed to the constraint runs.
+
+    Returns the failing runs (new or already constrained)."""
     from ..verdict import validation_limits
 
     limits = validation_limits(design)
-    added = False
+    failing = []
     for key, doc in verdict.metrics.items():
         lv, T, name = key.split("|")
         for req, attr in _EXCESS_METRICS.items():
-            if doc[attr] > limits[req][0] and (lv, float(T), name) not in run_set:
-                run_set[(lv, float(T), name)] = None
-                added = True
-    return added
+            if doc[attr] > limits[req][0]:
+                failing.append((lv, float(T), name))
+                run_set.setdefault((lv, float(T), name), None)
+    return failing
+
+
+def _tighter_excess(osettings: ObjectiveSettings, verdict, design: Design) -> ObjectiveSettings:
+    """Objective settings whose overshoot / current limits sit below what the verdict measured failing."""
+    from dataclasses import replace
+
+    from ..verdict import validation_limits
+
+    limits = validation_limits(design)
+    over = max((d["overshoot_percent"] for d in verdict.metrics.values()), default=0.0)
+    peak = max((d["current_peak_A"] for d in verdict.metrics.values()), default=0.0)
+    ol, cf = osettings.overshoot_limit, osettings.current_fraction
+    if over > limits["max_overshoot_percent"][0]:
+        ol = max(0.0, ol - max(0.005, (over - limits["max_overshoot_percent"][0]) / 100.0))
+    if peak > limits["max_current_peak_A"][0]:
+        cf = max(0.5, cf - max(0.005, (peak - limits["max_current_peak_A"][0]) / design.current_limit))
+    return replace(osettings, overshoot_limit=ol, current_fraction=cf)
 
 
 _TIGHTEN = {"min_phase_margin_deg": +1, "min_gain_margin_db": +1, "min_delay_margin_s": +1, "min_bandwidth_hz": +1,
