@@ -149,6 +149,7 @@ class TuningResult:
         The tuned design (best feasible start).
     source : Design
     starts : tuple of StartResult
+        The multi-start of the first round (later rounds, from the best gains, are in ``rounds``).
     best : StartResult
     tuned : tuple of str
     terms_before, terms_after : ndarray (n_runs, 4)
@@ -411,7 +412,7 @@ def tune(design: Design, params: ParameterSet, scenarios, settings: TuneSettings
             opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
                     "ipopt.hessian_approximation": "limited-memory", "ipopt.max_iter": settings.max_iter,
                     "ipopt.tol": settings.tol, "ipopt.acceptable_tol": 1e-5, "error_on_fail": False}
-            solver = ca.nlpsol(f"tune_{len(results)}", "ipopt", nlp, opts)
+            solver = ca.nlpsol(f"tune_{rnd}_{len(results)}", "ipopt", nlp, opts)
             sol = solver(x0=x0, lbx=lo, ubx=hi, lbg=[-np.inf, -np.inf] + [0.0] * g_rob.size1(),
                          ubg=[math.sqrt(2.0)] * 2 + [np.inf] * g_rob.size1())
             stats = solver.stats()
@@ -465,7 +466,8 @@ def tune(design: Design, params: ParameterSet, scenarios, settings: TuneSettings
             _say(settings, f"tune: start '{label}': {res.status} after {res.iterations} iterations, {wall:.1f} s, "
                            f"J/J0 = {res.objective:.6f}, worst constraint {res.worst_constraint} = {res.constraint_min:.3g}")
             round_results.append((res, stats))
-        results += round_results
+        if rnd == 1:  # the multi-start; later rounds restart from the best gains (recorded in ``rounds``)
+            results += round_results
         feasible = [r for r, _ in round_results if r.constraint_min >= -1e-6 and r.status.startswith(
             ("Solve_Succeeded", "Solved_To_Acceptable_Level", "Maximum_Iterations_Exceeded"))]
         if not feasible:
