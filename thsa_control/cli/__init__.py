@@ -14,7 +14,7 @@ Commands::
                    [--remove E ...] [--params FILE] --out DIR
     thsa report    --design designs/nominal.toml --out DIR [--level B] [--effects E ...] [--params FILE]
                    [--no-switching] [--check]
-    thsa linearize --level A --speed 5 --load 20000 --temperature -30 [--effects E ...] [--active standby]
+    thsa linearize --level A --speed 5 --load 20 --temperature -30 [--effects E ...] [--active standby]
                    [--params FILE] [--save FILE.npz]
 
 Exit status: 0 success; 1 a requirement failed (``report --check``); 2 an

@@ -113,7 +113,7 @@ def add_parsers(sub, shared) -> None:
         p.set_defaults(fn=fn)
         return p
 
-    p = add("check-data", "validate and summarise a rig run (FORMAT.md)", cmd_check_data)
+    p = add("check-data", "validate and summarise a rig run (format: docs/rig_format.md)", cmd_check_data)
     p.add_argument("run", help="RUN.csv (RUN.json beside it)")
     p.add_argument("--column-map", help='JSON mapping of rig column names to FORMAT names, e.g. \'{"t": "time_s"}\'')
 
