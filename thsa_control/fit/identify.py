@@ -444,6 +444,17 @@ class IdentificationResult:
                              f"{f.nrmse:.4g}, fit {f0.fit_percent:.2f} -> {f.fit_percent:.2f} %")
         return "\n".join(lines)
 
+    def report(self) -> str:
+        """lmfit-style text report (:meth:`fit_report`)."""
+        return self.fit_report()
+
+    def plot(self, ax=None, run: str | None = None):
+        """Segment predictions of ``run`` (default the first), initial and identified; ``ax``: one Axes per channel."""
+        from ..report.identification import plot_segments
+
+        name = run if run is not None else next(iter(self.predictions))
+        return plot_segments(self.predictions[name], title=f"{name}: segment predictions", axes=ax)
+
 
 def estimate_noise(y: np.ndarray) -> float:
     """Noise RMS of a sampled signal from its second differences (robust, MAD based).

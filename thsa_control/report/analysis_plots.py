@@ -439,7 +439,8 @@ def plot_switching(switching):
         ax.set_xlabel("time [s]")
         ax.set_ylabel("nut speed [mm/s]")
         ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=7, loc="lower right")
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7, loc="lower right")
     ax = fig.add_subplot(gs[1, :])
     for hand, style in ((False, "o-"), (True, "s--")):
         sel = sorted((c for c in cases if c.handover == hand), key=lambda c: c.delay_s)

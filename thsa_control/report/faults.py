@@ -98,10 +98,17 @@ def plot_fault_case(case, params):
     return fig
 
 
-def plot_sweep(analysis):
-    """Detection time of each fault scenario vs threshold scale (false alarms marked); recovery vs take-over delay."""
+def plot_sweep(analysis, axes=None):
+    """Detection time of each fault scenario vs threshold scale (false alarms marked); recovery vs take-over delay.
+
+    ``axes``: two Axes (default a new figure).
+    """
     pts = list(analysis.sweep)  # detection does not depend on the take-over delay: any point of the scale
-    fig, (ax, ax2) = subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
+    if axes is None:
+        fig, (ax, ax2) = subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
+    else:
+        ax, ax2 = list(np.ravel(axes))
+        fig = ax.figure
     names = sorted({n for p in pts for n in p.detection_s})
     scales = sorted({p.scale for p in pts})
     for n in names:

@@ -30,13 +30,17 @@ def _mark_stops(ax, result):
         ax.axvspan(t[i], t[j - 1], color="0.92", zorder=0, lw=0)
 
 
-def plot_run(result, *, title: str | None = None):
-    """Four panels of one run: speeds, currents, forces, no-back.
+def plot_run(result, *, title: str | None = None, axes=None):
+    """Four panels of one run: speeds, currents, forces, no-back (``axes``: four Axes, default a new figure).
 
     Grey bands mark the motors de-energised (trim stops, faults).
     """
     t = np.asarray(result.time)
-    fig, axes = subplots(4, 1, figsize=(10, 10), sharex=True, constrained_layout=True)
+    if axes is None:
+        fig, axes = subplots(4, 1, figsize=(10, 10), sharex=True, constrained_layout=True)
+    else:
+        axes = list(np.ravel(axes))
+        fig = axes[0].figure
     ax = axes[0]
     ax.plot(t, np.asarray(result["speed_cmd"]) * 1e3, "k--", lw=1, label="command")
     ax.plot(t, np.asarray(result["nut_speed"]) * 1e3, label="nut")
