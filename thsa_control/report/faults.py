@@ -11,6 +11,7 @@ from __future__ import annotations
 import base64
 import html
 import math
+import textwrap
 from pathlib import Path
 
 import numpy as np  # noqa: E402
@@ -66,7 +67,7 @@ def _panels(t, get, r, N, title, fault_times=()):
         a.grid(True, alpha=0.3)
         if a is not axes[4]:
             a.legend(loc="upper left", fontsize=7)
-    fig.suptitle(title)
+    fig.suptitle("\n".join(textwrap.fill(line, 110) for line in title.split("\n")), fontsize=11)
     return fig
 
 
@@ -214,7 +215,7 @@ def _case_rows(cases):
                      _ms(c.detection_s["lvdt"]), _ms(c.detection_s["speed"]), takeover, _ms(c.safed_s),
                      f"{c.peaks['loadpath'] / 1e3:.1f}", f"{c.peaks['primary_attachment'] / 1e3:.1f}",
                      f"{c.peaks['secondary_path'] / 1e3:.1f}", f"{c.peaks['jam'] / 1e3:.1f}",
-                     f"{c.peaks['limiter_torque']:.0f}", f"{c.limiter_slip_rad:.3f}",
+                     f"{c.peaks['limiter_torque']:.0f}", f"{to_display('angle', c.limiter_slip_rad):.1f}",
                      f"{c.surface_displacement_m * 1e3:.2f}", "-" if math.isnan(c.recovery_s) else _ms(c.recovery_s),
                      f"{c.energy_residual * 100:.3f}"])
     return rows
@@ -222,7 +223,7 @@ def _case_rows(cases):
 
 _CASE_HEAD = ["scenario", "faults", "onset [s]", "discrepancy trip [ms]", "LVDT trip [ms]", "speed trip [ms]",
               "take-over [ms]", "safed [ms]", "load path [kN]", "upper gimbal [kN]", "secondary [kN]", "jam [kN]",
-              "limiter [N m]", "limiter slip [rad]", "surface displacement [mm]", "recovery [ms]", "energy residual [%]"]
+              "limiter [N m]", "limiter slip [deg]", "surface displacement [mm]", "recovery [ms]", "energy residual [%]"]
 
 
 def write_fault_report(analysis, params, out_dir, **folder_options) -> Path:

@@ -323,9 +323,11 @@ def format_fault_analysis(a) -> str:
 
     kn = display_unit("force")
     lines = [f"plant: level {a.level} + {', '.join(a.effects)}"]
+    every = a.cases + a.rigid_cases
+    order = list(dict.fromkeys(c.label for c in every))  # the sections of the HTML report, in their order
     heading = None
-    for c in a.cases + a.rigid_cases:
-        if c.label != heading:  # the sections of the HTML report
+    for c in sorted(every, key=lambda c: order.index(c.label)):
+        if c.label != heading:
             heading = c.label
             lines.append(f"-- {heading} --")
         det = ", ".join(f"{m} {ms(t)}" for m, t in c.detection_s.items() if math.isfinite(t)) or "no trip"
