@@ -279,7 +279,7 @@ def residual_tables(analysis) -> list[tuple[str, Html]]:
                (f"No significant bin for: {', '.join(quiet)}." if quiet else ""))
     if rows:
         out.append(("Where the residual concentrates", html_table(
-            ["channel", "conditioned on", "bin", "samples", "mean", "RMS", "mean-square ratio", "p", "eta^2"],
+            ["channel", "conditioned on", "bin", "samples", "mean", "RMS", "mean-square ratio [-]", "p [-]", "eta^2 [-]"],
             rows, caption=caption, left=(0, 1, 2))))
     else:
         out.append(("Where the residual concentrates", Html(f"<p class='note'>{html.escape(caption)} "
@@ -332,7 +332,7 @@ def identification_tables(result) -> list[tuple[str, Html]]:
     pairs = sorted(((names[i], names[j], result.correlation[i, j]) for i in range(len(names))
                     for j in range(i + 1, len(names)) if np.isfinite(result.correlation[i, j])),
                    key=lambda p: -abs(p[2]))
-    corr = html_table(["pair", "correlation"], [[f"{a} / {b}", f"{r:+.4f}"] for a, b, r in pairs],
+    corr = html_table(["pair", "correlation [-]"], [[f"{a} / {b}", f"{r:+.4f}"] for a, b, r in pairs],
                       classes=[["", "warn" if abs(r) > result.settings.correlation_threshold else ""]
                                for _, _, r in pairs]) if pairs else Html("<p class='note'>One free parameter.</p>")
     rows = []
@@ -342,8 +342,8 @@ def identification_tables(result) -> list[tuple[str, Html]]:
             k, unit = _scale(c)
             rows.append([run, c, unit, _num(f0.rms * k), _num(f.rms * k), _num(f0.nrmse), _num(f.nrmse),
                          f"{f0.fit_percent:.2f}", f"{f.fit_percent:.2f}"])
-    chans = html_table(["run", "channel", "unit", "RMS initial", "RMS identified", "NRMSE initial", "NRMSE identified",
-                        "fit initial [%]", "fit identified [%]"], rows, left=(0, 1, 2),
+    chans = html_table(["run", "channel", "unit", "RMS initial", "RMS identified", "NRMSE initial [-]",
+                        "NRMSE identified [-]", "fit initial [%]", "fit identified [%]"], rows, left=(0, 1, 2),
                        caption="Multiple-shooting segment predictions, initial and identified parameters.")
     return [("Parameters", params), ("Channels", chans), ("Correlations", corr), ("Fit statistics", stats)]
 
