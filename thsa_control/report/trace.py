@@ -34,7 +34,6 @@ def plot_residual_before_after(before: dict, after: dict, run_name: str, channel
     ax.set_ylabel(f"{channel} residual [{spec.unit if spec else 'SI'}]")
     ax.set_title(f"{run_name}: {channel} residual of the multiple-shooting segments")
     ax.legend(loc="upper right")
-    fig.tight_layout()
     return fig
 
 
