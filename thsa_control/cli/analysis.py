@@ -6,7 +6,6 @@ from __future__ import annotations
 import re
 import sys
 
-from ..data.units import display_unit, from_display
 from ..errors import ThsaError
 from .common import (EXIT_OK, EXIT_REQUIREMENT_FAILED, analysis_effects, load_params, out_arg, out_options,
                      preflight_out, progress_for, scaled_floats)
@@ -15,6 +14,7 @@ __all__ = ["add_parsers", "cmd_report", "cmd_linearize"]
 
 
 def cmd_report(args) -> int:
+    from ..data.units import display_unit
     from ..loops.analysis import AnalysisSettings, analyse_design
     from ..loops.design import load_design, nominal_design_path
     from ..model import resolve_effects
@@ -56,6 +56,7 @@ def cmd_report(args) -> int:
 
 
 def cmd_linearize(args) -> int:
+    from ..data.units import from_display
     from ..loops.linear import OperatingCondition, format_linear_model, linearize_condition, plant_model
     from ..model import resolve_effects
 
@@ -94,6 +95,8 @@ def load_newtons(text: str) -> float:
     m = re.fullmatch(r"([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)(kN|N)?", raw)
     if m is None:
         raise ThsaError(f"--load {text!r}: expected a number in kN (e.g. 20, -55, 20kN or 20000N)")
+    from ..data.units import from_display
+
     value, unit = float(m.group(1)), m.group(2)
     if unit == "N":
         return value
