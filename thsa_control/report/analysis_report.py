@@ -81,7 +81,7 @@ __all__ = [
 ]
 
 #: Figures of the report (HTML ids ``fig-<name>``, files ``figures/<name>.png``).
-FIGURES = ("bode_current_loop", "bode_velocity_loop", "bode_position_loop", "step_responses", "margin_maps",
+FIGURES = ("requirements_spare", "bode_current_loop", "bode_velocity_loop", "bode_position_loop", "step_responses", "margin_maps",
            "velocity_poles", "friction_slopes", "switching_transient")
 #: Tables of the report (HTML ids ``table-<name>``).
 TABLES = ("at_a_glance", "requirements", "worst_points", "margins_current_loop", "margins_velocity_loop", "margins_position_loop",
@@ -304,6 +304,13 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
                         "Each requirement at every valid grid point. Amber: met within "
                         f"{NEAR_FRACTION:.0%} of the limit. A closed-loop-unstable valid point fails every "
                         "requirement. " + GAIN_MARGIN_MEANING))
+    if "requirements_spare" in figures:
+        b64 = base64.b64encode(figures["requirements_spare"]).decode("ascii")
+        parts.append("<details><summary>Figure: how far each requirement's worst point is from its limit (click to "
+                     f"open)</summary><figure id='fig-requirements_spare'><img alt='requirements_spare' "
+                     f"src='data:image/png;base64,{b64}'><figcaption>Spare at the worst valid point, as a fraction of "
+                     "the limit (below 0 fails; amber within "
+                     f"{NEAR_FRACTION:.0%}).</figcaption></figure></details>")
     # worst points
     rows = []
     for w in a.worst_points():
@@ -331,6 +338,8 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
         "switching_transient": "Nonlinear switch-over transient (primary off, standby on after a detection delay).",
     }
     for name in FIGURES:
+        if name == "requirements_spare":
+            continue  # in the requirements section
         if name == "bode_current_loop":
             parts.append(_h2("bode", "Open-loop Bode plots across temperature"))
         if name == "step_responses":
@@ -470,6 +479,7 @@ def write_analysis_report(result: DesignAnalysis, out_dir: str | Path, *, force:
         The folder written.
     """
     figures = {
+        "requirements_spare": _png(result.requirements.plot()),
         "bode_current_loop": _png(plot_loop_bode(result.loops, "current_loop")),
         "bode_velocity_loop": _png(plot_loop_bode(result.loops, "velocity_loop")),
         "bode_position_loop": _png(plot_loop_bode(result.loops, "position_loop")),

@@ -228,8 +228,12 @@ def format_requirement_check(check) -> str:
              f"    {check.checked_points} valid points checked, {check.skipped_points} not analysed"]
     for r in check.rows:
         where = "every valid point" if r.uniform else (r.worst_condition.label() if r.worst_condition else "-")
+        worst = fmt_metric(r.loop, r.metric, r.worst_value, unit=True)
+        if r.metric == "gain_margin_db" and np.isfinite(r.worst_value):  # the margin nearest 0 dB, named
+            worst = (f"{'lower' if r.worst_value < 0 else 'upper'} GM {r.worst_value:+.1f} dB"
+                     + (" (conditionally stable)" if r.worst_value < 0 else ""))
         lines.append(f"    {'PASS' if r.passed else 'FAIL'}  {r.loop:<13s} {requirement_text(r.loop, r.requirement, r.limit):<46s}"
-                     f" worst {fmt_metric(r.loop, r.metric, r.worst_value, unit=True)} at {where}"
+                     f" worst {worst} at {where}"
                      + (f" ({r.n_failed} points fail)" if r.n_failed else ""))
     for loop, _, cond in check.unstable:
         lines.append(f"    {loop}: closed loop unstable at {cond.label()}")
