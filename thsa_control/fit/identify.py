@@ -436,11 +436,15 @@ class IdentificationResult:
             lines.append(f"    C({a}, {b}) = {r:+.4f}{mark}")
         if not pairs:
             lines.append("    (none above 0.1)")
-        lines.append("[[Channels]] (segment predictions: before -> after)")
+        lines.append("[[Channels]] (segment predictions: before -> after; display units)")
+        from ..data.units import SIGNAL_QUANTITY, signal_display
+
         for run, chans in self.channel_fits.items():
             for c, f in chans.items():
                 f0 = self.initial_channel_fits[run][c]
-                lines.append(f"    {run} {c}: RMS {f0.rms:.4g} -> {f.rms:.4g} [{f.unit}], NRMSE {f0.nrmse:.4g} -> "
+                du = signal_display(c)
+                k, unit = (du.factor, du.unit) if c in SIGNAL_QUANTITY and f.unit == du.si else (1.0, f.unit)
+                lines.append(f"    {run} {c}: RMS {f0.rms * k:.4g} -> {f.rms * k:.4g} [{unit}], NRMSE {f0.nrmse:.4g} -> "
                              f"{f.nrmse:.4g}, fit {f0.fit_percent:.2f} -> {f.fit_percent:.2f} %")
         return "\n".join(lines)
 
