@@ -17,6 +17,10 @@ Ms, bandwidth).
   the same 500 frequencies (the issue's reference); then, separately,
   ``ct.stability_margins`` on that frequency data.
 
+The ratio is printed only when python-control finished and its loop responses agree with ours at every
+point, loop and frequency measured (``LOOP_TOLERANCE``); a failed side, a disagreement or an unmet
+target exits 1.
+
 Run: ``python bench/bench_linearize.py`` (``--quick``: python-control on 40 points, scaled to 320).
 """
 
@@ -39,9 +43,14 @@ import thsa_control as thsa  # noqa: E402
 from thsa_control.loops.analysis import AnalysisSettings, analyse_loops  # noqa: E402
 from thsa_control.loops.linear import ConditionGrid, operating_points, plant_model  # noqa: E402
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _compare import Comparisons, Side  # noqa: E402
+
 TEMPERATURES = tuple(np.linspace(-55.0, 70.0, 8))
 SPEEDS = tuple(v * 1e-3 for v in (0.5, 1.0, 2.0, 3.0, 5.0, 8.0, 11.0, 15.0))
 LOADS = (-55e3, -20e3, 0.0, 20e3, 55e3)
+#: agreement of python-control's loop responses with ours (relative, every frequency, loop and point)
+LOOP_TOLERANCE = 1e-3
 
 
 def python_control_loop(nlsys, points, design, r, omega):
@@ -124,21 +133,43 @@ def main(argv=None) -> int:
         points.append((x, u))
     m = 40 if args.quick else n
     omega = a.loops["velocity_loop"].margins.omega
-    t_lin_fr, t_marg, responses = python_control_loop(nlsys, points[:m], design, model.kinematic_ratio, omega)
+    cmp = Comparisons()
+    theirs = cmp.side("python-control looped",
+                      lambda: python_control_loop(nlsys, points[:m], design, model.kinematic_ratio, omega))
     scale = n / m
-    base, base_all = t_lin_fr * scale, (t_lin_fr + t_marg) * scale
     note = f" (measured on {m} points, scaled x{scale:g})" if m < n else ""
-    print(f"python-control looped: linearize + 3 loops + frequency_response {base:.2f} s, "
-          f"+ stability_margins {base_all:.2f} s{note}")
-    # the same Bode data: compare the velocity loop of the first point
-    L0 = responses[0][1].complex.ravel()
-    err = np.max(np.abs(L0 - a.loops["velocity_loop"].margins.L[0]) / np.abs(L0))
-    print(f"  agreement of the velocity-loop response at point 0: {err:.1e} (relative; python-control "
-          "linearises by one-sided finite differences)")
-    print(f"ratio (python-control linearize + frequency_response) / thsa: {base / ours:.0f}x "
-          f"(target >= 20x); including margins: {base_all / ours:.0f}x")
-    print(f"target < 2 s on one core: {'met' if ours < 2.0 else 'NOT met'} ({ours:.3f} s)")
-    return 0
+    if theirs.ok:
+        t_lin_fr, t_marg, responses = theirs.value
+        theirs = Side(theirs.name, True, responses, t_lin_fr * scale)
+        base_all = (t_lin_fr + t_marg) * scale
+        print(f"python-control looped: linearize + 3 loops + frequency_response {theirs.seconds:.2f} s, "
+              f"+ stability_margins {base_all:.2f} s{note}")
+    ours_side = Side("thsa analyse_loops", True, a, ours)
+
+    def agree(res, responses):
+        # the same Bode data: every loop at every point measured (python-control linearises by one-sided
+        # finite differences, so a small relative difference remains)
+        worst = 0.0
+        for k, resp in enumerate(responses):
+            if not res.valid[k]:
+                continue
+            for j, loop in enumerate(("current_loop", "velocity_loop", "position_loop")):
+                L = resp[j].complex.ravel()
+                worst = max(worst, float(np.max(np.abs(L - res.loops[loop].margins.L[k]) / np.abs(L))))
+        return f"largest relative difference of the 3 loop responses over {len(responses)} points {worst:.1e}", \
+            worst <= LOOP_TOLERANCE
+
+    ratio = cmp.compare("python-control (linearize + frequency_response) vs thsa", ours_side, theirs, agree=agree,
+                        tolerance=f"{LOOP_TOLERANCE:g} relative")
+    if ratio is not None:
+        print(f"  ratio {ratio:.0f}x (target >= 20x); including margins: {base_all / ours:.0f}x")
+        if ratio < 20:
+            cmp.fail(f"target ratio >= 20x: NOT met ({ratio:.1f}x)")
+    if ours < 2.0:
+        print(f"target < 2 s on one core: met ({ours:.3f} s)")
+    else:
+        cmp.fail(f"target < 2 s on one core: NOT met ({ours:.3f} s)")
+    return cmp.exit_code()
 
 
 if __name__ == "__main__":

@@ -137,3 +137,29 @@ def test_unwritable_cache_falls_back_to_temporary_folder(tmp_path, reference):
         r, err = run_probe("A", ro)
         assert r["compiled"] and r["cache"] == "private" and _same(r, reference["A"])
         assert "not writable" in err
+
+
+def test_inline_min_max_return_libm_bits():
+    """The generated code's inline fmin/fmax (``codegen._INLINE_MINMAX``) return libm's bits for every pair of
+    special values (signed zeros, infinities, NaNs, subnormals), so the compiled simulator's results do not
+    change with them."""
+    import ctypes
+    import ctypes.util
+    import math
+    import struct
+
+    from thsa_control.sim.codegen import _INLINE_MINMAX
+
+    assert [new for _, new in _INLINE_MINMAX] == ["  return x>y ? x : (y==y ? y : x);",
+                                                  "  return x<y ? x : (y==y ? y : x);"]
+    libm = ctypes.CDLL(ctypes.util.find_library("m"))
+    for name in ("fmin", "fmax"):
+        getattr(libm, name).restype = ctypes.c_double
+        getattr(libm, name).argtypes = [ctypes.c_double, ctypes.c_double]
+    values = [0.0, -0.0, 1.0, -1.0, math.inf, -math.inf, math.nan, -math.nan, 2.2250738585072014e-308, 5e-324,
+              -5e-324, 1e300, 2.5]
+    bits = lambda v: struct.pack("<d", v)  # noqa: E731
+    for x in values:
+        for y in values:
+            assert bits(libm.fmax(x, y)) == bits(x if x > y else (y if y == y else x)), (x, y)
+            assert bits(libm.fmin(x, y)) == bits(x if x < y else (y if y == y else x)), (x, y)

@@ -23,6 +23,10 @@ def add_parser(subparsers) -> None:
     p.add_argument("--segment", type=float, default=0.05, help="multiple-shooting segment length [s] (default 0.05)")
     p.add_argument("--max-effects", type=int, default=3, help="stop after adding this many effects")
     p.add_argument("--max-nfev", type=int, default=40, help="evaluation limit of each fit")
+    p.add_argument("--base-corrections", choices=("auto", "on", "off"), default="auto",
+                   help="fit the base-correction step first (Coulomb drag, direction drag, axial force, screw "
+                        "efficiencies within plausible magnitudes; reported as base corrections, not effects). "
+                        "auto: on with the default candidates, off with --candidates")
     p.add_argument("--workers", type=int, default=2, help="parallel candidate fits (default 2)")
     p.add_argument("--column-map", help="JSON mapping of rig column names to FORMAT names")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
@@ -56,7 +60,8 @@ def run(args) -> int:
     split = lambda s: tuple(x.strip() for x in s.split(",") if x.strip()) if s else None  # noqa: E731
     try:
         settings = TraceSettings(segment_duration=args.segment, max_effects=args.max_effects, max_nfev=args.max_nfev,
-                                 workers=args.workers, uncertain=split(args.free), candidates=split(args.candidates))
+                                 workers=args.workers,
+                                 base_corrections={"auto": None, "on": True, "off": False}[args.base_corrections], uncertain=split(args.free), candidates=split(args.candidates))
         settings.validate()
     except ValueError as exc:
         from ..errors import ThsaError

@@ -104,10 +104,13 @@ def tune_command(args) -> int:
     """``thsa tune``: optimise, check, write the design with its provenance."""
     from dataclasses import replace
 
+    from ..tuning.validation import DEFAULT_VALIDATION_REQUIREMENTS, get_validation_scenario
+
+    names = args.scenario or ["cold_ramp"]
+    scenarios = [get_validation_scenario(n) for n in names]  # a bad name fails before the heavy imports
     from ..tuning.check import PROVENANCE_MARKER, write_design
     from ..tuning.objective import ObjectiveSettings
     from ..tuning.optimize import TuneSettings, tune
-    from ..tuning.validation import DEFAULT_VALIDATION_REQUIREMENTS, get_validation_scenario
 
     params, design = _common(args)
     out = Path(args.out)
@@ -121,8 +124,6 @@ def tune_command(args) -> int:
         if doc.get("tuning", {}).get("written_by") != PROVENANCE_MARKER:
             raise DesignError(str(out), "exists and was not written by 'thsa tune' (no [tuning] provenance "
                                         "marker): refusing to overwrite it; choose another --out")
-    names = args.scenario or ["cold_ramp"]
-    scenarios = [get_validation_scenario(n) for n in names]
     req = dict(design.requirements.get("velocity_loop", {}))
     for item in args.require or []:
         key, _, value = item.partition("=")
@@ -191,13 +192,16 @@ def tune_command(args) -> int:
 
 def check_command(args) -> int:
     """``thsa check``: validation suite at every level and temperature; exit 1 on a failure."""
+    from ..tuning.validation import VALIDATION_SUITE, get_validation_scenario
+
+    temps = _floats(args.temperatures, "--temperatures")
+    scen = tuple(v.strip() for v in args.scenarios.split(",")) if args.scenarios else VALIDATION_SUITE
+    for name in scen:
+        get_validation_scenario(name)  # a bad name fails before the heavy imports
     from ..tuning.check import check_design
-    from ..tuning.validation import VALIDATION_SUITE
 
     params, design = _common(args)
     levels = tuple(v.strip().upper() for v in args.levels.split(",") if v.strip())
-    temps = _floats(args.temperatures, "--temperatures")
-    scen = tuple(v.strip() for v in args.scenarios.split(",")) if args.scenarios else VALIDATION_SUITE
     from ..loops.analysis import DEFAULT_ANALYSIS_EFFECTS
 
     effects = tuple(e for v in (args.effects or DEFAULT_ANALYSIS_EFFECTS) for e in v.split(",") if e)

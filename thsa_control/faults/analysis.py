@@ -275,10 +275,10 @@ def analyse_fault_case(scenario: Scenario | str, design, params, *, sim: Simulat
         raise ScenarioError(f"scenario {sc.name!r} has no faults to analyse")
     sim = sim or _simulator(params, level, effects, None)
     settings = monitors or sc.monitors or MonitorSettings()
-    run = sim.run(replace(sc, monitors=settings), design, params)
-    # the same run without faults and without scheduled switch-overs
-    ref = sim.run(replace(sc, faults=(), monitors=settings, primary_enable=((0.0, sc.primary_enable[0][1]),),
-                          standby_enable=((0.0, sc.standby_enable[0][1]),)), design, params)
+    # the run, and the same run without faults and without scheduled switch-overs, in one batch
+    run, ref = sim.run_batch([replace(sc, monitors=settings),
+                              replace(sc, faults=(), monitors=settings, primary_enable=((0.0, sc.primary_enable[0][1]),),
+                                      standby_enable=((0.0, sc.standby_enable[0][1]),))], design, params)
     t = np.asarray(run.time)
     t_f = min(f.time for f in sc.faults)
     after = t >= t_f
@@ -329,8 +329,9 @@ def false_alarm_margins(design, params, *, scenarios=None, monitors: MonitorSett
     settings = monitors or MonitorSettings()
     sim = sim or _simulator(params, level, effects, 1e-3)
     out = []
-    for sc in scenarios or normal_scenarios():
-        run = sim.run(replace(sc, monitors=settings), design, params)
+    scenarios = tuple(scenarios or normal_scenarios())
+    runs = sim.run_batch([replace(sc, monitors=settings) for sc in scenarios], design, params)
+    for sc, run in zip(scenarios, runs):
         for m, (trip, sig, thr, conf) in MONITORS.items():
             out.append(MonitorMargin(sc.name, m, float(getattr(settings, thr)),
                                      persisted_peak(run.time, run[sig], getattr(settings, conf)),
@@ -363,18 +364,28 @@ def sweep_monitors(design, params, *, scales=(0.5, 0.75, 1.0, 1.5, 2.0), delays_
     motor = [s for s in faults if any(f.kind == "channel_failure" for f in s.faults)]
     motor_sim = rigid_sim or sim
     smooth_motor = 0.0 if rigid_sim is not None else smooth_s
-    refs = {s.name: motor_sim.run(replace(s, faults=(), monitors=base), design, params) for s in motor}
+    refs = dict(zip((s.name for s in motor),
+                    motor_sim.run_batch([replace(s, faults=(), monitors=base) for s in motor], design, params)))
     points = []
     for scale in scales:
-        trips = tuple(s.name for s in normals if _tripped(
-            sim.run(replace(s, monitors=_scaled(base, scale, base.takeover_delay)), design, params)))
+        # the runs of one scale, batched per simulator: the normal scenarios, and the fault scenarios at
+        # each delay (the take-over delay matters only for channel failures)
+        normal = sim.run_batch([replace(s, monitors=_scaled(base, scale, base.takeover_delay)) for s in normals],
+                               design, params)
+        trips = tuple(s.name for s, run in zip(normals, normal) if _tripped(run))
+        cases = [(delay, s) for delay in delays_s for s in faults if s in motor or delay == delays_s[0]]
+        results = {}
+        for runner, mine in ((sim, [c for c in cases if c[1] not in motor]), (motor_sim, [c for c in cases if c[1] in motor])):
+            if mine:
+                got = runner.run_batch([replace(s, monitors=_scaled(base, scale, delay)) for delay, s in mine],
+                                       design, params)
+                results.update(zip(((delay, s.name) for delay, s in mine), got))
         for delay in delays_s:
             det, rec = {}, {}
             for s in faults:
                 if s not in motor and delay != delays_s[0]:
                     continue  # the take-over delay matters only for channel failures
-                run = (motor_sim if s in motor else sim).run(replace(s, monitors=_scaled(base, scale, delay)), design,
-                                                             params)
+                run = results[(delay, s.name)]
                 t = np.asarray(run.time)
                 t_f = min(f.time for f in s.faults)
                 trips_any = np.asarray(run["trip_discrepancy"]) + np.asarray(run["trip_lvdt"]) + np.asarray(run["trip_speed"])

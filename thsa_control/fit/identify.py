@@ -56,7 +56,7 @@ from .replay import (
     COMPARED_OUTPUT, channel_fit, check_run_model, current_driven_map, mech_inputs, replay_closed_loop, run_design,
     sample_periods,
 )
-from ..data.rigdata import RigRun
+from ..data.rigdata import RigRun, motor_speed_from
 from .kinematics import run_kinematics
 from .segment_states import drivetrain_segment_guess
 
@@ -120,6 +120,10 @@ class IdentificationSettings:
     no_prior : tuple of str
         Free parameters without a prior (an effect being tried, whose file
         value is only a seed).
+    priors : mapping name -> (mean, sd), optional
+        Explicit Gaussian priors of these free parameters (SI), replacing the
+        ``prior_relative_sd`` rule for them (the tracer's base corrections:
+        centred at 0 with a standard deviation of half their plausible size).
     holdout_every : int
         0: every segment is fitted.  k >= 2: every k-th segment is held out of
         the parameter fit; its initial state is fitted afterwards at the
@@ -144,6 +148,7 @@ class IdentificationSettings:
     prior_relative_sd: float | None = None
     no_prior: tuple[str, ...] = ()
     holdout_every: int = 0
+    priors: Mapping[str, tuple[float, float]] | None = None
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad field."""
@@ -484,7 +489,7 @@ def estimate_noise(y: np.ndarray) -> float:
 
 
 # ----------------------------------------------------------------------------- problem per run
-class _RunProblem:
+class RunProblem:
     """Residuals and Jacobian of one run: casadi map over segments of the current-driven map."""
 
     def __init__(self, run: RigRun, plant: Plant, mech: ca.Function, params: ParameterSet, free: Sequence[str],
@@ -616,10 +621,7 @@ class _RunProblem:
                     X[i, m] = cl.simulated[s.name][k]
                 else:
                     X[i, m] = x_rest[i]
-            w = self._measured_at("motor_speed", k)
-            if w is None:
-                ws = self._measured_at("screw_speed", k)
-                w = ws * run.gear_ratio if ws is not None else None
+            w = motor_speed_from(lambda c: self._measured_at(c, k), run.gear_ratio)
             if w is not None:
                 X[plant.index("state", "motor_speed"), m] = w
             if nut is not None:  # the LVDT reads the surface; the nut sits the load-path deflection ahead
@@ -771,10 +773,12 @@ class Identifier:
 
     def _priors(self, scale: np.ndarray) -> dict[str, tuple[float, float]]:
         r = self.settings.prior_relative_sd
+        explicit = {n: (float(m), float(sd)) for n, (m, sd) in (self.settings.priors or {}).items()
+                    if n in self.free and sd > 0}
         if r is None:
-            return {}
-        return {n: (self.params[n].value, float(r * s)) for n, s in zip(self.free, scale)
-                if n not in self.settings.no_prior}
+            return explicit
+        return {**{n: (self.params[n].value, float(r * s)) for n, s in zip(self.free, scale)
+                   if n not in self.settings.no_prior}, **explicit}
 
     def fit(self, runs: RigRun | Sequence[RigRun], *, progress=None) -> IdentificationResult:
         """Fit the free parameters to ``runs`` together.
@@ -819,13 +823,16 @@ class Identifier:
         from .replay import check_run_model
 
         run_warnings = tuple(w for r in runs for w in check_run_model(r, plant, mode="open_loop"))
-        problems = [_RunProblem(r, plant, mech, self.params, self.free, st) for r in runs]
+        problems = [RunProblem(r, plant, mech, self.params, self.free, st) for r in runs]
         nf = len(self.free)
         scale = self._scales()
         priors = self._priors(scale)
         # prior rows (scaled decision units); a parameter without a prior gets a zero row
         prior_w = np.array([scale[k] / priors[n][1] if n in priors else 0.0 for k, n in enumerate(self.free)]) \
             if priors else None
+        # prior centres in decision units (the initial value unless an explicit prior names another)
+        prior_z0 = np.array([(priors[n][0] - self.params[n].value) / scale[k] if n in priors else 0.0
+                             for k, n in enumerate(self.free)]) if priors else None
         p0 = plant.p_vector(self.params)
         box = [self.params[n].search_interval() for n in self.free]
         lo = np.array([(b[0] - self.params[n].value) / s for (n, s), b in zip(zip(self.free, scale), box)])
@@ -851,7 +858,7 @@ class Identifier:
             parts = [np.asarray(pb.f_res(d, p0, scale, sg)).ravel() * w
                      for pb, d, sg, w in zip(problems, split(z), sigmas, weights)]
             if prior_w is not None:
-                parts.append(z[:nf] * prior_w)
+                parts.append((z[:nf] - prior_z0) * prior_w)
             r = np.concatenate(parts)
             r = np.where(np.isfinite(r), r, 1e10)
             if tracking["on"]:

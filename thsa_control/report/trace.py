@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import html
 import math
 from pathlib import Path
 
@@ -9,9 +10,10 @@ import numpy as np  # noqa: E402
 
 from .build import write_json  # noqa: E402
 from .figure import subplots  # noqa: E402
-from .identification import figure_png, write_html_report  # noqa: E402
+from .identification import Html, figure_png, write_html_report  # noqa: E402
 
-__all__ = ["write_trace_folder", "format_trace_summary", "plot_residual_before_after"]
+__all__ = ["write_trace_folder", "format_trace_summary", "plot_residual_before_after", "conclusion_table_html",
+           "plot_candidate_drops", "plot_signature"]
 
 
 def _num(x, fmt=".4g"):
@@ -37,17 +39,138 @@ def plot_residual_before_after(before: dict, after: dict, run_name: str, channel
     return fig
 
 
+def _ci(p: dict) -> str:
+    ci = p.get("ci95")
+    return f" [{_num(ci[0])}, {_num(ci[1])}]" if ci else ""
+
+
+def conclusion_table_html(doc: dict) -> str:
+    """The conclusion as a table: base corrections, found and implied effects, with parameters and intervals,
+    each channel's error before -> after and what the run did not determine."""
+    rows = []
+    esc = html.escape
+    bc = doc.get("base_corrections") or {}
+    if bc.get("accepted"):
+        for c in bc.get("corrections", []):
+            rows.append(("base correction", c["effect"],
+                         f"{c['parameter']} = {_num(c['value'])} {c['unit']}{_ci(c)}"
+                         f"{' (at its plausible bound)' if c['at_plausible_bound'] else ''}<br><small>bound "
+                         f"[{_num(c['bound'][0])}, {_num(c['bound'][1])}]: {esc(c['bound_source'])}</small>",
+                         _errors_cell(bc.get("error_before", {}), bc.get("error_after", {})), "", ""))
+    for e in doc["effects_added"]:
+        kind = f"implied by {e['implied_by']}" if e.get("implied_by") else (
+            "found effect (beyond a base correction)" if e.get("beyond_base_correction") else
+            f"detailed declared {', '.join(e['refines_declared'])}" if e.get("refines_declared") else "found effect")
+        pars = "<br>".join(f"{esc(n)} = {_num(p['value'])} {esc(p['unit'])}{_ci(p)}"
+                           + (" (profiled)" if p.get("profiled") else "") + (" (held)" if p.get("held") else "")
+                           for n, p in e["parameters"].items())
+        nd = "<br>".join(f"{esc(h['parameter'])} held at {_num(h['held_at'])} {esc(h['unit'])}: {esc(h['reason'])}"
+                         for h in e.get("not_determined", []))
+        win = e.get("window_reduction") or {}
+        wtxt = ", ".join(f"{c} {100 * v:+.0f} %" for c, v in win.items())
+        rows.append((kind, e["name"], pars, _errors_cell(e["error_before"], e["error_after"]), esc(wtxt),
+                     nd or "-"))
+    if not rows:
+        return "<p>Nothing added: no base correction and no candidate effect is significant.</p>"
+    head = ("<table><tr><th>kind</th><th>effect</th><th>parameters (95 % interval)</th>"
+            "<th>channel RMS before &rarr; after</th><th>error drop in its window</th>"
+            "<th>not determined by this run</th></tr>")
+    body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in (esc(r[0]), esc(r[1]), *r[2:])) + "</tr>" for r in rows)
+    tail = (f"<p>unexplained: <b>{doc['unexplained']}</b>"
+            + (f" (structured: {esc(', '.join(doc['residual_signature']['structured']))})" if doc["unexplained"] else "")
+            + "</p>")
+    return head + body + "</table>" + tail
+
+
+def _errors_cell(before: dict, after: dict) -> str:
+    return "<br>".join(f"{html.escape(c)}: {_num(b.get('rms'))} &rarr; {_num(after.get(c, {}).get('rms'))} "
+                       f"{html.escape(b.get('unit', ''))}" for c, b in before.items())
+
+
+def plot_candidate_drops(doc: dict):
+    """Each round's candidates: held-out chi2 drop (log scale, significant ones coloured)."""
+    rounds = doc["rounds"]
+    fig, axes = subplots(len(rounds), 1, figsize=(9, 0.5 + 2.6 * len(rounds)), squeeze=False)
+    for ax, r in zip(axes[:, 0], rounds):
+        cands = [c for c in r["candidates"] if c.get("holdout_chi2_drop") is not None]
+        names = [c["name"] + (" (beyond base)" if c.get("beyond_base_correction") else "") for c in cands]
+        drops = [max(c["holdout_chi2_drop"], 0.0) for c in cands]
+        colors = ["C2" if c["significant"] else ("C3" if not c["plausible"] else "0.6") for c in cands]
+        y = np.arange(len(cands))
+        ax.barh(y, [max(d, 1e-1) for d in drops], color=colors)
+        ax.set_yticks(y, names, fontsize=8)
+        ax.invert_yaxis()
+        ax.set_xscale("log")
+        ax.set_xlabel("held-out chi2 drop (green: significant, red: implausible, grey: not significant)")
+        ax.set_title(f"round {r['round']}: model {', '.join(r['model']) or 'functional'}", fontsize=9, wrap=True)
+    return fig
+
+
+def plot_signature(sig: dict):
+    """The remaining residual's signature: binned by nut position, by motor and screw angle, and the redundant
+    sensors' cross-correlation."""
+    curves = sig.get("curves") or {}
+    fig, axes = subplots(2, 2, figsize=(11, 6.5))
+    ax = axes[0, 0]
+    if "nut_position" in curves:
+        c = curves["nut_position"]
+        ax.errorbar(1e3 * np.asarray(c["centre"]), c["mean"], yerr=np.asarray(c["sd"]) / np.sqrt(np.maximum(c["count"], 1)),
+                    fmt="o-", ms=3, lw=0.8)
+    ax.axhline(0, color="0.5", lw=0.5)
+    ax.set_xlabel("nut position [mm]")
+    ax.set_ylabel("missing torque [N m]")
+    ax.set_title("residual binned by nut position", fontsize=9)
+    for ax, name in ((axes[0, 1], "motor_angle"), (axes[1, 0], "screw_angle")):
+        c = curves.get(name)
+        if c:
+            ax.errorbar(np.degrees(c["centre"]), c["mean"], yerr=np.asarray(c["sd"]) / np.sqrt(np.maximum(c["count"], 1)),
+                        fmt="o-", ms=3, lw=0.8)
+        ax.axhline(0, color="0.5", lw=0.5)
+        ax.set_xlabel(f"{name.replace('_', ' ')} modulo one revolution [deg]")
+        ax.set_ylabel("missing torque [N m]")
+        ax.set_title(f"residual binned by {name.replace('_', ' ')}", fontsize=9)
+    ax = axes[1, 1]
+    for label, c in (curves.get("cross_correlation") or {}).items():
+        ax.plot(1e3 * np.asarray(c["lag_s"]), c["correlation"], lw=0.9, label=label.split(": ", 1)[-1])
+    ax.axvline(0, color="0.5", lw=0.5)
+    ax.set_xlabel("lag [ms]")
+    ax.set_ylabel("correlation of the sample differences")
+    ax.set_title("redundant sensors: cross-correlation", fontsize=9)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7, loc="lower left")
+    return fig
+
+
 def format_trace_summary(doc: dict) -> str:
     """Console / report text: what was added, the ranking, the errors, the signature."""
     lines = [f"declared model: {doc['base_model']} ({', '.join(doc['declared_effects']) or 'functional'}), "
              f"uncertain set fitted: {', '.join(doc['uncertain_parameters'])}"]
-    for step, e in enumerate(doc["effects_added"], 1):
-        lines.append(f"step {step}: added {e['name']} (score {_num(e['score'], '.3f')}, AIC drop {_num(e['aic_drop'], '.1f')}, "
+    bc = doc.get("base_corrections")
+    if bc:
+        lines.append(f"base corrections ({'applied' if bc.get('accepted') else 'not significant'}; held-out chi2 drop "
+                     f"{_num(bc.get('holdout_chi2_drop'), '.4g')}, threshold {_num(bc.get('chi2_threshold'), '.3g')}): "
+                     "what every real drive has, within plausible bounds; not found effects")
+        for c in bc.get("corrections", []):
+            lines.append(f"    {c['effect']:<20} {c['parameter']} = {_num(c['value'])} {c['unit']}{_ci(c)}, bound "
+                         f"[{_num(c['bound'][0])}, {_num(c['bound'][1])}]{'  AT BOUND' if c['at_plausible_bound'] else ''}")
+    step = 0
+    for e in doc["effects_added"]:
+        if e.get("implied_by"):
+            lines.append(f"    with it: {e['name']} (needed by {e['implied_by']}; parameters "
+                         + (", ".join(f"{n} = {_num(p['value'])}" for n, p in e["parameters"].items()) or "at file values")
+                         + ")")
+            continue
+        step += 1
+        lines.append(f"step {step}: added {e['name']}{' (beyond its base correction)' if e.get('beyond_base_correction') else ''}"
+                     f" (score {_num(e['score'], '.3f')}, AIC drop {_num(e['aic_drop'], '.1f')}, "
                      f"BIC drop {_num(e['bic_drop'], '.1f')})")
         for n, p in e["parameters"].items():
             ci = p["ci95"]
             lines.append(f"    {n} = {_num(p['value'])} {p['unit']}" + (f"  95 % CI [{_num(ci[0])}, {_num(ci[1])}]" if ci else "")
-                         + (" (profiled)" if p.get("profiled") else ""))
+                         + (" (profiled)" if p.get("profiled") else "") + (" (held)" if p.get("held") else ""))
+        for h in e.get("not_determined", []):
+            lines.append(f"    not determined by this run: {h['parameter']} held at {_num(h['held_at'])} {h['unit']} "
+                         f"({h['reason']})")
         for c, red in e["error_reduction"].items():
             b, a = e["error_before"].get(c, {}), e["error_after"].get(c, {})
             lines.append(f"    {c}: RMS {_num(b.get('rms'))} -> {_num(a.get('rms'))} ({100 * red:+.1f} % drop)")
@@ -69,6 +192,8 @@ def format_trace_summary(doc: dict) -> str:
             lines.append(f"    {c['name']:<26} held-out chi2 drop {_num(c['holdout_chi2_drop'], '.4g'):>10} "
                          f"(threshold {_num(c['chi2_threshold'], '.3g')}, null {_num(c.get('null_chi2_drop'), '.3g')}), "
                          f"score {_num(c['score'], '.3f')}  {flag}")
+            for h in c.get("not_determined", []):
+                lines.append(f"        not determined: {h['parameter']} held at {_num(h['held_at'])} {h['unit']}")
         for s in r["skipped"]:
             lines.append(f"    {s['name']:<26} skipped: {s['reason']}")
     lines.append("error before -> after (all samples):")
@@ -87,6 +212,8 @@ def format_trace_summary(doc: dict) -> str:
             extra = f", peak in {1e3 * t['peak_bin'][0]:.1f}..{1e3 * t['peak_bin'][1]:.1f} mm"
         elif t["kind"] == "redundant_sensors":
             extra = f", gain {t['gain']:.4f}, lag {1e3 * t['lag_s']:.1f} ms"
+        elif t["kind"] == "sensor_offset":
+            extra = f", offset {t['offset']:.3f} A over {t['samples']} samples"
         lines.append(f"    {t['variable']:<40} size {_num(t['size'], '.3g')} {t['unit']}, p {_num(t['p_value'], '.2g')}"
                      f"{extra}{'  <- STRUCTURED' if t['significant'] else ''}")
     return "\n".join(lines)
@@ -104,6 +231,11 @@ def write_trace_folder(folder: str | Path, result) -> dict:
             if ch in before["predictions"][run["name"]]["measured"]:
                 figs[f"{run['name']}: {ch} residual before and after"] = figure_png(
                     plot_residual_before_after(before, after, run["name"], ch))
+    if doc["rounds"]:
+        figs = {"candidates' held-out chi2 drops, per round": figure_png(plot_candidate_drops(doc)), **figs}
+    figs["signature of the remaining residual (missing torque at the motor shaft)"] = figure_png(
+        plot_signature(doc["residual_signature"]))
     write_html_report(folder / "report.html", title=f"Residual trace: {', '.join(d['name'] for d in doc['datasets'])}",
-                      sections=[("Summary", format_trace_summary(doc))], figures=figs)
+                      sections=[("Conclusion", Html(conclusion_table_html(doc))),
+                                ("Summary", format_trace_summary(doc))], figures=figs)
     return doc

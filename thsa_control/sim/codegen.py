@@ -60,10 +60,17 @@ def _note_once(key: str, message: str) -> None:
 _DRIVER = r"""
 #include <stdlib.h>
 #include <string.h>
+#include <pthread.h>
 
-/* Runs n_steps control periods from z (updated in place); every decim-th
-   period (from the first) writes its outputs to the next column of Y. */
-int thsa_run(double* z, const double* W, const double* theta, long long n_steps, long long decim, double* Y) {
+/* One run: n_steps control periods from z (updated in place).  W is the run's
+   inputs, input-major (nw x n_steps, row j holds input j); every decim-th
+   period (from the first) writes its outputs to the next column of Y
+   (ny x n_out, output-major).  buf: scratch of the caller's thread. */
+typedef struct {
+  const double** arg; double** res; casadi_int* iw; double* w; double* za; double* zb; double* wk; double* yk;
+} thsa_buf;
+
+static int thsa_buf_init(thsa_buf* b, casadi_int nz, casadi_int nw, casadi_int ny) {
   casadi_int sz_arg, sz_res, sz_iw, sz_w, a2, r2, iw2, w2;
   thsa_sample_work(&sz_arg, &sz_res, &sz_iw, &sz_w);
   thsa_sample_x_work(&a2, &r2, &iw2, &w2);
@@ -71,33 +78,122 @@ int thsa_run(double* z, const double* W, const double* theta, long long n_steps,
   if (r2 > sz_res) sz_res = r2;
   if (iw2 > sz_iw) sz_iw = iw2;
   if (w2 > sz_w) sz_w = w2;
-  const double** arg = (const double**) malloc(sizeof(double*) * (sz_arg + 3));
-  double** res = (double**) malloc(sizeof(double*) * (sz_res + 2));
-  casadi_int* iw = (casadi_int*) malloc(sizeof(casadi_int) * (sz_iw + 1));
-  double* w = (double*) malloc(sizeof(double) * (sz_w + 1));
+  b->arg = (const double**) malloc(sizeof(double*) * (sz_arg + 3));
+  b->res = (double**) malloc(sizeof(double*) * (sz_res + 2));
+  b->iw = (casadi_int*) malloc(sizeof(casadi_int) * (sz_iw + 1));
+  b->w = (double*) malloc(sizeof(double) * (sz_w + 1));
+  b->za = (double*) malloc(sizeof(double) * (nz + 1));
+  b->zb = (double*) malloc(sizeof(double) * (nz + 1));
+  b->wk = (double*) malloc(sizeof(double) * (nw + 1));
+  b->yk = (double*) malloc(sizeof(double) * (ny + 1));
+  return (b->arg && b->res && b->iw && b->w && b->za && b->zb && b->wk && b->yk) ? 0 : -1;
+}
+
+static void thsa_buf_free(thsa_buf* b) {
+  free(b->arg); free(b->res); free(b->iw); free(b->w); free(b->za); free(b->zb); free(b->wk); free(b->yk);
+}
+
+static int thsa_run_one(thsa_buf* b, double* z, const double* W, const double* theta, long long n_steps,
+                        long long decim, double* Y) {
   const casadi_int nz = thsa_sample_sparsity_in(0)[0];
   const casadi_int nw = thsa_sample_sparsity_in(1)[0];
   const casadi_int ny = thsa_sample_sparsity_out(1)[0];
-  double* zn = (double*) malloc(sizeof(double) * nz);
+  const long long n_out = (n_steps + decim - 1) / decim;
+  double* zc = b->za;
+  double* zn = b->zb;
   int flag = 0;
-  if (!arg || !res || !iw || !w || !zn) { flag = -1; goto done; }
+  memcpy(zc, z, sizeof(double) * nz);
+  b->arg[1] = b->wk; b->arg[2] = theta;
   for (long long k = 0; k < n_steps; ++k) {
-    arg[0] = z; arg[1] = W + k * nw; arg[2] = theta;
-    res[0] = zn;
+    for (casadi_int j = 0; j < nw; ++j) b->wk[j] = W[j * n_steps + k];
+    b->arg[0] = zc; b->res[0] = zn;
     if (k % decim == 0) {
-      res[1] = Y + (k / decim) * ny;
-      flag = thsa_sample(arg, res, iw, w, 0);
+      const long long col = k / decim;
+      b->res[1] = b->yk;
+      flag = thsa_sample(b->arg, b->res, b->iw, b->w, 0);
+      for (casadi_int i = 0; i < ny; ++i) Y[i * n_out + col] = b->yk[i];
     } else {
-      flag = thsa_sample_x(arg, res, iw, w, 0);
+      flag = thsa_sample_x(b->arg, b->res, b->iw, b->w, 0);
     }
-    if (flag) goto done;
-    memcpy(z, zn, sizeof(double) * nz);
+    if (flag) break;
+    double* t = zc; zc = zn; zn = t;
   }
-done:
-  free(arg); free(res); free(iw); free(w); free(zn);
+  memcpy(z, zc, sizeof(double) * nz);
   return flag;
 }
+
+typedef struct {
+  long long first, n_runs, step; double* z; const double* const* W; const double* theta;
+  long long th_stride; long long n_steps; long long decim; double* Y; int flag;
+} thsa_job;
+
+static void* thsa_worker(void* p) {
+  thsa_job* j = (thsa_job*) p;
+  const casadi_int nz = thsa_sample_sparsity_in(0)[0];
+  const casadi_int nw = thsa_sample_sparsity_in(1)[0];
+  const casadi_int ny = thsa_sample_sparsity_out(1)[0];
+  const long long n_out = (j->n_steps + j->decim - 1) / j->decim;
+  thsa_buf b;
+  j->flag = thsa_buf_init(&b, nz, nw, ny);
+  for (long long r = j->first; r < j->n_runs && !j->flag; r += j->step)
+    j->flag = thsa_run_one(&b, j->z + r * nz, j->W[r], j->theta + r * j->th_stride, j->n_steps,
+                           j->decim, j->Y + r * ny * n_out);
+  thsa_buf_free(&b);
+  return 0;
+}
+
+/* n_runs runs of n_steps periods: run r starts from z + r*nz (updated in place), reads
+   the inputs W[r] and theta + r*th_stride (stride 0: shared) and writes Y + r*ny*n_out;
+   n_threads > 1 spreads the runs over threads (run r on thread r % n_threads). */
+int thsa_run_batch(long long n_runs, double* z, const double* const* W, const double* theta,
+                   long long th_stride, long long n_steps, long long decim, double* Y, int n_threads) {
+  if (n_threads < 1) n_threads = 1;
+  if (n_threads > n_runs) n_threads = (int) n_runs;
+  if (n_threads <= 1) {
+    thsa_job j = {0, n_runs, 1, z, W, theta, th_stride, n_steps, decim, Y, 0};
+    thsa_worker(&j);
+    return j.flag;
+  }
+  thsa_job* jobs = (thsa_job*) malloc(sizeof(thsa_job) * n_threads);
+  pthread_t* th = (pthread_t*) malloc(sizeof(pthread_t) * n_threads);
+  int flag = 0;
+  if (!jobs || !th) { free(jobs); free(th); return -1; }
+  for (int t = 0; t < n_threads; ++t) {
+    thsa_job j = {t, n_runs, n_threads, z, W, theta, th_stride, n_steps, decim, Y, 0};
+    jobs[t] = j;
+  }
+  char* started = (char*) calloc(n_threads, 1);
+  if (!started) { free(jobs); free(th); return -1; }
+  for (int t = 1; t < n_threads; ++t) started[t] = pthread_create(&th[t], 0, thsa_worker, &jobs[t]) == 0;
+  thsa_worker(&jobs[0]);
+  for (int t = 1; t < n_threads; ++t) {
+    if (started[t]) pthread_join(th[t], 0);
+    else thsa_worker(&jobs[t]);  /* a thread that could not start: its share runs here */
+  }
+  for (int t = 0; t < n_threads; ++t) if (jobs[t].flag) flag = jobs[t].flag;
+  free(started);
+  free(jobs); free(th);
+  return flag;
+}
+
+int thsa_run(double* z, const double* W, const double* theta, long long n_steps, long long decim, double* Y) {
+  return thsa_run_batch(1, z, &W, theta, 0, n_steps, decim, Y, 1);
+}
 """
+
+
+#: C compiler flags.  None of them lets the compiler change a floating-point result: no -ffast-math, no
+#: FMA contraction (-ffp-contract=off; the default x86-64 target has no FMA anyway), IEEE semantics kept;
+#: -fno-semantic-interposition lets casadi's helper functions inline inside the library, -fno-math-errno
+#: lets sqrt be one instruction (errno is not read).
+FLAGS = ("-O3", "-ffp-contract=off", "-fno-math-errno", "-fno-semantic-interposition", "-pthread")
+
+#: casadi's fmin/fmax call libm through the PLT; these inline forms return the same bits for every
+#: input (glibc's minsd/maxsd semantics: the first argument when strictly smaller/larger, else the
+#: second unless it is NaN) -- checked against libm on signed zeros, infinities, NaNs and subnormals by
+#: tests/test_cache.py.
+_INLINE_MINMAX = (("  return fmax(x, y);", "  return x>y ? x : (y==y ? y : x);"),
+                  ("  return fmin(x, y);", "  return x<y ? x : (y==y ? y : x);"))
 
 
 def cache_dir() -> Path:
@@ -165,17 +261,19 @@ def _publish(src: Path, target: Path) -> None:
 
 
 class RunLoop:
-    """A compiled run loop: ``loop(z0, W, theta, decimation) -> (Y, z_final)``.
+    """A compiled run loop: ``loop(z0, W, theta, decimation) -> (Y, z_final)`` and its batched form.
 
-    ``W`` is (n_w x n_steps), ``Y`` is (n_y x ceil(n_steps / decimation)).
+    ``W`` is (n_w x n_steps), ``Y`` is (n_y x ceil(n_steps / decimation)), both
+    row-major (one row per signal: no transposes on either side).
     """
 
     def __init__(self, lib_path: str, nz: int, nw: int, ny: int):
         self._lib = ctypes.CDLL(lib_path)
-        self._fn = self._lib.thsa_run
         dp = ctypes.POINTER(ctypes.c_double)
-        self._fn.argtypes = [dp, dp, dp, ctypes.c_longlong, ctypes.c_longlong, dp]
-        self._fn.restype = ctypes.c_int
+        ll = ctypes.c_longlong
+        self._batch = self._lib.thsa_run_batch
+        self._batch.argtypes = [ll, dp, ctypes.POINTER(ctypes.c_void_p), dp, ll, ll, ll, dp, ctypes.c_int]
+        self._batch.restype = ctypes.c_int
         self.nz, self.nw, self.ny = nz, nw, ny
         self._sha = self._lib.thsa_source_sha256
         self._sha.argtypes = []
@@ -186,19 +284,41 @@ class RunLoop:
         return self._sha().decode("ascii", "replace")
 
     def __call__(self, z0: np.ndarray, W: np.ndarray, theta: np.ndarray, decimation: int):
-        z = np.array(z0, dtype=float, order="C").copy()
-        # column k of W (casadi's column-major) is row k of the C-ordered transpose
-        Wt = np.ascontiguousarray(np.asarray(W, dtype=float).T)
+        Y, z = self.batch(np.asarray(z0, dtype=float)[None, :], [W], np.asarray(theta, dtype=float)[None, :], decimation)
+        return Y[0], z[0]
+
+    def batch(self, Z0: np.ndarray, W, theta: np.ndarray, decimation: int, threads: int = 1):
+        """Runs in one call, looping over them in C (``threads`` > 1: spread over threads).
+
+        ``Z0`` (n_runs x n_z); ``W`` a list of one (n_w x n_steps) input matrix per run (the
+        same array may serve several runs: nothing is copied); ``theta`` (n_runs x n_theta),
+        or (n_theta,) shared.  Returns ``Y`` (n_runs x n_y x n_out) and the final states
+        (n_runs x n_z).  Each run is computed exactly as alone (same operations, same order).
+        """
+        z = np.array(Z0, dtype=float, order="C", ndmin=2)
+        n_runs = z.shape[0]
+        if z.shape[1] != self.nz:
+            raise ValueError(f"initial states have {z.shape[1]} entries, the loop has {self.nz}")
+        Ws = [np.ascontiguousarray(w, dtype=float) for w in W]
+        if len(Ws) != n_runs:
+            raise ValueError(f"{len(Ws)} input matrices for {n_runs} runs")
+        n = Ws[0].shape[1] if Ws else 0
+        for w in Ws:
+            if w.ndim != 2 or w.shape != (self.nw, n):
+                raise ValueError(f"input matrix of shape {w.shape}, expected ({self.nw}, {n})")
         th = np.ascontiguousarray(theta, dtype=float)
-        n = Wt.shape[0]
+        th_stride = 0 if th.ndim == 1 else th.shape[1]
+        if th.ndim == 2 and th.shape[0] != n_runs:
+            raise ValueError(f"parameters of shape {th.shape} for {n_runs} runs")
         n_out = -(-n // decimation)
-        Y = np.empty((n_out, self.ny))
+        Y = np.empty((n_runs, self.ny, n_out))
+        ptrs = (ctypes.c_void_p * max(n_runs, 1))(*[w.ctypes.data for w in Ws])
         dp = ctypes.POINTER(ctypes.c_double)
-        flag = self._fn(z.ctypes.data_as(dp), Wt.ctypes.data_as(dp), th.ctypes.data_as(dp), n, decimation,
-                        Y.ctypes.data_as(dp))
+        flag = self._batch(n_runs, z.ctypes.data_as(dp), ptrs, th.ctypes.data_as(dp), th_stride, n, decimation,
+                           Y.ctypes.data_as(dp), int(threads))
         if flag:
             raise RuntimeError(f"compiled run loop returned {flag}")
-        return Y.T, z
+        return Y, z
 
 
 def _find_or_build(functions, stem_tag: str, driver: str, flags: tuple[str, ...], load):
@@ -214,7 +334,10 @@ def _find_or_build(functions, stem_tag: str, driver: str, flags: tuple[str, ...]
         for f in functions:
             cg.add(f)
         src_path = Path(cg.generate(tmp + os.sep))
-        source = src_path.read_text() + driver
+        source = src_path.read_text()
+        for old, new in _INLINE_MINMAX:
+            source = source.replace(old, new)
+        source += driver
         source_sha = hashlib.sha256((source + " ".join(flags) + ca.__version__).encode()).hexdigest()
         source += f'\nconst char* thsa_source_sha256(void) {{ return "{source_sha}"; }}\n'
         src_path.write_text(source)
@@ -285,7 +408,7 @@ def _find_or_build(functions, stem_tag: str, driver: str, flags: tuple[str, ...]
         return obj, info  # loaded from the build folder; the file stays mapped after the folder goes
 
 
-def compile_run_loop(sample: ca.Function, sample_x: ca.Function, *, flags: tuple[str, ...] = ("-O2",)):
+def compile_run_loop(sample: ca.Function, sample_x: ca.Function, *, flags: tuple[str, ...] = FLAGS):
     """Generate, compile (or find in the cache, verified) and load the run loop.
 
     Returns
@@ -297,8 +420,9 @@ def compile_run_loop(sample: ca.Function, sample_x: ca.Function, *, flags: tuple
         ``{"compiled", "cached", "codegen_s", "compile_s", "path", "cache", "error"?}``;
         ``cache`` is ``"shared"``, ``"private"`` (unwritable cache) or ``""``.
     """
-    f1 = ca.Function("thsa_sample", sample.sx_in(), sample.call(sample.sx_in()))
-    f2 = ca.Function("thsa_sample_x", sample_x.sx_in(), sample_x.call(sample_x.sx_in()))
+    # common subexpressions computed once (the same operations on the same values: the same bits)
+    f1 = ca.Function("thsa_sample", sample.sx_in(), sample.call(sample.sx_in()), {"cse": True})
+    f2 = ca.Function("thsa_sample_x", sample_x.sx_in(), sample_x.call(sample_x.sx_in()), {"cse": True})
     dims = (sample.size1_in(0), sample.size1_in(1), sample.size1_out(1))
     return _find_or_build([f1, f2], "thsa_run", _DRIVER, flags, lambda lib, sha: _load(lib, sha, dims))
 
@@ -316,7 +440,7 @@ def _load_external(lib: Path, source_sha: str, names: list[str]):
         return None
 
 
-def compile_functions(functions: list[ca.Function], tag: str, *, flags: tuple[str, ...] = ("-O2",)):
+def compile_functions(functions: list[ca.Function], tag: str, *, flags: tuple[str, ...] = FLAGS):
     """casadi Functions compiled to C in one library, through the same verified cache as the run loop.
 
     Returns ``(list of casadi external Functions or None, info)``; None (with a

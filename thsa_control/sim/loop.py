@@ -18,7 +18,7 @@ parameters and output signals, appended after the plain loop's:
 With no extension this is exactly the plain loop.  The sensors, monitors and
 reconfiguration logic of the fault cases are one extension
 (``sim/monitors.py``: :class:`~thsa_control.sim.monitors.MonitorLoop`);
-:func:`extensions_for` gives a scenario the extensions it asks for.
+:func:`~thsa_control.sim.monitors.extensions_for` gives a scenario the extensions it asks for.
 
 :class:`ClosedLoop` holds the Functions of one (plant, substeps, extensions)
 and their compiled run loop (``codegen.py``); the simulator keeps one per
@@ -37,7 +37,7 @@ from ..loops.controllers import CONTROLLER_PARAMETERS, CONTROLLER_SIGNALS, CONTR
 from ..model.plant import Plant
 
 __all__ = ["RUN_INPUTS", "OPTIONAL_INPUTS", "CONTROLLER_UNITS", "LoopStage", "LoopExtension", "ClosedLoop",
-           "plant_input_vector", "output_decimation", "extensions_for"]
+           "plant_input_vector", "measurement_vector", "output_decimation"]
 
 #: Per-sample inputs of a run: the controller's references, then load and temperature.
 RUN_INPUTS = REFERENCE_INPUTS + ("load_force", "temperature")
@@ -58,6 +58,16 @@ def plant_input_vector(plant: Plant, u_ctrl, load_force, temperature, **faults):
     if unknown:
         raise ThsaError(f"no plant input(s) {sorted(unknown)}; inputs are {', '.join(plant.inputs)}")
     return ca.vertcat(*(values.get(n, ca.SX(0.0)) for n in plant.inputs))
+
+
+def measurement_vector(plant: Plant, x):
+    """What the controller's sensors read from the plant state ``x`` (``MEASUREMENTS`` order): motor
+    speed (the rotors where the drive train is compliant), motor current, standby current (0 without
+    the standby motor), nut position."""
+    names = plant.state_names
+    standby = x[names.index("standby_current")] if "standby_current" in names else ca.SX(0.0)
+    speed_sensor = plant.sensor_state("motor_speed")  # the plant's measurement map: the rotors where compliant
+    return (x[names.index(speed_sensor)], x[names.index("motor_current")], standby, x[names.index("nut_position")])
 
 
 def output_decimation(output_period: float | None, h: float) -> tuple[float, int]:
@@ -152,15 +162,6 @@ class LoopExtension:
         return {}
 
 
-def extensions_for(scenario) -> tuple[LoopExtension, ...]:
-    """The loop extensions a scenario asks for: the monitors when it has faults or monitor settings."""
-    if getattr(scenario, "faults", ()) or getattr(scenario, "monitors", None) is not None:
-        from .monitors import MonitorLoop
-
-        return (MonitorLoop(scenario.monitors),)
-    return ()
-
-
 class ClosedLoop:
     """The Functions of one control period of ``plant`` with ``extensions``.
 
@@ -203,15 +204,13 @@ class ClosedLoop:
         x, xc = z[:nx], z[nx:nx + nc]
         p, k, h = theta[:n_p], theta[n_p:n_p + n_k], theta[n_p + n_k]
         names = plant.state_names
-        standby = x[names.index("standby_current")] if "standby_current" in names else ca.SX(0.0)
-        speed_sensor = "rotor_speed" if "rotor_speed" in names else "motor_speed"  # the motor sensor reads the rotors
+        sensed = measurement_vector(plant, x)
         nref = len(REFERENCE_INPUTS)
         if exts:
             stage = LoopStage(plant, dict(zip(names, ca.vertsplit(x))), dict(zip(CONTROLLER_STATES, ca.vertsplit(xc))),
                               dict(zip(self.inputs, ca.vertsplit(w))), p, dict(zip(CONTROLLER_PARAMETERS, ca.vertsplit(k))),
                               h, dict(zip(REFERENCE_INPUTS, ca.vertsplit(w[:nref]))),
-                              {"motor_speed": x[names.index(speed_sensor)], "motor_current": x[names.index("motor_current")],
-                               "standby_current": standby, "nut_position": x[names.index("nut_position")]})
+                              dict(zip(("motor_speed", "motor_current", "standby_current", "nut_position"), sensed)))
             xe_next, ext_signals = [], []
             iz, im = nx + nc, n_p + n_k + 1
             for e in exts:
@@ -225,8 +224,7 @@ class ClosedLoop:
                                                                  "nut_position")))
         else:
             ref = w[:nref]
-            meas = ca.vertcat(x[names.index(speed_sensor)], x[names.index("motor_current")], standby,
-                              x[names.index("nut_position")])
+            meas = ca.vertcat(*sensed)
         xc_next, u_ctrl, sig = build_controller()(xc, ref, meas, k, h)
         extra = {}
         if exts:

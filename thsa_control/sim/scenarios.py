@@ -71,12 +71,20 @@ TEMPERATURE_RANGE = (-55.0, 70.0)
 Breakpoints = tuple[tuple[float, float], ...]
 
 
-def _steps(points: Breakpoints, t: np.ndarray) -> np.ndarray:
-    """Piecewise-constant signal: value of the last breakpoint at or before t."""
-    times = np.array([p[0] for p in points])
-    values = np.array([p[1] for p in points])
-    idx = np.searchsorted(times, t, side="right") - 1
-    return np.where(idx >= 0, values[np.clip(idx, 0, None)], 0.0)
+def _steps(points: Breakpoints, t: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """Piecewise-constant signal: value of the last breakpoint at or before t (written into ``out`` if given)."""
+    t = np.asarray(t, dtype=float)
+    if out is None:
+        out = np.zeros(t.shape)
+    else:
+        out[...] = 0.0
+    if t.ndim == 1 and (t.size < 2 or bool(np.all(t[1:] >= t[:-1]))):  # sampled in order: one slice per breakpoint
+        for ti, vi in points:  # ordered in time: a later breakpoint holds from its time on
+            out[np.searchsorted(t, ti, side="left"):] = vi
+        return out
+    for ti, vi in points:
+        out[t >= ti] = vi
+    return out
 
 
 def _linear(points: Breakpoints, t: np.ndarray) -> np.ndarray:
@@ -166,21 +174,31 @@ class Scenario:
         """Same scenario at another temperature [degC]."""
         return replace(self, temperature=float(temperature))
 
-    def inputs(self, t) -> dict[str, np.ndarray]:
+    def inputs(self, t, out: dict | None = None) -> dict[str, np.ndarray]:
         """Input signals at times ``t`` [s] (SI): speed_target, position_cmd,
-        position_mode, primary_enable, standby_enable, load_force, temperature."""
-        t = np.asarray(t, dtype=float)
-        pos_mode = self.position_cmd is not None
-        return {
-            "speed_target": _steps(self.speed_target, t),
-            "position_cmd": _linear(self.position_cmd, t) if pos_mode else np.zeros_like(t),
-            "position_mode": np.full_like(t, 1.0 if pos_mode else 0.0),
-            "primary_enable": _steps(self.primary_enable, t),
-            "standby_enable": _steps(self.standby_enable, t),
-            "load_force": _linear(self.load, t),
-            "temperature": np.full_like(t, self.temperature),
-        }
+        position_mode, primary_enable, standby_enable, load_force, temperature.
 
+        ``out``: arrays of ``t``'s shape, by name, to write the signals into (returned
+        as the dict); a name it lacks gets a new array.
+        """
+        t = np.asarray(t, dtype=float)
+        out = dict(out or {})
+        pos_mode = self.position_cmd is not None
+
+        def put(name, value):
+            if name in out:
+                out[name][...] = value
+            else:
+                out[name] = np.full(t.shape, value) if np.ndim(value) == 0 else value
+
+        put("speed_target", _steps(self.speed_target, t, out.get("speed_target")))
+        put("position_cmd", _linear(self.position_cmd, t) if pos_mode else 0.0)
+        put("position_mode", 1.0 if pos_mode else 0.0)
+        put("primary_enable", _steps(self.primary_enable, t, out.get("primary_enable")))
+        put("standby_enable", _steps(self.standby_enable, t, out.get("standby_enable")))
+        put("load_force", _linear(self.load, t))
+        put("temperature", float(self.temperature))
+        return out
 
 _MM = 1e-3
 

@@ -10,6 +10,22 @@ Without a C compiler, ``mapaccum`` strings the periods into chunks run by
 casadi's virtual machine.  The same ``sample`` Function, uncompiled, is what
 gradient-based tuning and identification differentiate through.
 
+Batched runs
+------------
+:meth:`Simulator.run_batch` simulates many runs in one call: each of
+``inputs`` (scenarios or input series), ``design``, ``params`` and ``x0`` is
+one value for all runs or a list with one per run.  Runs of the same loop
+and length go to the compiled library together, which loops over them in C
+and spreads them over the CPUs (``threads``); each result is bit-identical
+to :meth:`Simulator.run` of the same run.  :func:`stack_signals` turns the
+list into one array.  For the tracer's candidate fits, the tuning's
+validation runs and sweeps::
+
+    sim = Simulator(build_plant("D"))
+    runs = sim.run_batch([sc.with_temperature(T) for T in (-55, -30, 25, 70)], design, params)
+    runs = sim.run_batch(scenario, design, [params.replace({"gear.viscous_friction": v}) for v in values])
+    t, Y = stack_signals(runs, ["nut_speed", "motor_current"])   # Y: (runs, 2, samples)
+
 Examples
 --------
 >>> from thsa_control.model import build_plant
@@ -28,6 +44,7 @@ Examples
 from __future__ import annotations
 
 import math
+import os
 import time
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -39,11 +56,12 @@ from ..loops.design import Design
 from ..errors import ScenarioError, ThsaError
 from ..model.plant import Plant
 from ..model.params import ParameterSet
-from .loop import (OPTIONAL_INPUTS, RUN_INPUTS, ClosedLoop, LoopExtension, extensions_for, output_decimation,
-                   plant_input_vector)
+from .loop import OPTIONAL_INPUTS, RUN_INPUTS, ClosedLoop, LoopExtension, output_decimation, plant_input_vector
+from .monitors import extensions_for
 from .scenarios import TEMPERATURE_RANGE, Scenario
 
 __all__ = ["SimulationSettings", "InputSeries", "SimulationResult", "Simulator", "simulate", "plant_input_vector",
+           "available_cpus", "stack_signals",
            "RUN_INPUTS", "OPTIONAL_INPUTS", "output_decimation"]
 
 
@@ -107,8 +125,8 @@ class InputSeries:
             arr = np.asarray(self.signals[key], dtype=float)
             if arr.shape != (n,):
                 raise ScenarioError(f"inputs {self.name!r}: signal {key!r} has shape {arr.shape}, expected ({n},)")
-            bad = np.flatnonzero(~np.isfinite(arr))
-            if bad.size:
+            if not np.isfinite(arr).all():
+                bad = np.flatnonzero(~np.isfinite(arr))
                 raise ScenarioError(f"inputs {self.name!r}: signal {key!r} is not finite at sample {bad[0]} (t = {self.time[bad[0]]:g} s)")
         temp = np.asarray(self.signals["temperature"])
         lo, hi = TEMPERATURE_RANGE
@@ -120,11 +138,20 @@ class InputSeries:
         """Sample ``scenario`` at the control period [s]."""
         n = int(round(scenario.duration / control_period))
         t = np.arange(n) * control_period
-        return cls(scenario.name, t, scenario.inputs(t), scenario.accel_limit, scenario.jerk_limit,
-                   scenario.motor_off_at_zero, scenario.description, scenario.required_effects)
+        block = np.zeros((len(RUN_INPUTS), n))  # the signals are rows of the run's input matrix
+        rows = dict(zip(RUN_INPUTS, block))
+        signals = scenario.inputs(t, out=rows)
+        block.setflags(write=False)
+        series = cls(scenario.name, t, {**signals, **{k: rows[k] for k in OPTIONAL_INPUTS}}, scenario.accel_limit,
+                     scenario.jerk_limit, scenario.motor_off_at_zero, scenario.description, scenario.required_effects)
+        object.__setattr__(series, "_block", (block, tuple(rows[k] for k in RUN_INPUTS)))
+        return series
 
     def matrix(self) -> np.ndarray:
-        """Inputs as a (len(RUN_INPUTS) x n) array."""
+        """Inputs as a (len(RUN_INPUTS) x n) array (read-only when the series was sampled from a scenario)."""
+        block = self.__dict__.get("_block")
+        if block is not None and all(self.signals[k] is r for k, r in zip(RUN_INPUTS, block[1])):
+            return block[0]
         return np.vstack([np.asarray(self.signals[k], dtype=float) for k in RUN_INPUTS])
 
 
@@ -290,7 +317,7 @@ class Simulator:
             initial load.
         extensions : tuple of LoopExtension, optional
             Blocks added to the loop; default: those the scenario asks for
-            (:func:`~thsa_control.sim.loop.extensions_for`: the monitors when
+            (:func:`~thsa_control.sim.monitors.extensions_for`: the monitors when
             it has faults or monitor settings), none for an ``InputSeries``.
 
         Returns
@@ -304,53 +331,166 @@ class Simulator:
         DesignError
             The design asks more than the actuator has.
         """
+        prep = self._prepare(inputs, design, params, x0, extensions)
+        run_loop, cinfo = self._compiled_loop(prep.loop)
+        t0 = time.perf_counter()
+        if run_loop is not None:
+            Y, z = run_loop(prep.z0, prep.W, prep.theta, prep.decimation)
+        else:
+            Y, z = self._run_interpreted(prep.extensions, prep.z0, prep.W, prep.theta, prep.decimation)
+        return self._result(prep, Y, z, time.perf_counter() - t0, cinfo)
+
+    def run_batch(self, inputs, design, params, *, x0=None, extensions=None, threads: int | None = None,
+                  max_block: int = 64) -> list[SimulationResult]:
+        """Simulate many runs in one call, looping over them in the compiled library.
+
+        Each of ``inputs``, ``design``, ``params`` and ``x0`` is one value for every run
+        or a list with one per run (lists have the same length); so a batch varies
+        parameter sets, designs, scenarios or input series (temperatures: ``Scenario.with_temperature``;
+        fault timings: scenarios with other ``faults``), in any combination.
+
+        Runs of the same loop (extension set), length and output period go to C
+        together, ``max_block`` at a time, spread over ``threads`` threads (default:
+        the CPUs this process may use); runs sharing one input object share its
+        input matrix.  Each result is bit-identical to :meth:`run` of the same run.
+
+        Returns
+        -------
+        list of SimulationResult
+            In the order of the runs; ``info["wall_s"]`` is the wall time of the
+            C call the run was part of, ``info["batch"]`` its size.
+        """
+        runs = _broadcast(inputs=inputs, design=design, params=params, x0=x0)
+        memo: dict = {}  # runs of one input object share its sampled inputs and input matrix
+        preps = [self._prepare(r["inputs"], r["design"], r["params"], r["x0"], extensions, memo) for r in runs]
+        if threads is None:
+            threads = available_cpus()
+        out: list = [None] * len(preps)
+        groups: dict = {}
+        for i, prep in enumerate(preps):
+            groups.setdefault((id(prep.loop), prep.W.shape[1], prep.decimation), []).append(i)
+        for idx in groups.values():
+            loop = preps[idx[0]].loop
+            run_loop, cinfo = self._compiled_loop(loop)
+            for start in range(0, len(idx), max_block):
+                block = idx[start:start + max_block]
+                ps = [preps[i] for i in block]
+                t0 = time.perf_counter()
+                if run_loop is None:
+                    res = [self._run_interpreted(p.extensions, p.z0, p.W, p.theta, p.decimation) for p in ps]
+                    wall = time.perf_counter() - t0
+                    for i, p, (Y, z) in zip(block, ps, res):
+                        out[i] = self._result(p, Y, z, wall, cinfo, batch=len(block))
+                    continue
+                Y, Z = run_loop.batch(np.stack([p.z0 for p in ps]), [p.W for p in ps], np.stack([p.theta for p in ps]),
+                                      ps[0].decimation, threads=threads)
+                wall = time.perf_counter() - t0
+                for j, (i, p) in enumerate(zip(block, ps)):
+                    out[i] = self._result(p, Y[j], Z[j], wall, cinfo, batch=len(block))
+        return out
+
+    def _prepare(self, inputs, design: Design, params: ParameterSet, x0, extensions, memo=None) -> "_Prepared":
+        """Check a run and lay out its numbers (the loop, ``z0``, ``W``, ``theta``)."""
         h = design.control_period
         scenario = inputs if isinstance(inputs, Scenario) else None
         if extensions is None:
             extensions = extensions_for(scenario) if scenario is not None else ()
         extensions = tuple(extensions)
-        if scenario is not None:
+        key = (id(inputs), h, tuple(e.key() for e in extensions))
+        shared = memo.get(key) if memo is not None else None
+        if shared is not None and shared[0] is inputs:
+            inputs, W = shared[1], shared[2]
+        else:
+            W = None
+        if W is None and scenario is not None:
             inputs = InputSeries.from_scenario(scenario, h)
         needed = tuple(inputs.required_effects) + tuple(e for x in extensions for e in x.required_effects(scenario))
         missing = [e for e in dict.fromkeys(needed) if e not in self.plant.effects]
         if missing:
             raise ScenarioError(f"run {inputs.name!r} needs effect(s) {missing}; the plant has {list(self.plant.effects)}")
-        if len(inputs.time) > 1 and not np.allclose(np.diff(inputs.time), h, rtol=1e-6, atol=1e-12):
+        if scenario is None and len(inputs.time) > 1 and not np.allclose(np.diff(inputs.time), h, rtol=1e-6, atol=1e-12):
             raise ScenarioError(f"inputs {inputs.name!r} are not sampled at the control period {h:g} s")
         out_period, decimation = output_decimation(self.settings.output_period, h)
         k = design.controller_vector(params, accel_limit=inputs.accel_limit, jerk_limit=inputs.jerk_limit,
                                      motor_off_at_zero=inputs.motor_off_at_zero)
         loop = self.closed_loop(extensions)
         theta = loop.theta(self.plant.p_vector(params), k, h)
-        W = loop.input_matrix(inputs, scenario)
+        if W is None:
+            W = loop.input_matrix(inputs, scenario)
+            if memo is not None:
+                memo[key] = (scenario if scenario is not None else inputs, inputs, W)
         if x0 is None:
             x0 = self.plant.initial_state(params, load_force=float(W[RUN_INPUTS.index("load_force"), 0]))
-        z = loop.initial_state(x0, k)
+        z0 = loop.initial_state(x0, k)
+        return _Prepared(loop, extensions, scenario, inputs, design, params, h, decimation, z0, W, theta)
 
-        run_loop, cinfo = self._compiled_loop(loop)
-        t0 = time.perf_counter()
-        if run_loop is not None:
-            Y, z = run_loop(z, W, theta, decimation)
-        else:
-            Y, z = self._run_interpreted(extensions, z, W, theta, decimation)
-        wall = time.perf_counter() - t0
+    def _result(self, prep: "_Prepared", Y: np.ndarray, z: np.ndarray, wall: float, cinfo: dict, *,
+                batch: int | None = None) -> SimulationResult:
+        h, decimation, inputs = prep.h, prep.decimation, prep.inputs
         n_out = Y.shape[1]
         if not np.all(np.isfinite(Y)):
             bad = np.argwhere(~np.isfinite(Y))[0]
             raise ThsaError(f"simulation of {inputs.name!r} diverged (non-finite signal at t = {bad[1] * decimation * h:g} s)")
-        signals = {}
-        for i, name in enumerate(loop.signals):
-            arr = Y[i].copy()
-            arr.setflags(write=False)
-            signals[name] = arr
+        Y.setflags(write=False)  # one block, row per signal: the signals are read-only views of it
+        signals = dict(zip(prep.loop.signals, Y))
         t = np.arange(n_out) * decimation * h
         t.setflags(write=False)
         info = {"wall_s": wall, "compile": dict(cinfo), "control_period_s": h, "output_period_s": decimation * h,
                 "substeps": self.settings.substeps, "final_state": z}
-        for e in extensions:
-            info.update(e.info(scenario))
-        return SimulationResult(t, MappingProxyType(signals), MappingProxyType(dict(loop.units)), self.plant.effects,
-                                inputs.name, design, params, inputs, info)
+        if batch is not None:
+            info["batch"] = batch
+        for e in prep.extensions:
+            info.update(e.info(prep.scenario))
+        return SimulationResult(t, MappingProxyType(signals), MappingProxyType(dict(prep.loop.units)),
+                                self.plant.effects, inputs.name, prep.design, prep.params, inputs, info)
+
+
+@dataclass(frozen=True)
+class _Prepared:
+    loop: ClosedLoop
+    extensions: tuple
+    scenario: Scenario | None
+    inputs: InputSeries
+    design: Design
+    params: ParameterSet
+    h: float
+    decimation: int
+    z0: np.ndarray
+    W: np.ndarray
+    theta: np.ndarray
+
+
+def stack_signals(results, names=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(time, Y)`` of runs of one length: ``Y[r, i, :]`` is signal ``names[i]`` (default: all) of run ``r``."""
+    results = list(results)
+    if not results:
+        raise ValueError("stack_signals: no results")
+    names = list(names) if names is not None else list(results[0].names)
+    n = len(results[0].time)
+    if any(len(r.time) != n for r in results):
+        raise ValueError("stack_signals: runs of different lengths")
+    return results[0].time, np.stack([np.stack([r[k] for k in names]) for r in results])
+
+
+def available_cpus() -> int:
+    """CPUs this process may run on."""
+    try:
+        return max(len(os.sched_getaffinity(0)), 1)
+    except (AttributeError, OSError):
+        return max(os.cpu_count() or 1, 1)
+
+
+def _broadcast(**fields) -> list[dict]:
+    """One dict per run from values that are one for all runs or a list/tuple of one per run."""
+    lengths = {k: len(v) for k, v in fields.items() if isinstance(v, list) or (isinstance(v, tuple) and k != "x0")}
+    if "x0" in fields and isinstance(fields["x0"], (list, tuple)):
+        lengths["x0"] = len(fields["x0"])
+    if len(set(lengths.values())) > 1:
+        raise ValueError(f"run_batch: lists of different lengths {lengths}")
+    n = next(iter(lengths.values()), 1)
+    if n == 0:
+        return []
+    return [{k: (v[i] if k in lengths else v) for k, v in fields.items()} for i in range(n)]
 
 
 def simulate(scenario: Scenario | InputSeries, design: Design, params: ParameterSet, *, level: str | None = "A",

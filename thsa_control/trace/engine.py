@@ -48,17 +48,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..data.rigdata import RigRun
+from ..data.rigdata import RigRun, measured_motor_speed, motor_speed_from
 from ..errors import ThsaError
 from ..fit.identify import IdentificationSettings, Identifier, estimate_noise
 from ..fit.profile import chi2_by_channel
 from ..fit.replay import channel_fit
 from ..fit.residuals import quadrant, reversal_proximity
-from ..model import EFFECTS, build_plant, resolve_effects
-from ..model.fault_effects import FAULT_EFFECTS
+from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
 from ..model.params import ParameterSet, default_parameters
-from ._threads import limit_blas_threads
-from .signature import SignatureSettings, missing_torque, sensor_consistency, signature_tests
+from .threads import limit_blas_threads
+from .signature import (SignatureSettings, binned_mean, cross_correlation, current_offset_test, missing_torque,
+                        sensor_consistency, signature_tests)
 
 __all__ = ["TraceSettings", "CandidateSpec", "CANDIDATES", "DEFAULT_UNCERTAIN", "TraceResult", "trace",
            "candidate_specs", "TRACE_FORMAT"]
@@ -78,54 +78,80 @@ DEFAULT_UNCERTAIN["C"] = DEFAULT_UNCERTAIN["B"]
 DEFAULT_UNCERTAIN["D"] = DEFAULT_UNCERTAIN["B"]
 
 
-@dataclass(frozen=True)
-class CandidateSpec:
-    """How one candidate effect is added and fitted.
+class _CandidateView(Mapping):
+    """The registered effects' tracer candidate specs by name (a live view of the registry).
 
-    ``free``: its parameters identified with the declared ones; ``seeds``:
-    starting values where the parameter file has the effect off (0);
-    ``window``: where it acts (``moving``, ``all``, ``loaded``, ``reversal``,
-    ``reversal_or_stop``, ``cold``); ``channel``: the channel where it shows most; ``profile``:
-    parameters that act through a switch (no gradient), searched over a range
-    ``(lo, hi)`` by :func:`~thsa_control.fit.profile.profile_identify` (the
-    first finely, the others where they matter) while ``free`` is fitted at
-    each value.
+    Each effect declares its spec (or why it is not a candidate) with its other
+    knowledge (:class:`~thsa_control.model.Effect`); this view lists the specs.
     """
 
-    name: str
-    free: tuple[str, ...]
-    seeds: Mapping[str, float] = field(default_factory=dict)
-    window: str = "moving"
-    channel: str = "motor_speed"
-    profile: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    def __getitem__(self, name: str) -> CandidateSpec:
+        spec = EFFECTS[name].candidate if name in EFFECTS else None
+        if not isinstance(spec, CandidateSpec):
+            raise KeyError(name)
+        return spec
+
+    def __iter__(self):
+        return (n for n, e in EFFECTS.items() if isinstance(e.candidate, CandidateSpec))
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
 
 
-CANDIDATES: dict[str, CandidateSpec] = {c.name: c for c in (
-    CandidateSpec("coulomb_friction", ("drive.coulomb_torque",), {"drive.coulomb_torque": 0.02}),
-    CandidateSpec("direction_friction", ("drive.direction_coulomb_torque",), {"drive.direction_coulomb_torque": 0.01}),
-    CandidateSpec("force_offset", ("drive.axial_force_offset",), {"drive.axial_force_offset": 200.0}, "all"),
-    CandidateSpec("screw_friction_ripple", ("drive.screw_ripple_torque_cos", "drive.screw_ripple_torque_sin"),
-                  {"drive.screw_ripple_torque_cos": 0.005, "drive.screw_ripple_torque_sin": 0.005}),
-    CandidateSpec("cogging_torque", ("drive.cogging_torque_cos", "drive.cogging_torque_sin"),
-                  {"drive.cogging_torque_cos": 0.005, "drive.cogging_torque_sin": 0.005}),
-    CandidateSpec("noback_quadrant_friction", ("noback.mu_coulomb_pos", "noback.mu_coulomb_neg"), {}, "loaded"),
-    # the pawl switch gives no gradient: the pitch (papers: 8.57 deg max; searched 1.7..17 deg) is profiled,
-    # each value with segment clearances of its own; the initial clearance only where it matters.  It acts
-    # after a reversal and at a stop under load (the load back-drives through the clearance)
-    CandidateSpec("noback_backlash", (), {}, "reversal_or_stop",
-                  profile={"noback.pawl_pitch": (0.03, 0.3), "noback.pawl_initial_clearance": (0.0, 1.0)}),
-    CandidateSpec("loadpath_compliance", ("loadpath.contact_stiffness_upper", "loadpath.contact_stiffness_lower"),
-                  {}, "loaded", "nut_position"),
-    CandidateSpec("temperature_friction", ("friction.cold_coulomb_torque", "friction.viscous_temperature_coefficient"),
-                  {}, "cold"),
-    # only the series stiffness is identifiable: the gearbox's is freed, the screw's and the damping held
-    CandidateSpec("drivetrain_compliance", ("gear.torsional_stiffness",), {}, "all", "screw_speed"),
-)}
-#: Effects that are configurations or faults, not candidates of a healthy rig's residual: the fault
-#: effects (a jam, a load-path failure, the end stops, the limiter's slip, the motor brakes) act through an
-#: event or a threshold that gives a fit no gradient on data where they do not fire.  Name one in
-#: ``candidates`` to score it anyway.
-NOT_CANDIDATES = ("standby_motor", "noback_ideal", *FAULT_EFFECTS)
+#: Candidate spec of every registered effect that is a candidate.
+CANDIDATES: Mapping[str, CandidateSpec] = _CandidateView()
+
+
+def not_candidates() -> tuple[str, ...]:
+    """Effects that are configurations or faults, not candidates of a healthy rig's residual.
+
+    Each says why (``Effect.candidate`` is a :class:`~thsa_control.model.NotCandidate`): the fault
+    effects (a jam, a load-path failure, the end stops, the limiter's slip, the motor brakes) act
+    through an event or a threshold that gives a fit no gradient on data where they do not fire.
+    Name one in ``candidates`` to score it anyway.
+    """
+    return tuple(n for n, e in EFFECTS.items() if not isinstance(e.candidate, CandidateSpec))
+
+
+#: The base correction's efficiency explainer: not an effect but the declared ball screw's efficiencies freed
+#: within their plausible spread (the rig's screw may be a little better or worse than the file says; a
+#: load-proportional drag while driving, such as a no-back that drags, is the same torque)
+EFFICIENCY_EXPLAINER = CandidateSpec("efficiency", ("screw.efficiency_direct", "screw.efficiency_inverse"), {}, "loaded",
+                                     base_correction=True, plausible={"screw.efficiency_direct": "efficiency",
+                                                                      "screw.efficiency_inverse": "efficiency"})
+
+
+def _rule_drag(params: ParameterSet, runs) -> tuple[float, str]:
+    t = 0.03 * params.value("motor.rated_torque")
+    return t, (f"3 % of motor.rated_torque ({params.value('motor.rated_torque'):g} N m) = {t:.3g} N m at the motor shaft: "
+               "a healthy drive's no-load drag is about 2 % of rated torque (the parameter file's gear.viscous_friction "
+               "source), with half as much again for a rig's seals and bearings")
+
+
+def _rule_axial(params: ParameterSet, runs) -> tuple[float, str]:
+    fmax = max((float(np.nanmax(np.abs(np.asarray(r.signals["load_force"], float)))) for r in runs), default=0.0)
+    f = 100.0 + 0.01 * fmax
+    return f, (f"100 N + 1 % of the largest measured load ({fmax:.0f} N) = {f:.0f} N: a load cell calibrated to 1 % of "
+               "the range the rig uses plus 100 N of fixture weight and seal drag; an axial force of kilonewtons the "
+               "load cell does not see is not a rig's base but an effect")
+
+
+def _rule_periodic(params: ParameterSet, runs) -> tuple[float, str]:
+    t = 0.05 * params.value("motor.rated_torque")
+    return t, (f"5 % of motor.rated_torque = {t:.3g} N m amplitude at the motor shaft: servo-motor cogging and ball-screw "
+               "friction ripple are a few per cent of rated torque (catalogue cogging below 2 %)")
+
+
+def _rule_efficiency(params: ParameterSet, runs) -> tuple[float, str]:
+    return 0.05, ("+-0.05 around the parameter file's efficiency: the spread of catalogue ball-screw efficiencies at "
+                  "one lead and diameter")
+
+
+#: Plausible magnitudes (rule -> function(params, runs) -> (bound, where the bound comes from)).
+PLAUSIBLE: dict[str, Callable] = {"drag": _rule_drag, "axial_force": _rule_axial, "periodic": _rule_periodic,
+                                  "efficiency": _rule_efficiency}
+
+
 
 
 @dataclass(frozen=True)
@@ -169,6 +195,17 @@ class TraceSettings:
     seed : int
         Noise of the null runs.
     signature : SignatureSettings
+    base_corrections : bool or None
+        Fit the base-correction step first (the constant-torque explainers
+        and the screw efficiencies within their plausible magnitudes,
+        :data:`PLAUSIBLE`), reported as base corrections, not as found
+        effects.  None: on when the candidates are the default pool (a named
+        candidate list is scored as effects only, as before).
+    undetermined_relative_stderr : float
+        A candidate's parameter whose standard error exceeds this multiple of
+        its reference magnitude (file value, seed or plausible bound), or is
+        undetermined, is not determined by the run: it is held at its file
+        value, the candidate refitted and judged on what the others explain.
     """
 
     segment_duration: float = 0.05
@@ -188,6 +225,8 @@ class TraceSettings:
     workers: int = 2
     seed: int = 0
     signature: SignatureSettings = field(default_factory=SignatureSettings)
+    base_corrections: bool | None = None
+    undetermined_relative_stderr: float = 1.0
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad field."""
@@ -236,7 +275,8 @@ def candidate_specs(model_effects: Iterable[str], params: ParameterSet, names: S
                     ) -> list[CandidateSpec]:
     """Candidates for a model: every library effect it does not declare (or ``names``)."""
     have = set(model_effects)
-    pool = names if names is not None else [e for e in EFFECTS if e not in NOT_CANDIDATES]
+    excluded = not_candidates()
+    pool = names if names is not None else [e for e in EFFECTS if e not in excluded]
     out = []
     for n in pool:
         if n in have:
@@ -249,9 +289,7 @@ def candidate_specs(model_effects: Iterable[str], params: ParameterSet, names: S
 
 def _window(kind: str, run: RigRun) -> np.ndarray:
     s = run.signals
-    w = np.asarray(s["motor_speed"] if "motor_speed" in run.source_columns else s["screw_speed"] * run.gear_ratio,
-                   float)
-    w = np.nan_to_num(w)
+    w = np.nan_to_num(measured_motor_speed(run))
     moving = np.abs(w) > 0.05 * max(float(np.max(np.abs(w))), 1e-9)
     load = np.asarray(s["load_force"], float)
     if kind == "all":
@@ -279,6 +317,7 @@ def _fit_job(job: dict) -> dict:
     """One identification, summarised (picklable in and out)."""
     t0 = time.perf_counter()
     limit_blas_threads(1)
+    held: dict = {}
     try:
         params = ParameterSet.from_toml(job["params_toml"])
         prof = None
@@ -291,6 +330,21 @@ def _fit_job(job: dict) -> dict:
         else:
             ident = Identifier(None, params, job["free"], effects=job["effects"], settings=job["settings"])
             res = ident.fit(job["runs"])
+            held = _undetermined(res, job.get("judge") or {}, job.get("relative_stderr", 1.0))
+            if held and len(held) < len(job.get("judge") or {}):
+                # identifiability before plausibility: hold what the run does not determine at its file
+                # value and judge the candidate on what the others explain
+                keep = tuple(n for n in job["free"] if n not in held)
+                params = params.replace({n: job["hold_at"][n] for n in held})
+                settings = dataclasses.replace(job["settings"], no_prior=tuple(n for n in job["settings"].no_prior
+                                                                               if n in keep))
+                res = Identifier(None, params, keep, effects=job["effects"], settings=settings).fit(job["runs"])
+                job = {**job, "free": keep}
+                for n, h in held.items():
+                    h["held_at"] = job["hold_at"][n]
+            elif held:
+                for h in held.values():
+                    h["held_at"] = None  # nothing determined: the candidate is judged as such
     except (ThsaError, ValueError, RuntimeError) as exc:  # casadi raises RuntimeError
         return {"label": job["label"], "error": str(exc), "time_s": time.perf_counter() - t0}
     est = {n: {"value": e.value, "stderr": e.stderr if math.isfinite(e.stderr) else None, "init": e.init,
@@ -303,10 +357,44 @@ def _fit_job(job: dict) -> dict:
                       "profiled": True, "mattered": prof.mattered[n]}
     preds = {r: {"time": p["time"], "measured": dict(p["measured"]), "simulated": dict(p["simulated"]),
                  "holdout": p["holdout"], "segment_starts": p["segment_starts"]} for r, p in res.predictions.items()}
+    if prof is None:
+        for n, h in held.items():
+            if h.get("held_at") is not None:
+                e = params[n]
+                est[n] = {"value": h["held_at"], "stderr": None, "init": h["held_at"], "at_bound": None, "min": e.min,
+                          "max": e.max, "unit": e.unit, "held": True, "undetermined": h}
+            elif n in est:
+                est[n]["undetermined"] = h
     return {"label": job["label"], "effects": list(res.effects), "free": list(job["free"]), "estimates": est,
+            "held": {n: h for n, h in held.items() if h.get("held_at") is not None},
             "aic": res.aic, "bic": res.bic, "chisqr": res.chisqr, "nfev": res.nfev, "converged": res.converged,
             "status": res.status, "time_s": time.perf_counter() - t0, "predictions": preds,
             "params_toml": res.to_parameter_set().to_toml(), "profile": prof.to_dict() if prof is not None else None}
+
+
+def _undetermined(res, judge: Mapping[str, float], rel: float) -> dict:
+    """Parameters of ``judge`` (name -> reference magnitude) the fit does not determine.
+
+    Not determined: an infinite standard error (a null direction of the
+    Fisher information: the run has no information on it, or only together
+    with another parameter), or one larger than ``rel`` times the parameter's
+    reference magnitude (the run cannot tell the value from zero nor from
+    twice its size).  A parameter so determined that it collapses to zero is
+    not here: that is a verdict on the effect (:func:`_plausibility`).
+    """
+    out = {}
+    for n, ref in judge.items():
+        e = res.estimates.get(n)
+        if e is None:
+            continue
+        sd = e.stderr
+        if not math.isfinite(sd):
+            out[n] = {"reason": "undetermined standard error (no information in this run, or only together with "
+                                "another parameter)", "value_if_free": e.value, "stderr_if_free": None}
+        elif sd > rel * ref:
+            out[n] = {"reason": f"standard error {sd:.3g} {e.unit} exceeds {rel:g} x its reference magnitude "
+                                f"{ref:.3g} {e.unit}", "value_if_free": e.value, "stderr_if_free": sd}
+    return out
 
 
 def _run_jobs(jobs: list[dict], workers: int, progress: Callable | None) -> list[dict]:
@@ -366,14 +454,25 @@ def _channel_errors(fit: dict) -> dict:
     return out
 
 
-def _plausibility(fit: dict, spec: CandidateSpec) -> tuple[bool, list[str]]:
-    """Plausible: no parameter at a bound, none collapsing to zero, at least one determined by the data.
+def _plausibility(fit: dict, spec: CandidateSpec, plaus: Mapping | None = None) -> tuple[bool, list[str]]:
+    """Plausible: no parameter at a bound, none collapsing to zero, at least one determined by the data,
+    no periodic torque larger than a healthy drive's (:data:`PLAUSIBLE`).
 
-    A parameter the runs do not excite (undetermined: e.g. the retraction friction of a run that only
-    extends) stays near its file value and does not disqualify the candidate.
+    A parameter the run does not determine was held at its file value (``held``) and is not judged: "collapses
+    to zero" is a verdict only for a parameter the data determine.
     """
     why, determined = [], 0
-    est = [(n, fit["estimates"][n]) for n in spec.free if n in fit["estimates"]]
+    est = [(n, fit["estimates"][n]) for n in spec.free if n in fit["estimates"] and not fit["estimates"][n].get("held")]
+    lost = [n for n in spec.free if fit["estimates"].get(n, {}).get("undetermined")
+            and not fit["estimates"][n].get("held")]
+    if lost:
+        why.append("no parameter determined by the run: " + ", ".join(lost))
+    periodic = [n for n in spec.free if spec.plausible.get(n) == "periodic"]
+    if plaus and periodic and all(n in fit["estimates"] for n in periodic):
+        amp = math.hypot(*(fit["estimates"][n]["value"] for n in periodic))
+        bound, src = plaus["periodic"]
+        if amp > bound:
+            why.append(f"amplitude {amp:.3g} N m exceeds the plausible {bound:.3g} N m ({src})")
     for n in spec.profile:  # profiled: determined when its profile interval closes inside the search range
         e = fit["estimates"].get(n)
         if e is None or not e.get("mattered"):
@@ -399,9 +498,120 @@ def _plausibility(fit: dict, spec: CandidateSpec) -> tuple[bool, list[str]]:
                         b["stderr"] if b["stderr"] is not None else math.inf)
         if not amp > 2 * sd:
             why.append(f"amplitude {amp:.3g} collapses to zero (stderr {sd:.2g})")
-    if (est or spec.profile) and determined == 0:
+    if (est or spec.profile) and determined == 0 and not any("determined" in w for w in why):
         why.append("no parameter determined by the data")
     return not why, why
+
+
+def _param_entry(e: dict) -> dict:
+    sd = e["stderr"]
+    ci = [e["value"] - 1.96 * sd, e["value"] + 1.96 * sd] if sd is not None else e.get("interval")
+    return {"value": e["value"], "stderr": sd, "unit": e["unit"], "ci95": list(ci) if ci else None,
+            "at_bound": e["at_bound"], **({"profiled": True} if e.get("profiled") else {}),
+            **({"held": True} if e.get("held") else {})}
+
+
+def _held_out(fit: dict) -> list[dict]:
+    """The parameters a candidate fit held at their file values because the run does not determine them."""
+    return [{"parameter": n, "held_at": h["held_at"], "unit": fit["estimates"].get(n, {}).get("unit", ""),
+             "reason": h["reason"], "value_if_free": h["value_if_free"], "stderr_if_free": h["stderr_if_free"]}
+            for n, h in (fit.get("held") or {}).items()]
+
+
+def _held_params(toml: str, fit: dict) -> str:
+    """A job's parameter set with the fit's held parameters at their held values (for its null run)."""
+    held = fit.get("held") or {}
+    if not held:
+        return toml
+    return ParameterSet.from_toml(toml).replace({n: h["held_at"] for n, h in held.items()}).to_toml()
+
+
+def _signature_brief(sig: dict) -> dict:
+    """What a round leaves: the structured tests (name, kind, size) and whether anything is structured."""
+    tests = [t for t in sig.get("tests", []) + sig.get("sensors", []) if t["significant"]]
+    return {"unexplained": bool(tests), "structured": [t["variable"] for t in tests],
+            "missing_torque_rms": sig.get("missing_torque_rms"),
+            "tests": [{k: t[k] for k in ("variable", "kind", "size", "unit", "p_value") if k in t} for t in tests]}
+
+
+def _base_correction(first: dict, declared, uncertain, params: ParameterSet, plaus: dict, fit_runs, noise, st,
+                     job: Callable, say: Callable) -> dict:
+    """The base-correction step: what every real drive has and the declared level may lack.
+
+    The constant-torque explainers (a Coulomb drag, an axial force the load cell does not see) and the ball
+    screw's efficiencies are fitted together with the declared uncertain set,
+    each inside its plausible magnitude (:data:`PLAUSIBLE`, the bound's source reported) and with a prior at
+    0 (the file's efficiency) of half that size, so that explainers that stand for the same torque share it
+    instead of drifting along their common direction.  Accepted when the held-out chi2 drop passes the
+    ``chi2(k)`` test.  An explainer at its bound is offered later as a found-effect candidate (the same
+    effect beyond what a rig's base can be).
+    """
+    from scipy.stats import chi2
+
+    # a drag is symmetric: the direction-dependent part of a rig's base is what the efficiencies (load
+    # proportional) and an axial force give; a direction drag on top would double the plausible drag one way
+    explainers = [CANDIDATES[n] for n in ("coulomb_friction", "force_offset")
+                  if n in CANDIDATES and n not in declared] + [EFFICIENCY_EXPLAINER]
+    bounds, priors, sources, owner = {}, {}, {}, {}
+    for e in explainers:
+        for n in e.free:
+            if n not in params:
+                continue
+            b, src = plaus[e.plausible[n]]
+            if e.plausible[n] == "efficiency":
+                v = params.value(n)
+                lo, hi, centre = max(v - b, params[n].min), min(v + b, params[n].max), v
+            elif params[n].min >= 0:
+                lo, hi, centre = 0.0, b, 0.0
+            else:
+                lo, hi, centre = -b, b, 0.0
+            bounds[n], priors[n], sources[n], owner[n] = (lo, hi), (centre, 0.5 * b), src, e.name
+    effs = resolve_effects(None, add=list(declared) + [e.name for e in explainers if e.name in EFFECTS])
+    plant = build_plant(None, effs, params=params)
+    bounds = {n: b for n, b in bounds.items() if n in plant.parameters}
+    pset = params.replace({n: priors[n][0] for n in bounds}).replace_parameters(
+        {n: dataclasses.replace(params[n], value=priors[n][0], min=lo, max=hi) for n, (lo, hi) in bounds.items()})
+    free = tuple(dict.fromkeys(tuple(uncertain) + tuple(bounds)))
+    jb = job("base correction", effs, free, pset, fit_runs, prior=True)
+    jb["settings"] = dataclasses.replace(jb["settings"], priors={n: priors[n] for n in bounds},
+                                         no_prior=tuple(n for n in jb["settings"].no_prior if n not in bounds))
+    f = _run_jobs([jb], 1, None)[0]
+    doc = {"explainers": {n: {"effect": owner[n], "bound": list(bounds[n]), "bound_source": sources[n]}
+                          for n in bounds}}
+    if "error" in f:
+        doc.update(accepted=False, reason=f"fit failed: {f['error']}")
+        return {"accepted": False, "doc": doc}
+    b0 = sum(_chi2_by_channel(first, noise, "holdout").values())
+    b1 = sum(_chi2_by_channel(f, noise, "holdout").values())
+    thr = float(chi2.ppf(1 - st.alpha, len(bounds)))
+    corrections = []
+    for n in bounds:
+        e = f["estimates"][n]
+        lo, hi = bounds[n]
+        hit = _at_edge(e["value"], lo, hi)
+        corrections.append({"effect": owner[n], "parameter": n, **_param_entry(e), "bound": [lo, hi],
+                            "bound_source": sources[n], "at_plausible_bound": bool(hit),
+                            "change": e["value"] - priors[n][0]})
+    accepted = b0 - b1 > thr
+    doc.update(accepted=bool(accepted), holdout_chi2_drop=b0 - b1, chi2_threshold=thr, corrections=corrections,
+               error_before=_channel_errors(first), error_after=_channel_errors(f), effects=list(effs),
+               fit_time_s=f["time_s"])
+    say(f"base correction {'accepted' if accepted else 'not significant'}: held-out chi2 drop {b0 - b1:.4g} "
+        f"(threshold {thr:.3g}); " + ", ".join(f"{c['parameter']} = {c['value']:.4g}" for c in corrections))
+    return {"accepted": bool(accepted), "doc": doc, "fit": f, "effects": effs, "free": free,
+            "priors": {n: priors[n] for n in bounds},
+            "bounds": {n: (*bounds[n], owner[n]) for n in bounds if owner[n] in EFFECTS}}
+
+
+def _at_edge(v: float, lo: float, hi: float) -> bool:
+    edge = 0.02 * (hi - lo)
+    return v >= hi - edge or (lo < 0 and v <= lo + edge)
+
+
+def _explainers_at_bound(fit: dict, base_bounds: Mapping[str, tuple]) -> dict[str, str]:
+    """Explainer parameter -> its effect, for the base corrections at their plausible bound in ``fit``."""
+    return {n: eff for n, (lo, hi, eff) in base_bounds.items()
+            if n in fit["estimates"] and _at_edge(fit["estimates"][n]["value"], lo, hi)}
 
 
 def _null_runs(fit: dict, runs: Sequence[RigRun], noise: Mapping[str, float], seed: int) -> list[RigRun]:
@@ -419,26 +629,23 @@ def _null_runs(fit: dict, runs: Sequence[RigRun], noise: Mapping[str, float], se
 
 
 # ----------------------------------------------------------------------------- signature
-def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, effects, s: SignatureSettings) -> dict:
-    from ..loops.design import reflected_inertia
-
-    inertia = reflected_inertia(params, None, effects)  # the signature's missing torque at the motor shaft
+def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s: SignatureSettings) -> dict:
+    inertia = plant.inertia(params)[1]  # the signature's missing torque at the motor shaft (what the current drives)
     torque: list = []
     vars_: dict = {}
     for run in runs:
         pr = fit["predictions"][run.name]
         n = len(run.time)
-        chan = "motor_speed" if "motor_speed" in pr["measured"] else ("screw_speed" if "screw_speed" in pr["measured"]
-                                                                       else None)
-        if chan is None:
+        meas, sim = pr["measured"], pr["simulated"]
+        # the speed error at the motor shaft, by the rule of a run's motor speed
+        e = motor_speed_from(lambda c: (np.asarray(meas[c]) - np.asarray(sim[c]))[:n] if c in meas else None,
+                             run.gear_ratio)
+        if e is None:
             continue
-        e = (np.asarray(pr["measured"][chan]) - np.asarray(pr["simulated"][chan]))[:n]
-        scale = 1.0 if chan == "motor_speed" else run.gear_ratio
         t = np.asarray(run.time, float)
         starts = np.searchsorted(t, pr["segment_starts"])
-        torque.append(missing_torque(t, e * scale, starts, inertia, s.window))
-        w = np.nan_to_num(np.asarray(run.signals["motor_speed"], float)) if "motor_speed" in run.source_columns \
-            else np.nan_to_num(np.asarray(run.signals["screw_speed"], float)) * run.gear_ratio
+        torque.append(missing_torque(t, e, starts, inertia, s.window))
+        w = np.nan_to_num(measured_motor_speed(run))
         dt = np.r_[np.diff(t), 0.0]
         angle = np.r_[0.0, np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t))]
         load = np.asarray(run.signals["load_force"], float)
@@ -456,6 +663,9 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, effects,
             "motor_angle": ("angle", angle),
             "screw_angle": ("angle", angle / run.gear_ratio),
             "speed_sign": ("category", np.sign(np.where(np.abs(w) > dv, w, 0.0))),
+            # a slow drift (a load cell zero, a warming motor) and a torque-constant error (torque against current)
+            "time (slow drift)": ("linear", t),
+            "motor_current (torque constant)": ("linear", np.asarray(run.signals["motor_current"], float)),
         }
         del dt
         for name, (kind, v) in cols.items():
@@ -472,10 +682,44 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, effects,
                                     gear_ratio=run.gear_ratio, lead=run.screw_lead, alpha=s.alpha):
             d["run"] = run.name
             sensors.append(d)
+        on = (np.asarray(run.signals["primary_enable"]) > 0.5) | (np.asarray(run.signals["standby_enable"]) > 0.5)
+        if run.motor_disabled_when_cmd_zero:
+            on &= np.asarray(run.signals["speed_cmd"]) != 0
+        co = current_offset_test(run.signals["motor_current"], ~on, alpha=s.alpha)
+        if co is not None:
+            co["run"] = run.name
+            sensors.append(co)
     ok = np.isfinite(e_all)
     return {"residual": "missing torque at the motor shaft, J d(speed residual)/dt", "unit": "N m",
             "reflected_inertia": inertia, "missing_torque_rms": float(np.sqrt(np.mean(e_all[ok] ** 2))),
-            "tests": tests, "sensors": sensors}
+            "tests": tests, "sensors": sensors, "curves": _signature_curves(e_all, variables, runs, s)}
+
+
+def _signature_curves(e: np.ndarray, variables: dict, runs, s: SignatureSettings) -> dict:
+    """Binned residual against nut position and motor / screw angle, and the redundant sensors'
+    cross-correlation: the data of the report's signature plots."""
+    out: dict = {}
+    x = variables["nut_position"][1]
+    if np.isfinite(x).sum() > 50 and np.nanmax(x) - np.nanmin(x) >= 2 * s.position_bin:
+        lo, hi = float(np.nanmin(x)), float(np.nanmax(x))
+        out["nut_position"] = binned_mean(e, x, np.arange(lo, hi + s.position_bin, s.position_bin))
+    for name in ("motor_angle", "screw_angle"):
+        out[name] = binned_mean(e, np.mod(variables[name][1], 2 * math.pi), np.linspace(0, 2 * math.pi, 37))
+    cc = {}
+    for run in runs:
+        t = np.asarray(run.time, float)
+        dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+        sig = run.signals
+        if "motor_speed" in run.source_columns and "screw_speed" in run.source_columns:
+            cc[f"{run.name}: motor_speed vs gear_ratio x screw_speed"] = cross_correlation(
+                sig["motor_speed"], run.gear_ratio * np.asarray(sig["screw_speed"], float), dt)
+        if "motor_speed" in run.source_columns and "nut_position" in run.source_columns:
+            x_ = np.asarray(sig["nut_position"], float)
+            cc[f"{run.name}: LVDT rate vs lead/(2 pi N) x motor_speed"] = cross_correlation(
+                np.r_[0.0, np.diff(x_)] / dt, run.screw_lead / (2 * math.pi * run.gear_ratio)
+                * np.asarray(sig["motor_speed"], float), dt)
+    out["cross_correlation"] = cc
+    return out
 
 
 def _regime_errors(fit: dict, runs: Sequence[RigRun]) -> dict:
@@ -552,6 +796,11 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     lvl = (level or "A").upper()
     uncertain = tuple(st.uncertain) if st.uncertain is not None else DEFAULT_UNCERTAIN.get(lvl, DEFAULT_UNCERTAIN["A"])
     base_plant = build_plant(None, declared, params=params)
+
+    def plant_of(effects, p):
+        """The plant of an effect set (the declared one is built once)."""
+        return base_plant if tuple(effects) == tuple(declared) else build_plant(None, effects, params=p)
+
     uncertain = tuple(n for n in uncertain if n in base_plant.parameters)
     # the replay is current-driven: the rig's controller plays no part (and need not be one we model)
     fit_runs = [dataclasses.replace(r, controller=None) for r in runs]
@@ -560,17 +809,30 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     noise = {c: float(np.mean([estimate_noise(r.signals[c]) for r in runs if c in r.source_columns]))
              for c in channels}
 
-    def id_settings(prior: bool = True, no_prior=()) -> IdentificationSettings:
+    def id_settings(prior: bool = True, no_prior=(), priors=None) -> IdentificationSettings:
         return IdentificationSettings(no_prior=tuple(no_prior), segment_duration=st.segment_duration, substeps=st.substeps, channels=channels,
                                       noise=noise, max_nfev=st.max_nfev, tolerance=st.tolerance, time_budget=st.fit_time_budget,
                                       prior_relative_sd=st.prior_relative_sd if prior else None,
-                                      holdout_every=st.holdout_every)
+                                      holdout_every=st.holdout_every, priors=dict(priors or {}) or None)
 
-    def job(label, effs, free, pset, data, prior=True, profile=None):
-        # priors on the declared uncertain parameters only: a candidate's values are seeds
+    plaus = {k: fn(params, runs) for k, fn in PLAUSIBLE.items()}
+    base_priors: dict[str, tuple[float, float]] = {}  # the base corrections' priors (kept in every later fit)
+
+    def job(label, effs, free, pset, data, prior=True, profile=None, spec=None, lift=()):
+        # priors on the declared uncertain parameters and the base corrections only: a candidate's values are seeds
+        pri = {n: v for n, v in base_priors.items() if n in free and n not in lift}
+        judge = {}
+        if spec is not None and not profile:
+            for n in spec.free:
+                if n in uncertain or n in base_priors:
+                    continue
+                ref = max(abs(params.value(n)), abs(spec.seeds.get(n, 0.0)),
+                          plaus[spec.plausible[n]][0] if n in spec.plausible else 0.0)
+                judge[n] = ref if ref > 0 else 0.01 * (params[n].max - params[n].min)
         return {"label": label, "effects": tuple(effs), "free": tuple(free), "params_toml": pset.to_toml(),
-                "settings": id_settings(prior, [n for n in free if n not in uncertain]), "runs": data,
-                "profile": dict(profile or {})}
+                "settings": id_settings(prior, [n for n in free if n not in uncertain and n not in pri], pri),
+                "runs": data, "profile": dict(profile or {}), "judge": judge,
+                "hold_at": {n: params.value(n) for n in judge}, "relative_stderr": st.undetermined_relative_stderr}
 
     say(f"fitting the declared model ({', '.join(declared) or 'level A'}): {', '.join(uncertain)}")
     t0 = time.perf_counter()
@@ -582,10 +844,31 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     first = base
     current, cur_effects, cur_params, cur_free = base, declared, ParameterSet.from_toml(base["params_toml"]), uncertain
     added, rounds, cand_times, ambiguous = [], [], [], []
+    use_base = st.base_corrections if st.base_corrections is not None else st.candidates is None
+    base_doc = None
+    at_plausible_bound: dict[str, str] = {}  # explainer parameter -> its effect, where the base correction hit the bound
+    base_bounds: dict[str, tuple[float, float, str]] = {}  # explainer parameter -> (lo, hi, effect) while bounded
+    if use_base:
+        say("base-correction step: constant-torque explainers and screw efficiencies within plausible magnitudes")
+        bc = _base_correction(first, declared, uncertain, params, plaus, fit_runs, noise, st, job, say)
+        base_doc = bc["doc"]
+        if bc["accepted"]:
+            base_priors.update(bc["priors"])
+            current, cur_effects = bc["fit"], tuple(bc["effects"])
+            cur_params = ParameterSet.from_toml(current["params_toml"])
+            cur_free = tuple(bc["free"])
+            base_bounds = bc["bounds"]
+            at_plausible_bound = _explainers_at_bound(current, base_bounds)
+            base_doc["signature_after"] = _signature_brief(
+                _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature))
     windows_cache = {spec: {r.name: _window(spec, r) for r in runs}
                      for spec in ("moving", "all", "loaded", "reversal", "reversal_or_stop", "cold")}
-    while len(added) < st.max_effects:
+    while sum(1 for e in added if "implied_by" not in e) < st.max_effects:
         specs = candidate_specs(cur_effects, cur_params, st.candidates)
+        # a base correction that ran to its plausible bound: the same effect, larger than a rig's base can be,
+        # is a candidate of its own (its bound lifted to the parameter file's)
+        specs += [dataclasses.replace(CANDIDATES[e], base_correction=False)
+                  for e in dict.fromkeys(at_plausible_bound.values()) if e in CANDIDATES]
         scorable, skipped = [], []
         for spec in specs:
             win = windows_cache[spec.window]
@@ -597,6 +880,13 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             break
         jobs = []
         for spec in scorable:
+            lift = tuple(n for n in spec.free if n in at_plausible_bound)
+            if lift:  # beyond its base correction
+                effs = cur_effects
+                pset = cur_params.replace_parameters({n: dataclasses.replace(cur_params[n], min=params[n].min,
+                                                                             max=params[n].max) for n in lift})
+                jobs.append(job(spec.name, effs, cur_free, pset, fit_runs, lift=lift))
+                continue
             req = [r for r in EFFECTS[spec.name].requires if r not in cur_effects]
             replaced = {x for e in req + [spec.name] for x in EFFECTS[e].supersedes}
             effs = resolve_effects(None, add=[e for e in cur_effects if e not in replaced] + req + [spec.name])
@@ -607,7 +897,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 # centres their priors, at the parameter file's values
                 pset = pset.replace({n: params.value(n) for n in uncertain})
             free = tuple(dict.fromkeys(cur_free + spec.free))
-            jobs.append(job(spec.name, effs, free, pset, fit_runs, profile=spec.profile))
+            jobs.append(job(spec.name, effs, free, pset, fit_runs, profile=spec.profile, spec=spec))
         say(f"round {len(rounds) + 1}: scoring {len(jobs)} candidates ({', '.join(s.name for s in scorable)})")
         fits = _run_jobs(jobs, st.workers, say)
         base_hold = _chi2_by_channel(current, noise, "holdout")
@@ -630,7 +920,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             win_red = {c: (1 - math.sqrt(wc[c] / wb[c])) if wb.get(c, 0) > 0 else 0.0 for c in wc}
             rms_b, rms_c = _rms_by_channel(current), _rms_by_channel(f)
             err_red = {c: (1 - rms_c[c] / rms_b[c]) if rms_b[c] > 0 else 0.0 for c in rms_c}
-            plausible, why = _plausibility(f, spec)
+            plausible, why = _plausibility(f, spec, plaus)
             if win_red.get(spec.channel, 0.0) < -st.max_channel_increase:
                 plausible = False
                 why.append(f"{spec.channel} error grows by {-win_red[spec.channel]:.0%}")
@@ -641,6 +931,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "aic_drop": current["aic"] - f["aic"], "bic_drop": current["bic"] - f["bic"],
                 "plausible": plausible, "implausible_because": why, "parameters": _params_out(f, spec),
                 "fit_time_s": f["time_s"], "converged": f["converged"], "prelim": prelim, "_fit": f, "_job": jb,
+                "not_determined": _held_out(f),
+                **({"beyond_base_correction": True} if any(n in at_plausible_bound for n in spec.free) else {}),
                 **({"profile": f["profile"]} if f.get("profile") else {}),
                 "_noise": noise,
                 "_spec": spec,
@@ -651,10 +943,10 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             null = _null_runs(current, fit_runs, noise, st.seed + len(rounds))
             say(f"calibrating {len(promising)} candidate(s) on a null run")
             null_base = _run_jobs([job("null base", cur_effects, cur_free, cur_params, null)], 1, None)[0]
-            null_fits = _run_jobs([job(f"null {s['name']}", s["_job"]["effects"], s["_job"]["free"],
-                                       ParameterSet.from_toml(s["_job"]["params_toml"]), null,
-                                       profile=s["_job"]["profile"]) for s in promising],
-                                  st.workers, say)
+            null_fits = _run_jobs([{**s["_job"], "label": f"null {s['name']}", "runs": null,
+                                    "free": tuple(s["_fit"]["free"]),
+                                    "params_toml": _held_params(s["_job"]["params_toml"], s["_fit"]), "judge": {}}
+                                   for s in promising], st.workers, say)
             nb = sum(_chi2_by_channel(null_base, noise, "holdout").values()) if "error" not in null_base else math.nan
             for s, nf in zip(promising, null_fits):
                 nd = (nb - sum(_chi2_by_channel(nf, noise, "holdout").values())) if "error" not in nf else math.nan
@@ -685,17 +977,43 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         say(f"added {best['name']}: held-out chi2 drop {best['holdout_chi2_drop']:.4g} "
             f"(null {best.get('null_chi2_drop', float('nan')):.3g})")
         f = best["_fit"]
-        added.append({"name": best["name"], "parameters": best["parameters"], "error_reduction": best["error_reduction"],
-                      "aic_drop": best["aic_drop"], "bic_drop": best["bic_drop"], "score": best["score"],
-                      "window": best["window"], "window_reduction": best["window_reduction"],
-                      "error_before": _channel_errors(current), "error_after": _channel_errors(f),
-                      "segments_explained": _explained_regimes(current, f, runs),
-                      **({"profile": best["profile"]} if best.get("profile") else {})})
+        step = {"name": best["name"], "parameters": best["parameters"], "error_reduction": best["error_reduction"],
+                "aic_drop": best["aic_drop"], "bic_drop": best["bic_drop"], "score": best["score"],
+                "window": best["window"], "window_reduction": best["window_reduction"],
+                "holdout_chi2_drop": best["holdout_chi2_drop"],
+                "error_before": _channel_errors(current), "error_after": _channel_errors(f),
+                "segments_explained": _explained_regimes(current, f, runs),
+                "not_determined": best["not_determined"],
+                **({"beyond_base_correction": True} if best.get("beyond_base_correction") else {}),
+                **({"profile": best["profile"]} if best.get("profile") else {})}
+        refines = [x for x in EFFECTS[best["name"]].supersedes if x in cur_effects]
+        if refines:  # a detailed model of a declared component (the rig's no-back for the level's ideal one)
+            step["refines_declared"] = refines
+        added.append(step)
+        # effects the added one needs come with it (noback_backlash pulls in noback_quadrant_friction)
+        for r in best["_job"]["effects"]:
+            if r not in cur_effects and r != best["name"]:
+                spec_r = CANDIDATES.get(r)
+                names_r = (spec_r.free if spec_r else ()) or tuple(EFFECTS[r].parameters)
+                added.append({"name": r, "implied_by": best["name"],
+                              "parameters": {n: _param_entry(f["estimates"][n]) for n in names_r
+                                             if n in f["estimates"]},
+                              "held_at_file_values": [n for n in names_r if n not in f["estimates"]],
+                              "error_reduction": best["error_reduction"], "window": best["window"],
+                              "window_reduction": best["window_reduction"],
+                              "error_before": step["error_before"], "error_after": step["error_after"],
+                              "not_determined": [], "aic_drop": None, "bic_drop": None, "score": None})
         current, cur_effects = f, tuple(best["_job"]["effects"])
         cur_params = ParameterSet.from_toml(f["params_toml"])
-        cur_free = tuple(best["_job"]["free"])
-    sig_before = _signature(first, runs, ParameterSet.from_toml(first["params_toml"]), declared, st.signature)
-    sig_after = _signature(current, runs, cur_params, cur_effects, st.signature)
+        cur_free = tuple(f["free"])
+        # the explainers still bounded are re-judged on the new fit: one at its bound is offered beyond it
+        lifted = set(best["_spec"].free) if best.get("beyond_base_correction") else set()
+        base_bounds = {n: b for n, b in base_bounds.items() if n not in lifted}
+        at_plausible_bound = _explainers_at_bound(f, base_bounds)
+        rounds[-1]["signature_after"] = _signature_brief(
+            _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature))
+    sig_before = _signature(first, runs, ParameterSet.from_toml(first["params_toml"]), base_plant, st.signature)
+    sig_after = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature)
     structured = [t for t in sig_after["tests"] + sig_after["sensors"] if t["significant"]]
     doc = {
         "format": TRACE_FORMAT,
@@ -708,6 +1026,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         "uncertain_parameters": list(uncertain),
         "base_parameters": {n: v for n, v in first["estimates"].items()},
         "effects_added": added,
+        "found_effects": [e["name"] for e in added],
+        "base_corrections": base_doc,
         "error_before": _channel_errors(first),
         "error_after": _channel_errors(current),
         "error_by_regime_before": _regime_errors(first, runs),
@@ -757,16 +1077,7 @@ def _holdout_samples(fit: dict) -> int:
 
 
 def _params_out(f: dict, spec: CandidateSpec) -> dict:
-    out = {}
-    for n in (*spec.free, *spec.profile):
-        e = f["estimates"].get(n)
-        if e is None:
-            continue
-        sd = e["stderr"]
-        ci = [e["value"] - 1.96 * sd, e["value"] + 1.96 * sd] if sd is not None else e.get("interval")
-        out[n] = {"value": e["value"], "stderr": sd, "unit": e["unit"], "ci95": list(ci) if ci else None,
-                  "at_bound": e["at_bound"], **({"profiled": True} if e.get("profiled") else {})}
-    return out
+    return {n: _param_entry(f["estimates"][n]) for n in (*spec.free, *spec.profile) if n in f["estimates"]}
 
 
 def _explained_regimes(before: dict, after: dict, runs) -> dict:

@@ -14,9 +14,9 @@ Each test regresses the residual on one variable and gives
 * ``size``: RMS of the explained part, in the residual's unit;
 * ``r2``: fraction of the residual variance it explains;
 * ``p_value``: F test of that regression with the sample count reduced to the
-  effective one of an autocorrelated residual (``n (1 - rho) / (1 + rho)``,
-  ``rho`` its lag-1 autocorrelation), so that smooth noise does not look
-  significant;
+  effective one of the regression's autocorrelated residual (``n / tau``,
+  ``tau`` its integrated autocorrelation time), so that smooth noise does not
+  look significant;
 * ``significant``: ``p_value < alpha`` and ``r2 >= min_r2``.
 
 Variables (FORMAT.md signs): load quadrant (aiding / opposing / unloaded),
@@ -37,7 +37,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missing_torque"]
+from ..model.laws import kinematic_ratio
+
+__all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missing_torque", "current_offset_test",
+           "binned_mean", "cross_correlation"]
 
 
 @dataclass(frozen=True)
@@ -84,8 +87,40 @@ def _effective_n(e: np.ndarray) -> float:
     return e.size * (1 - rho) / (1 + rho)
 
 
+def _effective_n_iact(r: np.ndarray, max_lag: int = 500) -> float:
+    """Effective sample count ``n / tau`` of a stationary series, ``tau`` its integrated autocorrelation
+    time by Geyer's initial positive sequence (pairs of autocorrelations summed while positive).
+
+    The lag-1 rule ``n (1 - rho) / (1 + rho)`` assumes an AR(1) series; the missing torque is a smoothed
+    derivative, whose lag-1 correlation is near 1 but whose correlation dies within the filter window
+    (and turns negative), so that rule counts a few dozen samples in thousands and no structure is ever
+    significant (a friction bump of a few tenths of an ampere at one nut position went unflagged).
+    """
+    n = r.size
+    if n < 8:
+        return float(n)
+    x = r - r.mean()
+    m = 1 << int(math.ceil(math.log2(2 * n)))
+    f = np.fft.rfft(x, m)
+    ac = np.fft.irfft(f * np.conj(f), m)[:min(max_lag, n - 1) + 1]
+    if ac[0] <= 0:
+        return float(n)
+    rho = ac / ac[0]
+    tau = -1.0
+    for j in range(0, rho.size - 1, 2):
+        g = rho[j] + rho[j + 1]
+        if g <= 0:
+            break
+        tau += 2.0 * g
+    return float(n / max(tau, 1.0))
+
+
 def _f_test(e: np.ndarray, fitted: np.ndarray, k: int) -> tuple[float, float, float]:
-    """(size, r2, p) of a regression with ``k`` regressors beyond the mean."""
+    """(size, r2, p) of a regression with ``k`` regressors beyond the mean.
+
+    The sample count is the effective one of the regression's own residual (what the null hypothesis
+    leaves: correlated noise), by its integrated autocorrelation time.
+    """
     from scipy.stats import f as f_dist
 
     x = e - e.mean()
@@ -94,7 +129,7 @@ def _f_test(e: np.ndarray, fitted: np.ndarray, k: int) -> tuple[float, float, fl
     if tot <= 0 or k <= 0:
         return 0.0, 0.0, 1.0
     r2 = min(expl / tot, 1.0)
-    n_eff = _effective_n(e)
+    n_eff = _effective_n_iact(x - fitted)
     dof2 = n_eff - k - 1
     if dof2 <= 1:
         return math.sqrt(expl / e.size), r2, 1.0
@@ -134,7 +169,8 @@ def signature_tests(residual, variables: dict, *, unit: str = "N m",
     variables : dict name -> (kind, values)
         ``kind``: ``"category"`` (labels), ``"quantile"`` (continuous, binned
         by quantiles), ``"position"`` (binned ``position_bin`` wide),
-        ``"angle"`` (radians; Fourier series up to ``harmonics``).
+        ``"angle"`` (radians; Fourier series up to ``harmonics``), ``"linear"``
+        (one regressor: a slow drift in time, a torque proportional to current).
     """
     s = settings or SignatureSettings()
     e_all = np.asarray(residual, float)
@@ -160,6 +196,16 @@ def signature_tests(residual, variables: dict, *, unit: str = "N m",
             out.append(_result(name, "periodic", size, r2, p, s, unit, dominant_harmonic=best,
                                dominant_amplitude=float(amps[best - 1]),
                                harmonic_amplitudes=[float(a) for a in amps]))
+            continue
+        if kind == "linear":  # one regressor (a slow drift in time, a torque-constant error against current)
+            x = e - e.mean()
+            vc = v - v.mean()
+            den = float(vc @ vc)
+            if den <= 0:
+                continue
+            slope = float(vc @ x) / den
+            size, r2, p = _f_test(e, slope * vc, 1)
+            out.append(_result(name, "linear", size, r2, p, s, unit, slope=slope))
             continue
         if kind == "category":
             labels = v
@@ -230,7 +276,8 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
             x = np.interp(t, t[np.isfinite(x)], x[np.isfinite(x)]) if np.isfinite(x).sum() > 2 else None
         rate = savgol_filter(x, 31, 2, deriv=1, delta=dt) if x is not None and x.size >= 31 else None
         if rate is not None:
-            pairs.append(("lvdt rate vs lead/(2 pi N) x motor_speed", rate, lead / (2 * math.pi * gear_ratio)
+            r = kinematic_ratio({"screw.lead": lead, "gear.ratio": gear_ratio})  # the run's own kinematics
+            pairs.append(("lvdt rate vs lead/(2 pi N) x motor_speed", rate, r
                           * savgol_filter(np.nan_to_num(np.asarray(w, float)), 31, 2, delta=dt)))
     for name, a, b in pairs:
         d = _gain_lag(a, b, dt)
@@ -243,3 +290,64 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
                     "lag_s": d["lag_s"], "p_value": p, "significant": significant,
                     "size": abs(d["gain"] - 1.0), "unit": "-"})
     return out
+
+
+def current_offset_test(current, drive_off, *, alpha: float = 1e-6, min_offset: float = 0.05) -> dict | None:
+    """Mean of the measured current while the drive is off: a current-sensor offset.
+
+    With the drive gated off the current is zero (the rig's phases decay in a
+    fraction of a millisecond); a mean further from zero than noise allows
+    (effective sample count of an autocorrelated signal) and than
+    ``min_offset`` [A] (a couple of ADC steps) is a sensor offset, which the
+    current loop regulates out while the drive is on, biasing the torque.
+    """
+    from scipy.stats import norm
+
+    i = np.asarray(current, float)
+    off = np.asarray(drive_off, bool) & np.isfinite(i)
+    if off.sum() < 50:
+        return None
+    x = i[off]
+    mu = float(x.mean())
+    sd = float(x.std()) / math.sqrt(max(_effective_n(x), 1.0))
+    z = abs(mu) / sd if sd > 0 else (math.inf if mu != 0 else 0.0)
+    p = float(2 * norm.sf(z)) if math.isfinite(z) else 0.0
+    return {"variable": "motor_current with the drive off", "kind": "sensor_offset", "offset": mu, "stderr": sd,
+            "size": abs(mu), "unit": "A", "p_value": p, "samples": int(off.sum()),
+            "significant": bool(p < alpha and abs(mu) > min_offset)}
+
+
+def binned_mean(e, v, edges) -> dict:
+    """Mean and count of ``e`` in the bins ``edges`` of ``v`` (NaN skipped): the curves of the report."""
+    e, v = np.asarray(e, float), np.asarray(v, float)
+    ok = np.isfinite(e) & np.isfinite(v)
+    idx = np.searchsorted(edges, v[ok], side="right") - 1
+    nb = len(edges) - 1
+    good = (idx >= 0) & (idx < nb)
+    cnt = np.bincount(idx[good], minlength=nb)
+    tot = np.bincount(idx[good], weights=e[ok][good], minlength=nb)
+    sq = np.bincount(idx[good], weights=e[ok][good] ** 2, minlength=nb)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = tot / cnt
+        sd = np.sqrt(np.maximum(sq / cnt - mean**2, 0.0))
+    centres = 0.5 * (np.asarray(edges[:-1]) + np.asarray(edges[1:]))
+    keep = cnt > 0
+    return {"centre": centres[keep].tolist(), "mean": mean[keep].tolist(), "sd": sd[keep].tolist(),
+            "count": cnt[keep].astype(int).tolist()}
+
+
+def cross_correlation(a, b, dt: float, max_lag: int = 40) -> dict:
+    """Normalised cross-correlation of the sample differences of two redundant signals against lag [s].
+
+    Differences (accelerations for speeds) make the peak sharp; a healthy pair peaks at lag 0 with 1.
+    """
+    a, b = np.diff(np.asarray(a, float)), np.diff(np.asarray(b, float))
+    ok = np.isfinite(a) & np.isfinite(b)
+    a, b = a[ok] - a[ok].mean(), b[ok] - b[ok].mean()
+    lags, cc = [], []
+    for lag in range(-max_lag, max_lag + 1):
+        x, y = (b[:b.size - lag], a[lag:]) if lag >= 0 else (b[-lag:], a[:a.size + lag])
+        den = math.sqrt(max(float(x @ x) * float(y @ y), 1e-300))
+        lags.append(lag * dt)
+        cc.append(float(x @ y) / den)
+    return {"lag_s": lags, "correlation": cc}

@@ -1,0 +1,123 @@
+"""Regenerate the rig-sim runs of the foreign-data tracer tests (tests/test_trace_foreign.py).
+
+rig-sim is an independent simulator of the actuator on its test rig (the shared folder's
+``rig-sim/rigsim.py``).  Its runs are data the workbench did not write: a base physics that is
+never the declared level's (the ``rig`` base has Coulomb + Stribeck drags, constant efficiencies, a
+no-back that drags while driven, a yielding loading actuator and a load cell with offset and gain
+error), with or without one planted effect.  Each run comes with a ``.truth.json`` that the tests
+compare against; the code under test never reads it.
+
+Usage::
+
+    THSA_SHARED_DIR=/path/to/shared python tests/data/rigsim/make_runs.py [--only NAME ...]
+
+The shared folder defaults to ``../shared`` beside the repository.  The runs are logged at 500 Hz
+and cut to the part of the scenario where the effect shows (``t_end``), so that the committed data
+stay small and the traces short; the cut keeps the start of the record (``time_s`` from 0).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+REPO = HERE.parents[2]
+RECORD_HZ = 500
+
+#: name -> (scenario, base, effects (rigsim --effects syntax, "" for none), seed, t_end [s] or None, purpose)
+RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
+    # --- each library effect on the rig base, on a scenario where it shows
+    "rig_noback_quadrant": ("bipolar_ramp_tensile", "rig", "noback_quadrant", 11, 9.0, "library"),
+    "rig_ratchet_backlash": ("trim_ramp_compressive", "rig", "ratchet_backlash", 12, None, "library"),
+    "rig_loadpath_backlash": ("triangular_load_sweep", "rig", "loadpath_backlash", 13, None, "library"),
+    "rig_loadpath_preload": ("triangular_load_sweep", "rig", "loadpath_preload", 14, None, "library"),
+    "rig_temp_friction": ("cold_ramp", "rig", "temp_friction", 15, 5.0, "library"),
+    "rig_drivetrain_compliance": ("speed_excitation", "rig", "drivetrain_compliance", 16, 5.5, "library"),
+    "rig_coulomb": ("reversals_under_load", "rig", "coulomb", 17, 5.0, "library"),
+    "rig_direction_friction": ("reversals_under_load", "rig", "direction_friction", 18, 5.0, "library"),
+    "rig_axial_offset": ("trim_ramp_compressive", "rig", "axial_offset", 19, None, "library"),
+    "rig_screw_ripple": ("trim_ramp_compressive", "rig", "screw_ripple", 20, None, "library"),
+    "rig_cogging": ("check_slow", "rig", "cogging", 21, None, "library"),
+    # --- nothing planted: the bases alone, several scenarios and noise seeds
+    "null_rig_trim_s1": ("trim_ramp_compressive", "rig", "", 1, None, "null"),
+    "null_rig_reversals_s2": ("reversals_under_load", "rig", "", 2, 5.0, "null"),
+    "null_rig_bipolar_s3": ("bipolar_ramp_tensile", "rig", "", 3, 9.0, "null"),
+    "null_rig_excitation_s4": ("speed_excitation", "rig", "", 4, 5.5, "null"),
+    "null_papers_trim_s1": ("trim_ramp_compressive", "papers", "", 1, None, "null"),
+    "null_papers_reversals_s2": ("reversals_under_load", "papers", "", 2, 5.0, "null"),
+    "null_papers_bipolar_s3": ("bipolar_ramp_tensile", "papers", "", 3, 9.0, "null"),
+    # --- the seven out-of-library effects on the rig base
+    "rig_friction_bump": ("trim_ramp_compressive", "rig", "friction_bump", 31, None, "foreign"),
+    "rig_sensor_lag": ("speed_excitation", "rig", "sensor_lag=channel:motor_speed", 32, 5.5, "foreign"),
+    "rig_sensor_gain": ("trim_ramp_compressive", "rig", "sensor_gain=channel:screw_speed", 33, None, "foreign"),
+    "rig_loadcell_drift": ("trim_ramp_compressive", "rig", "loadcell_drift", 34, None, "foreign"),
+    "rig_current_offset": ("trim_ramp_compressive", "rig", "current_offset", 35, None, "foreign"),
+    "rig_kt_temperature": ("trim_ramp_compressive", "rig", "kt_temperature", 36, None, "foreign"),
+    "rig_worn_spot_stiction": ("reversals_under_load", "rig", "worn_spot_stiction", 37, 5.0, "foreign"),
+    # --- a pair of library effects
+    "rig_pair_coulomb_ripple": ("trim_ramp_compressive", "rig", "coulomb,screw_ripple", 41, None, "pair"),
+}
+
+
+def shared_dir() -> Path:
+    env = os.environ.get("THSA_SHARED_DIR")
+    return Path(env) if env else REPO.parent / "shared"
+
+
+def _cut(csv: Path, t_end: float) -> None:
+    lines = csv.read_text(encoding="utf-8").splitlines(keepends=True)
+    keep = [lines[0]] + [ln for ln in lines[1:] if float(ln.split(",", 1)[0]) <= t_end + 1e-9]
+    csv.write_text("".join(keep), encoding="utf-8")
+
+
+def make(name: str, out: Path, rigsim: Path) -> None:
+    scenario, base, effects, seed, t_end, _purpose = RUNS[name]
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [sys.executable, str(rigsim), "--scenario", scenario, "--base", base, "--seed", str(seed),
+               "--out", tmp, "--name", name, "--record-hz", str(RECORD_HZ)]
+        if effects:
+            cmd += ["--effects", effects]
+        subprocess.run(cmd, check=True, capture_output=True, text=True)
+        src = Path(tmp)
+        if t_end is not None:
+            _cut(src / f"{name}.csv", t_end)
+            meta = json.loads((src / f"{name}.json").read_text(encoding="utf-8"))
+            meta["description"] += f" Cut to the first {t_end:g} s."
+            (src / f"{name}.json").write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
+            truth = json.loads((src / f"{name}.truth.json").read_text(encoding="utf-8"))
+            truth["cut_to_s"] = t_end
+            (src / f"{name}.truth.json").write_text(json.dumps(truth, indent=2) + "\n", encoding="utf-8")
+        for suffix in (".csv", ".json", ".truth.json"):
+            (out / f"{name}{suffix}").write_bytes((src / f"{name}{suffix}").read_bytes())
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", nargs="*", help="names to regenerate (default: all)")
+    ap.add_argument("--out", default=str(HERE), help="output folder (default: this folder)")
+    a = ap.parse_args(argv)
+    rigsim = shared_dir() / "rig-sim" / "rigsim.py"
+    if not rigsim.is_file():
+        print(f"make_runs: rig-sim not found at {rigsim} (set THSA_SHARED_DIR)", file=sys.stderr)
+        return 2
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    names = a.only or list(RUNS)
+    bad = [n for n in names if n not in RUNS]
+    if bad:
+        print(f"make_runs: unknown run(s) {bad}", file=sys.stderr)
+        return 2
+    for n in names:
+        make(n, out, rigsim)
+        print(f"wrote {n}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,176 @@
+"""The tracer on data it did not write: rig-sim runs on the ``rig`` and ``papers`` bases (issue #21).
+
+The runs and their ``.truth.json`` are in tests/data/rigsim (``make_runs.py`` regenerates them); the
+truth files are read by these tests only.  Each run is traced as a user would (``thsa trace RUN.csv
+--model A``: the default candidate pool, so with the base-correction step) once per session and
+shared by the tests.  The base physics of rig-sim is never the declared level A: the base corrections
+(constant-torque explainers, screw efficiencies) and, since the level's ideal no-back differs from
+every real one, the detailed no-back friction are what the base itself contains.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from thsa_control.data.rigdata import read_run
+from thsa_control.fit.kinematics import run_kinematics
+from thsa_control.trace import TraceSettings, trace
+from thsa_control.trace.engine import CANDIDATES
+
+DATA = Path(__file__).resolve().parent / "data" / "rigsim"
+
+#: rig-sim effect -> the library effect that should be named for it
+LIBRARY = {
+    "noback_quadrant": "noback_quadrant_friction", "ratchet_backlash": "noback_backlash",
+    "loadpath_backlash": "loadpath_compliance", "loadpath_preload": "loadpath_compliance",
+    "temp_friction": "temperature_friction", "drivetrain_compliance": "drivetrain_compliance",
+    "coulomb": "coulomb_friction", "direction_friction": "direction_friction", "axial_offset": "force_offset",
+    "screw_ripple": "screw_friction_ripple", "cogging": "cogging_torque",
+}
+#: what the rig and papers bases themselves contain beyond level A (its ideal no-back is no real one)
+BASE_CONTENT = {"noback_quadrant_friction"}
+#: effects a null must never produce: periodic, compliance, backlash, temperature
+INVENTED = {"screw_friction_ripple", "cogging_torque", "drivetrain_compliance", "loadpath_compliance",
+            "noback_backlash", "temperature_friction"}
+
+
+def _truth(name: str) -> dict:
+    return json.loads((DATA / f"{name}.truth.json").read_text())
+
+
+def _truth_effects(name: str) -> list[str]:
+    eff = _truth(name).get("effects") or []
+    if isinstance(eff, dict):
+        return list(eff)
+    return [e["name"] if isinstance(e, dict) else str(e) for e in eff]
+
+
+@pytest.fixture(scope="session")
+def traced(params):
+    """``traced(name)`` -> trace.json of ``thsa trace RUN.csv --model A`` (memoised per session)."""
+    cache: dict[str, dict] = {}
+
+    def _go(name: str) -> dict:
+        if name not in cache:
+            run = run_kinematics(read_run(DATA / f"{name}.csv"), params)
+            cache[name] = trace(run, "A", params=params, settings=TraceSettings(workers=2)).to_dict()
+        return cache[name]
+
+    return _go
+
+
+def _found(doc: dict) -> list[str]:
+    """Effects added, in order, implied ones excluded."""
+    return [e["name"] for e in doc["effects_added"] if not e.get("implied_by")]
+
+
+def _physical(doc: dict) -> list[dict]:
+    """Added effects that are new physics: not constant-torque explainers, not the detailed model of a declared
+    component (the no-back disks for level A's ideal no-back: every rig-sim base has a real no-back)."""
+    return [e for e in doc["effects_added"] if not e.get("implied_by") and not e.get("refines_declared")
+            and not CANDIDATES.get(e["name"], CANDIDATES["coulomb_friction"]).base_correction]
+
+
+LIB_RUNS = [(f"rig_{k}", v) for k, v in LIBRARY.items()]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name, expected", LIB_RUNS, ids=[n for n, _ in LIB_RUNS])
+def test_library_effect_on_the_rig_base_is_found_first(traced, name, expected):
+    """rig base + one library effect: the effect is added, first among the physical effects (a constant-torque
+    one first among the found effects), and the error inside its window drops by half."""
+    assert _truth_effects(name) and LIBRARY[_truth_effects(name)[0]] == expected
+    doc = traced(name)
+    spec = CANDIDATES[expected]
+    if expected in BASE_CONTENT:  # the detailed no-back: found, first among the found effects
+        order = _found(doc)
+    elif spec.base_correction:  # a constant-torque effect: first among those beyond a base correction
+        order = [e["name"] for e in doc["effects_added"] if not e.get("implied_by") and not e.get("refines_declared")]
+    else:
+        order = [e["name"] for e in _physical(doc)]
+    assert order and order[0] == expected, (_found(doc), doc["rounds"])
+    step = next(e for e in doc["effects_added"] if e["name"] == expected)
+    red = step["window_reduction"]
+    assert max(red.values()) >= 0.5, red
+    bc = doc["base_corrections"]
+    if bc and bc["accepted"]:  # base corrections stay within their plausible bounds
+        for c in bc["corrections"]:
+            assert c["bound"][0] - 1e-9 <= c["value"] <= c["bound"][1] + 1e-9, c
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name, effect, parameter", [
+    ("rig_noback_quadrant", "noback_quadrant_friction", "noback.mu_coulomb_neg"),  # the light disk never loaded
+    ("rig_temp_friction", "temperature_friction", "friction.viscous_temperature_coefficient"),  # one temperature
+])
+def test_undetermined_parameter_is_held_and_reported(traced, params, name, effect, parameter):
+    """A candidate with a parameter the run cannot determine is added with that parameter held at its file value,
+    and trace.json says so."""
+    doc = traced(name)
+    step = next((e for e in doc["effects_added"] if e["name"] == effect), None)
+    assert step is not None, doc["rounds"]
+    held = {h["parameter"]: h for h in step["not_determined"]}
+    if parameter in held:
+        assert held[parameter]["held_at"] == pytest.approx(params.value(parameter))
+    else:  # undetermined without a refit (the fit left it at its file value with no standard error)
+        p = step["parameters"].get(parameter)
+        assert p is not None and p["stderr"] is None and p["value"] == pytest.approx(params.value(parameter)), step
+
+
+NULLS = sorted(p.stem for p in DATA.glob("null_*.csv"))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", NULLS)
+def test_nulls_add_only_what_the_base_contains(traced, name):
+    """Nothing planted, rig and papers bases, several scenarios and seeds: nothing beyond the base corrections and
+    the detailed no-back friction; no periodic, compliance, backlash or temperature effect is invented."""
+    assert _truth_effects(name) == []
+    doc = traced(name)
+    found = set(_found(doc))
+    assert not found & INVENTED, doc["rounds"]
+    assert found <= BASE_CONTENT | {e for e in found if CANDIDATES[e].base_correction}, found
+    # a constant-torque effect named beyond its base correction would be a claim the base cannot make
+    assert not [e for e in doc["effects_added"] if e.get("beyond_base_correction")], doc["effects_added"]
+
+
+FOREIGN = {
+    "rig_friction_bump": ("nut_position",),
+    "rig_sensor_lag": ("motor_speed vs gear_ratio x screw_speed",),
+    "rig_sensor_gain": ("motor_speed vs gear_ratio x screw_speed",),
+    "rig_loadcell_drift": ("time (slow drift)",),
+    "rig_current_offset": ("motor_current with the drive off",),
+    "rig_kt_temperature": ("motor_current (torque constant)", "time (slow drift)"),
+    "rig_worn_spot_stiction": ("nut_position", "time_since_reversal"),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(FOREIGN))
+def test_out_of_library_effect_is_unexplained_with_its_signature(traced, name):
+    """Each out-of-library effect: ``unexplained: true`` with the signature that names it, also after explainers
+    were added, and no physical effect invented."""
+    doc = traced(name)
+    assert doc["unexplained"], doc["residual_signature"]["structured"]
+    structured = doc["residual_signature"]["structured"]
+    assert set(FOREIGN[name]) & set(structured), structured
+    assert not set(_found(doc)) & INVENTED, doc["rounds"]
+
+
+@pytest.mark.slow
+def test_pair_of_library_effects_found_in_the_order_of_what_they_explain(traced):
+    """Coulomb friction and screw ripple planted together: both found, the one with the larger held-out drop
+    first."""
+    name = "rig_pair_coulomb_ripple"
+    assert set(_truth_effects(name)) == {"coulomb", "screw_ripple"}
+    doc = traced(name)
+    found = _found(doc)
+    assert {"coulomb_friction", "screw_friction_ripple"} <= set(found), doc["rounds"]
+    r1 = {c["name"]: c.get("holdout_chi2_drop") or 0.0 for c in doc["rounds"][0]["candidates"]}
+    a, b = found.index("coulomb_friction"), found.index("screw_friction_ripple")
+    first, second = ("coulomb_friction", "screw_friction_ripple") if a < b else ("screw_friction_ripple",
+                                                                              "coulomb_friction")
+    assert r1[first] >= r1[second], r1
