@@ -225,6 +225,22 @@ _CASE_HEAD = ["scenario", "faults", "onset [s]", "discrepancy trip [ms]", "LVDT 
               "limiter [N m]", "limiter slip [deg]", "surface displacement [mm]", "recovery [ms]", "energy residual [%]"]
 
 
+def _sweep_block(analysis) -> str:
+    """The sweep: one line for the false alarms when no normal scenario trips anywhere, then the table."""
+    if not analysis.sweep:
+        return "<p class='note'>Sweep not run (--no-sweep).</p>"
+    any_trip = any(p.normal_trips for p in analysis.sweep)
+    head = ["threshold scale [-]", "take-over delay [ms]"] + (["normal scenarios tripping"] if any_trip else []) + [
+        "first trip [ms]", "recovery [ms]"]
+    rows = [[f"{p.scale:g}", f"{p.delay_s * 1e3:g}"] + ([", ".join(p.normal_trips) or "none"] if any_trip else [])
+            + ["; ".join(f"{k}: {_ms(v)}" for k, v in p.detection_s.items()),
+               "; ".join(f"{k}: {_ms(v)}" for k, v in p.recovery_s.items())] for p in analysis.sweep]
+    scales = sorted({p.scale for p in analysis.sweep})
+    line = ("" if any_trip else f"<p>No normal scenario trips a monitor at any threshold scale "
+            f"({', '.join(f'{x:g}' for x in scales)}) or take-over delay: no false alarm in the sweep.</p>")
+    return line + _table(head, rows)
+
+
 def write_fault_report(analysis, params, out_dir, **folder_options) -> Path:
     """Write ``faults.json``, ``report.html`` and the figures (PNG) to ``out_dir`` (atomically).
 
@@ -282,12 +298,7 @@ def write_fault_report(analysis, params, out_dir, **folder_options) -> Path:
                           f"{monitor_display(x.monitor).to_display(x.persisted):.4g}", monitor_display(x.monitor).unit,
                           "inf" if not math.isfinite(x.margin) else f"{x.margin:.2f}", "yes" if x.tripped else "no"]
                          for x in analysis.margins]),
-                 "<h2 id='table-sweep'>Sweep</h2>",
-                 _table(["threshold scale [-]", "take-over delay [ms]", "normal scenarios tripping", "first trip [ms]",
-                         "recovery [ms]"],
-                        [[f"{p.scale:g}", f"{p.delay_s * 1e3:g}", ", ".join(p.normal_trips) or "none",
-                          "; ".join(f"{k}: {_ms(v)}" for k, v in p.detection_s.items()),
-                          "; ".join(f"{k}: {_ms(v)}" for k, v in p.recovery_s.items())] for p in analysis.sweep]),
+                 "<h2 id='table-sweep'>Sweep</h2>", _sweep_block(analysis),
                  "<h2 id='settings'>Monitor settings</h2>",
                  _table(["setting", "value", "unit", "monitored signal"], _setting_rows(m)),
                  "<h2 id='figures'>Figures</h2>"]
