@@ -138,19 +138,19 @@ def _folded(line: str, body: str) -> str:
     return f"<details class='fold'><summary>{html.escape(line)}</summary>\n{body}\n</details>"
 
 
-def _table(name: str, header, rows, classes=None, caption: str = "") -> str:
+def _table(name: str, header, rows, classes=None, caption: str = "", left=()) -> str:
     """HTML table; ``rows`` of cells (str), ``classes`` per row: (row class, [cell classes])."""
     out = [f'<div class="scroll"><table id="table-{name}">']
     if caption:
         out.append(f"<caption class='note' style='caption-side:top;text-align:left'>{html.escape(caption)}</caption>")
-    out.append("<tr>" + "".join(f"<th class='l'>{html.escape(h)}</th>" if i == 0 else f"<th>{html.escape(h)}</th>"
+    out.append("<tr>" + "".join(f"<th class='l'>{html.escape(h)}</th>" if i == 0 or i in left else f"<th>{html.escape(h)}</th>"
                                  for i, h in enumerate(header)) + "</tr>")
     for i, row in enumerate(rows):
         rcls, ccls = (classes[i] if classes else ("", None))
         cells = []
         for j, cell in enumerate(row):
             cls = [] if ccls is None or not ccls[j] else [ccls[j]]
-            if j == 0 or (isinstance(cell, str) and not _NUMBER.match(cell)):
+            if j == 0 or j in left or (isinstance(cell, str) and not _NUMBER.match(cell)):
                 cls.append("l")
             attr = f" class='{' '.join(cls)}'" if cls else ""
             cells.append(f"<td{attr}>{cell}</td>")
@@ -227,7 +227,7 @@ def _glance(result: DesignAnalysis) -> str:
         lm = a.loops[loop]
         m = lm.margins
 
-        def worst(name, digits=3):
+        def worst(name, digits=4):
             w = a.worst(loop, name)
             if w is None:
                 return "-", ""
@@ -281,7 +281,8 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
     parts.append(
         f"<p class='verdict {'ok' if check.passed else 'bad'}'>Requirements at every valid grid point: {status} "
         f"&mdash; {len(check.rows) - n_fail} of {len(check.rows)} requirements met at the "
-        f"{check.checked_points} analysed points; {check.skipped_points} points not analysed "
+        f"{check.checked_points} analysed points; {check.skipped_points} "
+        f"point{'' if check.skipped_points == 1 else 's'} not analysed "
         f"(<a href='#invalid'>why</a>).</p>")
     if not check.passed:
         parts.append("<pre>" + html.escape(check.summary()) + "</pre>")
@@ -300,7 +301,7 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
     rows, classes = _requirement_rows(result)
     parts.append(_h2("requirements", "Requirements"))
     parts.append(_table("requirements", ["loop", "requirement", "worst value", "worst point",
-                                         "failing points", "result"], rows, classes,
+                                         "failing points", "result"], rows, classes, left=(1, 2, 3, 5), caption=
                         "Each requirement at every valid grid point. Amber: met within "
                         f"{NEAR_FRACTION:.0%} of the limit. A closed-loop-unstable valid point fails every "
                         "requirement. " + GAIN_MARGIN_MEANING))
