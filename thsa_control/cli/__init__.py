@@ -14,8 +14,9 @@ Commands::
                    [--remove E ...] [--params FILE] --out DIR
     thsa report    --design designs/nominal.toml --out DIR [--level B] [--effects E ...] [--params FILE]
                    [--no-switching] [--check]
+    thsa sweep     SPEC.toml --out DIR [--scheduler ADDRESS | --workers N] [--force] [--check]
     thsa linearize --level A --speed 5 --load 20 --temperature -30 [--effects E ...] [--active standby]
-                   [--params FILE] [--save FILE.npz]
+                   [--params FILE] [--save FILE.npz|FILE.mat]
 
 Exit status: 0 success; 1 a requirement failed (``report --check``); 2 an
 error of the input (unknown scenario, level or effect, bad design, parameter
@@ -43,7 +44,7 @@ __all__ = ["main", "build_parser", "EXIT_OK", "EXIT_REQUIREMENT_FAILED", "EXIT_U
 
 def build_parser() -> argparse.ArgumentParser:
     from .. import __version__
-    from . import analysis, data, faults, sim, trace, tuning
+    from . import analysis, data, faults, sim, sweep, trace, tuning
 
     shared = argparse.ArgumentParser(add_help=False)
     shared.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
@@ -61,6 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
     faults.add_parser(sub)
     trace.add_parser(sub)
     tuning.add_parsers(sub)
+    sweep.add_parser(sub, shared)
     return ap
 
 
