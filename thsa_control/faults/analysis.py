@@ -214,6 +214,24 @@ class FaultAnalysis:
         """Smallest false-alarm margin of ``monitor`` over the normal scenarios."""
         return min((m.margin for m in self.margins if m.monitor == monitor), default=math.inf)
 
+    def report(self) -> str:
+        """Cases by plant, false-alarm margins and sweep, as ``thsa faults`` prints."""
+        from ..report.results import format_fault_analysis
+
+        return format_fault_analysis(self)
+
+    def to_dict(self) -> dict:
+        """``faults.json`` (format ``thsa-faults/1``)."""
+        from ..report.faults import fault_analysis_to_dict
+
+        return fault_analysis_to_dict(self)
+
+    def plot(self, ax=None):
+        """Detection vs threshold scale and recovery vs take-over delay (the sweep); ``ax``: two Axes."""
+        from ..report.faults import plot_sweep
+
+        return plot_sweep(self, axes=ax)
+
 
 def recovery_time(time, speed, speed_ref, command, t_fault: float, tolerance: float, smooth_s: float) -> float:
     """From ``t_fault`` until the ``smooth_s`` moving average of ``speed - speed_ref`` stays within
