@@ -25,7 +25,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 import thsa_control as thsa  # noqa: E402
-from thsa_control.fit.identify import IdentificationSettings, Identifier, _RunProblem  # noqa: E402
+from thsa_control.fit.identify import IdentificationSettings, Identifier, RunProblem  # noqa: E402
 from thsa_control.fit.replay import current_driven_map  # noqa: E402
 from thsa_control.data.rigdata import read_run  # noqa: E402
 from thsa_control.fit.virtual_rig import VirtualRig, excitation_inputs  # noqa: E402
@@ -54,7 +54,7 @@ def main() -> None:
 
     # one simulation and one gradient of the fit's problem (built as Identifier.fit builds it)
     plant = thsa.build_plant("B", params=start)
-    pb = _RunProblem(run, plant, current_driven_map(plant, args.substeps), start, FREE, settings)
+    pb = RunProblem(run, plant, current_driven_map(plant, args.substeps), start, FREE, settings)
     z = np.r_[np.zeros(len(FREE)), pb.initial_decision()]
     p0, scale = plant.p_vector(start), np.array([abs(start.value(n)) for n in FREE])
 

@@ -20,7 +20,7 @@ import numpy as np
 
 from ._typing import ArrayLike, Complex2D, Float1D, Float2D, Float3D
 from .errors import UnknownSignalError
-from .jacobian import DriftingMode, _blocks, _linearize_core
+from .jacobian import DriftingMode, jacobian_blocks, linearize_core
 from .linear_model import LinearModel
 from .model import NamedModel
 from .operating_point import OperatingPoint
@@ -180,12 +180,12 @@ def linearize_batch(
     ([-4.0, -2.0, -1.0], [True, True, True])
     """
     X, U, P = model.stack_points(X, U, P)
-    core = _linearize_core(
+    core = linearize_core(
         model, X, U, P,
         drifting=drifting, fd_check=fd_check, fd_eps=fd_eps, kink_rtol=kink_rtol,
         validity=validity, validity_names=validity_names, parallelization=parallelization,
     )
-    A, B, C, D = _blocks(model, core)
+    A, B, C, D = jacobian_blocks(model, core)
     XDOT, Y = model.evaluate_many(X, U, P, parallelization)
     return LinearModelBatch(
         A=A, B=B, C=C, D=D,

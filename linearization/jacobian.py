@@ -361,7 +361,7 @@ def _output_depends_structurally(model: NamedModel, excluded: Sequence[int]) -> 
     return {r for r, c in zip(rows, cols) if c in set(excluded)}
 
 
-def _linearize_core(
+def linearize_core(
     model: NamedModel,
     X: Float2D,
     U: Float2D,
@@ -441,7 +441,7 @@ def _linearize_core(
     )
 
 
-def _blocks(model: NamedModel, core: _Core) -> tuple[Float3D, Float3D, Float3D, Float3D]:
+def jacobian_blocks(model: NamedModel, core: _Core) -> tuple[Float3D, Float3D, Float3D, Float3D]:
     """Reduced (A, B, C, D) stacks, point index first."""
     nx = model.n_x
     kx, ky = list(core.keep_x), list(core.keep_y)
@@ -607,12 +607,12 @@ def linearize(
             raise ValueError(
                 f"operating point {label} {list(theirs)} differ from the model's {list(mine)}"
             )
-    core = _linearize_core(
+    core = linearize_core(
         model, op.x[:, None], op.u[:, None], op.p[:, None],
         drifting=drifting, fd_check=fd_check, fd_eps=fd_eps, kink_rtol=kink_rtol,
         validity=validity, validity_names=validity_names,
     )
-    A, B, C, D = _blocks(model, core)
+    A, B, C, D = jacobian_blocks(model, core)
     return LinearModel(
         A=A[0], B=B[0], C=C[0], D=D[0],
         states=tuple(model.states[i] for i in core.keep_x),

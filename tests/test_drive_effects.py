@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from thsa_control.model import EFFECT_ORDER, build_plant
-from thsa_control.model.drive_effects import DRIVE_EFFECTS
+from thsa_control.model.effects.drive import DRIVE_EFFECTS
 
 DRIVE = tuple(DRIVE_EFFECTS)
 

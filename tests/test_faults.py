@@ -23,7 +23,7 @@ from thsa_control.sim.events import FaultEvent
 from thsa_control.sim.scenarios import load_scenario_file
 from thsa_control.sim.monitor_settings import MonitorSettings
 from thsa_control.model import build_plant
-from thsa_control.model.fault_effects import limiter_slip_torques
+from thsa_control.model.laws import limiter_slip_torques
 from thsa_control.sim.metrics import energy_residual
 from thsa_control.sim.scenarios import get_scenario
 from thsa_control.sim.simulate import SimulationSettings, Simulator

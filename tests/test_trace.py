@@ -241,7 +241,7 @@ def test_nulls_stay_null_on_the_papers_scenarios(tmp_path, rig_1khz, params, sce
 def test_fault_effects_are_candidates_only_when_named(params):
     """A healthy rig's residual is not traced to a jam or a limiter slip unless the user asks for it."""
     from thsa_control.model import resolve_effects
-    from thsa_control.model.fault_effects import FAULT_EFFECTS
+    from thsa_control.model.effects.faults import FAULT_EFFECTS
     from thsa_control.trace import candidate_specs
 
     default = {c.name for c in candidate_specs(resolve_effects("A"), params)}

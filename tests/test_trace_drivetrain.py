@@ -8,7 +8,7 @@ The virtual rig simulates with 4 plant steps per 1 ms control period, the fits w
 not come from the fitted discretisation.  Only the series stiffness is identifiable: the candidate frees
 the gearbox stiffness alone and holds the screw's stiffness and the damping at their file values (the
 damping held at twice the truth here), so the test compares the series stiffness
-(:func:`thsa_control.model.effects.drivetrain_stiffness`).
+(:func:`thsa_control.model.laws.drivetrain_stiffness`).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from thsa_control.data.rigdata import read_run
 from thsa_control.fit.segment_states import drivetrain_segment_guess
 from thsa_control.fit.virtual_rig import VirtualRig, excitation_inputs
 from thsa_control.model import build_plant
-from thsa_control.model.effects import drivetrain_stiffness
+from thsa_control.model.laws import drivetrain_stiffness
 from thsa_control.trace import CANDIDATES, TraceSettings, trace
 
 NOISE = RIG_NOISE

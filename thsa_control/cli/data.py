@@ -37,7 +37,7 @@ def cmd_identify(args) -> int:
     effects = effects_arg(args.effects)
     free = [n.strip() for n in (args.free or "").split(",") if n.strip()]
     from ..fit.progress import stderr_progress
-    from ..trace._threads import limit_blas_threads
+    from ..trace.threads import limit_blas_threads
 
     limit_blas_threads(1)  # a many-threaded BLAS on a small shared machine is 40x slower per SVD
     try:

@@ -36,7 +36,7 @@ from thsa_control.data.rigformat import (
     VelocityLoopGains,
     _add_rows,
     _number,
-    _runs,
+    true_runs,
 )
 
 def _fit_scale(measured: np.ndarray, expected: np.ndarray) -> tuple[float, float]:
@@ -283,7 +283,7 @@ def _check_controller_columns(controller: RigController | None, columns: dict, e
 def _check_gaps(spec: ColumnSpec, label: str, empty: np.ndarray, problems: list,
                 warnings: list) -> None:
     singles, listed = [], []
-    for start, stop in _runs(empty):
+    for start, stop in true_runs(empty):
         if stop - start == 1 and spec.role == "measured":
             singles.append(start)
         elif stop - start == 1:

@@ -131,7 +131,9 @@ from thsa_control.data.rigformat import (  # noqa: F401  (re-exported: the publi
     VelocityLoopGains,
     _add_rows,
     _number,
-    _runs,
+    true_runs,
+    measured_motor_speed,
+    motor_speed_from,
 )
 from thsa_control.data.units import mm_to_m
 

@@ -21,7 +21,8 @@ from thsa_control.data.units import m_to_mm, mm_to_m, rad_s_to_rpm, rpm_to_rad_s
 
 __all__ = ["FORMAT_TAG", "ColumnSpec", "COLUMNS", "VelocityLoopGains", "CurrentLoopGains", "RigController",
            "PositionLoopGains", "CurrentFeedForward",
-           "RigRun", "DEFAULT_SCREW_LEAD_MM", "DEFAULT_GEAR_RATIO", "MAX_ROWS_LISTED"]
+           "RigRun", "DEFAULT_SCREW_LEAD_MM", "DEFAULT_GEAR_RATIO", "MAX_ROWS_LISTED", "motor_speed_from",
+           "measured_motor_speed"]
 
 FORMAT_TAG = "thsa-rig-run/1"
 #: Seed kinematics of FORMAT.md, used when the JSON has no ``rig`` block.
@@ -298,6 +299,32 @@ class RigRun:
         """True when ``name`` is a signal (defaults included) or an extra column."""
         return name in self.signals or name in self.extra
 
+    def measured_motor_speed(self) -> np.ndarray | None:
+        """:func:`measured_motor_speed` of this run."""
+        return measured_motor_speed(self)
+
+
+def measured_motor_speed(run) -> np.ndarray | None:
+    """Motor speed [rad/s] per sample of a run as measured: the motor speed sensor, else gear ratio x
+    the screw speed (RVDT), else None (missing samples stay NaN)."""
+    return motor_speed_from(
+        lambda c: np.asarray(run.signals[c], float) if c in run.source_columns else None, run.gear_ratio)
+
+
+def motor_speed_from(get: Callable[[str], Any], gear_ratio: float):
+    """A motor speed as measured: ``get("motor_speed")``, else ``gear_ratio * get("screw_speed")``, else None.
+
+    ``get(channel)`` returns the channel's measurement (an array, or one
+    sample) or None where the channel is not measured: a run's columns, a
+    dict of measured signals (``dict.get``), a sample near a time.  The one
+    rule of a run's motor speed, for every tool that reads one.
+    """
+    w = get("motor_speed")
+    if w is not None:
+        return w
+    ws = get("screw_speed")
+    return None if ws is None else ws * gear_ratio
+
 
 # --------------------------------------------------------------------- helpers
 def _number(value: Any) -> float | None:
@@ -308,7 +335,7 @@ def _number(value: Any) -> float | None:
     return value if math.isfinite(value) else None
 
 
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+def true_runs(mask: np.ndarray) -> list[tuple[int, int]]:
     """Maximal runs of True as (start, stop) with stop exclusive."""
     edges = np.diff(np.concatenate(([0], mask.astype(np.int8), [0])))
     return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist()))

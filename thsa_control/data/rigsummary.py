@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from thsa_control.data.rigdata import _SPECS, RigRun, _number, _runs
+from thsa_control.data.rigdata import _SPECS, RigRun, _number, true_runs
 from thsa_control.data.units import m_to_mm
 
 __all__ = ["SummarySettings", "ChannelRange", "Gap", "Interval", "LoadPhase", "Reversal", "RunSummary",
@@ -236,7 +236,7 @@ def summarize_run(run: RigRun, settings: SummarySettings | None = None) -> RunSu
     off = (run.signals["primary_enable"] == 0) & (run.signals["standby_enable"] == 0)
     if run.motor_disabled_when_cmd_zero:
         off |= cmd == 0
-    motor_off = tuple(Interval(float(t[a]), float(ends[b - 1])) for a, b in _runs(off))
+    motor_off = tuple(Interval(float(t[a]), float(ends[b - 1])) for a, b in true_runs(off))
     moving = np.flatnonzero(direction)
     turns = moving[1:][direction[moving[1:]] != direction[moving[:-1]]]
     reversals = tuple(Reversal(float(t[i]), int(i) + 1, "extend" if direction[i] > 0
@@ -262,7 +262,7 @@ def _channel(column: str, unit: str, values: np.ndarray, source: str) -> Channel
 
 
 def _gaps(column: str, values: np.ndarray, t: np.ndarray) -> list[Gap]:
-    return [Gap(column, a + 1, float(t[a]), b - a) for a, b in _runs(np.isnan(values))]
+    return [Gap(column, a + 1, float(t[a]), b - a) for a, b in true_runs(np.isnan(values))]
 
 
 def format_summary(summary: RunSummary) -> str:

@@ -56,7 +56,7 @@ from .replay import (
     COMPARED_OUTPUT, channel_fit, check_run_model, current_driven_map, mech_inputs, replay_closed_loop, run_design,
     sample_periods,
 )
-from ..data.rigdata import RigRun
+from ..data.rigdata import RigRun, motor_speed_from
 from .kinematics import run_kinematics
 from .segment_states import drivetrain_segment_guess
 
@@ -474,7 +474,7 @@ def estimate_noise(y: np.ndarray) -> float:
 
 
 # ----------------------------------------------------------------------------- problem per run
-class _RunProblem:
+class RunProblem:
     """Residuals and Jacobian of one run: casadi map over segments of the current-driven map."""
 
     def __init__(self, run: RigRun, plant: Plant, mech: ca.Function, params: ParameterSet, free: Sequence[str],
@@ -606,10 +606,7 @@ class _RunProblem:
                     X[i, m] = cl.simulated[s.name][k]
                 else:
                     X[i, m] = x_rest[i]
-            w = self._measured_at("motor_speed", k)
-            if w is None:
-                ws = self._measured_at("screw_speed", k)
-                w = ws * run.gear_ratio if ws is not None else None
+            w = motor_speed_from(lambda c: self._measured_at(c, k), run.gear_ratio)
             if w is not None:
                 X[plant.index("state", "motor_speed"), m] = w
             if nut is not None:  # the LVDT reads the surface; the nut sits the load-path deflection ahead
@@ -811,7 +808,7 @@ class Identifier:
         from .replay import check_run_model
 
         run_warnings = tuple(w for r in runs for w in check_run_model(r, plant, mode="open_loop"))
-        problems = [_RunProblem(r, plant, mech, self.params, self.free, st) for r in runs]
+        problems = [RunProblem(r, plant, mech, self.params, self.free, st) for r in runs]
         nf = len(self.free)
         scale = self._scales()
         priors = self._priors(scale)

@@ -44,7 +44,7 @@ from ..loops.design import Design
 from ..errors import RigDataError, ThsaError
 from ..model.plant import Plant
 from ..model.params import ParameterSet
-from ..data.rigdata import RigRun
+from ..data.rigdata import RigRun, motor_speed_from
 from .kinematics import run_kinematics
 from ..sim.simulate import InputSeries, SimulationSettings, Simulator
 
@@ -400,7 +400,8 @@ def compared_signals(run: RigRun, simulated: dict, channels) -> dict[str, np.nda
     return out
 
 
-def _measured(run: RigRun) -> dict[str, np.ndarray]:
+def measured_signals(run: RigRun) -> dict[str, np.ndarray]:
+    """The run's measured fit channels (FIT_CHANNELS it has a column for) as float arrays."""
     return {c: np.asarray(run.signals[c], float) for c in FIT_CHANNELS if c in run.source_columns}
 
 
@@ -475,7 +476,7 @@ def replay_closed_loop(run: RigRun, plant: Plant, params: ParameterSet, *, desig
         else:
             y = np.interp(t_run, t_sim, y)
         simulated[name] = y
-    measured = _measured(run)
+    measured = measured_signals(run)
     compared = compared_signals(run, simulated, measured)
     fits = {c: channel_fit(c, measured[c], compared[c]) for c in measured}
     info = {"wall_s": res.info["wall_s"], "substeps": settings.substeps, "design": design.name,
@@ -611,7 +612,7 @@ def replay_open_loop(run: RigRun, plant: Plant, params: ParameterSet, *, setting
     if not np.all(np.isfinite(Y)):
         raise ThsaError(f"open-loop replay of {run.name!r} diverged")
     simulated = {name: Y[i] for i, name in enumerate(plant.outputs)}
-    measured = _measured(run)
+    measured = measured_signals(run)
     compared = compared_signals(run, simulated, [c for c in measured if c != "motor_current"])
     fits = {c: channel_fit(c, measured[c], compared[c]) for c in compared}
     info = {"wall_s": wall, "substeps": settings.substeps, "open_loop_replay": "whole_run", "segment_s": None,
@@ -669,8 +670,8 @@ def residual_signals(run: RigRun, result: ReplayResult) -> tuple[dict, dict]:
     deadband = 0.05 * float(np.max(np.abs(cmd))) if cmd.size and np.any(cmd) else 0.0
     pole_pairs = result.params.value("motor.pole_pairs")
     meas = result.measured
-    speed = (np.asarray(meas["motor_speed"], float) if "motor_speed" in meas else
-             np.asarray(meas["screw_speed"], float) * run.gear_ratio if "screw_speed" in meas else cmd)
+    speed = motor_speed_from(lambda c: np.asarray(meas[c], float) if c in meas else None, run.gear_ratio)
+    speed = cmd if speed is None else speed
     speed = np.nan_to_num(speed)
     moving = 0.05 * float(np.max(np.abs(speed))) if speed.size else 0.0
     conditioning = {

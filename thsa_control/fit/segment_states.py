@@ -43,7 +43,7 @@ from collections.abc import Callable
 import casadi as ca
 import numpy as np
 
-from ..data.rigdata import RigRun
+from ..data.rigdata import RigRun, measured_motor_speed
 from ..model.params import ParameterSet
 from ..model.plant import Plant
 
@@ -62,11 +62,8 @@ def measured_speed(run: RigRun) -> np.ndarray | None:
     Single missing samples are bridged by linear interpolation; a run with no
     finite speed sample gives None.
     """
-    if "motor_speed" in run.source_columns:
-        w = np.asarray(run.signals["motor_speed"], float)
-    elif "screw_speed" in run.source_columns:
-        w = np.asarray(run.signals["screw_speed"], float) * run.gear_ratio
-    else:
+    w = measured_motor_speed(run)
+    if w is None:
         return None
     ok = np.isfinite(w)
     if not ok.any():
@@ -99,15 +96,16 @@ def measured_state_matrix(run: RigRun, plant: Plant, params: ParameterSet) -> np
         nut = None
     X = np.array(plant.init.map(n)((nut if nut is not None else np.zeros(n))[None, :], load[None, :], p))
     names = plant.state_names
-    if nut is not None and "surface_position" in names:  # the LVDT reads the surface
-        i_nut, i_srf = plant.index("state", "nut_position"), plant.index("state", "surface_position")
+    lvdt = plant.sensor_state("nut_position")
+    if nut is not None and lvdt != "nut_position":  # the LVDT reads the surface
+        i_nut, i_srf = plant.index("state", "nut_position"), plant.index("state", lvdt)
         X[i_nut] = nut + (X[i_nut] - X[i_srf])
         X[i_srf] = nut
     for name in ("motor_speed", "rotor_speed"):
         if name in names:
             X[plant.index("state", name)] = w
     if "surface_speed" in names:
-        X[plant.index("state", "surface_speed")] = w * params.value("screw.lead") / (2 * np.pi * params.value("gear.ratio"))
+        X[plant.index("state", "surface_speed")] = w * plant.kinematic_ratio(p)
     return X
 
 

@@ -14,7 +14,7 @@ surface at level D), the unmeasured states from a closed-loop replay under
 the run's controller or at rest.  These are the multiple-shooting segments
 of the identification, evaluated at the declared parameters with the
 segments' initial states held at their measured values
-(:class:`thsa_control.fit.identify._RunProblem`: the same map, the same
+(:class:`thsa_control.fit.identify.RunProblem`: the same map, the same
 initial states, no second simulator).  Each channel's residual is then the
 one-segment prediction error: it is bounded by what the model misses within
 one segment and does not drift.
@@ -48,7 +48,7 @@ from types import MappingProxyType
 import casadi as ca
 import numpy as np
 
-from ..data.rigdata import RigRun
+from ..data.rigdata import RigRun, motor_speed_from
 from ..errors import ThsaError, UsageError
 from ..model.params import ParameterSet
 from ..model.plant import Plant
@@ -117,10 +117,16 @@ def check_segment(run: RigRun, segment_duration: float) -> None:
                          f"(sample time {dt:g} s)")
 
 
-def _inertia_function(plant: Plant, mech: ca.Function) -> tuple[ca.Function, int]:
-    """``J(x, v, p, h)`` [kg m^2, at the motor shaft] through the current-driven map, and the speed state used."""
+def _effective_inertia_function(plant: Plant, mech: ca.Function) -> tuple[ca.Function, int]:
+    """``(dT, dw)(x, v, p, h)``: motor torque and motor-sensor speed responses of one step of the current-driven
+    map to a shift of the measured current, and the speed state the motor sensor reads.
+
+    Their ratio is the inertia the measured motion sees through the map at each sample [kg m^2 at the motor
+    shaft]: the plant's :meth:`~thsa_control.model.Plant.inertia` as the step resolves it, with the gearbox
+    efficiency of the sample's power flow, and no response (NaN) while the model sticks.
+    """
     names = plant.state_names
-    k_w = names.index("rotor_speed") if "rotor_speed" in names else names.index("motor_speed")
+    k_w = names.index(plant.sensor_state("motor_speed"))
     x = ca.SX.sym("x", len(names))
     v = ca.SX.sym("v", mech.size1_in(1))
     p = ca.SX.sym("p", mech.size1_in(2))
@@ -171,8 +177,8 @@ def replay_segmented(run: RigRun, plant: Plant, params: ParameterSet, *, segment
     ThsaError
         The segment predictions are not finite.
     """
-    from .identify import IdentificationSettings, _RunProblem
-    from .replay import _measured
+    from .identify import IdentificationSettings, RunProblem
+    from .replay import measured_signals
     from ..trace.signature import missing_torque
 
     check_segment(run, segment_duration)
@@ -183,7 +189,7 @@ def replay_segmented(run: RigRun, plant: Plant, params: ParameterSet, *, segment
     t0 = _time.perf_counter()
     mech = current_driven_map(plant, substeps)
     settings = IdentificationSettings(segment_duration=float(segment_duration), substeps=substeps)
-    pb = _RunProblem(run, plant, mech, params, (), settings)
+    pb = RunProblem(run, plant, mech, params, (), settings)
     p0 = plant.p_vector(params)
     X, Y = pb.f_pred_all(pb.initial_decision(), p0, np.zeros(0))
     t = np.asarray(run.time, float)
@@ -192,7 +198,7 @@ def replay_segmented(run: RigRun, plant: Plant, params: ParameterSet, *, segment
     if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
         raise ThsaError(f"segmented open-loop replay of {run.name!r} diverged (non-finite segment predictions)")
     simulated = {name: Y[i] for i, name in enumerate(plant.outputs)}
-    measured = _measured(run)
+    measured = measured_signals(run)
     compared = compared_signals(run, simulated, [c for c in measured if c != "motor_current"])
     starts = np.arange(pb.M) * pb.L
     starts = starts[starts < n]
@@ -200,13 +206,9 @@ def replay_segmented(run: RigRun, plant: Plant, params: ParameterSet, *, segment
             "segments": int(starts.size), "segment_starts_s": t[starts].tolist(), "substeps": substeps}
 
     # inverse model: the torque the measured motion needs minus the torque the measured current gives
-    w_meas = None
-    if "motor_speed" in measured:
-        w_meas = measured["motor_speed"]
-    elif "screw_speed" in measured:
-        w_meas = measured["screw_speed"] * run.gear_ratio
+    w_meas = motor_speed_from(measured.get, run.gear_ratio)
     if w_meas is not None:
-        f_j, k_w = _inertia_function(plant, mech)
+        f_j, k_w = _effective_inertia_function(plant, mech)
         gain, dw = f_j.map(n)(X, pb.V[:, :n], ca.repmat(ca.DM(p0), 1, n), ca.DM(pb.H[:n]).T)
         gain, dw = np.asarray(gain).ravel(), np.asarray(dw).ravel()
         with np.errstate(divide="ignore", invalid="ignore"):

@@ -17,7 +17,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
-from ._loopmath import MarginSet, StepMetrics, loop_margins, step_metrics
+from .loopmath import MarginSet, StepMetrics, loop_margins, step_metrics
 from .describing import LimitCycle, describing_functions, predict_limit_cycles
 from .design import Design
 from .linear import DEFAULT_EFFECTS, DEFAULT_LEVEL, ConditionGrid, PlantModel, plant_model

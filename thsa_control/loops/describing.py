@@ -18,10 +18,12 @@ from dataclasses import dataclass, replace
 import control as ct
 import numpy as np
 
-from ._loopmath import _freq
+from .loopmath import freq_response
 from .design import Design
 from .linear import OperatingCondition, PlantLinearization, PlantModel, linearize_conditions, plant_model
-from .loop_analysis import AnalysisSettings, _build
+from .loop_analysis import AnalysisSettings, build_loops
+from ..model import EFFECTS
+from ..model.laws import values_of
 from ..model.params import ParameterSet, default_parameters
 
 __all__ = ["LimitCycle", "predict_limit_cycles", "describing_functions"]
@@ -119,9 +121,11 @@ def _friction_map(model: PlantModel, lin: PlantLinearization, k: int, w_max: flo
     X = np.repeat(b.X[:, k:k + 1], w.size, axis=1)
     names = model.named.states
     X[names.index("motor_speed")] = w
-    for s in ("pawl_clearance_comp", "pawl_clearance_tens"):
-        if s in names:  # both pawls engaged: each direction meets its loaded disk, as at a reversal
-            X[names.index(s)] = -0.5 * model.params.value("noback.pawl_pitch")
+    values = values_of(model.params)
+    for e in model.effects:  # each effect's states at a reversal (both pawls engaged: each direction meets
+        hint = EFFECTS[e].linear.at_reversal  # its loaded disk)
+        for s, v in (hint(values) if hint is not None else {}).items():
+            X[names.index(s)] = v
     _, Y = model.named.evaluate_many(X, b.U[:, k:k + 1], b.P[:, k:k + 1])
     tf = Y[model.named.outputs.index("friction_torque")]
     return w, tf
@@ -178,15 +182,15 @@ def describing_functions(design: Design, params: ParameterSet | None = None, *,
     conds = [OperatingCondition(0.0, float(f), float(t)) for t in temps for f in loads]
     lin = linearize_conditions(model, conds)  # invalid (zero speed) by design: see the docstring
     dsettings = replace(settings, n_frequencies=int(n_frequencies))
-    loops = _build(lin, design, dsettings)
+    loops = build_loops(lin, design, dsettings)
     omega, h = loops.omega, loops.h
     z = np.exp(1j * omega * h)
     cl_v, _ = loops.closed["velocity_loop"]
     cl_x, _ = loops.closed["position_loop"]
     H = {
-        ("velocity_loop", "friction"): _freq(cl_v.sub([1], [2]), z),
-        ("position_loop", "friction"): _freq(cl_x.sub([1], [2]), z),
-        ("position_loop", "backlash"): _freq(loops.open["position_loop"], z),
+        ("velocity_loop", "friction"): freq_response(cl_v.sub([1], [2]), z),
+        ("position_loop", "friction"): freq_response(cl_x.sub([1], [2]), z),
+        ("position_loop", "backlash"): freq_response(loops.open["position_loop"], z),
     }
     backlash = params.value("loadpath.backlash")
     r = model.kinematic_ratio

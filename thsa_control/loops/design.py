@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DesignError
+from ..model.laws import back_emf_constant, kinematic_ratio, torque_constant
 from ..model.params import ParameterSet
 
 __all__ = ["Design", "load_design", "parse_design", "check_control_period", "derive_gains", "reflected_inertia",
@@ -121,13 +122,13 @@ class Design:
         """Values in ``controllers.CONTROLLER_PARAMETERS`` order (SI)."""
         self.check_against(params)
         vmax = params.value("inverter.dc_bus_voltage") / math.sqrt(3.0)
-        r = params.value("screw.lead") / (2 * math.pi * params.value("gear.ratio"))
+        r = kinematic_ratio(params)
         return np.array([
             self.current_kp, self.current_ki, self.voltage_limit if self.voltage_limit is not None else vmax,
             self.velocity_kp, self.velocity_ki, self.current_limit, self.position_kp,
             float(self.computation_delay_samples), accel_limit, jerk_limit, self.max_speed,
             1.0 if motor_off_at_zero else 0.0, r, 1.0 if self.bumpless_handover else 0.0,
-            params.value("motor.resistance"), params.value("motor.pole_pairs") * params.value("motor.flux_linkage"),
+            params.value("motor.resistance"), back_emf_constant(params),
         ], dtype=float)
 
     def to_toml_dict(self) -> dict:
@@ -310,30 +311,16 @@ def load_design(path: str | Path) -> Design:
     return parse_design(doc, source=str(path))
 
 
-def reflected_inertia(params: ParameterSet, level: str = "A", effects=()) -> float:
-    """Inertia of the rigid drive referred to the motor shaft [kg m^2], taken from the plant.
+def reflected_inertia(params: ParameterSet, level: str | None = "A", effects=()) -> float:
+    """Inertia the motor current accelerates, at the motor shaft [kg m^2], as the plant states it.
 
-    At standstill and no load the speed's derivative is linear in the motor
-    current, ``dw/dt = Kt i / J``, so ``J = Kt / (dw/dt(i=1) - dw/dt(i=0))``
-    exactly: no second copy of the inertia sum the structure builds.  With
-    ``drivetrain_compliance`` the current accelerates the rotors alone at first
-    (the spring carries no torque yet): that rotor inertia is returned.
+    The rigid drive's whole inertia; with ``drivetrain_compliance`` the rotors'
+    alone (the spring carries no torque at first).  No second copy of the sum
+    the structure builds: :meth:`~thsa_control.model.Plant.inertia`.
     """
     from ..model import build_plant
-    from ..model.structure import torque_constant
 
-    plant = build_plant(level, effects, params=params)
-    p = plant.p_vector(params)
-    u = np.zeros(len(plant.inputs))
-    u[plant.index("input", "enable_primary")] = 1.0
-    u[plant.index("input", "temperature")] = params.value("friction.reference_temperature")
-    x = plant.initial_state(params)
-    speed = "rotor_speed" if "rotor_speed" in plant.state_names else "motor_speed"
-    iw, ii = plant.index("state", speed), plant.index("state", "motor_current")
-    w0 = float(plant.f(x, u, p)[0][iw])
-    x[ii] = 1.0
-    w1 = float(plant.f(x, u, p)[0][iw])
-    return torque_constant({n: params.value(n) for n in params}) / (w1 - w0)
+    return build_plant(level, effects, params=params).inertia(params)[1]
 
 
 def derive_gains(params: ParameterSet, *, current_bandwidth_hz: float, velocity_crossover_hz: float,
@@ -372,9 +359,7 @@ def derive_gains(params: ParameterSet, *, current_bandwidth_hz: float, velocity_
     """
     wc = 2 * math.pi * current_bandwidth_hz
     wv = 2 * math.pi * velocity_crossover_hz
-    from ..model.structure import torque_constant
-
-    kt = torque_constant({n: params.value(n) for n in params})
+    kt = torque_constant(params)
     if rotors not in (1, 2):
         raise DesignError("derivation", f"rotors = {rotors!r} must be 1 or 2")
     j = reflected_inertia(params, "A", ("standby_motor",) if rotors == 2 else ())

@@ -10,6 +10,12 @@ Stribeck region).  It does no loop analysis (``analysis.py``) and no plotting
 
 The adapted model
 -----------------
+The adapter names no effect: each effect declares what linearisation needs
+(:class:`~thsa_control.model.LinearHints`: states re-expressed relative to
+another, drifting states, validity guards, the state that probes the main
+body's inertia, operating-point guesses), and the adapter reads these for the
+effects of the plant.  With the library's effects:
+
 * **States**: the plant's states, except that at level D ``surface_position``
   is re-expressed as ``loadpath_deflection = nut_position - surface_position``
   [m] (positive: the nut pushes the surface), so that a steady motion, in
@@ -77,7 +83,6 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
-from typing import Literal
 
 import casadi as ca
 import numpy as np
@@ -95,8 +100,12 @@ from linearization import (
 )
 
 from ..errors import ModelError, SolverError
-from ..model import Plant, build_plant
-from ..model.effects import drivetrain_stiffness
+from .conditions import (
+    ACTIVE_CHANNELS, CONDITION_PARAMETERS, INPUTS, Active, ConditionGrid, LinearizationSettings, OperatingCondition,  # noqa: F401
+    conditions_tuple,
+)
+from ..model import EFFECTS, OperatingContext, Plant, build_plant
+from ..model.laws import back_emf_constant, drivetrain_stiffness, values_of
 from ..model.params import ParameterSet, default_parameters
 
 __all__ = [
@@ -114,188 +123,6 @@ __all__ = [
     "current_driven",
     "format_linear_model",
 ]
-
-#: Inputs of the adapted model, in order.
-INPUTS: tuple[str, ...] = ("voltage_primary", "voltage_standby", "load_force", "disturbance_torque")
-#: Held operating conditions appended to the plant's parameters, in order.
-CONDITION_PARAMETERS: tuple[str, ...] = ("enable_primary", "enable_standby", "temperature")
-
-Active = Literal["primary", "standby"]
-_ACTIVE = {
-    # active channel -> (voltage input, current state/output)
-    "primary": ("voltage_primary", "motor_current"),
-    "standby": ("voltage_standby", "standby_current"),
-}
-_PAWLS = ("pawl_clearance_comp", "pawl_clearance_tens")
-
-
-@dataclass(frozen=True)
-class LinearizationSettings:
-    """How operating points are found and judged.
-
-    Parameters
-    ----------
-    min_speed : float
-        Half-width of the band around zero nut speed where the point is
-        declared "zero speed / stick" [m/s].  Default 1e-5 (0.01 mm/s, a
-        motor speed of 0.34 rad/s).
-    loadpath_edge_band : float
-        Band around the load-path contact edges ``|deflection| = backlash``
-        inside which the point is a backlash edge [m].  Default 1e-6.
-    pawl_edge_band : float
-        Band around a pawl's engagement edge (clearance 0) [rad].  Default 1e-6.
-    pawl : {'inside', 'edge'}
-        Where the engaged pawl's clearance is put in a steady motion (see the
-        module notes).  Default ``'inside'``.
-    fd_check : bool
-        Cross-check AD with finite differences and detect kinks.  Default True.
-    kink_rtol : float
-        Relative slope jump reported as a kink [-].  Default 1e-3.
-    solver_tol : float
-        Largest accepted equation residual of an operating point.  Default 1e-9.
-    """
-
-    min_speed: float = 1e-5
-    loadpath_edge_band: float = 1e-6
-    pawl_edge_band: float = 1e-6
-    pawl: Literal["inside", "edge"] = "inside"
-    fd_check: bool = True
-    kink_rtol: float = 1e-3
-    solver_tol: float = 1e-9
-
-    def __post_init__(self) -> None:
-        self.validate()
-
-    def validate(self) -> None:
-        """Raise ``ValueError`` naming the first invalid setting."""
-        for name in ("min_speed", "loadpath_edge_band", "pawl_edge_band"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"LinearizationSettings.{name} = {value!r} must be a finite number >= 0")
-        for name in ("kink_rtol", "solver_tol"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"LinearizationSettings.{name} = {value!r} must be > 0")
-        if self.pawl not in ("inside", "edge"):
-            raise ValueError(f"LinearizationSettings.pawl = {self.pawl!r}; valid: 'inside', 'edge'")
-
-
-@dataclass(frozen=True)
-class OperatingCondition:
-    """Where the actuator is linearised.
-
-    Parameters
-    ----------
-    nut_speed : float
-        Trim nut speed [m/s], positive extending.
-    load_force : float
-        Axial load [N], positive compressive: it opposes the motion when
-        ``load_force * nut_speed > 0`` and aids it when ``< 0``.
-    temperature : float
-        Actuator temperature [degC], -55..70 (changes the plant only with
-        the ``temperature_friction`` effect).
-    active : {'primary', 'standby'}
-        Energised motor channel; the other is off (its rotor dragged).
-
-    Examples
-    --------
-    >>> c = OperatingCondition(5e-3, -20e3, -30.0)
-    >>> c.aiding, c.label()
-    (True, '5 mm/s, -20 kN (aiding), -30 degC')
-    """
-
-    nut_speed: float
-    load_force: float
-    temperature: float = 25.0
-    active: Active = "primary"
-
-    def __post_init__(self) -> None:
-        for name in ("nut_speed", "load_force", "temperature"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-                raise ValueError(f"OperatingCondition.{name} = {value!r} is not a number")
-            if not math.isfinite(float(value)):
-                raise ValueError(f"OperatingCondition.{name} = {value!r} is not finite")
-            object.__setattr__(self, name, float(value))
-        if not -55.0 <= self.temperature <= 70.0:
-            raise ValueError(f"OperatingCondition.temperature = {self.temperature:g} degC outside -55..70 degC")
-        if self.active not in _ACTIVE:
-            raise ValueError(f"OperatingCondition.active = {self.active!r}; valid: {sorted(_ACTIVE)}")
-
-    @property
-    def aiding(self) -> bool:
-        """True when the load aids the motion (``load_force * nut_speed < 0``)."""
-        return self.load_force * self.nut_speed < 0
-
-    @property
-    def opposing(self) -> bool:
-        """True when the load opposes the motion (``load_force * nut_speed > 0``)."""
-        return self.load_force * self.nut_speed > 0
-
-    def label(self) -> str:
-        """Short human-readable label (mm/s, kN, degC)."""
-        if self.load_force == 0 or self.nut_speed == 0:
-            how = ""
-        else:
-            how = " (aiding)" if self.aiding else " (opposing)"
-        act = "" if self.active == "primary" else ", standby active"
-        return (f"{self.nut_speed * 1e3:g} mm/s, {self.load_force * 1e-3:g} kN{how}, "
-                f"{self.temperature:g} degC{act}")
-
-
-@dataclass(frozen=True)
-class ConditionGrid:
-    """A full grid of operating conditions (SI).
-
-    Points are ordered temperature-major, then speed, then load
-    (``numpy.meshgrid(..., indexing='ij')`` of ``temperatures, nut_speeds,
-    load_forces``).
-
-    Parameters
-    ----------
-    nut_speeds : sequence of float
-        [m/s].
-    load_forces : sequence of float
-        [N], compressive positive.
-    temperatures : sequence of float
-        [degC].
-    active : {'primary', 'standby'}
-        Energised channel.
-
-    Examples
-    --------
-    >>> g = ConditionGrid((1e-3, 5e-3), (0.0,), (-30.0, 25.0))
-    >>> len(g), g.shape, g.conditions()[1].label()
-    (4, (2, 2, 1), '5 mm/s, 0 kN, -30 degC')
-    """
-
-    nut_speeds: tuple[float, ...]
-    load_forces: tuple[float, ...]
-    temperatures: tuple[float, ...] = (25.0,)
-    active: Active = "primary"
-
-    def __post_init__(self) -> None:
-        for name in ("nut_speeds", "load_forces", "temperatures"):
-            values = tuple(float(v) for v in getattr(self, name))
-            if not values:
-                raise ValueError(f"ConditionGrid.{name} is empty")
-            object.__setattr__(self, name, values)
-
-    @property
-    def shape(self) -> tuple[int, int, int]:
-        """``(n_temperatures, n_speeds, n_loads)``."""
-        return (len(self.temperatures), len(self.nut_speeds), len(self.load_forces))
-
-    def __len__(self) -> int:
-        return int(np.prod(self.shape))
-
-    def conditions(self) -> tuple[OperatingCondition, ...]:
-        """All points, temperature-major."""
-        return tuple(
-            OperatingCondition(v, f, t, self.active)
-            for t in self.temperatures for v in self.nut_speeds for f in self.load_forces
-        )
-
 
 @dataclass(frozen=True, eq=False)
 class PlantModel:
@@ -341,13 +168,13 @@ class PlantModel:
 
     @property
     def kinematic_ratio(self) -> float:
-        """Nut travel per motor radian ``r = lead / (2 pi N)`` [m/rad]."""
-        return self.params.value("screw.lead") / (2 * math.pi * self.params.value("gear.ratio"))
+        """Nut travel per motor radian ``r = lead / (2 pi N)`` [m/rad] (the plant's)."""
+        return self.plant.kinematic_ratio(self.p_plant)
 
     @property
     def torque_constant(self) -> float:
-        """``Kt = 1.5 p psi`` [N m/A]."""
-        return 1.5 * self.params.value("motor.pole_pairs") * self.params.value("motor.flux_linkage")
+        """Motor torque constant [N m/A] (the plant's)."""
+        return self.plant.torque_constant(self.p_plant)
 
     def describe(self) -> str:
         """One line: level, effects, drifting states."""
@@ -357,34 +184,15 @@ class PlantModel:
                   else "one rotor (the standby rotor left out)")
         line = f"level {lvl} ({eff}); {rotors}"
         if "drivetrain_compliance" in self.effects:
-            P = self.params.value
-            k = drivetrain_stiffness(_values(self.params))
-            j_r = P("motor.rotor_inertia") * (2 if "standby_motor" in self.effects else 1)
-            j_m = self.params_inertia_load()
-            f = math.sqrt(k * (1 / j_r + P("gear.efficiency") / j_m)) / (2 * math.pi)  # motor driving
+            k = drivetrain_stiffness(self.params)
+            j_m, j_r = self.plant.inertia(self.p_plant)
+            f = math.sqrt(k * (1 / j_r + self.params.value("gear.efficiency") / j_m)) / (2 * math.pi)  # motor driving
             line += f"; compliant drive train, rotor/screw torsional resonance near {f:.0f} Hz (assumed stiffness)"
         return line + f"; drifting (excluded): {', '.join(self.named.drifting_states)}"
 
     def params_inertia_load(self) -> float:
-        """Inertia of the gear-output side at the motor shaft [kg m^2], from the plant's own balance.
-
-        ``1 / J = d(dw/dt) / d(k twist)`` at rest (drive-train compliance), or
-        ``Kt / (d(dw/dt) / di)`` for the rigid drive (then the rotors included).
-        """
-        plant, P = self.plant, self.params
-        x = plant.initial_state(P)
-        u = np.zeros(len(plant.inputs))
-        u[plant.index("input", "enable_primary")] = 1.0
-        u[plant.index("input", "temperature")] = P.value("friction.reference_temperature")
-        p = plant.p_vector(P)
-        iw = plant.index("state", "motor_speed")
-        base = float(plant.f(x, u, p)[0][iw])
-        if "drivetrain_twist" in plant.state_names:
-            k = drivetrain_stiffness(_values(P))
-            x[plant.index("state", "drivetrain_twist")] = 1e-6
-            return k * 1e-6 / (float(plant.f(x, u, p)[0][iw]) - base)
-        x[plant.index("state", "motor_current")] = 1.0
-        return self.torque_constant / (float(plant.f(x, u, p)[0][iw]) - base)
+        """Inertia of the gear-output side at the motor shaft [kg m^2] (the plant's main body)."""
+        return self.plant.inertia(self.p_plant)[0]
 
 
 #: Default model level and effects of the linear workflow: :func:`plant_model`, the loop analysis
@@ -394,10 +202,6 @@ DEFAULT_LEVEL = "B"
 DEFAULT_EFFECTS: tuple[str, ...] = ("temperature_friction", "standby_motor")
 
 
-
-def _values(params: ParameterSet) -> dict:
-    """``name -> value`` of a parameter set (for the effect library's laws)."""
-    return {n: params.value(n) for n in params.names}
 
 def plant_model(level: str | None = DEFAULT_LEVEL, effects: Iterable[str] | None = None,
                 params: ParameterSet | None = None, *, settings: LinearizationSettings | None = None) -> PlantModel:
@@ -441,21 +245,24 @@ def plant_model(level: str | None = DEFAULT_LEVEL, effects: Iterable[str] | None
     plant = build_plant(level, effects, params=params)
     names = plant.state_names
     n_x, n_p = len(names), len(plant.parameters)
-    states = tuple("loadpath_deflection" if s == "surface_position" else s for s in names)
+    hints = [EFFECTS[e].linear for e in plant.effects]
+    # states re-expressed relative to a reference (state -> (new name, reference)): new = reference - state
+    relative = {s: rel for h in hints for s, rel in h.relative.items() if s in names}
+    states = tuple(relative[s][0] if s in relative else s for s in names)
     x = ca.SX.sym("x", n_x)
     u = ca.SX.sym("u", len(INPUTS))
     p = ca.SX.sym("p", n_p + len(CONDITION_PARAMETERS))
     pp = p[:n_p]
+    pdict = {n: pp[k] for k, n in enumerate(plant.parameters)}
     U = dict(zip(INPUTS, ca.vertsplit(u)))
     C = dict(zip(CONDITION_PARAMETERS, ca.vertsplit(p[n_p:])))
-    i_nut = names.index("nut_position")
     xs = list(ca.vertsplit(x))
-    if "surface_position" in names:
-        # The plant reads the positions only through their difference.  Feeding it
-        # (nut, surface) = (deflection, 0) gives that difference exactly, with no
-        # cancellation error, so nut_position acts on nothing but its own outputs.
-        i_surf = names.index("surface_position")
-        xs[i_nut], xs[i_surf] = x[i_surf], ca.SX(0.0)
+    for s, (_, ref) in relative.items():
+        # The plant reads the two positions only through their difference.  Feeding it
+        # (reference, state) = (difference, 0) gives that difference exactly, with no
+        # cancellation error, so the reference acts on nothing but its own outputs.
+        i_s, i_ref = names.index(s), names.index(ref)
+        xs[i_ref], xs[i_s] = x[i_s], ca.SX(0.0)
     plant_u = {"voltage_primary": U["voltage_primary"], "voltage_standby": U["voltage_standby"],
                "enable_primary": C["enable_primary"], "enable_standby": C["enable_standby"],
                "load_force": U["load_force"], "temperature": C["temperature"],
@@ -465,40 +272,40 @@ def plant_model(level: str | None = DEFAULT_LEVEL, effects: Iterable[str] | None
         raise ModelError(f"plant input(s) {missing} have no counterpart in the linearisation adapter")
     xdot, y = plant.f(ca.vertcat(*xs), ca.vertcat(*(plant_u[n] for n in plant.inputs)), pp)
     xdot = list(ca.vertsplit(xdot))
-    if "surface_position" in names:
-        xdot[i_surf] = xdot[i_nut] - xdot[i_surf]  # d(deflection)/dt = nut speed - surface speed
+    if relative:
         ys = list(ca.vertsplit(y))
-        ys[plant.outputs.index("nut_position")] = x[i_nut]
-        ys[plant.outputs.index("surface_position")] = x[i_nut] - x[i_surf]
+        for s, (_, ref) in relative.items():
+            i_s, i_ref = names.index(s), names.index(ref)
+            xdot[i_s] = xdot[i_ref] - xdot[i_s]  # d(reference - state)/dt
+            if ref in plant.outputs:
+                ys[plant.outputs.index(ref)] = x[i_ref]
+            if s in plant.outputs:
+                ys[plant.outputs.index(s)] = x[i_ref] - x[i_s]
         y = ca.vertcat(*ys)
-    i_w, i_i = names.index("motor_speed"), names.index("motor_current")
-    pidx = {n: k for k, n in enumerate(plant.parameters)}
-    kt = 1.5 * pp[pidx["motor.pole_pairs"]] * pp[pidx["motor.flux_linkage"]]
-    if "drivetrain_twist" in names:
-        # compliant drive train: the disturbance acts on the gear-output body; 1/J of that body from
-        # its own balance (the spring torque k * twist enters it with unit gain)
-        k_dt = drivetrain_stiffness({n: pp[i] for n, i in pidx.items()})
-        inv_j = ca.jacobian(xdot[i_w], x[names.index("drivetrain_twist")]) / k_dt
-    else:
-        inv_j = ca.jacobian(xdot[i_w], x[i_i]) / kt  # 1/J from the plant's own speed balance
+    i_w = names.index("motor_speed")
+    # the disturbance torque enters the main body: 1/J from the plant's own speed balance, through the
+    # torque that enters it with unit gain (the motor's, or the effect's that couples it: the spring of a
+    # compliant drive train)
+    probe, gain = "motor_current", plant.kt_fn(pp)
+    for h in hints:
+        if h.inertia_probe is not None:
+            probe, gain = h.inertia_probe[0], h.inertia_probe[1](pdict)
+    inv_j = ca.jacobian(xdot[i_w], x[names.index(probe)]) / gain
     xdot[i_w] = xdot[i_w] + inv_j * U["disturbance_torque"]
     f = ca.Function("thsa_linear_adapter", [x, u, p], [ca.vertcat(*xdot), y], ["x", "u", "p"], ["xdot", "y"])
-    drifting = ("nut_position",) + tuple(s for s in _PAWLS if s in names)
+    drifting = ("nut_position",) + tuple(s for h in hints for s in h.drifting if s in names)
     named = NamedModel(f, states, INPUTS, plant.outputs, tuple(plant.parameters) + CONDITION_PARAMETERS,
                        drifting_states=drifting)
 
     # validity guards (x, u, p) -> margins, negative = violated
-    r = pp[pidx["screw.lead"]] / (2 * math.pi * pp[pidx["gear.ratio"]])
+    r = plant.ratio_fn(pp)
     guards = [ca.fabs(r * x[i_w]) - settings.min_speed]
     gnames = ["zero_speed"]
-    for s in _PAWLS:
-        if s in names:
-            guards.append(ca.fabs(x[names.index(s)]) - settings.pawl_edge_band)
-            gnames.append(f"{s}_edge")
-    if "surface_position" in names:
-        d = x[names.index("surface_position")]
-        guards.append(ca.fabs(ca.fabs(d) - pp[pidx["loadpath.backlash"]]) - settings.loadpath_edge_band)
-        gnames.append("loadpath_contact_edge")
+    xnamed = dict(zip(states, ca.vertsplit(x)))
+    for h in hints:
+        for g in h.guards:
+            guards.append(g.distance(xnamed, pdict) - getattr(settings, g.band))
+            gnames.append(g.name)
     guard = ca.Function("thsa_validity", [x, u, p], [ca.vertcat(*guards)], ["x", "u", "p"], ["margins"])
     # local slope of the set-valued friction channels with motor speed (computed here rather than
     # read from the linear model's C, because the generic package drops outputs that depend
@@ -509,20 +316,6 @@ def plant_model(level: str | None = DEFAULT_LEVEL, effects: Iterable[str] | None
     return PlantModel(level=None if level is None else str(level).upper(), plant=plant, named=named, params=params,
                       p_plant=plant.p_vector(params), guard=guard, guard_names=tuple(gnames), settings=settings,
                       friction_slope_fn=slope)
-
-
-def _conditions_tuple(conditions) -> tuple[OperatingCondition, ...]:
-    if isinstance(conditions, OperatingCondition):
-        return (conditions,)
-    if isinstance(conditions, ConditionGrid):
-        return conditions.conditions()
-    out = tuple(conditions)
-    for c in out:
-        if not isinstance(c, OperatingCondition):
-            raise TypeError(f"expected OperatingCondition, got {type(c).__name__}")
-    if not out:
-        raise ValueError("no operating conditions given")
-    return out
 
 
 def _p_grid(model: PlantModel, conds: Sequence[OperatingCondition]) -> NDArray[np.float64]:
@@ -537,37 +330,35 @@ def _p_grid(model: PlantModel, conds: Sequence[OperatingCondition]) -> NDArray[n
 
 
 def _spec(model: PlantModel, c: OperatingCondition) -> OperatingPointSpec:
-    named = model.named
     r = model.kinematic_ratio
     w = c.nut_speed / r
     kt = model.torque_constant
-    ke = model.params.value("motor.pole_pairs") * model.params.value("motor.flux_linkage")
-    v_active, i_active = _ACTIVE[c.active]
+    v_active, i_active = ACTIVE_CHANNELS[c.active]
     v_off = "voltage_standby" if c.active == "primary" else "voltage_primary"
     i_guess = c.load_force * r / kt
     guess_x = {i_active: i_guess}
-    if "rotor_speed" in named.states:
-        guess_x["rotor_speed"] = w
-        guess_x["drivetrain_twist"] = kt * i_guess / drivetrain_stiffness(_values(model.params))
     # The speed is held as a state, not solved for through the output nut_speed: the
     # solver then never steps across w = 0, where the friction of the continuous form jumps.
     states = {"nut_position": 0.0, "motor_speed": w}
-    if "pawl_clearance_comp" in named.states:
-        pitch = model.params.value("noback.pawl_pitch")
-        engaged = 0.0 if model.settings.pawl == "edge" else -0.5 * pitch
-        # extension (w > 0) is locked by the tensile-side pawl, retraction by the compressive-side one
-        comp, tens = (0.5 * pitch, engaged) if c.nut_speed >= 0 else (engaged, 0.5 * pitch)
-        states.update(pawl_clearance_comp=comp, pawl_clearance_tens=tens)
-    if "loadpath_deflection" in named.states:
-        x0 = model.plant.initial_state(model.params, load_force=c.load_force)
-        names = model.plant.state_names
-        guess_x["loadpath_deflection"] = float(x0[names.index("nut_position")] - x0[names.index("surface_position")])
-        guess_x["surface_speed"] = c.nut_speed
+    plant, params = model.plant, model.params
+
+    def rest_state():
+        return dict(zip(plant.state_names, plant.initial_state(params, load_force=c.load_force)))
+
+    ctx = OperatingContext(speed=w, nut_speed=c.nut_speed, load_force=c.load_force, current=i_guess,
+                           torque_constant=kt, values=values_of(params), pawl=model.settings.pawl,
+                           rest_state=rest_state)
+    for e in model.effects:  # each effect holds or guesses its own states
+        hint = EFFECTS[e].linear.operating_point
+        if hint is not None:
+            held, guesses = hint(ctx)
+            states.update(held)
+            guess_x.update(guesses)
     return OperatingPointSpec(
         inputs={v_off: 0.0, "load_force": c.load_force, "disturbance_torque": 0.0},
         states=states,
         guess_x=guess_x,
-        guess_u={v_active: ke * w + model.params.value("motor.resistance") * i_guess},
+        guess_u={v_active: back_emf_constant(params) * w + params.value("motor.resistance") * i_guess},
     )
 
 
@@ -591,7 +382,7 @@ def operating_points(model: PlantModel, conditions) -> OperatingPointBatch:
         When a point has no steady motion (names the condition and the
         worst equation).
     """
-    conds = _conditions_tuple(conditions)
+    conds = conditions_tuple(conditions)
     P = _p_grid(model, conds)
     specs = [_spec(model, c) for c in conds]
     ops = find_operating_points(model.named, P, specs, settings=SolverSettings(tol=model.settings.solver_tol),
@@ -696,7 +487,7 @@ class PlantLinearization:
 
     def channel(self, k: int | None = None) -> tuple[str, str]:
         """(voltage input, current output) of the active channel of point ``k`` (default: first)."""
-        return _ACTIVE[self.conditions[0 if k is None else k].active]
+        return ACTIVE_CHANNELS[self.conditions[0 if k is None else k].active]
 
     def invalid_points(self) -> list[tuple[OperatingCondition, tuple[str, ...]]]:
         """``(condition, reasons)`` of every invalid point."""
@@ -710,6 +501,11 @@ def _is_stribeck(slope, damping):
 
 
 def _classify(model: PlantModel, conds, batch: LinearModelBatch, slope, damping):
+    hints = [EFFECTS[e].linear for e in model.effects]
+    kinks = {k: m for h in hints for k, m in h.kinks.items()}
+    # the effects' clearance and contact states: a kink there is a backlash edge
+    edge_states = tuple(s for h in hints for s in h.drifting) + tuple(
+        new for h in hints for new, _ in h.relative.values())
     reasons, notes = [], []
     min_mm = model.settings.min_speed * 1e3
     for k, c in enumerate(conds):
@@ -728,10 +524,9 @@ def _classify(model: PlantModel, conds, batch: LinearModelBatch, slope, damping)
                 note.append(text)
             elif "state 'motor_speed'" in text or "d(motor_speed)" in text:
                 why.append(f"friction discontinuity at this speed (stick/slip): {text}")
-            elif "noback_normal_force" in text:
-                why.append(f"load reversal in the load path (zero load-path force: the no-back's loaded "
-                           f"side switches): {text}")
-            elif any(s in text for s in ("pawl_clearance", "loadpath_deflection")):
+            elif any(k in text for k in kinks):
+                why.append(f"{next(m for k, m in kinks.items() if k in text)}: {text}")
+            elif any(s in text for s in edge_states):
                 why.append(f"backlash edge: {text}")
             else:
                 why.append(text)
@@ -783,7 +578,7 @@ def linearize_conditions(model: PlantModel, conditions, *, ops: OperatingPointBa
     >>> lin.reasons[1][0][:10]
     'zero speed'
     """
-    conds = _conditions_tuple(conditions)
+    conds = conditions_tuple(conditions)
     if ops is None:
         ops = operating_points(model, conds)
     s = model.settings

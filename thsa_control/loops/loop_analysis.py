@@ -50,14 +50,14 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from ._loopmath import (
+from .loopmath import (
     MarginSet,
     StepMetrics,
     _SS,
     _Response,
     _close,
     _dcgain,
-    _frequency_grid,
+    frequency_grid,
     _gain_delay,
     _load_metrics,
     _margins,
@@ -393,7 +393,7 @@ def _plant_blocks(lin: PlantLinearization) -> tuple[_SS, np.ndarray, np.ndarray]
     return _SS(b.A, B, C, D), k, iv
 
 
-def _build(lin: PlantLinearization, design: Design, settings: AnalysisSettings) -> _Loops:
+def build_loops(lin: PlantLinearization, design: Design, settings: AnalysisSettings) -> _Loops:
     h = design.control_period
     N = len(lin)
     cont, _, _ = _plant_blocks(lin)
@@ -433,7 +433,7 @@ def _build(lin: PlantLinearization, design: Design, settings: AnalysisSettings) 
         "position_loop": _series(Kx, cl_v_full.sub([3], [0])),
     }
     closed = {"current_loop": (_close(rl, Kc, 0, 0), 0), "velocity_loop": (cl_v, 1), "position_loop": (cl_x, 3)}
-    omega = _frequency_grid(h, settings.f_min, settings.n_frequencies)
+    omega = frequency_grid(h, settings.f_min, settings.n_frequencies)
     return _Loops(opens, closed, omega, h)
 
 
@@ -671,11 +671,11 @@ def analyse_loops(design: Design, params: ParameterSet | None = None, conditions
         conditions = settings.grid()
     grid = conditions if isinstance(conditions, ConditionGrid) else None
     lin = linearize_conditions(model, conditions)
-    loops = _metrics(_build(lin, design, settings), settings, steps)
-    return LoopAnalysis(design, settings, lin, loops, grid, _saturation(lin, design, params))
+    loops = _metrics(build_loops(lin, design, settings), settings, steps)
+    return LoopAnalysis(design, settings, lin, loops, grid, saturation_flags(lin, design, params))
 
 
-def _saturation(lin: PlantLinearization, design: Design, params: ParameterSet) -> tuple[tuple[str, ...], ...]:
+def saturation_flags(lin: PlantLinearization, design: Design, params: ParameterSet) -> tuple[tuple[str, ...], ...]:
     b = lin.batch
     v_max = design.voltage_limit if design.voltage_limit is not None else (
         params.value("inverter.dc_bus_voltage") / math.sqrt(3.0))

@@ -5,7 +5,7 @@
 named inputs, outputs and states, for the current, velocity and position
 loops.  They are the very systems the grid analysis
 (:func:`thsa_control.loops.analysis.analyse_loops`) evaluates, built by the
-same batched loop math (:mod:`._loopmath`) from the same linearisation
+same batched loop math (:mod:`.loopmath`) from the same linearisation
 (:mod:`.linear`), taken at one point; so ``control.stability_margins`` of an
 open loop gives the analysis' margins, and ``control.feedback(open_loop(...),
 1)`` its closed loop.
@@ -40,10 +40,10 @@ import numpy as np
 
 from ..errors import DesignError
 from ..model.params import ParameterSet, default_parameters
-from ._loopmath import _SS
+from .loopmath import _SS
 from .design import Design, load_design, nominal_design_path
 from .linear import DEFAULT_LEVEL, OperatingCondition, PlantModel, linearize_conditions, plant_model
-from .loop_analysis import LOOPS, AnalysisSettings, _build, _saturation
+from .loop_analysis import LOOPS, AnalysisSettings, build_loops, saturation_flags
 
 __all__ = ["open_loop", "closed_loop", "loop_frequency_response"]
 
@@ -70,7 +70,7 @@ def _condition(condition) -> OperatingCondition:
 
 
 def _state_names(lin, design: Design) -> dict[str, list[str]]:
-    """State names of the blocks composed by ``loop_analysis._build`` (same order)."""
+    """State names of the blocks composed by ``loop_analysis.build_loops`` (same order)."""
     plant = list(lin.batch.states)
     kc = ["current_pi"] + [f"computation_delay_{k + 1}" for k in range(design.computation_delay_samples)]
     kv, kx, full = ["velocity_pi"], ["position_delay"], plant + ["nut_position"]
@@ -93,10 +93,10 @@ def _setup(loop, condition, design, params, level, effects, model):
     if model is None:
         model = plant_model(level, effects, params)
     lin = linearize_conditions(model, [cond])
-    why = lin.reasons[0] + _saturation(lin, design, params)[0]
+    why = lin.reasons[0] + saturation_flags(lin, design, params)[0]
     if not lin.valid[0] or why:
         raise DesignError("operating point", f"{cond.label()} has no linear loop: {'; '.join(why)}")
-    loops = _build(lin, design, AnalysisSettings(level=model.level or DEFAULT_LEVEL, effects=model.effects))
+    loops = build_loops(lin, design, AnalysisSettings(level=model.level or DEFAULT_LEVEL, effects=model.effects))
     return name, cond, design, loops, _state_names(lin, design)
 
 

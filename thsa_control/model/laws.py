@@ -1,10 +1,23 @@
-"""Component laws of the effect library as casadi Functions (for component identification).
+"""Pure laws of the model: the physics every effect, the structure and the tools use, written once.
 
-Each law is built from the same helper expressions the effects use
-(``effects.stribeck``, ``effects.loadpath_force_law``,
-``effects.temperature_drag_terms``), so that fitting a component table and
-simulating the actuator use one copy of the physics.  A law's Function takes
-its operating variables and its parameters, both named.
+Two kinds, both casadi-only and free of any effect machinery:
+
+* **Elementary laws** of the actuator, functions of a parameter mapping ``p``
+  (name -> number or casadi expression; a :class:`~thsa_control.model.params.ParameterSet`
+  is accepted too) and operating variables: the screw-to-nut ratio
+  :func:`kinematic_ratio`, the torque constant :func:`torque_constant`, the
+  q-axis motor electrics :func:`motor_lag`, the friction laws (:func:`stribeck`,
+  :func:`temperature_drag_terms`, :func:`drive_coulomb_terms`), the load-path
+  law and its inverse, the drive-train stiffness, the limiter's slip torques,
+  the screw and motor angles.  The structure (``structure.py``) and the effect
+  modules (``effects/``) build the plant from them; code outside ``model/``
+  that needs one of these facts for a parameter set (a controller vector, a
+  report's axis) calls the same function, so no fact is restated.
+* **Component laws** :data:`LAWS`: some of the laws above as named casadi
+  Functions of their operating variables and parameters, for component
+  identification (a friction-disk table, a load-path table, a drag table).
+
+This module imports casadi and math only.
 
 Examples
 --------
@@ -17,13 +30,167 @@ Examples
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import casadi as ca
 
-from .effects import loadpath_force_law, stribeck, temperature_drag_terms
+__all__ = ["Law", "LAWS", "values_of", "kinematic_ratio", "torque_constant", "back_emf_constant", "motor_lag",
+           "stribeck", "temperature_drag_terms", "loadpath_force_law", "loadpath_static_deflection",
+           "drivetrain_stiffness", "limiter_slip_torques", "drive_coulomb_terms", "screw_angle", "motor_angle"]
 
-__all__ = ["Law", "LAWS"]
+
+def values_of(p):
+    """``name -> value`` of a parameter set; a plain mapping is returned as it is."""
+    if hasattr(p, "value") and callable(p.value) and hasattr(p, "names"):
+        return {n: p.value(n) for n in p.names}
+    return p
+
+
+# ----------------------------------------------------------------------------- elementary laws
+def kinematic_ratio(p):
+    """Nut travel per motor radian ``r = lead / (2 pi N)`` [m/rad]."""
+    p = values_of(p)
+    return p["screw.lead"] / (2 * math.pi * p["gear.ratio"])
+
+
+def torque_constant(p):
+    """PMSM torque constant ``Kt = 1.5 p psi`` [N m/A] (amplitude-invariant dq)."""
+    p = values_of(p)
+    return 1.5 * p["motor.pole_pairs"] * p["motor.flux_linkage"]
+
+
+def back_emf_constant(p):
+    """q-axis back-EMF per motor speed ``p psi`` [V s/rad] (``Kt / 1.5``)."""
+    p = values_of(p)
+    return p["motor.pole_pairs"] * p["motor.flux_linkage"]
+
+
+def motor_lag(p, current, voltage, enable, speed):
+    """q-axis electrics of one motor as a first-order lag ``(tau, target)``.
+
+    ``L di/dt = clamp(v) - R i - p psi w`` while energised; with the inverter
+    off the current decays with ``motor.off_current_time_constant``.  Written
+    as ``di/dt = (target - i) / tau`` so that the discrete map can integrate it
+    exactly over a step with the speed frozen.  The q voltage is clamped to
+    what the dq voltage circle leaves it: ``vq_max = sqrt(Vmax^2 - (w_e L i_q)^2)``
+    with ``Vmax = V_dc / sqrt(3)`` (i_d = 0 control; the d voltage follows).
+    Returns ``(tau, target, v_q, v_d, copper_loss)``.
+    """
+    vmax = p["inverter.dc_bus_voltage"] / math.sqrt(3.0)
+    # The inverter limits the dq voltage vector to V_dc/sqrt(3).  With i_d held
+    # at zero the d-axis voltage the current controller must apply is
+    # v_d = -w_e L i_q, so the q axis gets what is left of the circle.
+    v_d = -p["motor.pole_pairs"] * speed * p["motor.inductance"] * current
+    vq_max = ca.sqrt(ca.fmax(vmax**2 - v_d**2, 0.0))
+    v = ca.fmin(ca.fmax(voltage, -vq_max), vq_max)
+    back_emf = p["motor.pole_pairs"] * p["motor.flux_linkage"] * speed
+    on = enable > 0.5
+    tau = ca.if_else(on, p["motor.inductance"] / p["motor.resistance"], p["motor.off_current_time_constant"])
+    target = ca.if_else(on, (v - back_emf) / p["motor.resistance"], 0.0)
+    # copper loss when energised; when off the magnetic energy is dissipated in the diodes
+    loss = ca.if_else(
+        on, 1.5 * p["motor.resistance"], 1.5 * p["motor.inductance"] / p["motor.off_current_time_constant"]
+    ) * current**2
+    v_d = ca.if_else(on, v_d, 0.0)
+    return tau, target, v, v_d, loss
+
+
+def stribeck(mu_s, mu_c, speed, w_st):
+    """Stribeck coefficient ``mu_c + (mu_s - mu_c) exp(-(speed/w_st)^2)`` of the disk law."""
+    return mu_c + (mu_s - mu_c) * ca.exp(-((speed / w_st) ** 2))
+
+
+def temperature_drag_terms(p, speed, temperature):
+    """Terms of the temperature law at motor speed ``speed`` [rad/s] and ``temperature`` [degC].
+
+    Returns ``(delta_viscous, coulomb_static, coulomb_kinetic)``: the change of
+    the gearbox/screw viscous coefficient from its 25 degC value [N m s/rad]
+    and the extra Coulomb drag at standstill and at ``speed`` [N m], all
+    referred to the motor shaft.
+    """
+    dT = p["friction.reference_temperature"] - temperature
+    db = p["gear.viscous_friction"] * (ca.exp(p["friction.viscous_temperature_coefficient"] * dT) - 1.0)
+    tc = p["friction.cold_coulomb_torque"] * (ca.exp(p["friction.coulomb_temperature_coefficient"] * ca.fmax(dT, 0.0)) - 1.0)
+    r_st = p["friction.cold_stribeck_ratio"]
+    kinetic = tc * (1.0 + r_st * ca.exp(-((speed / p["friction.cold_stribeck_speed"]) ** 2)))
+    return db, tc * (1.0 + r_st), kinetic
+
+
+def loadpath_force_law(p, deflection, deflection_rate):
+    """Papers' piecewise load-path law [N], compressive positive.
+
+    ``deflection = x_nut - x_surface`` [m] (positive: the nut pushes the
+    surface), ``deflection_rate`` its derivative [m/s].  Returns
+    ``(force, conservative_part)``.
+    """
+    d, dd = deflection, deflection_rate
+    b = p["loadpath.backlash"]
+    k_ds = 2.0 * p["loadpath.disk_spring_stiffness"]
+    c = p["loadpath.contact_damping"]
+    upper = ca.if_else(d > b, ca.fmax(p["loadpath.contact_stiffness_upper"] * (d - b) + c * dd, 0.0), 0.0)
+    lower = ca.if_else(d < -b, ca.fmin(p["loadpath.contact_stiffness_lower"] * (d + b) + c * dd, 0.0), 0.0)
+    spring = (
+        k_ds * d
+        + p["loadpath.contact_stiffness_upper"] * ca.fmax(d - b, 0.0)
+        + p["loadpath.contact_stiffness_lower"] * ca.fmin(d + b, 0.0)
+    )
+    force = k_ds * d + p["loadpath.disk_spring_damping"] * dd + upper + lower
+    return force, spring
+
+
+def loadpath_static_deflection(p, force):
+    """Deflection [m] at which the load path carries ``force`` [N] at rest (inverse of the law)."""
+    b = p["loadpath.backlash"]
+    k_ds = 2.0 * p["loadpath.disk_spring_stiffness"]
+    ku, kl = p["loadpath.contact_stiffness_upper"], p["loadpath.contact_stiffness_lower"]
+    f_edge = k_ds * b
+    return ca.if_else(
+        force > f_edge,
+        (force + ku * b) / (k_ds + ku),
+        ca.if_else(force < -f_edge, (force - kl * b) / (k_ds + kl), force / ca.fmax(k_ds, 1e-300)),
+    )
+
+
+def drivetrain_stiffness(p):
+    """Torsional stiffness of the drive train at the motor shaft [N m/rad] (``drivetrain_compliance``).
+
+    Paper 000, Figure 6: the gearbox stiffness k_g in series with the screw's
+    torsional stiffness (no inertia between them: the screw inertia sits at
+    the nut end with the no-back), referred to the motor shaft by ``1/N^2``.
+    ``p`` maps parameter names to values (numbers or casadi expressions).
+    """
+    p = values_of(p)
+    k_eq = 1.0 / (1.0 / p["gear.torsional_stiffness"] + 1.0 / p["screw.torsional_stiffness"])
+    return k_eq / p["gear.ratio"] ** 2
+
+
+def limiter_slip_torques(p):
+    """Static and kinetic slip torque of the limiter at the large gear [N m]: ``n mu F_pre R``."""
+    p = values_of(p)
+    base = p["limiter.faces"] * p["limiter.preload"] * p["limiter.mean_radius"]
+    return base * p["limiter.mu_static"], base * p["limiter.mu_kinetic"]
+
+
+def drive_coulomb_terms(p, speed):
+    """``(static, kinetic)`` torque [N m, motor shaft] of ``coulomb_friction`` at ``speed`` [rad/s]."""
+    tc = p["drive.coulomb_torque"]
+    r_s = p["drive.static_torque_ratio"]
+    kinetic = tc * (1.0 + r_s * ca.exp(-((speed / p["drive.stribeck_speed"]) ** 2)))
+    return tc * (1.0 + r_s), kinetic
+
+
+def screw_angle(p, nut_position):
+    """Screw angle [rad] from the nut position [m] (``2 pi x / lead``)."""
+    return 2.0 * math.pi * nut_position / p["screw.lead"]
+
+
+def motor_angle(p, nut_position):
+    """Mechanical motor angle [rad] from the nut position [m] (``x / r``, rigid drive)."""
+    return nut_position / kinematic_ratio(p)
+
+
+# ----------------------------------------------------------------------------- component laws
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 
 from ..errors import ModelError
-from .effects import EFFECT_ORDER, EFFECTS
+from .effect import EFFECTS, effect_order
 
 __all__ = ["LEVELS", "resolve_effects"]
 
@@ -58,7 +58,7 @@ def resolve_effects(level: str | None = "A", add: Iterable[str] = (), remove: It
     add, remove = list(add), list(remove)
     for name in add + remove:
         if name not in EFFECTS:
-            raise ModelError(f"unknown effect {name!r}; effects are {', '.join(EFFECT_ORDER)}")
+            raise ModelError(f"unknown effect {name!r}; effects are {', '.join(effect_order())}")
     chosen = (set(base) | set(add)) - set(remove)
     for name in list(chosen):
         chosen -= set(EFFECTS[name].supersedes) - set(add)
@@ -70,4 +70,4 @@ def resolve_effects(level: str | None = "A", add: Iterable[str] = (), remove: It
         for req in EFFECTS[name].requires:
             if req not in chosen:
                 raise ModelError(f"effect {name!r} needs effect {req!r} in the same set")
-    return tuple(e for e in EFFECT_ORDER if e in chosen)
+    return tuple(e for e in effect_order() if e in chosen)

@@ -5,7 +5,8 @@ also carries its unit and where its value comes from: a table of the papers or
 ``"assumed: <reason>"``.  A :class:`ParameterSet` is an immutable mapping from
 dotted names (``motor.resistance``) to parameters that loads from and saves to
 TOML.  Values are SI (temperatures in degC); units are metadata for checks and
-display.  This module does no physics and imports nothing from the model.
+display.  This module does no physics; from the model it reads only the
+effect registry (for the parameters an effect declares beyond the file).
 
 Examples
 --------
@@ -491,6 +492,16 @@ def load_parameters(path, *, base: ParameterSet | None = None) -> ParameterSet:
 
 
 def default_parameters() -> ParameterSet:
-    """The embedded default actuator (the papers' values, assumed ones marked)."""
+    """The embedded default actuator (the papers' values, assumed ones marked).
+
+    Parameters that registered effects bring beyond the file
+    (``Effect.parameter_defaults``) are appended, so an effect registered
+    outside the package is simulated, identified and overridden like the
+    library's own.
+    """
+    from .effect import EFFECTS  # the registry imports nothing of the model
+
     text = resources.files("thsa_control.model").joinpath("default_actuator.toml").read_text(encoding="utf-8")
-    return ParameterSet.from_toml(text, source_name="default_actuator.toml")
+    base = ParameterSet.from_toml(text, source_name="default_actuator.toml")
+    extra = {p.name: p for e in EFFECTS.values() for p in e.parameter_defaults if p.name not in base}
+    return ParameterSet(base.parameters + tuple(extra.values())) if extra else base

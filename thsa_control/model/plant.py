@@ -16,6 +16,13 @@ derives from the same expressions
   start, with the friction it resolved over the step.
 
 Both Functions are SX, so they can be differentiated, mapped and compiled.
+
+The plant also exports what the model knows beyond ``f`` and ``step``, from
+the same assembly, so that no tool restates it: the measurement map
+(:data:`SENSORS`: what the motor-speed, current, RVDT and LVDT sensors read,
+as outputs and as the state each reads), the screw-to-nut ratio
+``lead / (2 pi N)``, the torque constant, and the inertias at the motor
+shaft (the main body's and the one the motor current accelerates).
 """
 
 from __future__ import annotations
@@ -27,16 +34,37 @@ import casadi as ca
 import numpy as np
 
 from ..errors import ModelError, ParameterError
-from .params import ParameterSet, default_parameters
-from .effects import EFFECT_ORDER, EFFECTS
+from . import effects as _effects  # noqa: F401  (registers the library's effects)
+from .effect import EFFECTS, effect_order
 from .levels import resolve_effects
+from .params import ParameterSet, default_parameters
 from .structure import (
     INPUTS, STRUCTURE_STATES, Assembly, FrictionResolution, StateInfo, apply_structure, finish_structure, sum_terms,
 )
 
-__all__ = ["Plant", "build_plant"]
+__all__ = ["Plant", "Sensor", "SENSORS", "build_plant"]
 
 _TINY = 1e-300
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """What one rig sensor reads in the model.
+
+    ``channel``: the rig channel (``RigRun`` signal name); ``output``: the
+    plant output it reads; ``state``: the state it reads directly, times
+    ``scale`` (the screw speed is ``motor_speed / N``: state ``motor_speed``,
+    ``scale = 1/N`` as a casadi Function of ``p``; None: unit scale).
+    """
+
+    channel: str
+    output: str
+    state: str
+    scale: ca.Function | None = None
+
+
+#: Rig channels the measurement map covers: motor speed sensor, motor current, RVDT (screw speed), LVDT.
+SENSORS: tuple[str, ...] = ("motor_speed", "motor_current", "screw_speed", "nut_position")
 
 
 @dataclass(frozen=True)
@@ -71,6 +99,11 @@ class Plant:
     f: ca.Function
     step: ca.Function
     init: ca.Function
+    sensors: dict = None  # channel -> Sensor (SENSORS)
+    measure: ca.Function = None  # (x, u, p) -> readings of SENSORS, in that order
+    ratio_fn: ca.Function = None  # p -> lead / (2 pi N) [m/rad]
+    kt_fn: ca.Function = None  # p -> torque constant [N m/A]
+    inertia_fn: ca.Function = None  # (x, p) -> (main body, body the motor current accelerates) [kg m^2]
 
     @property
     def state_names(self) -> tuple[str, ...]:
@@ -95,6 +128,38 @@ class Plant:
     def initial_state(self, params: ParameterSet, *, load_force: float = 0.0, nut_position: float = 0.0) -> np.ndarray:
         """State at rest with the load-path springs in equilibrium with ``load_force`` [N]."""
         return np.asarray(self.init(nut_position, load_force, self.p_vector(params))).ravel()
+
+    def sensor_state(self, channel: str) -> str:
+        """The state the sensor of rig channel ``channel`` reads (``"motor_speed"``: the rotors' speed)."""
+        try:
+            return self.sensors[channel].state
+        except KeyError:
+            raise ModelError(f"no sensor {channel!r} in the measurement map; sensors are {', '.join(SENSORS)}") from None
+
+    def _p(self, params) -> np.ndarray:
+        return params if isinstance(params, np.ndarray) else self.p_vector(params)
+
+    def kinematic_ratio(self, params) -> float:
+        """Nut travel per motor radian ``lead / (2 pi N)`` [m/rad] (``params``: ParameterSet or p vector)."""
+        return float(self.ratio_fn(self._p(params)))
+
+    def torque_constant(self, params) -> float:
+        """Motor torque constant [N m/A] (``params``: ParameterSet or p vector)."""
+        return float(self.kt_fn(self._p(params)))
+
+    def inertia(self, params, x=None) -> tuple[float, float]:
+        """``(J_main, J_motor)`` [kg m^2 at the motor shaft] at state ``x`` (default: at rest).
+
+        ``J_main`` is the main body's (gear output, screw, nut and the
+        translating masses; with the rotors when the drive train is rigid);
+        ``J_motor`` is the inertia the motor current accelerates (the rotors
+        when the drive train is compliant, else ``J_main``).
+        """
+        p = self._p(params)
+        if x is None:
+            x = np.asarray(self.init(0.0, 0.0, p)).ravel()
+        j_main, j_motor = self.inertia_fn(x, p)
+        return float(j_main), float(j_motor)
 
     def to_nlsys(self, params: ParameterSet, name: str = "thsa_plant"):
         """The continuous plant as a python-control ``NonlinearIOSystem``.
@@ -162,7 +227,8 @@ def build_plant(level: str | None = "A", effects: Iterable[str] = (), *, remove:
             if n not in p:
                 raise ParameterError(n, f"needed by effect {eff!r} but not in the parameter set")
 
-    states = STRUCTURE_STATES + tuple(s for e in EFFECT_ORDER if e in chosen for s in EFFECTS[e].states)
+    order = effect_order()
+    states = STRUCTURE_STATES + tuple(s for e in order if e in chosen for s in EFFECTS[e].states)
     xsym = ca.SX.sym("x", len(states))
     x = {s.name: xsym[i] for i, s in enumerate(states)}
     usym = ca.SX.sym("u", len(INPUTS))
@@ -170,7 +236,7 @@ def build_plant(level: str | None = "A", effects: Iterable[str] = (), *, remove:
 
     a = Assembly(states=states, x=x, u=u, p=p, effects=chosen)
     apply_structure(a)
-    for e in EFFECT_ORDER:
+    for e in order:
         if e in chosen:
             EFFECTS[e].apply(a)
     finish_structure(a)
@@ -274,7 +340,27 @@ def build_plant(level: str | None = "A", effects: Iterable[str] = (), *, remove:
     init = ca.Function("init", [x_nut0, f0, psym], [ca.vertcat(*(x0[s.name] for s in states))],
                        ["nut_position", "load_force", "p"], ["x0"])
 
+    # ---- what the model knows beyond f and step, from the same assembly
+    speed_state = "rotor_speed" if "rotor_speed" in x else "motor_speed"  # the motor sensor reads the rotors
+    inv_n = ca.Function("inverse_gear_ratio", [psym], [1.0 / p["gear.ratio"]], ["p"], ["scale"])
+    sensors = {
+        "motor_speed": Sensor("motor_speed", "motor_speed", speed_state),
+        "motor_current": Sensor("motor_current", "motor_current", "motor_current"),
+        "screw_speed": Sensor("screw_speed", "screw_speed", "motor_speed", inv_n),
+        # the LVDT reads the output rod: the surface when the load path is compliant, else the nut
+        "nut_position": Sensor("nut_position", "surface_position",
+                               "surface_position" if "surface_position" in x else "nut_position"),
+    }
+    measure = ca.Function("measure", [xsym, usym, psym], [ca.vertcat(*(y_c[out_names.index(sensors[c].output)]
+                                                                        for c in SENSORS))],
+                          ["x", "u", "p"], ["y"])
+    ratio_fn = ca.Function("kinematic_ratio", [psym], [a.kinematic_ratio], ["p"], ["r"])
+    kt_fn = ca.Function("torque_constant", [psym], [a.torque_constant], ["p"], ["kt"])
+    inertia_fn = ca.Function("inertia", [xsym, psym], [a.main_inertia, a.rotor_body_inertia], ["x", "p"],
+                             ["j_main", "j_motor"])
+
     return Plant(
         effects=chosen, states=states, inputs=tuple(n for n, _, _ in INPUTS), outputs=tuple(out_names),
-        output_units=out_units, parameters=names, f=f, step=step, init=init,
+        output_units=out_units, parameters=names, f=f, step=step, init=init, sensors=sensors, measure=measure,
+        ratio_fn=ratio_fn, kt_fn=kt_fn, inertia_fn=inertia_fn,
     )

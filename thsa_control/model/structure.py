@@ -1,7 +1,8 @@
 """Functional structure of the THSA: states, inputs, balances and sign conventions.
 
-The structure owns the balances; effects (``effects.py``) only add terms to
-them.  Everything is written once as casadi ``SX`` expressions and used twice,
+The structure owns the balances; effects (``effects/``) only add terms to
+them, and declare the neutral values of their outputs, which the structure
+writes for every effect set (``Effect.outputs``).  Everything is written once as casadi ``SX`` expressions and used twice,
 by two numerical forms assembled in ``plant.py``:
 
 * the continuous right-hand side ``f(x, u, p) -> (xdot, y)`` (linearisation,
@@ -36,10 +37,12 @@ This module imports casadi only (no numpy I/O, no matplotlib).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import casadi as ca
+
+from .effect import EFFECTS
+from .laws import kinematic_ratio, limiter_slip_torques, motor_lag, torque_constant
 
 __all__ = [
     "INPUTS",
@@ -77,7 +80,7 @@ INPUTS: tuple[tuple[str, str, str], ...] = (
     ("enable_standby", "-", "1: standby inverter energised (needs standby_motor)"),
     ("load_force", "N", "axial load on the surface/nut, positive compressive (opposes extension)"),
     ("temperature", "degC", "actuator temperature (needs temperature_friction)"),
-    # fault inputs (model/fault_effects.py); 0 is the healthy value, so runs that ignore them are unchanged
+    # fault inputs (model/effects/faults.py); 0 is the healthy value, so runs that ignore them are unchanged
     ("brake", "-", "1: motor brakes engaged (needs motor_brakes)"),
     ("surface_jam", "-", "1: surface locked where it is (needs surface_jam)"),
     ("loadpath_failure", "-", "1: primary load path broken at the upper gimbal (needs secondary_load_path)"),
@@ -156,6 +159,12 @@ class Assembly:
     translating_mass: ca.SX | None = None  # [kg] moving rigidly with the nut
     pawl_engaged: dict = field(default_factory=dict)  # "comp"/"tens" -> expr (1 engaged)
     initial: dict = field(default_factory=dict)  # state -> fn(load_force) -> expr (static equilibrium)
+    # facts the plant exports (set by the structure): the screw-to-nut ratio [m/rad], the torque
+    # constant [N m/A], the main body's inertia at the motor shaft and the rotors' [kg m^2]
+    kinematic_ratio: object = None
+    torque_constant: object = None
+    main_inertia: object = None
+    rotor_body_inertia: object = None
 
     @property
     def rotor_speed(self):
@@ -175,57 +184,16 @@ class Assembly:
         return effect in self.effects
 
 
-def kinematic_ratio(p: dict):
-    """Nut travel per motor radian ``r = lead / (2 pi N)`` [m/rad]."""
-    return p["screw.lead"] / (2 * math.pi * p["gear.ratio"])
-
-
-def torque_constant(p: dict):
-    """PMSM torque constant ``Kt = 1.5 p psi`` [N m/A] (amplitude-invariant dq)."""
-    return 1.5 * p["motor.pole_pairs"] * p["motor.flux_linkage"]
-
-
-def motor_lag(a: Assembly, current, voltage, enable, speed):
-    """q-axis electrics of one motor as a first-order lag ``(tau, target)``.
-
-    ``L di/dt = clamp(v) - R i - p psi w`` while energised; with the inverter
-    off the current decays with ``motor.off_current_time_constant``.  Written
-    as ``di/dt = (target - i) / tau`` so that the discrete map can integrate it
-    exactly over a step with the speed frozen.  The q voltage is clamped to
-    what the dq voltage circle leaves it: ``vq_max = sqrt(Vmax^2 - (w_e L i_q)^2)``
-    with ``Vmax = V_dc / sqrt(3)`` (i_d = 0 control; the d voltage follows).
-    Returns ``(tau, target, v_q, v_d, copper_loss)``.
-    """
-    p = a.p
-    vmax = p["inverter.dc_bus_voltage"] / math.sqrt(3.0)
-    # The inverter limits the dq voltage vector to V_dc/sqrt(3).  With i_d held
-    # at zero the d-axis voltage the current controller must apply is
-    # v_d = -w_e L i_q, so the q axis gets what is left of the circle.
-    v_d = -p["motor.pole_pairs"] * speed * p["motor.inductance"] * current
-    vq_max = ca.sqrt(ca.fmax(vmax**2 - v_d**2, 0.0))
-    v = ca.fmin(ca.fmax(voltage, -vq_max), vq_max)
-    back_emf = p["motor.pole_pairs"] * p["motor.flux_linkage"] * speed
-    on = enable > 0.5
-    tau = ca.if_else(on, p["motor.inductance"] / p["motor.resistance"], p["motor.off_current_time_constant"])
-    target = ca.if_else(on, (v - back_emf) / p["motor.resistance"], 0.0)
-    # copper loss when energised; when off the magnetic energy is dissipated in the diodes
-    loss = ca.if_else(
-        on, 1.5 * p["motor.resistance"], 1.5 * p["motor.inductance"] / p["motor.off_current_time_constant"]
-    ) * current**2
-    v_d = ca.if_else(on, v_d, 0.0)
-    return tau, target, v, v_d, loss
-
-
 def apply_structure(a: Assembly) -> None:
     """The functional structure (level A): one motor, rigid transmission, efficiencies, viscous drag."""
     x, u, p = a.x, a.u, a.p
     w = x["motor_speed"]
     wr = a.rotor_speed
     N = p["gear.ratio"]
-    r = kinematic_ratio(p)
-    kt = torque_constant(p)
+    r = a.kinematic_ratio = kinematic_ratio(p)
+    kt = a.torque_constant = torque_constant(p)
 
-    tau, target, v_applied, v_d, copper = motor_lag(a, x["motor_current"], u["voltage_primary"], u["enable_primary"], wr)
+    tau, target, v_applied, v_d, copper = motor_lag(p, x["motor_current"], u["voltage_primary"], u["enable_primary"], wr)
     a.lags["motor_current"] = (tau, target)
     a.rotor_torques.append(("motor_primary", kt * x["motor_current"]))
     a.loss("copper_primary", copper)
@@ -257,22 +225,11 @@ def apply_structure(a: Assembly) -> None:
     a.output("primary_energised", "-", ca.if_else(u["enable_primary"] > 0.5, 1.0, 0.0))
     # Signals of effects, at their neutral value when the effect is absent, so
     # that every effect set has the same outputs (effects redefine them).
-    for name, unit, value in (
-        ("standby_current", "A", 0.0), ("standby_voltage", "V", 0.0), ("standby_voltage_d", "V", 0.0),
-        ("standby_energised", "-", 0.0), ("drivetrain_twist", "rad", 0.0), ("drivetrain_torque", "N m", 0.0),
-        ("surface_position", "m", x["nut_position"]), ("surface_speed", "m/s", r * w),
-        ("loadpath_force", "N", u["load_force"]), ("loadpath_deflection", "m", 0.0),
-        ("temperature_drag_torque", "N m", 0.0),
-        ("viscous_coefficient", "N m s/rad", p["motor.bearing_viscous_friction"] + p["gear.viscous_friction"]),
-        ("noback_torque", "N m", 0.0), ("noback_normal_force_comp", "N", 0.0), ("noback_normal_force_tens", "N", 0.0),
-        ("noback_disk_comp_slipping", "-", 0.0), ("noback_disk_tens_slipping", "-", 0.0),
-        ("pawl_comp_engaged", "-", 0.0), ("pawl_tens_engaged", "-", 0.0), ("pawl_engaged", "-", 0.0),
-        ("pawl_clearance_comp", "rad", 0.0), ("pawl_clearance_tens", "rad", 0.0),
-    ):
-        a.output(name, unit, value)
-    from .fault_effects import neutral_fault_outputs  # signals of the fault effects (issue #10)
-
-    neutral_fault_outputs(a)
+    # Each effect declares them (Effect.outputs); the first declaration of a name wins.
+    for eff in EFFECTS.values():
+        for out in eff.outputs:
+            if out.name not in a.outputs:
+                a.output(out.name, out.unit, out.neutral(a) if callable(out.neutral) else out.neutral)
 
 
 def finish_structure(a: Assembly) -> None:
@@ -337,6 +294,7 @@ def finish_structure(a: Assembly) -> None:
         a.channels.append(FrictionChannel("gear_efficiency", g_static_pos, g_static_neg,
                                           loss_moving(1.0, a_pos), loss_moving(-1.0, a_neg)))
         a.stored_energy["kinetic_main"] = 0.5 * j_total * w**2
+        a.main_inertia = a.rotor_body_inertia = j_total  # the rotors are part of the main body
         gear_torque = t_g0  # quasi-static (the output signal)
     else:
         wr = a.rotor_speed
@@ -351,6 +309,7 @@ def finish_structure(a: Assembly) -> None:
         a.channels.append(FrictionChannel("gear_efficiency", g_pos, g_neg, g_pos, g_neg))
         a.stored_energy["kinetic_main"] = 0.5 * sum_terms(a.inertia) * w**2
         a.stored_energy["kinetic_rotors"] = 0.5 * j_rotor * wr**2
+        a.main_inertia, a.rotor_body_inertia = sum_terms(a.inertia), j_rotor
     a.loss("gear_efficiency", lambda res: res.channel["gear_efficiency"] * res.speed)
 
     a.output("axial_force", "N", F)
@@ -367,9 +326,7 @@ def finish_structure(a: Assembly) -> None:
 
 def _limiter_static_torque(p: dict):
     """The torque limiter's static slip torque [N m at the large gear], from the limiter's own law."""
-    from .fault_effects import limiter_slip_torques  # one law for the monitor and the torque_limiter effect
-
-    return limiter_slip_torques(p)[0]
+    return limiter_slip_torques(p)[0]  # one law for the monitor and the torque_limiter effect
 
 
 def sum_terms(terms):

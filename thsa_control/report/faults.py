@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np  # noqa: E402
 
+from ..model.laws import kinematic_ratio  # noqa: E402
 from ..data.units import display_unit, label, to_display
 from .build import atomic_folder, write_json  # noqa: E402
 from .figure import subplots
@@ -76,8 +77,7 @@ def plot_fault_run(result, *, title: str | None = None):
     ``result`` is a run of the fault loop (it has the monitor signals).
     """
     p = result.params
-    N = p.value("gear.ratio")
-    r = p.value("screw.lead") / (2 * math.pi * N)
+    N, r = p.value("gear.ratio"), kinematic_ratio(p)
     faults = [float(s.rsplit(" at ", 1)[1].split()[0]) for s in result.info.get("faults", [])]
     return _panels(np.asarray(result.time), lambda n: np.asarray(result[n]), r, N,
                    title or f"{result.name}: faults {', '.join(result.info.get('faults', [])) or 'none'}", faults)
@@ -85,8 +85,7 @@ def plot_fault_run(result, *, title: str | None = None):
 
 def plot_fault_case(case, params):
     """The figure of one :class:`FaultCase` (from 0.1 s before the fault to 0.6 s after)."""
-    N = params.value("gear.ratio")
-    r = params.value("screw.lead") / (2 * math.pi * N)
+    N, r = params.value("gear.ratio"), kinematic_ratio(params)
     s = case.series
     title = f"{case.title}: {', '.join(case.faults)} at {case.fault_time_s:g} s"
     if case.takeover_source == "schedule":

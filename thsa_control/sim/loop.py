@@ -18,7 +18,7 @@ parameters and output signals, appended after the plain loop's:
 With no extension this is exactly the plain loop.  The sensors, monitors and
 reconfiguration logic of the fault cases are one extension
 (``sim/monitors.py``: :class:`~thsa_control.sim.monitors.MonitorLoop`);
-:func:`extensions_for` gives a scenario the extensions it asks for.
+:func:`~thsa_control.sim.monitors.extensions_for` gives a scenario the extensions it asks for.
 
 :class:`ClosedLoop` holds the Functions of one (plant, substeps, extensions)
 and their compiled run loop (``codegen.py``); the simulator keeps one per
@@ -37,7 +37,7 @@ from ..loops.controllers import CONTROLLER_PARAMETERS, CONTROLLER_SIGNALS, CONTR
 from ..model.plant import Plant
 
 __all__ = ["RUN_INPUTS", "OPTIONAL_INPUTS", "CONTROLLER_UNITS", "LoopStage", "LoopExtension", "ClosedLoop",
-           "plant_input_vector", "measurement_vector", "output_decimation", "extensions_for"]
+           "plant_input_vector", "measurement_vector", "output_decimation"]
 
 #: Per-sample inputs of a run: the controller's references, then load and temperature.
 RUN_INPUTS = REFERENCE_INPUTS + ("load_force", "temperature")
@@ -66,7 +66,7 @@ def measurement_vector(plant: Plant, x):
     the standby motor), nut position."""
     names = plant.state_names
     standby = x[names.index("standby_current")] if "standby_current" in names else ca.SX(0.0)
-    speed_sensor = "rotor_speed" if "rotor_speed" in names else "motor_speed"  # the motor sensor reads the rotors
+    speed_sensor = plant.sensor_state("motor_speed")  # the plant's measurement map: the rotors where compliant
     return (x[names.index(speed_sensor)], x[names.index("motor_current")], standby, x[names.index("nut_position")])
 
 
@@ -160,15 +160,6 @@ class LoopExtension:
     def info(self, scenario) -> dict:
         """Run metadata added to ``SimulationResult.info``."""
         return {}
-
-
-def extensions_for(scenario) -> tuple[LoopExtension, ...]:
-    """The loop extensions a scenario asks for: the monitors when it has faults or monitor settings."""
-    if getattr(scenario, "faults", ()) or getattr(scenario, "monitors", None) is not None:
-        from .monitors import MonitorLoop
-
-        return (MonitorLoop(scenario.monitors),)
-    return ()
 
 
 class ClosedLoop:

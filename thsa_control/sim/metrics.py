@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..data.rigdata import _runs  # maximal runs of True, (start, stop exclusive)
+from ..data.rigdata import true_runs  # maximal runs of True, (start, stop exclusive)
 
 __all__ = ["Interval", "plateaus", "stops", "backdrive_metrics", "surface_speed_deviation", "BackdriveMetrics",
            "energy_residual"]
@@ -41,7 +41,7 @@ def plateaus(time, speed_cmd, load_force, *, min_duration: float = 0.2) -> list[
     dv = np.abs(np.gradient(v, t))
     mask = (np.abs(v) > 0) & (dv < 1e-6)
     out = []
-    for i, j in _runs(mask):
+    for i, j in true_runs(mask):
         if t[j - 1] - t[i] >= min_duration:
             out.append(Interval(float(t[i]), float(t[j - 1]), float(np.median(v[i:j])), float(np.mean(f[i:j]))))
     return out
@@ -51,7 +51,7 @@ def stops(time, speed_cmd, load_force, *, min_duration: float = 0.05) -> list[In
     """Intervals where the speed command is exactly zero (trim stops)."""
     t, v, f = map(np.asarray, (time, speed_cmd, load_force))
     out = []
-    for i, j in _runs(v == 0):
+    for i, j in true_runs(v == 0):
         if t[j - 1] - t[i] >= min_duration:
             out.append(Interval(float(t[i]), float(t[j - 1]), 0.0, float(np.mean(f[i:j]))))
     return out

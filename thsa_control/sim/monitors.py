@@ -47,7 +47,7 @@ from .loop import LoopExtension, LoopStage
 from .monitor_settings import MONITOR_PARAMETERS, MonitorSettings
 
 __all__ = ["MONITOR_STATES", "MONITOR_SENSORS", "MONITOR_CONTEXT", "MONITOR_SIGNALS", "MONITOR_UNITS", "build_monitor",
-           "MonitorLoop"]
+           "MonitorLoop", "extensions_for"]
 
 MONITOR_STATES = (
     "motor_angle", "held_motor_speed", "held_rvdt", "held_lvdt",
@@ -189,7 +189,7 @@ class MonitorLoop(LoopExtension):
         X, XC, W, K, h = stage.x, stage.xc, stage.w, stage.k, stage.h
         N = stage.param("gear.ratio")
         r = K["nut_per_motor_rad"]
-        rotor = X["rotor_speed"] if "rotor_speed" in X else X["motor_speed"]  # the motor sensor reads the rotors
+        rotor = X[stage.plant.sensor_state("motor_speed")]  # the motor sensor reads the rotors
         gimbal = X.get("actuator_axial_position", ca.SX(0.0))
         sens = ca.vertcat(rotor, X["nut_position"] / (r * N), gimbal)
         energised = ca.fmax(XC["energised_prev_primary"], XC["energised_prev_standby"])
@@ -228,3 +228,10 @@ class MonitorLoop(LoopExtension):
     def info(self, scenario) -> dict:
         return {"monitors": self.settings.as_dict(),
                 "faults": [f.label + f" at {f.time:g} s" for f in getattr(scenario, "faults", ())]}
+
+
+def extensions_for(scenario) -> tuple[LoopExtension, ...]:
+    """The loop extensions a scenario asks for: the monitors when it has faults or monitor settings."""
+    if getattr(scenario, "faults", ()) or getattr(scenario, "monitors", None) is not None:
+        return (MonitorLoop(scenario.monitors),)
+    return ()

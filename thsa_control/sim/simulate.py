@@ -56,8 +56,8 @@ from ..loops.design import Design
 from ..errors import ScenarioError, ThsaError
 from ..model.plant import Plant
 from ..model.params import ParameterSet
-from .loop import (OPTIONAL_INPUTS, RUN_INPUTS, ClosedLoop, LoopExtension, extensions_for, output_decimation,
-                   plant_input_vector)
+from .loop import OPTIONAL_INPUTS, RUN_INPUTS, ClosedLoop, LoopExtension, output_decimation, plant_input_vector
+from .monitors import extensions_for
 from .scenarios import TEMPERATURE_RANGE, Scenario
 
 __all__ = ["SimulationSettings", "InputSeries", "SimulationResult", "Simulator", "simulate", "plant_input_vector",
@@ -299,7 +299,7 @@ class Simulator:
             initial load.
         extensions : tuple of LoopExtension, optional
             Blocks added to the loop; default: those the scenario asks for
-            (:func:`~thsa_control.sim.loop.extensions_for`: the monitors when
+            (:func:`~thsa_control.sim.monitors.extensions_for`: the monitors when
             it has faults or monitor settings), none for an ``InputSeries``.
 
         Returns

@@ -48,16 +48,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..data.rigdata import RigRun
+from ..data.rigdata import RigRun, measured_motor_speed, motor_speed_from
 from ..errors import ThsaError
 from ..fit.identify import IdentificationSettings, Identifier, estimate_noise
 from ..fit.profile import chi2_by_channel
 from ..fit.replay import channel_fit
 from ..fit.residuals import quadrant, reversal_proximity
-from ..model import EFFECTS, build_plant, resolve_effects
-from ..model.fault_effects import FAULT_EFFECTS
+from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
 from ..model.params import ParameterSet, default_parameters
-from ._threads import limit_blas_threads
+from .threads import limit_blas_threads
 from .signature import (SignatureSettings, binned_mean, cross_correlation, current_offset_test, missing_torque,
                         sensor_consistency, signature_tests)
 
@@ -79,61 +78,41 @@ DEFAULT_UNCERTAIN["C"] = DEFAULT_UNCERTAIN["B"]
 DEFAULT_UNCERTAIN["D"] = DEFAULT_UNCERTAIN["B"]
 
 
-@dataclass(frozen=True)
-class CandidateSpec:
-    """How one candidate effect is added and fitted.
+class _CandidateView(Mapping):
+    """The registered effects' tracer candidate specs by name (a live view of the registry).
 
-    ``free``: its parameters identified with the declared ones; ``seeds``:
-    starting values where the parameter file has the effect off (0);
-    ``window``: where it acts (``moving``, ``all``, ``loaded``, ``reversal``,
-    ``reversal_or_stop``, ``cold``); ``channel``: the channel where it shows most; ``profile``:
-    parameters that act through a switch (no gradient), searched over a range
-    ``(lo, hi)`` by :func:`~thsa_control.fit.profile.profile_identify` (the
-    first finely, the others where they matter) while ``free`` is fitted at
-    each value.
+    Each effect declares its spec (or why it is not a candidate) with its other
+    knowledge (:class:`~thsa_control.model.Effect`); this view lists the specs.
     """
 
-    name: str
-    free: tuple[str, ...]
-    seeds: Mapping[str, float] = field(default_factory=dict)
-    window: str = "moving"
-    channel: str = "motor_speed"
-    profile: Mapping[str, tuple[float, float]] = field(default_factory=dict)
-    #: a constant-torque explainer: besides being a candidate it may stand for the base mismatch every real
-    #: drive has (a drag, an efficiency, a fixture force), fitted in the base-correction step within the
-    #: plausible magnitude of :data:`PLAUSIBLE` named here for each free parameter
-    base_correction: bool = False
-    #: free parameter -> rule of :data:`PLAUSIBLE`: the largest magnitude a healthy rig can have (a base
-    #: correction is bounded by it; a found periodic torque larger than it is implausible)
-    plausible: Mapping[str, str] = field(default_factory=dict)
+    def __getitem__(self, name: str) -> CandidateSpec:
+        spec = EFFECTS[name].candidate if name in EFFECTS else None
+        if not isinstance(spec, CandidateSpec):
+            raise KeyError(name)
+        return spec
+
+    def __iter__(self):
+        return (n for n, e in EFFECTS.items() if isinstance(e.candidate, CandidateSpec))
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
 
 
-CANDIDATES: dict[str, CandidateSpec] = {c.name: c for c in (
-    CandidateSpec("coulomb_friction", ("drive.coulomb_torque",), {"drive.coulomb_torque": 0.02},
-                  base_correction=True, plausible={"drive.coulomb_torque": "drag"}),
-    CandidateSpec("direction_friction", ("drive.direction_coulomb_torque",), {"drive.direction_coulomb_torque": 0.01},
-                  base_correction=True, plausible={"drive.direction_coulomb_torque": "drag"}),
-    CandidateSpec("force_offset", ("drive.axial_force_offset",), {"drive.axial_force_offset": 200.0}, "all",
-                  base_correction=True, plausible={"drive.axial_force_offset": "axial_force"}),
-    CandidateSpec("screw_friction_ripple", ("drive.screw_ripple_torque_cos", "drive.screw_ripple_torque_sin"),
-                  {"drive.screw_ripple_torque_cos": 0.005, "drive.screw_ripple_torque_sin": 0.005},
-                  plausible={"drive.screw_ripple_torque_cos": "periodic", "drive.screw_ripple_torque_sin": "periodic"}),
-    CandidateSpec("cogging_torque", ("drive.cogging_torque_cos", "drive.cogging_torque_sin"),
-                  {"drive.cogging_torque_cos": 0.005, "drive.cogging_torque_sin": 0.005},
-                  plausible={"drive.cogging_torque_cos": "periodic", "drive.cogging_torque_sin": "periodic"}),
-    CandidateSpec("noback_quadrant_friction", ("noback.mu_coulomb_pos", "noback.mu_coulomb_neg"), {}, "loaded"),
-    # the pawl switch gives no gradient: the pitch (papers: 8.57 deg max; searched 1.7..17 deg) is profiled,
-    # each value with segment clearances of its own; the initial clearance only where it matters.  It acts
-    # after a reversal and at a stop under load (the load back-drives through the clearance)
-    CandidateSpec("noback_backlash", (), {}, "reversal_or_stop",
-                  profile={"noback.pawl_pitch": (0.03, 0.3), "noback.pawl_initial_clearance": (0.0, 1.0)}),
-    CandidateSpec("loadpath_compliance", ("loadpath.contact_stiffness_upper", "loadpath.contact_stiffness_lower"),
-                  {}, "loaded", "nut_position"),
-    CandidateSpec("temperature_friction", ("friction.cold_coulomb_torque", "friction.viscous_temperature_coefficient"),
-                  {}, "cold"),
-    # only the series stiffness is identifiable: the gearbox's is freed, the screw's and the damping held
-    CandidateSpec("drivetrain_compliance", ("gear.torsional_stiffness",), {}, "all", "screw_speed"),
-)}
+#: Candidate spec of every registered effect that is a candidate.
+CANDIDATES: Mapping[str, CandidateSpec] = _CandidateView()
+
+
+def not_candidates() -> tuple[str, ...]:
+    """Effects that are configurations or faults, not candidates of a healthy rig's residual.
+
+    Each says why (``Effect.candidate`` is a :class:`~thsa_control.model.NotCandidate`): the fault
+    effects (a jam, a load-path failure, the end stops, the limiter's slip, the motor brakes) act
+    through an event or a threshold that gives a fit no gradient on data where they do not fire.
+    Name one in ``candidates`` to score it anyway.
+    """
+    return tuple(n for n, e in EFFECTS.items() if not isinstance(e.candidate, CandidateSpec))
+
+
 #: The base correction's efficiency explainer: not an effect but the declared ball screw's efficiencies freed
 #: within their plausible spread (the rig's screw may be a little better or worse than the file says; a
 #: load-proportional drag while driving, such as a no-back that drags, is the same torque)
@@ -172,11 +151,7 @@ def _rule_efficiency(params: ParameterSet, runs) -> tuple[float, str]:
 PLAUSIBLE: dict[str, Callable] = {"drag": _rule_drag, "axial_force": _rule_axial, "periodic": _rule_periodic,
                                   "efficiency": _rule_efficiency}
 
-#: Effects that are configurations or faults, not candidates of a healthy rig's residual: the fault
-#: effects (a jam, a load-path failure, the end stops, the limiter's slip, the motor brakes) act through an
-#: event or a threshold that gives a fit no gradient on data where they do not fire.  Name one in
-#: ``candidates`` to score it anyway.
-NOT_CANDIDATES = ("standby_motor", "noback_ideal", *FAULT_EFFECTS)
+
 
 
 @dataclass(frozen=True)
@@ -300,7 +275,8 @@ def candidate_specs(model_effects: Iterable[str], params: ParameterSet, names: S
                     ) -> list[CandidateSpec]:
     """Candidates for a model: every library effect it does not declare (or ``names``)."""
     have = set(model_effects)
-    pool = names if names is not None else [e for e in EFFECTS if e not in NOT_CANDIDATES]
+    excluded = not_candidates()
+    pool = names if names is not None else [e for e in EFFECTS if e not in excluded]
     out = []
     for n in pool:
         if n in have:
@@ -313,9 +289,7 @@ def candidate_specs(model_effects: Iterable[str], params: ParameterSet, names: S
 
 def _window(kind: str, run: RigRun) -> np.ndarray:
     s = run.signals
-    w = np.asarray(s["motor_speed"] if "motor_speed" in run.source_columns else s["screw_speed"] * run.gear_ratio,
-                   float)
-    w = np.nan_to_num(w)
+    w = np.nan_to_num(measured_motor_speed(run))
     moving = np.abs(w) > 0.05 * max(float(np.max(np.abs(w))), 1e-9)
     load = np.asarray(s["load_force"], float)
     if kind == "all":
@@ -655,26 +629,23 @@ def _null_runs(fit: dict, runs: Sequence[RigRun], noise: Mapping[str, float], se
 
 
 # ----------------------------------------------------------------------------- signature
-def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, effects, s: SignatureSettings) -> dict:
-    from ..loops.design import reflected_inertia
-
-    inertia = reflected_inertia(params, None, effects)  # the signature's missing torque at the motor shaft
+def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s: SignatureSettings) -> dict:
+    inertia = plant.inertia(params)[1]  # the signature's missing torque at the motor shaft (what the current drives)
     torque: list = []
     vars_: dict = {}
     for run in runs:
         pr = fit["predictions"][run.name]
         n = len(run.time)
-        chan = "motor_speed" if "motor_speed" in pr["measured"] else ("screw_speed" if "screw_speed" in pr["measured"]
-                                                                       else None)
-        if chan is None:
+        meas, sim = pr["measured"], pr["simulated"]
+        # the speed error at the motor shaft, by the rule of a run's motor speed
+        e = motor_speed_from(lambda c: (np.asarray(meas[c]) - np.asarray(sim[c]))[:n] if c in meas else None,
+                             run.gear_ratio)
+        if e is None:
             continue
-        e = (np.asarray(pr["measured"][chan]) - np.asarray(pr["simulated"][chan]))[:n]
-        scale = 1.0 if chan == "motor_speed" else run.gear_ratio
         t = np.asarray(run.time, float)
         starts = np.searchsorted(t, pr["segment_starts"])
-        torque.append(missing_torque(t, e * scale, starts, inertia, s.window))
-        w = np.nan_to_num(np.asarray(run.signals["motor_speed"], float)) if "motor_speed" in run.source_columns \
-            else np.nan_to_num(np.asarray(run.signals["screw_speed"], float)) * run.gear_ratio
+        torque.append(missing_torque(t, e, starts, inertia, s.window))
+        w = np.nan_to_num(measured_motor_speed(run))
         dt = np.r_[np.diff(t), 0.0]
         angle = np.r_[0.0, np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t))]
         load = np.asarray(run.signals["load_force"], float)
@@ -825,6 +796,11 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     lvl = (level or "A").upper()
     uncertain = tuple(st.uncertain) if st.uncertain is not None else DEFAULT_UNCERTAIN.get(lvl, DEFAULT_UNCERTAIN["A"])
     base_plant = build_plant(None, declared, params=params)
+
+    def plant_of(effects, p):
+        """The plant of an effect set (the declared one is built once)."""
+        return base_plant if tuple(effects) == tuple(declared) else build_plant(None, effects, params=p)
+
     uncertain = tuple(n for n in uncertain if n in base_plant.parameters)
     # the replay is current-driven: the rig's controller plays no part (and need not be one we model)
     fit_runs = [dataclasses.replace(r, controller=None) for r in runs]
@@ -884,7 +860,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             base_bounds = bc["bounds"]
             at_plausible_bound = _explainers_at_bound(current, base_bounds)
             base_doc["signature_after"] = _signature_brief(
-                _signature(current, runs, cur_params, cur_effects, st.signature))
+                _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature))
     windows_cache = {spec: {r.name: _window(spec, r) for r in runs}
                      for spec in ("moving", "all", "loaded", "reversal", "reversal_or_stop", "cold")}
     while sum(1 for e in added if "implied_by" not in e) < st.max_effects:
@@ -1034,9 +1010,10 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         lifted = set(best["_spec"].free) if best.get("beyond_base_correction") else set()
         base_bounds = {n: b for n, b in base_bounds.items() if n not in lifted}
         at_plausible_bound = _explainers_at_bound(f, base_bounds)
-        rounds[-1]["signature_after"] = _signature_brief(_signature(current, runs, cur_params, cur_effects, st.signature))
-    sig_before = _signature(first, runs, ParameterSet.from_toml(first["params_toml"]), declared, st.signature)
-    sig_after = _signature(current, runs, cur_params, cur_effects, st.signature)
+        rounds[-1]["signature_after"] = _signature_brief(
+            _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature))
+    sig_before = _signature(first, runs, ParameterSet.from_toml(first["params_toml"]), base_plant, st.signature)
+    sig_after = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature)
     structured = [t for t in sig_after["tests"] + sig_after["sensors"] if t["significant"]]
     doc = {
         "format": TRACE_FORMAT,

@@ -37,6 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..model.laws import kinematic_ratio
+
 __all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missing_torque", "current_offset_test",
            "binned_mean", "cross_correlation"]
 
@@ -274,7 +276,8 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
             x = np.interp(t, t[np.isfinite(x)], x[np.isfinite(x)]) if np.isfinite(x).sum() > 2 else None
         rate = savgol_filter(x, 31, 2, deriv=1, delta=dt) if x is not None and x.size >= 31 else None
         if rate is not None:
-            pairs.append(("lvdt rate vs lead/(2 pi N) x motor_speed", rate, lead / (2 * math.pi * gear_ratio)
+            r = kinematic_ratio({"screw.lead": lead, "gear.ratio": gear_ratio})  # the run's own kinematics
+            pairs.append(("lvdt rate vs lead/(2 pi N) x motor_speed", rate, r
                           * savgol_filter(np.nan_to_num(np.asarray(w, float)), 31, 2, delta=dt)))
     for name, a, b in pairs:
         d = _gain_lag(a, b, dt)

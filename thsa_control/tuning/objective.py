@@ -42,7 +42,7 @@ from ..loops.design import Design
 from ..model.params import ParameterSet
 from ..sim.codegen import compile_functions
 from ..sim.scenarios import Scenario
-from ..sim.loop import extensions_for
+from ..sim.monitors import extensions_for
 from ..sim.simulate import RUN_INPUTS, InputSeries, SimulationSettings, Simulator
 from .validation import COST_TERMS, RATE_SCALE, cost_terms
 

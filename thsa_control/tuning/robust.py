@@ -34,9 +34,9 @@ import casadi as ca
 import numpy as np
 
 from ..errors import DesignError
-from ..loops._loopmath import _freq, _frequency_grid
+from ..loops.loopmath import freq_response, frequency_grid
 from ..loops.analysis import DEFAULT_ANALYSIS_EFFECTS
-from ..loops.loop_analysis import AnalysisSettings, _build, _saturation, analyse_loops
+from ..loops.loop_analysis import AnalysisSettings, build_loops, saturation_flags, analyse_loops
 from ..loops.design import Design
 from ..loops.linear import linearize_conditions, plant_model
 from ..model.params import ParameterSet
@@ -95,17 +95,17 @@ class RobustConstraints:
         self.level, self.effects = level, tuple(effects)
         self.rho, self.sigma = rho, sigma
         h = design.control_period
-        self.omega = _frequency_grid(h, f_min, n_frequencies)
+        self.omega = frequency_grid(h, f_min, n_frequencies)
         z = np.exp(1j * self.omega * h)
         self._kv_unit = (np.ones_like(z), h / (z - 1.0))  # d Kv / d kp, d Kv / d ki
         settings = _settings(level, effects, self.temperatures)
         model = plant_model(level, effects, params, settings=settings.linearization)
         lin = linearize_conditions(model, settings.grid())
-        loops = _build(lin, design, settings)
-        L = _freq(loops.open["velocity_loop"], z)
+        loops = build_loops(lin, design, settings)
+        L = freq_response(loops.open["velocity_loop"], z)
         kv = design.velocity_kp * self._kv_unit[0] + design.velocity_ki * self._kv_unit[1]
         G = L / kv[None, :]
-        valid = lin.valid & ~np.array([bool(r) for r in _saturation(lin, design, params)])
+        valid = lin.valid & ~np.array([bool(r) for r in saturation_flags(lin, design, params)])
         self.blocks = []
         for T in self.temperatures:
             idx = [k for k, c in enumerate(lin.conditions) if c.temperature == T and valid[k]]

@@ -1,8 +1,10 @@
 """Fault effects of the effect library (the papers' model F).
 
-Same API as ``effects.py`` (an :class:`~thsa_control.model.effects.Effect`
-adds terms to an :class:`~thsa_control.model.structure.Assembly`); registered
-into ``EFFECTS``/``EFFECT_ORDER`` at the end of ``effects.py``.  The fault
+Registered like every effect (:func:`thsa_control.model.effect.register`), in
+the phases ``STRUCTURE_FAULTS`` (load path, surface, travel stops) and
+``DRIVE_FAULTS`` (the limiter and the brakes, which read the drive-train
+coupling and the rotor body), after every healthy effect.  None is a tracer
+candidate by default: each acts through an event or a threshold.  The fault
 *inputs* (``brake``, ``surface_jam``, ``loadpath_failure``) are plant inputs
 whose healthy value is 0 (``structure.INPUTS``).
 
@@ -68,35 +70,19 @@ from __future__ import annotations
 
 import casadi as ca
 
-from .effects import Effect  # effects.py registers this module's effects at its end (Effect is defined by then)
-from .structure import Assembly, FrictionChannel, StateInfo, kinematic_ratio
+from ..effect import EFFECTS, Effect, NoNeutral, NotCandidate, Output, Phase, register
+from ..laws import kinematic_ratio, limiter_slip_torques
+from ..structure import Assembly, FrictionChannel, StateInfo
 
-__all__ = ["FAULT_EFFECTS", "FAULT_EFFECT_ORDER", "neutral_fault_outputs", "limiter_slip_torques"]
+__all__ = ["FAULT_EFFECTS"]
+
+#: Why a fault effect is not a candidate of a healthy rig's residual.
+_FAULT = NotCandidate("a fault: it acts through an event or a threshold that gives a fit no gradient on data "
+                      "where it does not fire")
 
 
 def _evaluate(value, res):
     return value(res) if callable(value) else value
-
-
-def neutral_fault_outputs(a: Assembly) -> None:
-    """Signals of the fault effects at their value without the effect (same outputs for every set)."""
-    N = a.p["gear.ratio"]
-    for name, unit, value in (
-        ("limiter_torque", "N m", lambda res: N * _evaluate(a.outputs["gearbox_input_torque"][1], res)),
-        ("limiter_slip_torque", "N m", 0.0), ("limiter_slipping", "-", 0.0), ("limiter_slip_speed", "rad/s", 0.0),
-        ("gimbal_displacement", "m", 0.0),
-        ("primary_attachment_force", "N", lambda res: _evaluate(a.outputs["loadpath_force"][1], res)),
-        ("secondary_path_force", "N", 0.0), ("primary_attachment_broken", "-", 0.0),
-        ("jam_force", "N", 0.0), ("surface_jammed", "-", 0.0), ("claw_torque", "N m", 0.0),
-        ("brake_torque", "N m", 0.0), ("brakes_engaged", "-", 0.0),
-    ):
-        a.output(name, unit, value)
-
-
-def limiter_slip_torques(p: dict):
-    """Static and kinetic slip torque of the limiter at the large gear [N m]: ``n mu F_pre R``."""
-    base = p["limiter.faces"] * p["limiter.preload"] * p["limiter.mean_radius"]
-    return base * p["limiter.mu_static"], base * p["limiter.mu_kinetic"]
 
 
 def _torque_limiter(a: Assembly) -> None:
@@ -262,45 +248,68 @@ def _motor_brakes(a: Assembly) -> None:
     a.output("brake_torque", "N m", smooth)
 
 
-FAULT_EFFECTS: dict[str, Effect] = {
-    e.name: e
-    for e in (
-        Effect(
-            "torque_limiter", "friction torque limiter on the large gear: the drive train slips above its static torque",
-            (StateInfo("limiter_slip_memory", "rad/s", "lag",
-                       "slip speed of the limiter disks over the last memory time, at the motor shaft"),),
-            tuple(f"limiter.{n}" for n in ("faces", "preload", "mu_static", "mu_kinetic", "mean_radius",
-                                           "stribeck_speed", "memory_time")),
-            ("drivetrain_compliance",), _torque_limiter,
-        ),
-        Effect(
-            "secondary_load_path", "actuator body on the primary upper gimbal; tie rod and ACME nut behind a clearance",
-            (
-                StateInfo("actuator_axial_position", "m", "position", "actuator body axial displacement at the upper gimbal (LVDT)"),
-                StateInfo("actuator_axial_speed", "m/s", "velocity", "actuator body axial speed"),
-                StateInfo("primary_attachment_broken", "-", "lag", "0 intact .. 1 broken primary upper attachment"),
-            ),
-            tuple(f"secondary.{n}" for n in ("axial_mass", "attachment_stiffness", "attachment_damping",
-                                             "fracture_time", "clearance", "stiffness", "contact_damping")),
-            ("loadpath_compliance",), _secondary_load_path,
-        ),
-        Effect(
-            "surface_jam", "the surface locks where it is when input surface_jam is 1",
-            (StateInfo("jam_anchor", "m", "custom", "where the surface jams (follows it until the jam)"),),
-            ("jam.stiffness", "jam.damping", "surface.mass"), ("loadpath_compliance",), _surface_jam,
-        ),
-        Effect(
-            "claw_stops", "claw stops at the ends of the nut travel (screw rotation stopped)",
-            (), ("claw.travel_min", "claw.travel_max", "claw.stiffness", "claw.damping"), (), _claw_stops,
-        ),
-        Effect(
-            "motor_brakes", "one brake per motor, engaged by input brake",
-            (), ("brake.holding_torque", "brake.kinetic_ratio"), (), _motor_brakes,
-        ),
-    )
-}
+def _limiter_torque_neutral(a: Assembly):
+    # without the limiter the large gear carries the gearbox input torque times the ratio
+    return lambda res: a.p["gear.ratio"] * _evaluate(a.outputs["gearbox_input_torque"][1], res)
 
 
-#: application order: after every effect of effects.py (they read the load-path force and the coupling)
-FAULT_EFFECT_ORDER = ("secondary_load_path", "surface_jam", "claw_stops", "torque_limiter", "motor_brakes")
+register(Effect(
+    "torque_limiter", "friction torque limiter on the large gear: the drive train slips above its static torque",
+    (StateInfo("limiter_slip_memory", "rad/s", "lag",
+               "slip speed of the limiter disks over the last memory time, at the motor shaft"),),
+    tuple(f"limiter.{n}" for n in ("faces", "preload", "mu_static", "mu_kinetic", "mean_radius",
+                                   "stribeck_speed", "memory_time")),
+    ("drivetrain_compliance",), _torque_limiter,
+    phase=Phase.DRIVE_FAULTS,
+    neutral={"limiter.preload": 1e12},  # a limiter that never slips
+    outputs=(Output("limiter_torque", "N m", _limiter_torque_neutral), Output("limiter_slip_torque", "N m"),
+             Output("limiter_slipping", "-"), Output("limiter_slip_speed", "rad/s")),
+    candidate=_FAULT,
+))
+register(Effect(
+    "secondary_load_path", "actuator body on the primary upper gimbal; tie rod and ACME nut behind a clearance",
+    (
+        StateInfo("actuator_axial_position", "m", "position", "actuator body axial displacement at the upper gimbal (LVDT)"),
+        StateInfo("actuator_axial_speed", "m/s", "velocity", "actuator body axial speed"),
+        StateInfo("primary_attachment_broken", "-", "lag", "0 intact .. 1 broken primary upper attachment"),
+    ),
+    tuple(f"secondary.{n}" for n in ("axial_mass", "attachment_stiffness", "attachment_damping",
+                                     "fracture_time", "clearance", "stiffness", "contact_damping")),
+    ("loadpath_compliance",), _secondary_load_path,
+    phase=Phase.STRUCTURE_FAULTS,
+    neutral=NoNeutral("the actuator body is a body of its own on its attachments: no parameter value removes it "
+                      "exactly"),
+    outputs=(Output("gimbal_displacement", "m"),
+             Output("primary_attachment_force", "N",
+                    lambda a: (lambda res: _evaluate(a.outputs["loadpath_force"][1], res))),
+             Output("secondary_path_force", "N"), Output("primary_attachment_broken", "-")),
+    candidate=_FAULT,
+))
+register(Effect(
+    "surface_jam", "the surface locks where it is when input surface_jam is 1",
+    (StateInfo("jam_anchor", "m", "custom", "where the surface jams (follows it until the jam)"),),
+    ("jam.stiffness", "jam.damping", "surface.mass"), ("loadpath_compliance",), _surface_jam,
+    phase=Phase.STRUCTURE_FAULTS,  # after secondary_load_path: reads the absolute surface outputs
+    neutral={},  # with its input healthy (surface_jam = 0)
+    outputs=(Output("jam_force", "N"), Output("surface_jammed", "-")),
+    candidate=_FAULT,
+))
+register(Effect(
+    "claw_stops", "claw stops at the ends of the nut travel (screw rotation stopped)",
+    (), ("claw.travel_min", "claw.travel_max", "claw.stiffness", "claw.damping"), (), _claw_stops,
+    phase=Phase.STRUCTURE_FAULTS,
+    neutral={"claw.travel_min": -1e3, "claw.travel_max": 1e3},  # stops beyond any travel
+    outputs=(Output("claw_torque", "N m"),),
+    candidate=_FAULT,
+))
+register(Effect(
+    "motor_brakes", "one brake per motor, engaged by input brake",
+    (), ("brake.holding_torque", "brake.kinetic_ratio"), (), _motor_brakes,
+    phase=Phase.DRIVE_FAULTS,
+    neutral={},  # with its input healthy (brake = 0)
+    outputs=(Output("brake_torque", "N m"), Output("brakes_engaged", "-")),
+    candidate=_FAULT,
+))
 
+#: Names of the effects this module registers.
+FAULT_EFFECTS: tuple[str, ...] = tuple(n for n, e in EFFECTS.items() if e.apply.__module__ == __name__)

@@ -1,10 +1,13 @@
-"""Effect library: the physical effects that model levels add to the structure.
+"""The papers' effects: what the model levels add to the structure.
 
-Each effect is a pure function of an :class:`~thsa_control.model.structure.Assembly`
-that declares its states and parameters and adds terms (torques, friction
-channels, states with their derivatives, losses, outputs).  It is written once
-as casadi expressions; linearisation, simulation, optimisation and
-identification all consume the same terms through ``plant.py``.
+Each effect's ``apply`` is a function of an :class:`~thsa_control.model.structure.Assembly`
+that adds terms (torques, friction channels, states with their derivatives,
+losses, outputs), written once as casadi expressions from the laws of
+``model/laws.py``; linearisation, simulation, optimisation and identification
+all consume the same terms through ``plant.py``.  Each is registered at the
+end of this module with everything else the workbench knows about it
+(:class:`~thsa_control.model.effect.Effect`: outputs and their neutral values,
+phase, tracer candidate spec, linearisation hints, neutral parameters).
 
 Effects (the papers' incremental modelling):
 
@@ -68,55 +71,23 @@ takes its share of the voltage circle).
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
-
 import casadi as ca
 
-from .structure import Assembly, FrictionChannel, StateInfo, kinematic_ratio, motor_lag, torque_constant
+from ..effect import CandidateSpec, Effect, Guard, LinearHints, NoNeutral, NotCandidate, Output, Phase, register
+from ..laws import (
+    drivetrain_stiffness, kinematic_ratio, loadpath_force_law, loadpath_static_deflection, motor_lag, stribeck,
+    temperature_drag_terms, torque_constant,
+)
+from ..structure import Assembly, FrictionChannel, StateInfo
 
-__all__ = ["Effect", "EFFECTS", "EFFECT_ORDER", "stribeck", "temperature_drag_terms", "loadpath_force_law",
-           "drivetrain_stiffness",
-           "loadpath_static_deflection"]
-
-
-@dataclass(frozen=True)
-class Effect:
-    """A physical effect: what it adds, and the function that adds it.
-
-    Parameters
-    ----------
-    name : str
-        Effect name used in effect sets.
-    summary : str
-        One line for listings.
-    states : tuple of StateInfo
-        States it adds.
-    parameters : tuple of str
-        Parameters it reads (beyond the structure's).
-    requires : tuple of str
-        Effects that must be in the same set.
-    apply : callable
-        ``apply(assembly)`` adds the terms.
-    supersedes : tuple of str
-        Effects it replaces when both are asked for (the detailed no-back
-        replaces level A's ideal one).
-    """
-
-    name: str
-    summary: str
-    states: tuple[StateInfo, ...]
-    parameters: tuple[str, ...]
-    requires: tuple[str, ...]
-    apply: Callable[[Assembly], None]
-    supersedes: tuple[str, ...] = ()
+__all__ = ["noback_preload"]
 
 
 def _standby_motor(a: Assembly) -> None:
     x, u, p = a.x, a.u, a.p
     w = a.rotor_speed
     i = x["standby_current"]
-    tau, target, v_applied, v_d, copper = motor_lag(a, i, u["voltage_standby"], u["enable_standby"], w)
+    tau, target, v_applied, v_d, copper = motor_lag(p, i, u["voltage_standby"], u["enable_standby"], w)
     a.lags["standby_current"] = (tau, target)
     a.rotor_torques.append(("motor_standby", torque_constant(p) * i))
     a.rotor_inertia.append(p["motor.rotor_inertia"])  # the standby rotor is always dragged
@@ -129,41 +100,6 @@ def _standby_motor(a: Assembly) -> None:
     a.output("standby_current", "A", i)
     a.output("standby_voltage", "V", v_applied)
     a.output("standby_energised", "-", ca.if_else(u["enable_standby"] > 0.5, 1.0, 0.0))
-
-
-def loadpath_force_law(p: dict, deflection, deflection_rate):
-    """Papers' piecewise load-path law [N], compressive positive.
-
-    ``deflection = x_nut - x_surface`` [m] (positive: the nut pushes the
-    surface), ``deflection_rate`` its derivative [m/s].  Returns
-    ``(force, conservative_part)``.
-    """
-    d, dd = deflection, deflection_rate
-    b = p["loadpath.backlash"]
-    k_ds = 2.0 * p["loadpath.disk_spring_stiffness"]
-    c = p["loadpath.contact_damping"]
-    upper = ca.if_else(d > b, ca.fmax(p["loadpath.contact_stiffness_upper"] * (d - b) + c * dd, 0.0), 0.0)
-    lower = ca.if_else(d < -b, ca.fmin(p["loadpath.contact_stiffness_lower"] * (d + b) + c * dd, 0.0), 0.0)
-    spring = (
-        k_ds * d
-        + p["loadpath.contact_stiffness_upper"] * ca.fmax(d - b, 0.0)
-        + p["loadpath.contact_stiffness_lower"] * ca.fmin(d + b, 0.0)
-    )
-    force = k_ds * d + p["loadpath.disk_spring_damping"] * dd + upper + lower
-    return force, spring
-
-
-def loadpath_static_deflection(p: dict, force):
-    """Deflection [m] at which the load path carries ``force`` [N] at rest (inverse of the law)."""
-    b = p["loadpath.backlash"]
-    k_ds = 2.0 * p["loadpath.disk_spring_stiffness"]
-    ku, kl = p["loadpath.contact_stiffness_upper"], p["loadpath.contact_stiffness_lower"]
-    f_edge = k_ds * b
-    return ca.if_else(
-        force > f_edge,
-        (force + ku * b) / (k_ds + ku),
-        ca.if_else(force < -f_edge, (force - kl * b) / (k_ds + kl), force / ca.fmax(k_ds, 1e-300)),
-    )
 
 
 def _loadpath_compliance(a: Assembly) -> None:
@@ -192,22 +128,6 @@ def _loadpath_compliance(a: Assembly) -> None:
     a.output("loadpath_deflection", "m", d)
 
 
-def temperature_drag_terms(p: dict, speed, temperature):
-    """Terms of the temperature law at motor speed ``speed`` [rad/s] and ``temperature`` [degC].
-
-    Returns ``(delta_viscous, coulomb_static, coulomb_kinetic)``: the change of
-    the gearbox/screw viscous coefficient from its 25 degC value [N m s/rad]
-    and the extra Coulomb drag at standstill and at ``speed`` [N m], all
-    referred to the motor shaft.
-    """
-    dT = p["friction.reference_temperature"] - temperature
-    db = p["gear.viscous_friction"] * (ca.exp(p["friction.viscous_temperature_coefficient"] * dT) - 1.0)
-    tc = p["friction.cold_coulomb_torque"] * (ca.exp(p["friction.coulomb_temperature_coefficient"] * ca.fmax(dT, 0.0)) - 1.0)
-    r_st = p["friction.cold_stribeck_ratio"]
-    kinetic = tc * (1.0 + r_st * ca.exp(-((speed / p["friction.cold_stribeck_speed"]) ** 2)))
-    return db, tc * (1.0 + r_st), kinetic
-
-
 def _temperature_friction(a: Assembly) -> None:
     x, u, p = a.x, a.u, a.p
     w = x["motor_speed"]
@@ -218,11 +138,6 @@ def _temperature_friction(a: Assembly) -> None:
     a.loss("temperature_coulomb", lambda res: res.channel["temperature"] * res.speed)
     a.output("temperature_drag_torque", "N m", lambda res: res.channel["temperature"])
     a.output("viscous_coefficient", "N m s/rad", p["motor.bearing_viscous_friction"] + p["gear.viscous_friction"] + db)
-
-
-def stribeck(mu_s, mu_c, speed, w_st):
-    """Stribeck coefficient ``mu_c + (mu_s - mu_c) exp(-(speed/w_st)^2)`` of the disk law."""
-    return mu_c + (mu_s - mu_c) * ca.exp(-((speed / w_st) ** 2))
 
 
 def _noback_quadrant_friction(a: Assembly) -> None:
@@ -292,18 +207,6 @@ def _noback_ideal(a: Assembly) -> None:
     a.output("noback_torque", "N m", lambda res: res.channel["noback_ideal"] * a.p["gear.ratio"])
 
 
-def drivetrain_stiffness(p) -> object:
-    """Torsional stiffness of the drive train at the motor shaft [N m/rad] (``drivetrain_compliance``).
-
-    Paper 000, Figure 6: the gearbox stiffness k_g in series with the screw's
-    torsional stiffness (no inertia between them: the screw inertia sits at
-    the nut end with the no-back), referred to the motor shaft by ``1/N^2``.
-    ``p`` maps parameter names to values (numbers or casadi expressions).
-    """
-    k_eq = 1.0 / (1.0 / p["gear.torsional_stiffness"] + 1.0 / p["screw.torsional_stiffness"])
-    return k_eq / p["gear.ratio"] ** 2
-
-
 def _drivetrain_compliance(a: Assembly) -> None:
     # Paper 000, Figure 6: the spring of drivetrain_stiffness and the gearbox
     # damping d_g between the motor rotors and the gear output, at the motor shaft.
@@ -348,83 +251,153 @@ def _noback_backlash(a: Assembly) -> None:
     a.output("pawl_clearance_tens", "rad", c_tens)
 
 
+
+def _loadpath_operating_point(c):
+    rest = c.rest_state()
+    return {}, {"loadpath_deflection": float(rest["nut_position"] - rest["surface_position"]),
+                "surface_speed": c.nut_speed}
+
+
+def _backlash_operating_point(c):
+    # extension (w > 0) is locked by the tensile-side pawl, retraction by the compressive-side one; the
+    # free one ratchets inside its pitch, the engaged one sits inside its set (or at its edge)
+    pitch = c.values["noback.pawl_pitch"]
+    engaged = 0.0 if c.pawl == "edge" else -0.5 * pitch
+    comp, tens = (0.5 * pitch, engaged) if c.nut_speed >= 0 else (engaged, 0.5 * pitch)
+    return {"pawl_clearance_comp": comp, "pawl_clearance_tens": tens}, {}
+
+
+def _drivetrain_operating_point(c):
+    return {}, {"rotor_speed": c.speed, "drivetrain_twist": c.torque_constant * c.current / drivetrain_stiffness(c.values)}
+
+
 _NOBACK = tuple(f"noback.{n}" for n in (
     "preload", "ratchet_inertia", "mu_static_pos", "mu_coulomb_pos", "viscous_pos", "stribeck_speed_pos",
     "mu_static_neg", "mu_coulomb_neg", "viscous_neg", "stribeck_speed_neg",
 ))
+_PAWLS = ("pawl_clearance_comp", "pawl_clearance_tens")
 
-EFFECTS: dict[str, Effect] = {
-    e.name: e
-    for e in (
-        Effect(
-            "standby_motor", "second PMSM torque-summed at the gearbox input, rotor always dragged",
-            (StateInfo("standby_current", "A", "lag", "q-axis current of the standby motor"),),
-            ("motor.rotor_inertia", "motor.bearing_viscous_friction"), (), _standby_motor,
-        ),
-        Effect(
-            "loadpath_compliance", "load-path backlash and preload compliance; surface as a separate body",
-            (
-                StateInfo("surface_position", "m", "position", "surface position referred to the nut axis"),
-                StateInfo("surface_speed", "m/s", "velocity", "surface speed referred to the nut axis"),
-            ),
-            tuple(f"loadpath.{n}" for n in (
-                "contact_stiffness_lower", "contact_stiffness_upper", "disk_spring_stiffness", "backlash",
-                "contact_damping", "disk_spring_damping")) + ("surface.mass",),
-            (), _loadpath_compliance,
-        ),
-        Effect(
-            "temperature_friction", "gearbox and nut-screw drag rising at low temperature and low speed",
-            (),
-            tuple(f"friction.{n}" for n in (
-                "reference_temperature", "viscous_temperature_coefficient", "cold_coulomb_torque",
-                "coulomb_temperature_coefficient", "cold_stribeck_ratio", "cold_stribeck_speed")),
-            (), _temperature_friction,
-        ),
-        Effect(
-            "noback_backlash", "ratchet/pawl clearance crossed before the pawl engages",
-            (
-                StateInfo("pawl_clearance_comp", "rad", "custom", "screw travel left before the compressive-side pawl locks retraction"),
-                StateInfo("pawl_clearance_tens", "rad", "custom", "screw travel left before the tensile-side pawl locks extension"),
-            ),
-            ("noback.pawl_pitch", "noback.pawl_initial_clearance"), ("noback_quadrant_friction",), _noback_backlash,
-        ),
-        Effect(
-            "noback_quadrant_friction", "no-back friction disks with load- and quadrant-dependent normal force",
-            (), _NOBACK, (), _noback_quadrant_friction, supersedes=("noback_ideal",),
-        ),
-        Effect(
-            "noback_ideal", "ideal irreversible no-back (level A): Coulomb torque F r against load-aided motion",
-            (), (), (), _noback_ideal,
-        ),
-        Effect(
-            "drivetrain_compliance", "gearbox and screw torsional compliance between the motor rotors and the gear output",
-            (
-                StateInfo("rotor_speed", "rad/s", "velocity", "speed of the motor rotors (gearbox input), the motor sensor"),
-                StateInfo("drivetrain_twist", "rad", "position", "rotor angle minus gear-output angle, at the motor shaft"),
-            ),
-            ("gear.torsional_stiffness", "screw.torsional_stiffness", "gear.torsional_damping"), (),
-            _drivetrain_compliance,
-        ),
-    )
-}
-
-#: Order in which effects are applied: those that change the axial force or
-#: gate the pawls come before those that read them.
-EFFECT_ORDER: tuple[str, ...] = (
-    "standby_motor", "drivetrain_compliance", "loadpath_compliance", "temperature_friction", "noback_backlash",
-    "noback_quadrant_friction", "noback_ideal",
-)
-
-# Generic drive effects (drive_effects.py), applied after the load path and
-# before the no-back, which reads the axial force that force_offset changes.
-from .drive_effects import DRIVE_EFFECT_ORDER, DRIVE_EFFECTS  # noqa: E402
-
-EFFECTS.update(DRIVE_EFFECTS)
-EFFECT_ORDER = (tuple(e for e in EFFECT_ORDER if not e.startswith("noback")) + DRIVE_EFFECT_ORDER
-                + tuple(e for e in EFFECT_ORDER if e.startswith("noback")))
-
-# Fault effects (model F, issue #10): same API, in their own module, applied after the effects above.
-from .fault_effects import FAULT_EFFECT_ORDER, FAULT_EFFECTS  # noqa: E402
-
-EFFECTS.update(FAULT_EFFECTS)
-EFFECT_ORDER = EFFECT_ORDER + FAULT_EFFECT_ORDER
+# Registration order is the order of the output signals (and, within a phase, of application).
+register(Effect(
+    "standby_motor", "second PMSM torque-summed at the gearbox input, rotor always dragged",
+    (StateInfo("standby_current", "A", "lag", "q-axis current of the standby motor"),),
+    ("motor.rotor_inertia", "motor.bearing_viscous_friction"), (), _standby_motor,
+    phase=Phase.BODIES,
+    neutral=NoNeutral("the standby rotor is always dragged: its inertia and bearing drag stay, whatever the "
+                      "parameters"),
+    outputs=(Output("standby_current", "A"), Output("standby_voltage", "V"), Output("standby_voltage_d", "V"),
+             Output("standby_energised", "-")),
+    candidate=NotCandidate("a configuration of the actuator (the standby motor is fitted or not), "
+                           "not a missing physics of a healthy rig's residual"),
+))
+register(Effect(
+    "drivetrain_compliance", "gearbox and screw torsional compliance between the motor rotors and the gear output",
+    (
+        StateInfo("rotor_speed", "rad/s", "velocity", "speed of the motor rotors (gearbox input), the motor sensor"),
+        StateInfo("drivetrain_twist", "rad", "position", "rotor angle minus gear-output angle, at the motor shaft"),
+    ),
+    ("gear.torsional_stiffness", "screw.torsional_stiffness", "gear.torsional_damping"), (),
+    _drivetrain_compliance,
+    phase=Phase.BODIES,
+    neutral=NoNeutral("the rotors are a body of their own: no parameter value makes the drive train rigid exactly"),
+    outputs=(Output("drivetrain_twist", "rad"), Output("drivetrain_torque", "N m")),
+    # only the series stiffness is identifiable: the gearbox's is freed, the screw's and the damping held
+    candidate=CandidateSpec("drivetrain_compliance", ("gear.torsional_stiffness",), {}, "all", "screw_speed"),
+    linear=LinearHints(
+        # the spring torque k * twist enters the gear-output body with unit gain
+        inertia_probe=("drivetrain_twist", drivetrain_stiffness),
+        operating_point=_drivetrain_operating_point,
+    ),
+))
+register(Effect(
+    "loadpath_compliance", "load-path backlash and preload compliance; surface as a separate body",
+    (
+        StateInfo("surface_position", "m", "position", "surface position referred to the nut axis"),
+        StateInfo("surface_speed", "m/s", "velocity", "surface speed referred to the nut axis"),
+    ),
+    tuple(f"loadpath.{n}" for n in (
+        "contact_stiffness_lower", "contact_stiffness_upper", "disk_spring_stiffness", "backlash",
+        "contact_damping", "disk_spring_damping")) + ("surface.mass",),
+    (), _loadpath_compliance,
+    phase=Phase.LOAD_PATH,
+    neutral=NoNeutral("the surface is a body of its own: no parameter value makes the load path rigid exactly "
+                      "(a stiff spring approaches it)"),
+    outputs=(Output("surface_position", "m", lambda a: a.x["nut_position"]),
+             Output("surface_speed", "m/s", lambda a: kinematic_ratio(a.p) * a.x["motor_speed"]),
+             Output("loadpath_force", "N", lambda a: a.u["load_force"]), Output("loadpath_deflection", "m")),
+    candidate=CandidateSpec("loadpath_compliance",
+                            ("loadpath.contact_stiffness_upper", "loadpath.contact_stiffness_lower"),
+                            {}, "loaded", "nut_position"),
+    linear=LinearHints(
+        # a steady motion ramps both positions: the deflection nut - surface is its equilibrium state
+        relative={"surface_position": ("loadpath_deflection", "nut_position")},
+        guards=(Guard("loadpath_contact_edge", lambda x, p: ca.fabs(ca.fabs(x["loadpath_deflection"])
+                                                                     - p["loadpath.backlash"]),
+                      "loadpath_edge_band"),),
+        operating_point=_loadpath_operating_point,
+    ),
+))
+register(Effect(
+    "temperature_friction", "gearbox and nut-screw drag rising at low temperature and low speed",
+    (),
+    tuple(f"friction.{n}" for n in (
+        "reference_temperature", "viscous_temperature_coefficient", "cold_coulomb_torque",
+        "coulomb_temperature_coefficient", "cold_stribeck_ratio", "cold_stribeck_speed")),
+    (), _temperature_friction,
+    phase=Phase.DRIVE,
+    neutral={"friction.cold_coulomb_torque": 0.0, "friction.viscous_temperature_coefficient": 0.0,
+             "friction.preload_temperature_coefficient": 0.0},
+    outputs=(Output("temperature_drag_torque", "N m"),
+             Output("viscous_coefficient", "N m s/rad",
+                    lambda a: a.p["motor.bearing_viscous_friction"] + a.p["gear.viscous_friction"])),
+    candidate=CandidateSpec("temperature_friction",
+                            ("friction.cold_coulomb_torque", "friction.viscous_temperature_coefficient"), {}, "cold"),
+))
+register(Effect(
+    "noback_quadrant_friction", "no-back friction disks with load- and quadrant-dependent normal force",
+    (), _NOBACK, (), _noback_quadrant_friction, supersedes=("noback_ideal",),
+    phase=Phase.NOBACK,
+    neutral={n: 0.0 for n in _NOBACK if "stribeck_speed" not in n},
+    outputs=(Output("noback_torque", "N m"), Output("noback_normal_force_comp", "N"),
+             Output("noback_normal_force_tens", "N"), Output("noback_disk_comp_slipping", "-"),
+             Output("noback_disk_tens_slipping", "-"), Output("pawl_comp_engaged", "-"),
+             Output("pawl_tens_engaged", "-"), Output("pawl_engaged", "-")),
+    candidate=CandidateSpec("noback_quadrant_friction", ("noback.mu_coulomb_pos", "noback.mu_coulomb_neg"), {},
+                            "loaded"),
+    linear=LinearHints(kinks={"noback_normal_force": "load reversal in the load path (zero load-path force: the "
+                                                     "no-back's loaded side switches)"}),
+))
+register(Effect(
+    "noback_ideal", "ideal irreversible no-back (level A): Coulomb torque F r against load-aided motion",
+    (), (), (), _noback_ideal,
+    phase=Phase.NOBACK,
+    neutral=NoNeutral("it has no parameter: the ideal no-back always holds the load (remove it for the "
+                      "reversible model)"),
+    outputs=(Output("noback_torque", "N m"),),
+    candidate=NotCandidate("level A's ideal no-back; the detailed no-back (noback_quadrant_friction) is the "
+                           "candidate that supersedes it"),
+))
+register(Effect(
+    "noback_backlash", "ratchet/pawl clearance crossed before the pawl engages",
+    (
+        StateInfo("pawl_clearance_comp", "rad", "custom", "screw travel left before the compressive-side pawl locks retraction"),
+        StateInfo("pawl_clearance_tens", "rad", "custom", "screw travel left before the tensile-side pawl locks extension"),
+    ),
+    ("noback.pawl_pitch", "noback.pawl_initial_clearance"), ("noback_quadrant_friction",), _noback_backlash,
+    phase=Phase.PAWLS,
+    neutral={"noback.pawl_pitch": 0.0},  # no clearance: the pawls are always engaged
+    outputs=(Output("pawl_clearance_comp", "rad"), Output("pawl_clearance_tens", "rad")),
+    # the pawl switch gives no gradient: the pitch (papers: 8.57 deg max; searched 1.7..17 deg) is profiled,
+    # each value with segment clearances of its own; the initial clearance only where it matters.  It acts
+    # after a reversal and at a stop under load (the load back-drives through the clearance)
+    candidate=CandidateSpec("noback_backlash", (), {}, "reversal_or_stop",
+                            profile={"noback.pawl_pitch": (0.03, 0.3), "noback.pawl_initial_clearance": (0.0, 1.0)}),
+    linear=LinearHints(
+        # in a steady motion the clearances ramp (+-w/N) and nothing depends on them away from an edge
+        drifting=_PAWLS,
+        guards=tuple(Guard(f"{s}_edge", lambda x, p, s=s: ca.fabs(x[s]), "pawl_edge_band") for s in _PAWLS),
+        operating_point=_backlash_operating_point,
+        # both pawls engaged: each direction meets its loaded disk, as at a reversal
+        at_reversal=lambda v: {s: -0.5 * v["noback.pawl_pitch"] for s in _PAWLS},
+    ),
+))

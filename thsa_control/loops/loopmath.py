@@ -113,7 +113,7 @@ def _zoh(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray
     return E[:, :n, :n], E[:, :n, n:]
 
 
-def _freq(sys: _SS, z: np.ndarray, idx: np.ndarray | None = None) -> np.ndarray:
+def freq_response(sys: _SS, z: np.ndarray, idx: np.ndarray | None = None) -> np.ndarray:
     """SISO response ``C (zI - A)^-1 B + D`` of every point at ``z``.
 
     ``z`` of shape (W,) is used for every point (result (N, W)); with ``idx``
@@ -182,7 +182,7 @@ class _Response:
             out[ok] = np.einsum("kwn->kw", self.res[ok][:, None, :] / (z[None, :, None] - self.lam[ok][:, None, :])) \
                 + self.d[ok][:, None]
         if (~ok).any():
-            out[~ok] = _freq(self.sys.take(np.flatnonzero(~ok)), z)
+            out[~ok] = freq_response(self.sys.take(np.flatnonzero(~ok)), z)
         return out
 
     def at(self, idx: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -194,7 +194,7 @@ class _Response:
             i = idx[ok]
             out[ok] = np.sum(self.res[i] / (z[ok][:, None] - self.lam[i]), axis=1) + self.d[i]
         if (~ok).any():
-            out[~ok] = _freq(self.sys, z[~ok], idx[~ok])
+            out[~ok] = freq_response(self.sys, z[~ok], idx[~ok])
         return out
 
 
@@ -371,7 +371,7 @@ def _margins(evaluate, omega: np.ndarray, L: np.ndarray, dc_T: np.ndarray) -> Ma
                      bandwidth_hz=bw / two_pi, gain_margin_lower_db=lower, gain_margin_upper_db=upper)
 
 
-def _frequency_grid(h: float, f_min: float, n: int) -> np.ndarray:
+def frequency_grid(h: float, f_min: float, n: int) -> np.ndarray:
     w_nyq = math.pi / h
     w0 = 2 * math.pi * f_min
     if not w0 < w_nyq:
@@ -415,7 +415,7 @@ def loop_margins(A, B, C, D, dt: float, omega=None, *, n_frequencies: int = 500,
     """
     A = np.asarray(A, float)
     sys = _SS(*(np.asarray(M, float)[None] if A.ndim == 2 else np.asarray(M, float) for M in (A, B, C, D)))
-    omega = _frequency_grid(dt, f_min, n_frequencies) if omega is None else np.asarray(omega, float)
+    omega = frequency_grid(dt, f_min, n_frequencies) if omega is None else np.asarray(omega, float)
     resp = _Response(sys)
     L = resp.grid(np.exp(1j * omega * dt))
     dc = _dcgain(_cl_from_loop(sys), 0, 0)

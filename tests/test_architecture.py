@@ -1,0 +1,216 @@
+"""Layout of the package: no import cycle, no private name imported across subpackages.
+
+Static (``ast``): every ``import``/``from ... import`` of ``thsa_control`` and
+``linearization``, also inside functions (an import that runs later still
+ties the modules); blocks under ``if TYPE_CHECKING:`` are ignored (they never
+run).  A *subpackage* is the first level below the top package
+(``thsa_control.model``, ``thsa_control.fit``, ...; a top-level module such as
+``thsa_control.cli`` is one of its own).
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("thsa_control", "linearization")
+
+
+def _module_name(path: Path) -> str:
+    rel = path.relative_to(ROOT).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for pkg in PACKAGES:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            out[_module_name(path)] = path
+    return out
+
+
+MODULES = _modules()
+
+
+def _is_type_checking(node: ast.If) -> bool:
+    t = node.test
+    return (isinstance(t, ast.Name) and t.id == "TYPE_CHECKING") or (
+        isinstance(t, ast.Attribute) and t.attr == "TYPE_CHECKING")
+
+
+def _walk(tree):
+    """Every node except those under ``if TYPE_CHECKING:``."""
+    stack = [tree]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, ast.If) and _is_type_checking(node):
+            stack.extend(node.orelse)
+            continue
+        yield node
+        stack.extend(ast.iter_child_nodes(node))
+
+
+def _resolve(module: str, is_package: bool, level: int, name: str | None) -> str:
+    if level == 0:
+        return name or ""
+    base = module.split(".") if is_package else module.split(".")[:-1]
+    base = base[: len(base) - (level - 1)]
+    return ".".join(base + ([name] if name else []))
+
+
+def _known(name: str) -> str | None:
+    """The longest module of the packages that ``name`` is or lies in."""
+    while name:
+        if name in MODULES:
+            return name
+        name = name.rpartition(".")[0]
+    return None
+
+
+def imports(module: str) -> list[tuple[str, str | None, int]]:
+    """``(target module, imported name or None, line)`` of every import of the packages in ``module``."""
+    path = MODULES[module]
+    tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+    is_pkg = path.name == "__init__.py"
+    out = []
+    for node in _walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                target = _known(a.name)
+                if target:
+                    out.append((target, None, node.lineno))
+        elif isinstance(node, ast.ImportFrom):
+            base = _resolve(module, is_pkg, node.level, node.module)
+            for a in node.names:
+                sub = f"{base}.{a.name}"
+                if sub in MODULES:  # "from pkg import submodule"
+                    out.append((sub, None, node.lineno))
+                else:
+                    target = _known(base)
+                    if target:
+                        out.append((target, a.name, node.lineno))
+    return out
+
+
+def subpackage(module: str) -> str:
+    parts = module.split(".")
+    return ".".join(parts[:2])
+
+
+def private_crossings() -> list[str]:
+    bad = []
+    for m in MODULES:
+        for target, name, line in imports(m):
+            if subpackage(target) == subpackage(m):
+                continue
+            private_module = any(p.startswith("_") and not p.startswith("__")
+                                 for p in target.split(".")[len(subpackage(target).split(".")):])
+            if (name is not None and name.startswith("_") and not name.startswith("__")) or private_module:
+                what = f"{target}.{name}" if name else target
+                bad.append(f"{m}:{line} imports private {what}")
+    return bad
+
+
+def _graph() -> dict[str, set[str]]:
+    g: dict[str, set[str]] = {m: set() for m in MODULES}
+    for m in MODULES:
+        for target, _, _ in imports(m):
+            if target != m:
+                g[m].add(target)
+    return g
+
+
+def import_cycles() -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan), each listed sorted."""
+    g = _graph()
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    on, stack, out = set(), [], []
+    counter = [0]
+
+    def visit(v):
+        work = [(v, iter(sorted(g[v])))]
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        while work:
+            node, it = work[-1]
+            for w in it:
+                if w not in index:
+                    index[w] = low[w] = counter[0]
+                    counter[0] += 1
+                    stack.append(w)
+                    on.add(w)
+                    work.append((w, iter(sorted(g[w]))))
+                    break
+                if w in on:
+                    low[node] = min(low[node], index[w])
+            else:
+                work.pop()
+                if work:
+                    low[work[-1][0]] = min(low[work[-1][0]], low[node])
+                if low[node] == index[node]:
+                    comp = []
+                    while True:
+                        w = stack.pop()
+                        on.discard(w)
+                        comp.append(w)
+                        if w == node:
+                            break
+                    if len(comp) > 1:
+                        out.append(sorted(comp))
+
+    for v in sorted(g):
+        if v not in index:
+            visit(v)
+    return sorted(out)
+
+
+# ----------------------------------------------------------------------------- the checker checks
+def test_checker_sees_imports_inside_functions_and_relative_ones():
+    found = {(t, n) for t, n, _ in imports("thsa_control.loops.design")}
+    assert ("thsa_control.model", "build_plant") in found  # imported inside reflected_inertia
+    assert ("thsa_control.model.laws", "kinematic_ratio") in found
+
+
+def test_checker_finds_a_cycle(monkeypatch):
+    import sys
+
+    mod = sys.modules[__name__]
+    g = {"a.x": {"a.y"}, "a.y": {"a.z"}, "a.z": {"a.x"}, "a.w": {"a.x"}, "a.v": set()}
+    monkeypatch.setattr(mod, "_graph", lambda: g)
+    assert mod.import_cycles() == [["a.x", "a.y", "a.z"]]
+
+
+def test_checker_finds_a_private_crossing(tmp_path, monkeypatch):
+    import sys
+
+    mod = sys.modules[__name__]
+    pkg = tmp_path / "thsa_control"
+    (pkg / "a").mkdir(parents=True)
+    (pkg / "b").mkdir()
+    for f in ("__init__.py", "a/__init__.py", "b/__init__.py", "a/m.py"):
+        (pkg / f).write_text("")
+    (pkg / "a" / "n.py").write_text("from .m import _private_ok\n")  # same subpackage: allowed
+    (pkg / "b" / "k.py").write_text("def f():\n    from ..a.m import _helper\n")  # inside a function: counted
+    monkeypatch.setattr(mod, "ROOT", tmp_path)
+    monkeypatch.setattr(mod, "PACKAGES", ("thsa_control",))
+    monkeypatch.setattr(mod, "MODULES", mod._modules())
+    assert mod.private_crossings() == ["thsa_control.b.k:2 imports private thsa_control.a.m._helper"]
+
+
+# ----------------------------------------------------------------------------- the layout
+def test_no_private_name_imported_across_subpackages():
+    bad = private_crossings()
+    assert not bad, "\n".join(bad)
+
+
+def test_package_import_graph_has_no_cycle():
+    cycles = import_cycles()
+    assert not cycles, "\n".join(" <-> ".join(c) for c in cycles)
