@@ -5,7 +5,7 @@ from __future__ import annotations
 
 
 from ..errors import ThsaError
-from .common import (EXIT_OK, EXIT_REQUIREMENT_FAILED, analysis_effects, load_params, out_arg, out_options,
+from .common import (EXIT_OK, EXIT_REQUIREMENT_FAILED, analysis_effects, effects_arg, load_params, out_arg, out_options,
                      preflight_out, progress_for, scaled_floats)
 
 __all__ = ["add_parsers", "cmd_report", "cmd_linearize"]
@@ -51,19 +51,28 @@ def cmd_report(args) -> int:
 
 
 def cmd_linearize(args) -> int:
-    from ..loops.linear import OperatingCondition, format_linear_model, linearize_condition, plant_model
     from ..model import resolve_effects
+    from ..loops.conditions import OperatingCondition
 
+    # bad names and values fail before the heavy imports (python-control, scipy: seconds)
+    resolve_effects(args.level, add=[] if args.effects is None else effects_arg(args.effects))
+    try:
+        cond = OperatingCondition(args.speed * 1e-3, args.load, args.temperature, args.active)
+    except ValueError as exc:
+        raise ThsaError(str(exc)) from None
+    progress = progress_for(args, "thsa linearize")
+    progress.phase("loading the linear-analysis libraries")
     params = load_params(args)
     effects = analysis_effects(args)
     if args.active == "standby" and "standby_motor" not in effects:
         effects.append("standby_motor")
     resolve_effects(args.level, add=effects)
-    try:
-        cond = OperatingCondition(args.speed * 1e-3, args.load, args.temperature, args.active)
-    except ValueError as exc:
-        raise ThsaError(str(exc)) from None
+    from ..loops.linear import format_linear_model, linearize_condition, plant_model
+
+    progress.phase(f"building level {args.level.upper()} and linearising at {args.speed:g} mm/s, {args.load:g} N, "
+                   f"{args.temperature:g} degC")
     lin = linearize_condition(plant_model(args.level, effects, params), cond)
+    progress.done()
     print(format_linear_model(lin))
     if args.save:
         print(f"saved {lin[0].save(args.save)}")
