@@ -7,7 +7,7 @@ import re
 import sys
 
 from ..errors import ThsaError
-from .common import (EXIT_OK, EXIT_REQUIREMENT_FAILED, analysis_effects, load_params, out_arg, out_options,
+from .common import (EXIT_OK, EXIT_REQUIREMENT_FAILED, analysis_effects, effects_arg, load_params, out_arg, out_options,
                      preflight_out, progress_for, scaled_floats)
 
 __all__ = ["add_parsers", "cmd_report", "cmd_linearize"]
@@ -65,21 +65,30 @@ def cmd_report(args) -> int:
 
 def cmd_linearize(args) -> int:
     from ..data.units import from_display
-    from ..loops.linear import OperatingCondition, format_linear_model, linearize_condition, plant_model
     from ..model import resolve_effects
+    from ..loops.conditions import OperatingCondition
 
-    params = load_params(args)
-    effects = analysis_effects(args)
-    if args.active == "standby" and "standby_motor" not in effects:
-        effects.append("standby_motor")
-    resolve_effects(args.level, add=effects)
+    # bad names and values fail before the heavy imports (python-control, scipy: seconds)
+    resolve_effects(args.level, add=[] if args.effects is None else effects_arg(args.effects))
     load_n = load_newtons(args.load)
     try:
         cond = OperatingCondition(from_display("nut_speed", args.speed), load_n, args.temperature, args.active)
     except ValueError as exc:
         raise ThsaError(str(exc)) from None
+    progress = progress_for(args, "thsa linearize")
+    progress.phase("loading the linear-analysis libraries")
+    params = load_params(args)
+    effects = analysis_effects(args)
+    if args.active == "standby" and "standby_motor" not in effects:
+        effects.append("standby_motor")
+    resolve_effects(args.level, add=effects)
+    from ..loops.linear import format_linear_model, linearize_condition, plant_model
+
+    progress.phase(f"building level {args.level.upper()} and linearising at {args.speed:g} mm/s, "
+                   f"{load_n * 1e-3:g} kN, {args.temperature:g} degC")
     model = plant_model(args.level, effects, params)
     lin = linearize_condition(model, cond)
+    progress.done()
     print(format_linear_model(lin))
     if args.save:
         fmt = args.format or ("mat" if str(args.save).endswith(".mat") else "npz")
