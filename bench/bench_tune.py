@@ -125,7 +125,6 @@ def main() -> int:
           f"the run set, status '{sp.message}'")
     print(f"  optimum gains {np.round(g_sp, 5).tolist()}, J/J0 = {sp.fun:.6f}, constraints min "
           f"{min(np.min(g_ex(sp.x)), g_rob(sp.x).min()):.3g}")
-    ipopt_one = res.starts[0].wall_s
     per_val = (ev["value_s"] + ev.get("constraint_runs", {}).get("value_s", 0.0)) / max(ev["value"], 1)
     print(f"time per objective evaluation (objective + constraint runs, value only): "
           f"{np.mean(t_val) * 1e3 if t_val else per_val * 1e3:.1f} ms; per value + AD gradient: "

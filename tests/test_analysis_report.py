@@ -179,7 +179,7 @@ def test_both_gain_margins_and_conditional_stability_are_reported(nominal_report
     assert (f"lower {rows[k]['gain_margin_lower_db']:+.1f} dB / upper {rows[k]['gain_margin_upper_db']:+.1f} dB "
             "(lower: conditionally stable)") in html
     # tables in display units (data/units.py): load-step peaks per kN, times in ms; the JSON stays SI
-    assert "load-step peak [mm/s per kN]" in html and "load-step peak [mm per kN]" in html
+    assert "load-step peak [mm/s per kN]" in html and "load-step peak [um per kN]" in html
     assert "delay margin [ms]" in html
 
 

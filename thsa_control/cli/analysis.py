@@ -3,15 +3,18 @@
 
 from __future__ import annotations
 
+import re
+import sys
 
 from ..errors import ThsaError
-from .common import (EXIT_OK, EXIT_REQUIREMENT_FAILED, analysis_effects, load_params, out_arg, out_options,
+from .common import (EXIT_OK, EXIT_REQUIREMENT_FAILED, analysis_effects, effects_arg, load_params, out_arg, out_options,
                      preflight_out, progress_for, scaled_floats)
 
 __all__ = ["add_parsers", "cmd_report", "cmd_linearize"]
 
 
 def cmd_report(args) -> int:
+    from ..data.units import display_unit
     from ..loops.analysis import AnalysisSettings, analyse_design
     from ..loops.design import load_design, nominal_design_path
     from ..model import resolve_effects
@@ -23,7 +26,9 @@ def cmd_report(args) -> int:
     design = load_design(args.design or nominal_design_path())
     design.check_against(params)
     grid = {name: scaled_floats(getattr(args, opt), opt, scale) for name, opt, scale in (
-        ("nut_speeds", "speeds", 1e-3), ("load_forces", "loads", 1e3), ("temperatures", "temperatures", 1.0))}
+        ("nut_speeds", "speeds", 1 / display_unit("nut_speed").factor),
+        ("load_forces", "loads", 1 / display_unit("force").factor),
+        ("temperatures", "temperatures", 1 / display_unit("temperature").factor))}
     if args.temperature is not None:
         grid["temperatures"] = (args.temperature,)
     settings = AnalysisSettings.from_design(design, level=args.level and args.level.upper(),
@@ -59,23 +64,64 @@ def cmd_report(args) -> int:
 
 
 def cmd_linearize(args) -> int:
-    from ..loops.linear import OperatingCondition, format_linear_model, linearize_condition, plant_model
+    from ..data.units import from_display
     from ..model import resolve_effects
+    from ..loops.conditions import OperatingCondition
 
+    # bad names and values fail before the heavy imports (python-control, scipy: seconds)
+    resolve_effects(args.level, add=[] if args.effects is None else effects_arg(args.effects))
+    load_n = load_newtons(args.load)
+    try:
+        cond = OperatingCondition(from_display("nut_speed", args.speed), load_n, args.temperature, args.active)
+    except ValueError as exc:
+        raise ThsaError(str(exc)) from None
+    progress = progress_for(args, "thsa linearize")
+    progress.phase("loading the linear-analysis libraries")
     params = load_params(args)
     effects = analysis_effects(args)
     if args.active == "standby" and "standby_motor" not in effects:
         effects.append("standby_motor")
     resolve_effects(args.level, add=effects)
-    try:
-        cond = OperatingCondition(args.speed * 1e-3, args.load, args.temperature, args.active)
-    except ValueError as exc:
-        raise ThsaError(str(exc)) from None
-    lin = linearize_condition(plant_model(args.level, effects, params), cond)
+    from ..loops.linear import format_linear_model, linearize_condition, plant_model
+
+    progress.phase(f"building level {args.level.upper()} and linearising at {args.speed:g} mm/s, "
+                   f"{load_n * 1e-3:g} kN, {args.temperature:g} degC")
+    model = plant_model(args.level, effects, params)
+    lin = linearize_condition(model, cond)
+    progress.done()
     print(format_linear_model(lin))
     if args.save:
-        print(f"saved {lin[0].save(args.save)}")
+        fmt = args.format or ("mat" if str(args.save).endswith(".mat") else "npz")
+        if fmt == "mat":  # MATLAB: load model.mat; ss(A, B, C, D, 'StateName', states, ...)
+            from ..data.matfile import linear_model_to_mat, plant_units, write_mat
+
+            path = write_mat(args.save, linear_model_to_mat(lin[0], units=plant_units(model.plant), condition=cond))
+        else:
+            path = lin[0].save(args.save)
+        print(f"saved {path}")
     return 0
+
+
+def load_newtons(text: str) -> float:
+    """``--load`` [kN, like ``thsa report --loads``] -> N; ``20kN`` / ``20000N`` name their unit.
+
+    The old form, a bare number in N, is still read when it cannot be kN (|value| > 100: beyond any load of the
+    actuator), with a deprecation note on stderr.
+    """
+    raw = str(text).strip().replace(" ", "")
+    m = re.fullmatch(r"([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)(kN|N)?", raw)
+    if m is None:
+        raise ThsaError(f"--load {text!r}: expected a number in kN (e.g. 20, -55, 20kN or 20000N)")
+    from ..data.units import from_display
+
+    value, unit = float(m.group(1)), m.group(2)
+    if unit == "N":
+        return value
+    if unit is None and abs(value) > 100.0:
+        print(f"note: --load {text} read as N (the old unit); --load takes kN now, like report --loads: "
+              f"write --load {value * 1e-3:g}", file=sys.stderr)
+        return value
+    return float(from_display("force", value))
 
 
 def add_parsers(sub, shared) -> None:
@@ -102,10 +148,14 @@ def add_parsers(sub, shared) -> None:
     p = add("linearize", "print the linear model at one operating point (and save it)", cmd_linearize)
     p.add_argument("--level", required=True, help="model level A, B, C or D")
     p.add_argument("--speed", type=float, required=True, help="trim nut speed [mm/s], positive extending")
-    p.add_argument("--load", type=float, required=True, help="load [N], compressive positive (opposes extension)")
+    p.add_argument("--load", required=True,
+                   help="load [kN], compressive positive (opposes extension); 20kN or 20000N name the unit "
+                        "(a bare number above 100 is read as N, the old unit, with a note)")
     p.add_argument("--temperature", type=float, default=25.0, help="temperature [degC], -55..70 (default 25)")
     p.add_argument("--effects", nargs="*", help="effects added to the level (default: temperature_friction standby_motor)")
     p.add_argument("--active", choices=["primary", "standby"], default="primary", help="energised motor channel")
     p.add_argument("--params", help="parameter TOML overriding the embedded actuator")
-    p.add_argument("--save", help="write the linear model to this .npz file")
+    p.add_argument("--save", help="write the linear model to this file: .npz (numpy), or .mat for MATLAB (A, B, C, D, "
+                                  "signal names and units, the operating point; `load model.mat`)")
+    p.add_argument("--format", choices=("npz", "mat"), help="format of --save (default: from its suffix, else npz)")
 

@@ -239,6 +239,24 @@ class ReplayResult:
         sim = self.compared[channel] if channel in self.compared else self.simulated[channel]
         return np.asarray(self.measured[channel]) - np.asarray(sim)
 
+    def report(self) -> str:
+        """Fit of every compared channel, in display units."""
+        from ..report.results import format_replay
+
+        return format_replay(self)
+
+    def to_dict(self) -> dict:
+        """Run, mode, effects and the fit of each channel (SI), JSON-able."""
+        from ..report.results import replay_to_dict
+
+        return replay_to_dict(self)
+
+    def plot(self, ax=None):
+        """Measured and simulated channels, one panel each; ``ax``: one Axes per channel."""
+        from ..report.results import plot_replay
+
+        return plot_replay(self, ax)
+
 
 # ----------------------------------------------------------------- inputs
 def run_design(run: RigRun, *, name: str | None = None) -> Design:

@@ -621,6 +621,24 @@ class LoopAnalysis:
                 out[c.temperature] = (dist, k)
         return {t: v[1] for t, v in sorted(out.items())}
 
+    def report(self) -> str:
+        """Worst point of each metric (display units) and the points not analysed."""
+        from ..report.results import format_loop_analysis
+
+        return format_loop_analysis(self)
+
+    def to_dict(self) -> dict:
+        """Every metric of every loop at every point (SI, unit in the key), JSON-able."""
+        from ..report.results import loop_analysis_to_dict
+
+        return loop_analysis_to_dict(self)
+
+    def plot(self, ax=None, loop: str = "velocity_loop"):
+        """Open-loop Bode plot of ``loop`` across the grid; ``ax``: (magnitude, phase) Axes."""
+        from ..report.analysis_plots import plot_loop_bode
+
+        return plot_loop_bode(self, loop, axes=ax)
+
 
 def analyse_loops(design: Design, params: ParameterSet | None = None, conditions=None, *,
                   settings: AnalysisSettings | None = None, model: PlantModel | None = None,

@@ -128,6 +128,24 @@ class RequirementCheck:
             lines.append(f"  {loop}: closed loop unstable at {cond.label()}")
         return "\n".join(lines)
 
+    def report(self) -> str:
+        """Each requirement: limit, worst value and where (display units), PASS/FAIL."""
+        from ..report.results import format_requirement_check
+
+        return format_requirement_check(self)
+
+    def to_dict(self) -> dict:
+        """Verdict, every requirement's worst value, the violations (SI), JSON-able."""
+        from ..report.results import requirement_check_to_dict
+
+        return requirement_check_to_dict(self)
+
+    def plot(self, ax=None):
+        """Spare of each requirement at its worst point, coloured pass / close / fail; ``ax``: one Axes."""
+        from ..report.results import plot_requirements
+
+        return plot_requirements(self, ax)
+
 
 def check_requirements(analysis: LoopAnalysis, requirements: Mapping | None = None) -> RequirementCheck:
     """Check ``[requirements.<loop>]`` at every valid point of ``analysis``.

@@ -221,8 +221,9 @@ def plot_steps(analysis: LoopAnalysis):
     ax.set_xlabel("time [ms]")
     ax.set_ylabel("motor speed / reference [-]")
     ax.grid(True, alpha=0.3)
-    for j, (loop, factor, unit) in enumerate((("velocity_loop", 1e6, "nut speed [mm/s per kN]"),
-                                              ("position_loop", 1e9, "nut position [um per kN]"))):
+    for j, (loop, quantity, what) in enumerate((("velocity_loop", "velocity_load_step", "nut speed"),
+                                                ("position_loop", "position_load_step", "nut position"))):
+        factor, unit = display_unit(quantity).factor, label(what, quantity)
         ax = axes[1, j + 1]
         lm = analysis.loops[loop]
         tscale = 1e3 if loop == "velocity_loop" else 1.0
@@ -439,7 +440,8 @@ def plot_switching(switching):
         ax.set_xlabel("time [s]")
         ax.set_ylabel("nut speed [mm/s]")
         ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=7, loc="lower right")
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7, loc="lower right")
     ax = fig.add_subplot(gs[1, :])
     for hand, style in ((False, "o-"), (True, "s--")):
         sel = sorted((c for c in cases if c.handover == hand), key=lambda c: c.delay_s)
