@@ -194,3 +194,23 @@ def test_check_judges_rig_runs_beside_the_prediction(tmp_path, capsys):
     rc = main(["check", "--design", str(TUNED), "--runs", str(bad), "--out", str(tmp_path / "d")])
     assert rc == 2 and "bad" in capsys.readouterr().err
     assert not (tmp_path / "d").exists()
+
+
+@pytest.mark.slow
+def test_robustness_spread_side_by_side(params, design):
+    """One more sample of delay costs phase and delay margin (about one period of delay margin, w_c h of phase)
+    for both designs; the tuned design keeps its cold-ISE advantage as is and under +50 % friction (no flag)."""
+    from thsa_control.tuning.robust import robustness_spread
+
+    tuned = load_design(TUNED)
+    rep = robustness_spread(design, tuned, params, cases=["model as is", "one more sample of delay", "friction +50 %"],
+                            temperatures=(-30.0,))
+    rows = {(r.case, r.design): r for r in rep.rows}
+    for d in ("nominal", "tuned"):
+        base, late = rows[("model as is", d)], rows[("one more sample of delay", d)]
+        assert late.phase_margin_deg < base.phase_margin_deg
+        assert late.delay_margin_s == pytest.approx(base.delay_margin_s - design.control_period, abs=2e-5)
+        assert np.isnan(late.cold_ise)
+    for case in ("model as is", "friction +50 %"):
+        assert rows[(case, "tuned")].cold_ise < 0.7 * rows[(case, "nominal")].cold_ise
+    assert rep.flagged == ()

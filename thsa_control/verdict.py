@@ -41,7 +41,7 @@ from .loops.design import (
 )
 
 __all__ = ["RequirementVerdict", "Verdict", "evaluate_design", "linear_verdict", "simulation_verdict",
-           "validation_limits", "validate_requirements", "validate_validation", "REQUIREMENT_KEYS",
+           "validation_limits", "rows_from_metrics", "validate_requirements", "validate_validation", "REQUIREMENT_KEYS",
            "REQUIREMENT_LOOPS", "VALIDATION_KEYS", "DEFAULT_LEVELS", "DEFAULT_TEMPERATURES", "VALIDATION_METRICS"]
 
 #: Levels and temperatures of the nonlinear validation runs judged by default.
@@ -232,13 +232,15 @@ def simulation_verdict(design: Design, params, *, levels: Sequence[str] = DEFAUL
                     errors.append((where, f"{type(exc).__name__}: {exc}"))
                     continue
                 metrics[(level, float(T), name)] = m
-    rows = _rows_from_metrics(limits, metrics, errors, "simulation",
+    rows = rows_from_metrics(limits, metrics, errors, "simulation",
                               lambda key: f"level {key[0]}, {key[1]:g} degC, {key[2]}")
     doc = {f"{lv}|{T:g}|{n}": m.as_dict() for (lv, T, n), m in metrics.items()}
     return rows, doc
 
 
-def _rows_from_metrics(limits, metrics: dict, errors, kind: str, label) -> list[RequirementVerdict]:
+def rows_from_metrics(limits, metrics: dict, errors, kind: str, label) -> list[RequirementVerdict]:
+    """One row per validation limit over ``metrics`` (key -> RunMetrics); ``errors`` ((where, message), ...)
+    are runs that could not be judged (they make the rows ``error``); ``label(key)`` names a run."""
     rows = []
     for key, (limit, origin) in limits.items():
         attr, unit = VALIDATION_METRICS[key]

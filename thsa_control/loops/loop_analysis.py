@@ -710,3 +710,35 @@ def saturation_flags(lin: PlantLinearization, design: Design, params: ParameterS
             why.append(f"saturated: the steady motion needs {v:.4g} V, beyond the voltage limit {v_max:.4g} V")
         out.append(tuple(why))
     return tuple(out)
+
+
+def margins_with_extra_delay(design: Design, params: ParameterSet, settings: AnalysisSettings, *,
+                             loop: str = "velocity_loop", extra_delay: int = 0):
+    """Margins of one loop over the grid with ``extra_delay`` more samples of delay in series with it.
+
+    For robustness studies beyond the design's computation delay (the controllers take 0 or 1 sample).
+
+    Returns
+    -------
+    margins : MarginSet
+        Of every grid point (refined like :func:`analyse_loops`' margins).
+    valid : ndarray of bool
+        Points with a linear loop (linearisable and not saturated).
+    unstable : ndarray of bool
+        Points whose loop, closed with the extra delay, is unstable.
+    """
+    model = plant_model(settings.level, settings.effects, params, settings=settings.linearization)
+    lin = linearize_conditions(model, settings.grid())
+    loops = build_loops(lin, design, settings)
+    sysL = loops.open[loop]
+    if extra_delay:
+        sysL = _series(_gain_delay(len(lin), 1.0, int(extra_delay)), sysL)
+    h = design.control_period
+    resp = _Response(sysL)
+    L = resp.grid(np.exp(1j * loops.omega * h))
+    cl, fb = loops.closed[loop]
+    m = _margins(lambda i, w: resp.at(i, np.exp(1j * w * h)), loops.omega, L, _dcgain(cl, fb, 0))
+    valid = lin.valid & ~np.array([bool(r) for r in saturation_flags(lin, design, params)])
+    A = _close(sysL, _gain_delay(len(lin), 1.0, 0), 0, 0).A if extra_delay else cl.A
+    unstable = valid & (np.max(np.abs(np.linalg.eigvals(A)), axis=1) >= 1 - 1e-12)
+    return m, valid, unstable

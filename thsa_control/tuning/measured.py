@@ -126,7 +126,7 @@ def judge_runs(design: Design, params, paths, *, level: str = "B", effects=None)
     from ..fit.segment_states import measured_speed
     from ..loops.analysis import DEFAULT_ANALYSIS_EFFECTS
     from ..model import build_plant
-    from ..verdict import RequirementVerdict, _rows_from_metrics, validation_limits
+    from ..verdict import RequirementVerdict, rows_from_metrics, validation_limits
 
     effects = tuple(DEFAULT_ANALYSIS_EFFECTS if effects is None else effects)
     plant = build_plant(level, effects, params=params)
@@ -180,7 +180,7 @@ def judge_runs(design: Design, params, paths, *, level: str = "B", effects=None)
         osc[run.name] = o
         out.append(MeasuredRun(run.name, str(path), temp, m, pred, o, po, perr))
     limits = validation_limits(design)
-    rows = _rows_from_metrics(limits, metrics, errors, "measured", lambda k: f"run {k}")
+    rows = rows_from_metrics(limits, metrics, errors, "measured", lambda k: f"run {k}")
     rows = [RequirementVerdict("measured." + r.requirement, r.kind, r.limit, r.value, r.unit, r.worst_point, r.status,
                                r.checked, r.failed, r.origin, r.detail) for r in rows]
     if osc:

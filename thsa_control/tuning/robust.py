@@ -564,30 +564,12 @@ class SpreadReport:
 
 
 def _worst_margins(design: Design, params, temps, level, effects, extra_delay: int):
-    from ..loops.loopmath import _dcgain, _gain_delay, _margins, _Response, _series
+    from ..loops.loop_analysis import margins_with_extra_delay
 
-    settings = _settings(level, effects, temps, design=design)
-    model = plant_model(level, effects, params, settings=settings.linearization)
-    lin = linearize_conditions(model, settings.grid())
-    loops = build_loops(lin, design, settings)
-    sysL = loops.open["velocity_loop"]
-    if extra_delay:
-        sysL = _series(_gain_delay(len(lin), 1.0, extra_delay), sysL)
-    h = design.control_period
-    z = np.exp(1j * loops.omega * h)
-    resp = _Response(sysL)
-    L = resp.grid(z)
-    cl, fb = loops.closed["velocity_loop"]
-    m = _margins(lambda i, w: resp.at(i, np.exp(1j * w * h)), loops.omega, L, _dcgain(cl, fb, 0))
-    valid = lin.valid & ~np.array([bool(r) for r in saturation_flags(lin, design, params)])
-    # closed-loop stability with the extra delay: the poles of L / (1 + L) from the series system
-    from ..loops.loopmath import _close
-
-    A = _close(sysL, _gain_delay(len(lin), 1.0, 0), 0, 0).A if extra_delay else cl.A
-    unstable = int(np.count_nonzero(valid & (np.max(np.abs(np.linalg.eigvals(A)), axis=1) >= 1 - 1e-12)))
-    v = valid
+    m, v, unstable = margins_with_extra_delay(design, params, _settings(level, effects, temps, design=design),
+                                              extra_delay=extra_delay)
     return (float(np.nanmin(m.phase_margin_deg[v])), float(np.nanmin(np.abs(m.gain_margin_db[v]))),
-            float(np.nanmin(m.delay_margin_s[v])), float(np.nanmax(m.ms[v])), unstable)
+            float(np.nanmin(m.delay_margin_s[v])), float(np.nanmax(m.ms[v])), int(np.count_nonzero(unstable)))
 
 
 def robustness_spread(nominal: Design, tuned: Design, params: ParameterSet, *, temperature: float = -30.0,
