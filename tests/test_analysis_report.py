@@ -131,7 +131,9 @@ def test_cli_report_writes_the_report(tmp_path, capsys):
     assert main(["report", "--design", str(ROOT / "designs" / "nominal.toml"), "--out", str(out), "--check"]) == 0
     text = capsys.readouterr().out
     assert "requirements: PASS" in text and "worst velocity_loop phase_margin_deg" in text
-    assert {p.name for p in out.iterdir()} == {"report.html", "analysis.json", "figures", ".thsa-output"}
+    # --check also writes the verdict of thsa check on every requirement (issue #20)
+    assert {p.name for p in out.iterdir()} == {"report.html", "analysis.json", "check.json", "figures", ".thsa-output"}
+    assert json.loads((out / "check.json").read_text())["passed"] is True and "verdict: PASS" in text
     doc = json.loads((out / "analysis.json").read_text())
     assert validate(doc) == []
     assert doc["grid"]["n_points"] == 175 and doc["switching"] is not None

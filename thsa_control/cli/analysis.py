@@ -7,7 +7,7 @@ import re
 import sys
 
 from ..errors import ThsaError
-from .common import (EXIT_OK, EXIT_REQUIREMENT_FAILED, analysis_effects, load_params, out_arg, out_options,
+from .common import (EXIT_OK, EXIT_REQUIREMENT_FAILED, analysis_effects, effects_arg, load_params, out_arg, out_options,
                      preflight_out, progress_for, scaled_floats)
 
 __all__ = ["add_parsers", "cmd_report", "cmd_linearize"]
@@ -38,11 +38,19 @@ def cmd_report(args) -> int:
     progress.phase(f"linearising level {settings.level} over the grid and analysing the loops"
                    + ("" if args.no_switching else ", then the switch-over transient"))
     result = analyse_design(design, params, settings=settings, switching=not args.no_switching)
+    verdict = None
+    if args.check:  # the verdict of thsa check: this grid's linear requirements + the validation runs
+        from .tuning import report_verdict
+
+        progress.phase("judging every requirement (the validation runs of thsa check)")
+        verdict = report_verdict(result, params)
     progress.phase("writing the report")
     opts = out_options(args)
-    out = write_analysis_report(result, args.out, force=opts["force"], inputs=opts["inputs"])
+    out = write_analysis_report(result, args.out, force=opts["force"], inputs=opts["inputs"], verdict=verdict)
     progress.done()
     print(result.requirements.summary())
+    if verdict is not None:
+        print(verdict.text())
     for loop in ("current_loop", "velocity_loop", "position_loop"):
         for metric in ("phase_margin_deg", "gain_margin_db"):
             w = result.loops.worst(loop, metric)
@@ -52,26 +60,35 @@ def cmd_report(args) -> int:
     print(f"{n_bad} of {len(result.loops)} grid points not analysed (zero speed, backlash edge or saturated), "
           "listed with their reason in the report")
     print(f"wrote {out / 'report.html'} and {out / 'analysis.json'}")
-    return EXIT_REQUIREMENT_FAILED if args.check and not result.requirements.passed else EXIT_OK
+    return EXIT_REQUIREMENT_FAILED if args.check and not (result.requirements.passed and verdict.passed) else EXIT_OK
 
 
 def cmd_linearize(args) -> int:
     from ..data.units import from_display
-    from ..loops.linear import OperatingCondition, format_linear_model, linearize_condition, plant_model
     from ..model import resolve_effects
+    from ..loops.conditions import OperatingCondition
 
-    params = load_params(args)
-    effects = analysis_effects(args)
-    if args.active == "standby" and "standby_motor" not in effects:
-        effects.append("standby_motor")
-    resolve_effects(args.level, add=effects)
+    # bad names and values fail before the heavy imports (python-control, scipy: seconds)
+    resolve_effects(args.level, add=[] if args.effects is None else effects_arg(args.effects))
     load_n = load_newtons(args.load)
     try:
         cond = OperatingCondition(from_display("nut_speed", args.speed), load_n, args.temperature, args.active)
     except ValueError as exc:
         raise ThsaError(str(exc)) from None
+    progress = progress_for(args, "thsa linearize")
+    progress.phase("loading the linear-analysis libraries")
+    params = load_params(args)
+    effects = analysis_effects(args)
+    if args.active == "standby" and "standby_motor" not in effects:
+        effects.append("standby_motor")
+    resolve_effects(args.level, add=effects)
+    from ..loops.linear import format_linear_model, linearize_condition, plant_model
+
+    progress.phase(f"building level {args.level.upper()} and linearising at {args.speed:g} mm/s, "
+                   f"{load_n * 1e-3:g} kN, {args.temperature:g} degC")
     model = plant_model(args.level, effects, params)
     lin = linearize_condition(model, cond)
+    progress.done()
     print(format_linear_model(lin))
     if args.save:
         fmt = args.format or ("mat" if str(args.save).endswith(".mat") else "npz")
@@ -125,7 +142,8 @@ def add_parsers(sub, shared) -> None:
     p.add_argument("--temperatures", help="grid temperatures [degC] (default -55,-30,0,25,70)")
     p.add_argument("--temperature", type=float, help="analyse at this one temperature [degC] only")
     p.add_argument("--no-switching", action="store_true", help="skip the nonlinear switch-over transient")
-    p.add_argument("--check", action="store_true", help="exit with status 1 when a requirement is not met")
+    p.add_argument("--check", action="store_true", help="judge every requirement as thsa check does (linear "
+                   "requirements on this grid + the nonlinear validation runs); exit with status 1 when one is not met")
     out_arg(p)
     p = add("linearize", "print the linear model at one operating point (and save it)", cmd_linearize)
     p.add_argument("--level", required=True, help="model level A, B, C or D")

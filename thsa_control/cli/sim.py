@@ -142,8 +142,11 @@ def cmd_simulate(args) -> int:
     resolve_effects(args.level, add=effects)  # validate names before any work
     if args.temperature is not None and "temperature_friction" not in effects:
         print("note: --temperature changes nothing without --effects temperature_friction", file=sys.stderr)
-    results = run_levels(params, design, scenario, [args.level.upper()], effects, args.output_period)
+    progress = progress_for(args, "thsa simulate")
+    results = run_levels(params, design, scenario, [args.level.upper()], effects, args.output_period, progress)
+    progress.phase("writing the run and its plots")
     _write_results(args, results, scenario, params, design)
+    progress.done()
     res = results[args.level.upper()]
     print(f"{scenario.name} at level {args.level.upper()} ({', '.join(res.effects) or 'functional'}): "
           f"{res.time[-1]:.1f} s simulated in {res.info['wall_s'] * 1e3:.1f} ms")

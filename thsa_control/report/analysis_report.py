@@ -269,7 +269,7 @@ def _requirement_rows(result: DesignAnalysis):
     return rows, classes
 
 
-def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
+def _html(result: DesignAnalysis, figures: dict[str, bytes], verdict=None) -> str:
     a, d, check = result.loops, result.design, result.requirements
     lin = a.linearization
     extra_nav = (("tuning", "Tuning"),) if "objective_before" in (getattr(d, "tuning", None) or {}) else ()
@@ -286,6 +286,10 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
         f"(<a href='#invalid'>why</a>).</p>")
     if not check.passed:
         parts.append("<pre>" + html.escape(check.summary()) + "</pre>")
+    if verdict is not None:  # --check: the verdict of thsa check on every requirement (linear + validation runs)
+        from .check_report import verdict_section
+
+        parts.append(verdict_section(verdict))
     parts.append(_glance(result))
     parts.append(
         f"<p class='note'>Design file <code>{html.escape(d.source)}</code>; control period "
@@ -462,8 +466,11 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
 
 
 def write_analysis_report(result: DesignAnalysis, out_dir: str | Path, *, force: bool = False,
-                          inputs: tuple | list = ()) -> Path:
+                          inputs: tuple | list = (), verdict=None) -> Path:
     """Write ``report.html`` (figures embedded), ``analysis.json`` and ``figures/*.png`` to ``out_dir``.
+
+    With ``verdict`` (:class:`thsa_control.verdict.Verdict`, ``thsa report --check``) the page shows it and
+    ``check.json`` holds it, as ``thsa check --out`` writes it.
 
     The folder is replaced atomically: on failure nothing is written.
 
@@ -493,11 +500,13 @@ def write_analysis_report(result: DesignAnalysis, out_dir: str | Path, *, force:
     if result.switching is not None:
         figures["switching_transient"] = _png(plot_switching(result.switching))
     doc = analysis_to_dict(result)
-    page = _html(result, figures)
+    page = _html(result, figures, verdict)
     with atomic_folder(out_dir, force=force, inputs=inputs, command="thsa report") as tmp:
         (tmp / "figures").mkdir()
         for name, data in figures.items():
             (tmp / "figures" / f"{name}.png").write_bytes(data)
         (tmp / "report.html").write_text(page, encoding="utf-8")
         write_json(tmp / "analysis.json", doc)
+        if verdict is not None:
+            write_json(tmp / "check.json", verdict.as_dict())
     return Path(out_dir).resolve()

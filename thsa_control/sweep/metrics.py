@@ -120,21 +120,21 @@ class _Run:
         return i
 
     def first_after_fault(self, signal: str) -> float:
-        from ..faults.analysis import _first
+        from ..faults.analysis import first_time_after
 
         if not math.isfinite(self.t_fault) or signal not in self.r.names:
             return math.nan
-        return _first(np.asarray(self.r.time), self.r[signal], self.t_fault)
+        return first_time_after(np.asarray(self.r.time), self.r[signal], self.t_fault)
 
 
 def _validation_pass(run: _Run) -> float:
-    from ..tuning.check import _METRIC_OF, validation_limits
+    from ..verdict import VALIDATION_METRICS, validation_limits
 
     m = run.validation
     if m is None:
         return math.nan
     for key, (limit, _origin) in validation_limits(run.design).items():
-        value = getattr(m, _METRIC_OF[key][0])
+        value = getattr(m, VALIDATION_METRICS[key][0])
         if not value <= limit:
             return 0.0
     return 1.0
