@@ -494,10 +494,8 @@ class PlantLinearization:
         return [(self.conditions[k], self.reasons[k]) for k in np.flatnonzero(~self.valid)]
 
     def report(self) -> str:
-        """Matrices, poles and validity of each linear model (``format_linear_model``)."""
-        from ..report.results import format_linearization
-
-        return format_linearization(self)
+        """Matrices, poles and validity of each linear model (:func:`format_linear_model`)."""
+        return format_linear_model(self)
 
     def to_dict(self) -> dict:
         """Per condition: validity, reasons, A/B/C/D with names (SI), JSON-able."""

@@ -67,6 +67,7 @@ from .loopmath import (
     _zoh,
     step_metrics,
 )
+from .catalog import LOAD_STEP_UNITS, LOOPS, METRIC_LABELS, METRICS, metric_unit  # noqa: F401 (re-exported)
 from .design import Design
 from ..errors import DesignError, ThsaError
 from .linear import (
@@ -94,53 +95,7 @@ __all__ = [
     "analyse_loops",
 ]
 
-#: The three loops of the cascade, inner to outer.
-LOOPS: tuple[str, ...] = ("current_loop", "velocity_loop", "position_loop")
-
-#: Metric name -> (unit, which way is worse: 'min', 'max', 'min_abs', 'max_abs').
-METRICS: dict[str, tuple[str, str]] = {
-    "crossover_hz": ("Hz", "min"),
-    "phase_margin_deg": ("deg", "min"),
-    "gain_margin_db": ("dB", "min_abs"),
-    "gain_margin_lower_db": ("dB", "max"),
-    "gain_margin_upper_db": ("dB", "min"),
-    "delay_margin_s": ("s", "min"),
-    "bandwidth_hz": ("Hz", "min"),
-    "ms": ("-", "max"),
-    "rise_time_s": ("s", "max"),
-    "settling_time_s": ("s", "max"),
-    "overshoot_percent": ("%", "max"),
-    "load_step_peak": ("m/s of nut speed per N of load (velocity loop), m of nut position per N (position loop)",
-                       "max_abs"),
-    "load_step_recovery_s": ("s", "max"),
-}
-
-#: Metric name -> words for tables and plots.
-METRIC_LABELS: dict[str, str] = {
-    "crossover_hz": "gain crossover",
-    "phase_margin_deg": "phase margin",
-    "gain_margin_db": "gain margin (nearest 0 dB)",
-    "gain_margin_lower_db": "lower gain margin",
-    "gain_margin_upper_db": "upper gain margin",
-    "delay_margin_s": "delay margin",
-    "bandwidth_hz": "closed-loop bandwidth",
-    "ms": "sensitivity peak Ms",
-    "rise_time_s": "rise time",
-    "settling_time_s": "settling time",
-    "overshoot_percent": "overshoot",
-    "load_step_peak": "load-step peak",
-    "load_step_recovery_s": "load-step recovery",
-}
-
-#: The unit of the load-step peak of each outer loop.
-LOAD_STEP_UNITS = {"velocity_loop": "m/s of nut speed per N of load", "position_loop": "m of nut position per N of load"}
-
-
-def metric_unit(loop: str, name: str) -> str:
-    """Unit of metric ``name`` of ``loop`` (the load-step peak's depends on the loop)."""
-    if name == "load_step_peak":
-        return LOAD_STEP_UNITS.get(loop, "-")
-    return METRICS[name][0]
+# the loops, metrics and their units: one table in catalog.py (read by the reports too)
 
 # ----------------------------------------------------------------------------------------------------------------
 # settings

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .catalog import REQUIREMENT_METRICS
 from .design import REQUIREMENT_KEYS, REQUIREMENT_LOOPS
 from ..errors import DesignError
 from .linear import OperatingCondition
@@ -27,20 +28,9 @@ from .loop_analysis import METRICS, LoopAnalysis
 
 __all__ = ["Violation", "RequirementRow", "RequirementCheck", "check_requirements", "REQUIREMENT_METRICS"]
 
-#: requirement key -> (metric, comparison)
-_REQUIREMENTS = {
-    "min_phase_margin_deg": ("phase_margin_deg", ">="),
-    "min_gain_margin_db": ("gain_margin_db", "abs>="),
-    "min_delay_margin_s": ("delay_margin_s", ">="),
-    "min_bandwidth_hz": ("bandwidth_hz", ">="),
-    "max_sensitivity_peak": ("ms", "<="),
-    "max_overshoot_percent": ("overshoot_percent", "<="),
-    "max_settling_time_s": ("settling_time_s", "<="),
-    "max_rise_time_s": ("rise_time_s", "<="),
-}
+#: requirement key -> (metric, comparison) (catalog.py holds the table)
+_REQUIREMENTS = REQUIREMENT_METRICS
 assert set(_REQUIREMENTS) == set(REQUIREMENT_KEYS)  # noqa: S101 - import-time consistency of two constants
-#: Requirement key -> (metric it limits, comparison ``'>='``, ``'<='`` or ``'abs>='``), for reports.
-REQUIREMENT_METRICS = dict(_REQUIREMENTS)
 
 
 @dataclass(frozen=True)

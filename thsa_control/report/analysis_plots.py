@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from matplotlib.collections import LineCollection
 from matplotlib.colors import ListedColormap
@@ -9,7 +11,7 @@ from matplotlib.patches import Patch, Rectangle
 from matplotlib.ticker import MultipleLocator
 
 from ..data.units import display_unit, label
-from ..loops.analysis import LOOPS, METRIC_LABELS, LoopAnalysis  # noqa: E402
+from ..loops.catalog import LOOPS, METRIC_LABELS
 from .display import (
     STATUS_COLORS,
     STATUS_LABELS,
@@ -20,6 +22,9 @@ from .display import (
     requirement_status,
 )
 from .figure import colormap, new_figure, subplots
+
+if TYPE_CHECKING:  # annotations only: the loop analysis calls this module, not the reverse
+    from ..loops.loop_analysis import LoopAnalysis
 
 __all__ = ["plot_loop_bode", "plot_steps", "plot_margin_maps", "plot_velocity_poles", "plot_friction_slopes",
            "plot_switching"]

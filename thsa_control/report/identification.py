@@ -365,7 +365,6 @@ def write_residual_folder(folder: str | Path, replay_result, analysis, *, title:
 
     Returns the JSON content.
     """
-    from ..fit.residuals import format_residual_report
     from .build import write_json
 
     folder = Path(folder)
@@ -390,7 +389,7 @@ def write_residual_folder(folder: str | Path, replay_result, analysis, *, title:
     for c in analysis.channels.values():
         figures[f"residual of {c.name}"] = figure_png(plot_residual_channel(analysis.time, c, title=f"{r.run_name}: {c.name}"))
     sections = residual_tables(analysis) + [("Full residual analysis (text)", _text_block(
-        "click to open the full text report (every conditioning signal and bin)", format_residual_report(analysis)))]
+        "click to open the full text report (every conditioning signal and bin)", analysis.report()))]
     worst = min(analysis.channels.values(), key=lambda c: c.fit_percent, default=None)
     lead = (f"Lowest fit: <b>{html.escape(worst.name)} {worst.fit_percent:.1f} %</b>; residual "
             f"{'white' if worst.whiteness.white else '<b>not white</b>'} on that channel." if worst else "")

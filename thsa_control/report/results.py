@@ -7,6 +7,9 @@ The result classes (``SimulationResult``, ``ReplayResult``, ``ResidualAnalysis``
 pass-throughs to the functions here (python-control's
 ``TimeResponseData.plot()`` and lmfit's ``ModelResult.fit_report()`` style):
 
+The reports import only the catalogue of the loops (:mod:`thsa_control.loops.catalog`),
+the unit table and each other, never the modules whose results call them (no import cycle).
+
 * ``report() -> str``: a text report in display units (:mod:`thsa_control.data.units`);
 * ``to_dict() -> dict``: JSON-able numbers in SI, the unit in each key or beside it;
 * ``plot(ax=None)``: a figure (:class:`~thsa_control.report.figure.ReportFigure`),
@@ -26,7 +29,7 @@ from ..data.units import display_unit, signal_display, to_display
 
 __all__ = [
     "format_simulation", "simulation_to_dict", "format_replay", "replay_to_dict", "plot_replay",
-    "format_linearization", "linearization_to_dict", "plot_linearization_poles",
+    "linearization_to_dict", "plot_linearization_poles",
     "format_loop_analysis", "loop_analysis_to_dict", "format_requirement_check", "requirement_check_to_dict",
     "plot_requirements", "format_design_analysis", "format_switchover", "switchover_to_dict",
     "format_fault_analysis", "finite_or_none",
@@ -136,13 +139,6 @@ def plot_replay(result, ax=None):
 
 
 # ---------------------------------------------------------------------------------------------- linear models
-def format_linearization(lin) -> str:
-    """The linear models (:func:`thsa_control.loops.linear.format_linear_model`)."""
-    from ..loops.linear import format_linear_model
-
-    return format_linear_model(lin)
-
-
 def linearization_to_dict(lin) -> dict:
     """Per condition: validity, reasons, notes, A/B/C/D with the signal names (SI), inertia and damping."""
     points = []
@@ -206,7 +202,7 @@ def format_loop_analysis(analysis) -> str:
 
 def loop_analysis_to_dict(analysis) -> dict:
     """Conditions, validity with reasons, and every metric of every loop at every point (SI, unit in the key)."""
-    from ..loops.loop_analysis import METRICS
+    from ..loops.catalog import METRICS
 
     return finite_or_none({
         "conditions": [{"nut_speed_m_s": c.nut_speed, "load_force_N": c.load_force, "temperature_C": c.temperature,
@@ -261,7 +257,7 @@ def plot_requirements(check, ax=None):
     Spare fraction: ``(worst - limit) / |limit|`` for a minimum, ``(limit - worst) / |limit|`` for a maximum
     (gain margins by magnitude); below 0 fails.
     """
-    from ..loops.requirements import REQUIREMENT_METRICS
+    from ..loops.catalog import REQUIREMENT_METRICS
     from .display import NEAR_FRACTION, STATUS_COLORS, requirement_status, requirement_text
     from .figure import subplots
 
