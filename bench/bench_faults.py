@@ -6,7 +6,8 @@
 * the ``jam`` scenario on the fault plant, with the torque limiter slipping (stick/slip switching
   of the limiter and of the no-back in the same fixed step).
 
-Target: the jam run keeps at least half the real-time factor of the normal level-D run.
+Target: the jam run keeps at least half the real-time factor of the normal level-D run (not met, or a
+jam run whose limiter does not slip, exits 1).
 Times are the best of 5 runs of the compiled loop (compile time excluded, printed once).
 
 Run: ``python bench/bench_faults.py``
@@ -65,7 +66,14 @@ def main() -> int:
     ratio = min(rtf["jam (limiter slipping)"], rtf["jam, slipping to the end"]) / rtf["normal D"]
     print(f"ratio jam (worse of the two) / normal level D: {ratio:.2f} (target >= 0.5: {'met' if ratio >= 0.5 else 'NOT met'}); "
           f"jam / normal on the same fault plant: {rtf['jam (limiter slipping)'] / rtf['normal on the fault plant']:.2f}")
-    return 0
+    failures = []
+    if not (slipping > 0 and np.mean(np.asarray(res_slip["limiter_slipping"]) > 0.5) > 0):
+        failures.append("the jam runs did not slip the limiter: the ratio measures nothing")
+    if ratio < 0.5:
+        failures.append(f"target jam / normal >= 0.5 NOT met ({ratio:.2f})")
+    for f in failures:
+        print(f"FAILED: {f}")
+    return 1 if failures else 0
 
 
 if __name__ == "__main__":

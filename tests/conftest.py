@@ -69,3 +69,6 @@ def _close_figures():
 @pytest.fixture
 def rng(request):
     return np.random.default_rng(abs(hash(request.node.name)) % (2**32))
+
+#: The scripts beside the committed test data (they regenerate it from rig-sim) are not test modules.
+collect_ignore = ["data"]

@@ -131,7 +131,9 @@ def test_cli_report_writes_the_report(tmp_path, capsys):
     assert main(["report", "--design", str(ROOT / "designs" / "nominal.toml"), "--out", str(out), "--check"]) == 0
     text = capsys.readouterr().out
     assert "requirements: PASS" in text and "worst velocity_loop phase_margin_deg" in text
-    assert {p.name for p in out.iterdir()} == {"report.html", "analysis.json", "figures", ".thsa-output"}
+    # --check also writes the verdict of thsa check on every requirement (issue #20)
+    assert {p.name for p in out.iterdir()} == {"report.html", "analysis.json", "check.json", "figures", ".thsa-output"}
+    assert json.loads((out / "check.json").read_text())["passed"] is True and "verdict: PASS" in text
     doc = json.loads((out / "analysis.json").read_text())
     assert validate(doc) == []
     assert doc["grid"]["n_points"] == 175 and doc["switching"] is not None
@@ -177,7 +179,7 @@ def test_both_gain_margins_and_conditional_stability_are_reported(nominal_report
     assert (f"lower {rows[k]['gain_margin_lower_db']:+.1f} dB / upper {rows[k]['gain_margin_upper_db']:+.1f} dB "
             "(lower: conditionally stable)") in html
     # tables in display units (data/units.py): load-step peaks per kN, times in ms; the JSON stays SI
-    assert "load-step peak [mm/s per kN]" in html and "load-step peak [mm per kN]" in html
+    assert "load-step peak [mm/s per kN]" in html and "load-step peak [um per kN]" in html
     assert "delay margin [ms]" in html
 
 

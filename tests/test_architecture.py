@@ -6,6 +6,14 @@ ties the modules); blocks under ``if TYPE_CHECKING:`` are ignored (they never
 run).  A *subpackage* is the first level below the top package
 (``thsa_control.model``, ``thsa_control.fit``, ...; a top-level module such as
 ``thsa_control.cli`` is one of its own).
+
+One kind of edge is not part of the import graph: a result's lazy pass-through
+to the report package (STYLE.md rule 5, python-control's
+``TimeResponseData.plot`` -> ``timeplot``): an import of a
+``thsa_control.report`` module inside a method named ``report``, ``to_dict`` or
+``plot`` of a module outside ``report/``.  It runs only when a user asks a
+result to print or draw itself, never at import; any other import, at module
+level or in any other function, counts.
 """
 
 from __future__ import annotations
@@ -44,15 +52,27 @@ def _is_type_checking(node: ast.If) -> bool:
 
 
 def _walk(tree):
-    """Every node except those under ``if TYPE_CHECKING:``."""
-    stack = [tree]
+    """``(node, name of the innermost enclosing function or None)`` of every node except those under
+    ``if TYPE_CHECKING:``."""
+    stack = [(tree, None)]
     while stack:
-        node = stack.pop()
+        node, func = stack.pop()
         if isinstance(node, ast.If) and _is_type_checking(node):
-            stack.extend(node.orelse)
+            stack.extend((n, func) for n in node.orelse)
             continue
-        yield node
-        stack.extend(ast.iter_child_nodes(node))
+        yield node, func
+        inner = node.name if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) else func
+        stack.extend((n, inner) for n in ast.iter_child_nodes(node))
+
+
+#: Methods through which a result prints or draws itself (lazy pass-throughs to ``thsa_control.report``).
+PASS_THROUGH_METHODS = ("report", "to_dict", "plot")
+
+
+def is_pass_through(module: str, target: str, func: str | None) -> bool:
+    """An import of a report module inside a result's ``report``/``to_dict``/``plot`` method."""
+    return (func in PASS_THROUGH_METHODS and target.startswith("thsa_control.report")
+            and not module.startswith("thsa_control.report"))
 
 
 def _resolve(module: str, is_package: bool, level: int, name: str | None) -> str:
@@ -72,29 +92,30 @@ def _known(name: str) -> str | None:
     return None
 
 
-def imports(module: str) -> list[tuple[str, str | None, int]]:
-    """``(target module, imported name or None, line)`` of every import of the packages in ``module``."""
+def imports(module: str, *, with_function: bool = False) -> list[tuple]:
+    """``(target module, imported name or None, line)`` of every import of the packages in ``module``
+    (with ``with_function``: and the innermost enclosing function's name, or None at module level)."""
     path = MODULES[module]
     tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
     is_pkg = path.name == "__init__.py"
     out = []
-    for node in _walk(tree):
+    for node, func in _walk(tree):
         if isinstance(node, ast.Import):
             for a in node.names:
                 target = _known(a.name)
                 if target:
-                    out.append((target, None, node.lineno))
+                    out.append((target, None, node.lineno, func))
         elif isinstance(node, ast.ImportFrom):
             base = _resolve(module, is_pkg, node.level, node.module)
             for a in node.names:
                 sub = f"{base}.{a.name}"
                 if sub in MODULES:  # "from pkg import submodule"
-                    out.append((sub, None, node.lineno))
+                    out.append((sub, None, node.lineno, func))
                 else:
                     target = _known(base)
                     if target:
-                        out.append((target, a.name, node.lineno))
-    return out
+                        out.append((target, a.name, node.lineno, func))
+    return out if with_function else [o[:3] for o in out]
 
 
 def subpackage(module: str) -> str:
@@ -119,8 +140,8 @@ def private_crossings() -> list[str]:
 def _graph() -> dict[str, set[str]]:
     g: dict[str, set[str]] = {m: set() for m in MODULES}
     for m in MODULES:
-        for target, _, _ in imports(m):
-            if target != m:
+        for target, _, _, func in imports(m, with_function=True):
+            if target != m and not is_pass_through(m, target, func):
                 g[m].add(target)
     return g
 
@@ -177,6 +198,16 @@ def test_checker_sees_imports_inside_functions_and_relative_ones():
     found = {(t, n) for t, n, _ in imports("thsa_control.loops.design")}
     assert ("thsa_control.model", "build_plant") in found  # imported inside reflected_inertia
     assert ("thsa_control.model.laws", "kinematic_ratio") in found
+
+
+def test_checker_exempts_only_result_pass_throughs_to_report():
+    found = {(t, f) for t, _, _, f in imports("thsa_control.sim.simulate", with_function=True)}
+    assert ("thsa_control.report.plots", "plot") in found  # SimulationResult.plot draws through report/
+    assert is_pass_through("thsa_control.sim.simulate", "thsa_control.report.plots", "plot")
+    assert not is_pass_through("thsa_control.sim.simulate", "thsa_control.report.plots", "run")  # any other function
+    assert not is_pass_through("thsa_control.sim.simulate", "thsa_control.report.plots", None)  # module level
+    assert not is_pass_through("thsa_control.sim.simulate", "thsa_control.fit.replay", "plot")  # not into report
+    assert not is_pass_through("thsa_control.report.trace", "thsa_control.report.build", "plot")  # report itself
 
 
 def test_checker_finds_a_cycle(monkeypatch):

@@ -142,8 +142,8 @@ def test_placeholders_and_shortening():
     args, outs = prepare("thsa identify RUN.csv [RUN2.csv ...] --model B --free a,b --out DIR", 3)
     assert args == ["identify", "run.csv", "--model", "B", "--free", "a,b", "--out", "out_3", "--segment", "0.5"]
     assert outs == ["out_3"]
-    args, outs = prepare("thsa linearize --level A --speed 5 --save model.npz", 0)
-    assert outs == ["model.npz"] and args[0] == "linearize"
+    args, outs = prepare("thsa linearize --level A --speed 5 --save model.mat", 0)
+    assert outs == ["model.mat"] and args[0] == "linearize"
     assert prepare("thsa report --out out/report", 1)[0][:3] == ["report", "--speeds", "2,10"]
 
 

@@ -107,3 +107,23 @@ def test_residual_page_has_tables_in_display_units_and_figures_first(tmp_path):
     text = page.read_text()
     assert text.index("<figure>") < text.index("<table>")  # the plots first
     assert "<nav>" in text and "href='#figures'" in text and "a &lt; b" in text
+
+
+# ---- the rig-run format is in the repository ------------------------------------------------------------
+
+def test_the_rig_format_page_describes_every_column_and_key_the_reader_knows():
+    from thsa_control.data.rigformat import COLUMNS, FORMAT_TAG
+
+    page = (ROOT / "docs" / "rig_format.md").read_text(encoding="utf-8")
+    for name, spec in COLUMNS.items():
+        assert f"`{name}` | {spec.unit.replace('degC', 'degC')} |" in page, name  # name and unit in the table
+    keys = ("temperature_C", "sample_rate_hz", "kp_A_per_rad_s", "ki_A_per_rad", "current_limit_A", "kp_V_per_A",
+            "ki_V_per_A_s", "voltage_limit_V", "control_period_s", "motor_disabled_when_cmd_zero", "screw_lead_mm",
+            "gear_ratio", "position_loop", "current_feedforward", "computation_delay_samples")
+    for key in keys:
+        assert key in page, key
+    assert FORMAT_TAG in page and "compressive" in page and "What the reader checks" in page
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert "docs/rig_format.md" in readme
+    # the repository never sends the reader to a folder outside it for the format
+    assert "shared/rig-data/FORMAT.md" not in readme

@@ -167,3 +167,29 @@ def test_registration_refuses_an_effect_without_its_declarations():
     with pytest.raises(ValueError, match="already registered"):
         register(dataclasses.replace(_toy_effect(), name="coulomb_friction",
                                      candidate=CandidateSpec("coulomb_friction", (DRAG,))))
+
+
+def test_the_contract_catches_a_broken_effect(rng):
+    """The registry suite is not a formality: a drag that forgets its loss breaks the power balance, an
+    output without a neutral value breaks "same outputs for every set", a wrong neutral value is seen."""
+    import dataclasses
+
+    def no_loss(a):
+        t = a.p[DRAG]
+        a.channels.append(FrictionChannel("toy_drag", t, t, t, t))
+
+    def undeclared_output(a):
+        _apply(a)
+        a.output("toy_torque", "N m", a.p[DRAG])
+
+    cases = ((no_loss, {DRAG: 0.0}, suite.test_power_balance_closes),
+             (undeclared_output, {DRAG: 0.0}, lambda p, n, r: suite.test_every_effect_set_has_the_same_outputs(p, n)),
+             (_apply, {DRAG: 0.01}, suite.test_at_neutral_parameters_the_effect_is_the_base))
+    for apply, neutral, check in cases:
+        register(dataclasses.replace(_toy_effect(), apply=apply, neutral=neutral))
+        try:
+            params = default_parameters().replace({DRAG: TRUTH})
+            with pytest.raises(AssertionError):
+                check(params, TOY, rng)
+        finally:
+            unregister(TOY)

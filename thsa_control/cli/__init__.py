@@ -14,8 +14,9 @@ Commands::
                    [--remove E ...] [--params FILE] --out DIR
     thsa report    --design designs/nominal.toml --out DIR [--level B] [--effects E ...] [--params FILE]
                    [--no-switching] [--check]
-    thsa linearize --level A --speed 5 --load 20000 --temperature -30 [--effects E ...] [--active standby]
-                   [--params FILE] [--save FILE.npz]
+    thsa sweep     SPEC.toml --out DIR [--scheduler ADDRESS | --workers N] [--force] [--check]
+    thsa linearize --level A --speed 5 --load 20 --temperature -30 [--effects E ...] [--active standby]
+                   [--params FILE] [--save FILE.npz|FILE.mat]
 
 Exit status: 0 success; 1 a requirement failed (``report --check``); 2 an
 error of the input (unknown scenario, level or effect, bad design, parameter
@@ -43,12 +44,15 @@ __all__ = ["main", "build_parser", "EXIT_OK", "EXIT_REQUIREMENT_FAILED", "EXIT_U
 
 def build_parser() -> argparse.ArgumentParser:
     from .. import __version__
-    from . import analysis, data, faults, sim, trace, tuning
+    from . import analysis, data, faults, sim, sweep, trace, tuning
 
     shared = argparse.ArgumentParser(add_help=False)
     shared.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
                         help="no progress lines on stderr")
-    ap = argparse.ArgumentParser(prog="thsa", description="THSA control workbench", parents=[shared])
+    ap = argparse.ArgumentParser(prog="thsa", description="THSA control workbench", parents=[shared],
+                                 epilog="Rig runs (RUN.csv + RUN.json): the format is docs/rig_format.md in the "
+                                        "repository. Units: SI in the API and JSON; mm, mm/s, kN, rpm, ms on the "
+                                        "command line and in reports (README, 'Units').")
     ap.add_argument("--version", action="version", version=f"thsa-control {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
     # one module per command group, each registering its subcommands (the order is the help's)
@@ -58,6 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
     faults.add_parser(sub)
     trace.add_parser(sub)
     tuning.add_parsers(sub)
+    sweep.add_parser(sub, shared)
     return ap
 
 

@@ -113,8 +113,8 @@ def add_parsers(sub, shared) -> None:
         p.set_defaults(fn=fn)
         return p
 
-    p = add("check-data", "validate and summarise a rig run (FORMAT.md)", cmd_check_data)
-    p.add_argument("run", help="RUN.csv (RUN.json beside it)")
+    p = add("check-data", "validate and summarise a rig run (format: docs/rig_format.md)", cmd_check_data)
+    p.add_argument("run", help="RUN.csv (RUN.json beside it; format: docs/rig_format.md)")
     p.add_argument("--column-map", help='JSON mapping of rig column names to FORMAT names, e.g. \'{"t": "time_s"}\'')
 
     def model_args(p):
@@ -129,7 +129,7 @@ def add_parsers(sub, shared) -> None:
         out_arg(p)
 
     p = add("identify", "fit parameters to rig runs; JSON, parameter TOML and HTML report", cmd_identify)
-    p.add_argument("runs", nargs="+", help="RUN.csv files (RUN.json beside each)")
+    p.add_argument("runs", nargs="+", help="RUN.csv files (RUN.json beside each; format: docs/rig_format.md)")
     p.add_argument("--free", required=True, help="comma-separated parameters to fit, e.g. gear.viscous_friction")
     p.add_argument("--segment", type=float, default=0.05,
                    help="multiple-shooting segment length [s] (default 0.05: longer segments of a low-inertia drive "
@@ -147,7 +147,7 @@ def add_parsers(sub, shared) -> None:
                    "NAME=LO:HI,... (default: the parameter file's min/max)")
     model_args(p)
     p = add("residual", "replay a run through a model; residual analysis JSON and HTML report", cmd_residual)
-    p.add_argument("run", help="RUN.csv (RUN.json beside it)")
+    p.add_argument("run", help="RUN.csv (RUN.json beside it; format: docs/rig_format.md)")
     p.add_argument("--segment", help="open loop: restart the mechanics from the measured state every SEGMENT "
                    "seconds (default 0.05), so each residual is a one-segment prediction error and does not "
                    "drift; 'whole' (or 0): one replay over the whole run")

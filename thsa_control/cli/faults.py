@@ -48,7 +48,7 @@ def _ms(v: float) -> str:
 def run(args) -> int:
     """Handler of ``thsa faults``; returns the exit status."""
     from ..faults.analysis import analyse_faults
-    from ..report.faults import monitor_display, write_fault_report
+    from ..report.faults import write_fault_report
     from .common import out_options, preflight_out
 
     preflight_out(args)  # refuse a foreign output folder before the long computation
@@ -64,35 +64,6 @@ def run(args) -> int:
     progress.phase("writing the report")
     write_fault_report(a, params, args.out, **out_options(args))
     progress.done()
-    print(f"plant: level {a.level} + {', '.join(a.effects)}")
-    heading = None
-    for c in a.cases + a.rigid_cases:
-        if c.label != heading:  # the sections of the HTML report
-            heading = c.label
-            print(f"-- {heading} --")
-        det = ", ".join(f"{m} {_ms(t)}" for m, t in c.detection_s.items() if math.isfinite(t)) or "no trip"
-        how = " (scheduled by the scenario; the monitors only watch)" if c.takeover_source == "schedule" else ""
-        name = c.scenario if c.label == "fault plant" else c.title  # the rigid-drive cases repeat scenario names
-        line = (f"{name}: {', '.join(c.faults)} at {c.fault_time_s:g} s; trips: {det}; "
-                f"take-over {_ms(c.takeover_s)}{how}, safed {_ms(c.safed_s)}")
-        if not math.isnan(c.recovery_s):
-            line += f", recovery {_ms(c.recovery_s)}"
-        print(line)
-        print(f"    peaks after the fault: load path {c.peaks['loadpath'] / 1e3:.1f} kN, upper gimbal "
-              f"{c.peaks['primary_attachment'] / 1e3:.1f} kN, secondary {c.peaks['secondary_path'] / 1e3:.1f} kN, "
-              f"jam {c.peaks['jam'] / 1e3:.1f} kN, limiter {c.peaks['limiter_torque']:.0f} N m (slip "
-              f"{c.limiter_slip_rad:.3f} rad); surface moved {c.surface_displacement_m * 1e3:.2f} mm; "
-              f"energy residual {c.energy_residual * 100:.3f} %")
-    for m in sorted({x.monitor for x in a.margins}):
-        worst = min((x for x in a.margins if x.monitor == m), key=lambda x: x.margin)
-        du = monitor_display(m)
-        print(f"false-alarm margin {m}: {a.min_margin(m):.2f} (threshold {du.to_display(worst.threshold):g} {du.unit} / "
-              f"{du.to_display(worst.persisted):.4g} {du.unit} held on {worst.scenario})")
-    for p in a.sweep:
-        if p.normal_trips:
-            print(f"sweep: thresholds x {p.scale:g} trip on {', '.join(p.normal_trips)}")
-    missed = sorted({(p.scale, n) for p in a.sweep for n, t in p.detection_s.items() if not math.isfinite(t)})
-    for scale, n in missed:
-        print(f"sweep: thresholds x {scale:g} miss {n}")
+    print(a.report())  # the cases by plant as in the HTML, the margins, the sweep (display units)
     print(f"wrote {Path(args.out).resolve() / 'report.html'}")
     return 0

@@ -82,6 +82,11 @@ def _write_results(args, results, scenario, params, design):
         for level, res in results.items():
             stem = tmp / f"{scenario.name}_{level}"
             write_simulation(res, stem, level=level)
+            if getattr(args, "format", "csv") == "mat":  # MATLAB: load NAME.mat (SI, units beside)
+                from ..data.matfile import simulation_to_mat, write_mat
+
+                write_mat(stem.with_suffix(".mat"), simulation_to_mat(res, level=level,
+                                                                     temperature_C=scenario.temperature))
             fig = plot_run(res, title=f"{scenario.name}, level {level} ({', '.join(res.effects) or 'functional'})")
             fig.savefig(stem.with_suffix(".png"), dpi=110)
             close(fig)
@@ -137,8 +142,11 @@ def cmd_simulate(args) -> int:
     resolve_effects(args.level, add=effects)  # validate names before any work
     if args.temperature is not None and "temperature_friction" not in effects:
         print("note: --temperature changes nothing without --effects temperature_friction", file=sys.stderr)
-    results = run_levels(params, design, scenario, [args.level.upper()], effects, args.output_period)
+    progress = progress_for(args, "thsa simulate")
+    results = run_levels(params, design, scenario, [args.level.upper()], effects, args.output_period, progress)
+    progress.phase("writing the run and its plots")
     _write_results(args, results, scenario, params, design)
+    progress.done()
     res = results[args.level.upper()]
     print(f"{scenario.name} at level {args.level.upper()} ({', '.join(res.effects) or 'functional'}): "
           f"{res.time[-1]:.1f} s simulated in {res.info['wall_s'] * 1e3:.1f} ms")
@@ -165,6 +173,9 @@ def add_parsers(sub, shared) -> None:
         p.add_argument("--temperature", type=float, help="temperature [degC], -55..70")
         p.add_argument("--output-period", type=float, default=1e-3,
                        help="output sample period [s], a multiple of the control period (default 1e-3)")
+        p.add_argument("--format", choices=("csv", "mat"), default="csv",
+                       help="csv: each run as a rig run (CSV + JSON, docs/rig_format.md); mat: also a MATLAB .mat "
+                            "per run (SI, units beside; `load NAME.mat`)")
         out_arg(p)
 
     p = add("levels", "simulate a scenario at several levels side by side (the main job)", cmd_levels)
@@ -172,5 +183,5 @@ def add_parsers(sub, shared) -> None:
     p.add_argument("--levels", default="A,B,C,D")
     p.add_argument("--no-ranges", action="store_true",
                    help="skip the headline numbers over the ranges of the assumed values (thsa_control.sim.assumptions)")
-    p = add("simulate", "simulate a scenario at one level, write the run (FORMAT.md) and plots", cmd_simulate)
+    p = add("simulate", "simulate a scenario at one level, write the run (docs/rig_format.md) and plots", cmd_simulate)
     common(p, True)

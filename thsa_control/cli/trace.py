@@ -12,7 +12,7 @@ def add_parser(subparsers) -> None:
     """Register the ``trace`` subcommand."""
     p = subparsers.add_parser("trace", help="trace a residual to the effect the model lacks (forward selection "
                                             "over the effect library); trace.json and HTML report")
-    p.add_argument("runs", nargs="+", help="RUN.csv files (RUN.json beside each)")
+    p.add_argument("runs", nargs="+", help="RUN.csv files (RUN.json beside each; format: docs/rig_format.md)")
     p.add_argument("--model", required=True, help="declared model level A, B, C or D")
     p.add_argument("--effects", nargs="*", help="effects the model declares beyond the level")
     p.add_argument("--remove", nargs="*", help="effects removed from the level (a plain screw drive: --model A "

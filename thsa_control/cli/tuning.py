@@ -6,11 +6,13 @@
                --temperature -30 [--robust-temperatures -55,-30,25,70] [--level B] [--effects E ...]
                [--require min_phase_margin_deg=50 ...] --out designs/NAME.toml
     thsa check --design FILE [--levels A,B,C,D] [--temperatures -55,-30,25,70] [--scenarios a,b]
+               [--runs RUN.csv ...] [--out DIR]
 
 ``tune`` prints its progress on stderr, the before/after numbers on stdout,
 and exits 1 (one message, no traceback) when IPOPT does not converge or a
-requirement cannot be met; ``check`` prints the pass/fail table and exits 1
-when a check fails, naming the failing point.
+requirement cannot be met (naming it, writing nothing); ``check`` prints one row per requirement
+(:mod:`thsa_control.verdict`: worst point, value, limit, pass/fail) and exits 1 when one is not met
+or could not be judged.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from pathlib import Path
 
 from ..errors import DesignError, SolverError
 
-__all__ = ["add_parsers", "tune_command", "check_command", "provenance"]
+__all__ = ["add_parsers", "tune_command", "check_command", "provenance", "report_verdict"]
 
 
 def _floats(text: str, what: str) -> tuple[float, ...]:
@@ -44,6 +46,7 @@ def provenance(result, scenarios, design_path: str, metrics_before: dict | None 
     and tuned designs at the tuning temperature and level.
     """
     from ..tuning.check import PROVENANCE_MARKER
+    from ..tuning.optimize import linear_temperatures
     from ..tuning.validation import COST_TERMS
 
     s = result.settings
@@ -69,12 +72,21 @@ def provenance(result, scenarios, design_path: str, metrics_before: dict | None 
         "effects": list(s.effects),
         "tuned": list(result.tuned),
         "bound_factor": s.bound_factor,
-        "constraints": ("int (|i| - clamp)+^2 dt <= %g A^2 s and int (overshoot above %g %%)+^2 dt <= %g (mm/s)^2 s "
-                        "on the runs and on the runs at level %s at %s degC; velocity-loop [requirements] phase "
-                        "margin, gain margin, Ms at every robust temperature (smooth, frequency-response)"
-                        % (s.excess_tolerance, 100 * s.objective.overshoot_limit, s.excess_tolerance,
-                           s.constraint_level, ", ".join(f"{t:g}" for t in (s.constraint_temperatures or (
-                               min(s.robust_temperatures), 25.0))))),
+        "constraints": ("int (|i| - %g x clamp)+^2 dt <= %g A^2 s and int (overshoot above %g %%)+^2 dt <= %g "
+                        "(mm/s)^2 s on the objective's runs and on the constraint runs (the validation suite at "
+                        "level %s at the coldest check temperature, plus every run the verdict failed "
+                        "on); every [requirements.velocity_loop] key the grid analysis judges (phase, |gain|, "
+                        "delay margins, Ms, bandwidth; step overshoot and settling) at every valid point of the "
+                        "design's analysis grid at %s degC (two-rotor plant, computation delay), smooth; then "
+                        "the verdict of thsa check on every requirement, failing runs added and failing linear "
+                        "constraints tightened until it passes"
+                        % (s.objective.current_fraction, s.excess_tolerance, 100 * s.objective.overshoot_limit,
+                           s.excess_tolerance, s.constraint_level,
+                           ", ".join(f"{t:g}" for t in linear_temperatures(result.source, s)))),
+        "verdict": "PASS" if result.verdict is not None and result.verdict.passed else "FAIL",
+        "rounds": [{"round": r["round"], "gains": r["gains"],
+                    "constraint_runs": [f"{lv} {T:g} degC {n}" for lv, T, n in r["constraint_runs"]],
+                    "failing": r["failing"], "excess_tolerance": r["excess_tolerance"]} for r in result.rounds],
         "solver": "ipopt via casadi nlpsol, limited-memory Hessian",
         "status": best.status,
         "iterations": best.iterations,
@@ -109,8 +121,7 @@ def tune_command(args) -> int:
     names = args.scenario or ["cold_ramp"]
     scenarios = [get_validation_scenario(n) for n in names]  # a bad name fails before the heavy imports
     from ..tuning.check import PROVENANCE_MARKER, write_design
-    from ..tuning.objective import ObjectiveSettings
-    from ..tuning.optimize import TuneSettings, tune
+    from ..tuning.optimize import TuneSettings, objective_settings_for, tune
 
     params, design = _common(args)
     out = Path(args.out)
@@ -133,9 +144,9 @@ def tune_command(args) -> int:
             raise DesignError("--require", f"{item!r} is not KEY=VALUE with a number") from None
     requirements = dict(design.requirements)
     requirements["velocity_loop"] = req
-    from ..loops.design import _check_requirements
+    from ..verdict import validate_requirements
 
-    _check_requirements(requirements, "--require")
+    validate_requirements(requirements, "--require")
     source = replace(design, requirements=requirements)
     from ..loops.analysis import DEFAULT_ANALYSIS_EFFECTS
 
@@ -143,12 +154,7 @@ def tune_command(args) -> int:
     settings = TuneSettings(
         temperature=args.temperature, robust_temperatures=_floats(args.robust_temperatures, "--robust-temperatures"),
         level=args.level, effects=effects, bound_factor=args.bound_factor, max_iter=args.max_iter,
-        objective=ObjectiveSettings(current_weight=args.current_weight, rate_weight=args.rate_weight,
-                                    overshoot_limit=0.9 * design.validation.get(
-                                        "max_overshoot_percent",
-                                        DEFAULT_VALIDATION_REQUIREMENTS["max_overshoot_percent"]) / 100.0))
-    # 0.9: the constraint keeps 10 % of the check's overshoot limit in reserve for the levels and
-    # temperatures the constraint runs do not cover
+        objective=objective_settings_for(design, current_weight=args.current_weight, rate_weight=args.rate_weight))
     try:
         result = tune(source, params, scenarios, settings)
     except SolverError as exc:
@@ -163,6 +169,15 @@ def tune_command(args) -> int:
     after = suite_metrics(result.design, params, settings.level, settings.temperature, scenarios=names,
                           effects=effects)
     prov = provenance(result, names, str(args.design or "designs/nominal.toml"), before, after)
+    robust_report = None
+    if not args.no_robustness:
+        from ..tuning.robust import robustness_spread
+
+        print("tune: robustness beyond the grid (friction, inertia, stiffness, delay spread) ...", file=sys.stderr,
+              flush=True)
+        robust_report = robustness_spread(source, result.design, params, temperature=settings.temperature,
+                                          scenario=names[0], level=settings.level, effects=effects)
+        prov["robustness"] = robust_report.as_dict()
     tuned = replace(result.design, name=out.stem, source=str(out),
                     description=(f"velocity loop tuned by thsa tune for {', '.join(names)} at {args.temperature:g} degC, "
                                  f"margins kept at {args.robust_temperatures} degC (from {design.name})"),
@@ -186,30 +201,72 @@ def tune_command(args) -> int:
     for mb, ma in zip(result.margins_before, result.margins_after):
         print(f"  {ma.temperature:6.1f} degC: PM {mb.phase_margin_deg:.1f} -> {ma.phase_margin_deg:.1f} deg, "
               f"GM {mb.gain_margin_db:.1f} -> {ma.gain_margin_db:.1f} dB, Ms {mb.ms:.3f} -> {ma.ms:.3f}")
+    print(f"every requirement met (the verdict of thsa check, {len(result.verdict.rows)} requirements, "
+          f"{len(result.rounds)} round(s)):")
+    print("\n".join("  " + r.text() for r in result.verdict.rows))
+    if robust_report is not None:
+        print(robust_report.text())
     print(f"wrote {out}")
     return 0
 
 
 def check_command(args) -> int:
-    """``thsa check``: validation suite at every level and temperature; exit 1 on a failure."""
+    """``thsa check``: every requirement of the design (linear grid + validation runs [+ measured runs]);
+    exit 1 when one is not met or could not be judged."""
+    from dataclasses import replace
+
     from ..tuning.validation import VALIDATION_SUITE, get_validation_scenario
 
     temps = _floats(args.temperatures, "--temperatures")
     scen = tuple(v.strip() for v in args.scenarios.split(",")) if args.scenarios else VALIDATION_SUITE
     for name in scen:
         get_validation_scenario(name)  # a bad name fails before the heavy imports
+    from ..loops.analysis import DEFAULT_ANALYSIS_EFFECTS
+    from ..report.build import check_output_folder
     from ..tuning.check import check_design
 
     params, design = _common(args)
+    inputs = [design.source] + [str(p) for p in (args.runs or [])] + [
+        str(Path(p).with_suffix(".json")) for p in (args.runs or [])]
+    if args.out:
+        check_output_folder(args.out, force=args.force, inputs=inputs)  # refuse early, before any work
     levels = tuple(v.strip().upper() for v in args.levels.split(",") if v.strip())
-    from ..loops.analysis import DEFAULT_ANALYSIS_EFFECTS
-
     effects = tuple(e for v in (args.effects or DEFAULT_ANALYSIS_EFFECTS) for e in v.split(",") if e)
-    report = check_design(design, params, levels=levels, temperatures=temps, scenarios=scen, effects=effects,
-                          progress=lambda m: print(m, file=sys.stderr, flush=True))
+    say = (lambda m: print(m, file=sys.stderr, flush=True))
+    measured, mrows = (), []
+    if args.runs:  # first: an unreadable run is bad input (exit 2) before any simulation
+        from ..tuning.measured import judge_runs
+
+        say(f"check: {len(args.runs)} measured run(s) against the validation limits, beside the model's prediction ...")
+        mrows, measured = judge_runs(design, params, args.runs, level=args.run_level, effects=effects)
+    verdict = check_design(design, params, levels=levels, temperatures=temps, scenarios=scen, effects=effects,
+                           progress=say)
+    if args.runs:
+        verdict = replace(verdict, rows=verdict.rows + tuple(mrows),
+                          scope=verdict.scope | {"measured": [str(p) for p in args.runs]})
     print(f"design {design.source} ({design.name})")
-    print(report.text())
-    return 0 if report.passed else 1
+    print(verdict.text())
+    for m in measured:
+        p = m.predicted
+        print(f"  run {m.name} ({m.temperature:.3g} degC): speed error {m.measured.speed_error_percent:.3g} % "
+              f"(model {p.speed_error_percent:.3g} %), ISE {m.measured.ise:.4g} (model {p.ise:.4g}) (mm/s)^2 s, "
+              f"current peak {m.measured.current_peak_A:.3g} A (model {p.current_peak_A:.3g} A), oscillation "
+              f"{m.oscillation_percent:.3g} % (model {m.predicted_oscillation_percent:.3g} %)" if p is not None else
+              f"  run {m.name}: model prediction failed: {m.prediction_error}")
+    if args.out:
+        from ..report.check_report import write_check_report
+
+        out = write_check_report(verdict, args.out, measured=measured, force=args.force, inputs=inputs)
+        print(f"wrote {out / 'check.json'} and {out / 'check.html'}")
+    return 0 if verdict.passed else 1
+
+
+def report_verdict(result, params):
+    """The verdict of ``thsa check`` for ``thsa report --check``: the report's grid analysis (its linear
+    requirements) and the validation runs at the check's default levels and temperatures."""
+    from ..tuning.check import check_design
+
+    return check_design(result.design, params, analysis=result.loops, effects=result.settings.effects)
 
 
 def add_parsers(sub) -> None:
@@ -227,7 +284,9 @@ def add_parsers(sub) -> None:
     p.add_argument("--current-weight", type=float, default=1e-6, help="weight of int i^2 dt")
     p.add_argument("--rate-weight", type=float, default=0.05, help="weight of int (di/dt / 1 kA/s)^2 dt")
     p.add_argument("--bound-factor", type=float, default=10.0, help="gains stay within this factor of the source")
-    p.add_argument("--max-iter", type=int, default=60, help="IPOPT iteration limit")
+    p.add_argument("--max-iter", type=int, default=60, help="IPOPT iteration limit (no wall-clock limit)")
+    p.add_argument("--no-robustness", action="store_true",
+                   help="skip the side-by-side under friction/inertia/stiffness/delay spread")
     p.add_argument("--out", required=True, help="design TOML to write (only replaces a file thsa tune wrote)")
     p.set_defaults(fn=tune_command)
     p = sub.add_parser("check", help="validation suite in nonlinear simulation at every level and temperature")
@@ -237,4 +296,9 @@ def add_parsers(sub) -> None:
     p.add_argument("--temperatures", default="-55,-30,25,70", help="[degC], e.g. --temperatures=-55,25 (with =)")
     p.add_argument("--scenarios", help="comma-separated runs (default: the validation suite)")
     p.add_argument("--effects", nargs="*", help="effects added (default temperature_friction standby_motor)")
+    p.add_argument("--runs", nargs="+", help="measured runs RUN.csv (RUN.json beside) recorded with this design: "
+                                             "judged against the validation limits, beside the model's prediction")
+    p.add_argument("--run-level", default="B", help="model level of the prediction beside measured runs (default B)")
+    p.add_argument("--out", help="folder for check.json and check.html")
+    p.add_argument("--force", action="store_true", help="replace a non-empty --out folder not written by thsa")
     p.set_defaults(fn=check_command)

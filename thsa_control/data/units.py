@@ -22,7 +22,7 @@ quantity                     SI        display    used for
 ``frequency``                Hz        Hz         crossover, bandwidth
 ``angle``                    rad       deg        phase, rotor and pawl angles
 ``velocity_load_step``       m/s/N     mm/s/kN    nut-speed peak per unit load step
-``position_load_step``       m/N       mm/kN      nut-position peak per unit load step
+``position_load_step``       m/N       um/kN      nut-position peak per unit load step
 ============================ ========= ========== =====================================
 
 :func:`to_display` / :func:`from_display` convert, :func:`label` writes a
@@ -176,7 +176,7 @@ _TABLE = (
     DisplayUnit("frequency", "Hz", "Hz", 1.0),
     DisplayUnit("angle", "rad", "deg", 180.0 / math.pi),
     DisplayUnit("velocity_load_step", "m/s per N", "mm/s per kN", 1e6),
-    DisplayUnit("position_load_step", "m per N", "mm per kN", 1e6),
+    DisplayUnit("position_load_step", "m per N", "um per kN", 1e9),
     DisplayUnit("dimensionless", "-", "-", 1.0),
 )
 #: Quantity -> its display unit (the one table; see the module docstring).

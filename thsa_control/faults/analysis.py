@@ -40,7 +40,7 @@ from ..sim.monitor_settings import MonitorSettings
 __all__ = [
     "FAULT_PLANT_EFFECTS", "RIGID_EFFECTS", "MONITORS", "FaultCase", "MonitorMargin", "SweepPoint", "FaultAnalysis",
     "normal_scenarios", "fault_scenarios", "analyse_fault_case", "recovery_time", "false_alarm_margins", "sweep_monitors",
-    "analyse_faults", "energy_residual", "persisted_peak", "CASE_LABELS",
+    "analyse_faults", "energy_residual", "persisted_peak", "CASE_LABELS", "first_time_after",
 ]
 
 FAULT_PLANT_EFFECTS = ("standby_motor", "drivetrain_compliance", "torque_limiter", "secondary_load_path", "surface_jam",
@@ -214,6 +214,24 @@ class FaultAnalysis:
         """Smallest false-alarm margin of ``monitor`` over the normal scenarios."""
         return min((m.margin for m in self.margins if m.monitor == monitor), default=math.inf)
 
+    def report(self) -> str:
+        """Cases by plant, false-alarm margins and sweep, as ``thsa faults`` prints."""
+        from ..report.results import format_fault_analysis
+
+        return format_fault_analysis(self)
+
+    def to_dict(self) -> dict:
+        """``faults.json`` (format ``thsa-faults/1``)."""
+        from ..report.faults import fault_analysis_to_dict
+
+        return fault_analysis_to_dict(self)
+
+    def plot(self, ax=None):
+        """Detection vs threshold scale and recovery vs take-over delay (the sweep); ``ax``: two Axes."""
+        from ..report.faults import plot_sweep
+
+        return plot_sweep(self, axes=ax)
+
 
 def recovery_time(time, speed, speed_ref, command, t_fault: float, tolerance: float, smooth_s: float) -> float:
     """From ``t_fault`` until the ``smooth_s`` moving average of ``speed - speed_ref`` stays within
@@ -233,7 +251,8 @@ def recovery_time(time, speed, speed_ref, command, t_fault: float, tolerance: fl
     return float(t[outside[-1] + 1] - t_fault)
 
 
-def _first(time, mask, t0) -> float:
+def first_time_after(time, mask, t0) -> float:
+    """Time [s] from ``t0`` to the first sample where ``mask`` is set (inf when it never is)."""
     idx = np.flatnonzero(np.asarray(mask) > 0.5)
     return float(time[idx[0]] - t0) if idx.size else math.inf
 
@@ -264,14 +283,14 @@ def analyse_fault_case(scenario: Scenario | str, design, params, *, sim: Simulat
     t = np.asarray(run.time)
     t_f = min(f.time for f in sc.faults)
     after = t >= t_f
-    detection = {m: _first(t, run[sig[0]], t_f) for m, sig in MONITORS.items()}
-    takeover = _first(t, np.asarray(run["standby_active"]), t_f)
+    detection = {m: first_time_after(t, run[sig[0]], t_f) for m, sig in MONITORS.items()}
+    takeover = first_time_after(t, np.asarray(run["standby_active"]), t_f)
     takeover_source = "monitor" if math.isfinite(takeover) else ""
     if not math.isfinite(takeover):  # a take-over scheduled by the scenario (monitors without reconfiguration)
-        scheduled = _first(t, np.asarray(run["energised_standby"]) > 0.5, t_f)
+        scheduled = first_time_after(t, np.asarray(run["energised_standby"]) > 0.5, t_f)
         if math.isfinite(scheduled):
             takeover, takeover_source = scheduled, "schedule"
-    safed = _first(t, np.asarray(run["safed"]), t_f)
+    safed = first_time_after(t, np.asarray(run["safed"]), t_f)
     peaks = {k: float(np.max(np.abs(run[s][after]))) for k, s in _PEAKS.items()}
     peaks_before = {k: float(np.max(np.abs(run[s][~after]))) if np.any(~after) else 0.0 for k, s in _PEAKS.items()}
     surf = np.asarray(run["surface_position"])
@@ -371,7 +390,7 @@ def sweep_monitors(design, params, *, scales=(0.5, 0.75, 1.0, 1.5, 2.0), delays_
                 t = np.asarray(run.time)
                 t_f = min(f.time for f in s.faults)
                 trips_any = np.asarray(run["trip_discrepancy"]) + np.asarray(run["trip_lvdt"]) + np.asarray(run["trip_speed"])
-                det[s.name] = _first(t, trips_any, t_f)
+                det[s.name] = first_time_after(t, trips_any, t_f)
                 if s in motor:
                     ref = refs[s.name]
                     rec[s.name] = math.nan if np.any(np.asarray(run["safed"]) > 0.5) else recovery_time(

@@ -67,6 +67,8 @@ __all__ = ["IdentificationSettings", "ParameterEstimate", "IdentificationResult"
 MECH_CHANNELS = ("motor_speed", "nut_position", "screw_speed")
 #: A parameter whose standard error exceeds this fraction of its value is not determined by the data.
 NOT_DETERMINED_REL_STDERR = 0.5
+#: Above this |correlation| two parameters are collinear in the data: only their combination is determined.
+COLLINEAR_CORRELATION = 0.999
 _FREE_STATE_KINDS = ("speed", "velocity", "position")
 
 
@@ -331,11 +333,17 @@ class IdentificationResult:
         parameter unidentifiable: its standard error comes from the
         covariance, which already counts the correlation, so a correlated
         parameter with a small standard error is determined (reported as
-        "correlated with ...").  An inseparable pair has an undetermined or
-        huge standard error and is flagged here.
+        "correlated with ...").  A flagged pair (|rho| above the threshold)
+        one of whose members is undetermined, or whose correlation exceeds
+        :data:`COLLINEAR_CORRELATION`, is seen only as a combination: both
+        are flagged.
         """
-        return tuple(n for n, e in self.estimates.items()
-                     if not math.isfinite(e.stderr) or e.relative_stderr > NOT_DETERMINED_REL_STDERR)
+        out = {n for n, e in self.estimates.items()
+               if not math.isfinite(e.stderr) or e.relative_stderr > NOT_DETERMINED_REL_STDERR}
+        for a, b, rho in self.high_correlations:  # only a combination of the pair is seen: both go
+            if a in out or b in out or abs(rho) > COLLINEAR_CORRELATION:
+                out |= {a, b}
+        return tuple(n for n in self.estimates if n in out)
 
     def to_parameter_set(self, source: str | None = None) -> ParameterSet:
         """The initial set with the estimates as values; their ``source`` says where they come from."""
@@ -441,13 +449,28 @@ class IdentificationResult:
             lines.append(f"    C({a}, {b}) = {r:+.4f}{mark}")
         if not pairs:
             lines.append("    (none above 0.1)")
-        lines.append("[[Channels]] (segment predictions: before -> after)")
+        lines.append("[[Channels]] (segment predictions: before -> after; display units)")
+        from ..data.units import SIGNAL_QUANTITY, signal_display
+
         for run, chans in self.channel_fits.items():
             for c, f in chans.items():
                 f0 = self.initial_channel_fits[run][c]
-                lines.append(f"    {run} {c}: RMS {f0.rms:.4g} -> {f.rms:.4g} [{f.unit}], NRMSE {f0.nrmse:.4g} -> "
+                du = signal_display(c)
+                k, unit = (du.factor, du.unit) if c in SIGNAL_QUANTITY and f.unit == du.si else (1.0, f.unit)
+                lines.append(f"    {run} {c}: RMS {f0.rms * k:.4g} -> {f.rms * k:.4g} [{unit}], NRMSE {f0.nrmse:.4g} -> "
                              f"{f.nrmse:.4g}, fit {f0.fit_percent:.2f} -> {f.fit_percent:.2f} %")
         return "\n".join(lines)
+
+    def report(self) -> str:
+        """lmfit-style text report (:meth:`fit_report`)."""
+        return self.fit_report()
+
+    def plot(self, ax=None, run: str | None = None):
+        """Segment predictions of ``run`` (default the first), initial and identified; ``ax``: one Axes per channel."""
+        from ..report.identification import plot_segments
+
+        name = run if run is not None else next(iter(self.predictions))
+        return plot_segments(self.predictions[name], title=f"{name}: segment predictions", axes=ax)
 
 
 def estimate_noise(y: np.ndarray) -> float:

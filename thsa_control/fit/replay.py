@@ -42,7 +42,7 @@ import numpy as np
 
 from ..loops.design import Design
 from ..errors import RigDataError, ThsaError
-from ..model.plant import Plant
+from ..model.plant import SENSOR_OUTPUTS, Plant
 from ..model.params import ParameterSet
 from ..data.rigdata import RigRun, motor_speed_from
 from .kinematics import run_kinematics
@@ -77,12 +77,9 @@ FIT_CHANNELS = ("motor_speed", "motor_current", "nut_position", "screw_speed")
 #: and end of the sample period [A], which motor carries it (1: standby), load
 #: force at start and end [N, compressive positive], temperature [degC].
 MECH_INPUTS = ("current_start", "current_end", "standby_active", "load_start", "load_end", "temperature")
-#: Plant output each measured channel is compared with: the LVDT
-#: (``nut_position_mm``) reads the output rod, which is the surface position
-#: when the load path is compliant (level D) and the nut position otherwise
-#: (the structure defines ``surface_position`` as the nut position then).
-COMPARED_OUTPUT = {"motor_speed": "motor_speed", "motor_current": "motor_current",
-                   "nut_position": "surface_position", "screw_speed": "screw_speed"}
+#: Plant output each measured channel is compared with: what its sensor reads in the model's measurement
+#: map (:data:`thsa_control.model.plant.SENSOR_OUTPUTS`; the LVDT reads the surface position).
+COMPARED_OUTPUT = SENSOR_OUTPUTS
 #: Shaper rate limit that passes a recorded (already shaped) command through [m/s^2].
 PASS_THROUGH_ACCEL = 1e9
 #: Speed cap [m/s] of a run's position loop that states none (the Design needs a finite one).
@@ -241,6 +238,24 @@ class ReplayResult:
         """``measured - simulated`` of ``channel`` (SI)."""
         sim = self.compared[channel] if channel in self.compared else self.simulated[channel]
         return np.asarray(self.measured[channel]) - np.asarray(sim)
+
+    def report(self) -> str:
+        """Fit of every compared channel, in display units."""
+        from ..report.results import format_replay
+
+        return format_replay(self)
+
+    def to_dict(self) -> dict:
+        """Run, mode, effects and the fit of each channel (SI), JSON-able."""
+        from ..report.results import replay_to_dict
+
+        return replay_to_dict(self)
+
+    def plot(self, ax=None):
+        """Measured and simulated channels, one panel each; ``ax``: one Axes per channel."""
+        from ..report.results import plot_replay
+
+        return plot_replay(self, ax)
 
 
 # ----------------------------------------------------------------- inputs

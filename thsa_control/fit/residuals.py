@@ -456,6 +456,21 @@ class ResidualAnalysis:
             }
         return _finite_or_none(out)
 
+    def report(self) -> str:
+        """lmfit-style text report (:func:`format_residual_report`)."""
+        return format_residual_report(self)
+
+    def to_dict(self) -> dict:
+        """Scalars by channel, strict JSON (the same as :meth:`summary`)."""
+        return self.summary()
+
+    def plot(self, ax=None, channel: str | None = None):
+        """Residual of ``channel`` (default the first): time series, autocorrelation, spectrum; ``ax``: three Axes."""
+        from ..report.identification import plot_residual_channel
+
+        c = self.channels[channel] if channel is not None else next(iter(self.channels.values()))
+        return plot_residual_channel(self.time, c, title=c.name, axes=ax)
+
 
 def _finite_or_none(x):
     if isinstance(x, dict):
@@ -835,6 +850,28 @@ def _p(p: float) -> str:
     return f"{p:.3g}" if p >= 1e-4 else f"{p:.1e}"
 
 
+def _display(name: str, unit: str) -> tuple[float, str]:
+    """(factor, unit) to show a channel: its display unit when it is a known signal in SI, else as it is."""
+    from ..data.units import SIGNAL_QUANTITY, signal_display
+
+    du = signal_display(name)
+    if name in SIGNAL_QUANTITY and unit == du.si:
+        return du.factor, du.unit
+    return 1.0, unit
+
+
+def _bin_label(v: ConditionedResidual, b: ResidualBin) -> str:
+    """A bin's label in the display unit of its conditioning signal (SI inside: m/s -> mm/s, N -> kN)."""
+    from ..data.units import SIGNAL_QUANTITY, signal_display
+
+    if v.signal not in SIGNAL_QUANTITY or not np.isfinite(b.low):
+        return b.label
+    du = signal_display(v.signal)
+    if v.binning == "categorical":
+        return f"{du.to_display(b.low):.4g} {du.unit}" if b.label == f"{b.low:g}" else b.label
+    return f"[{du.to_display(b.low):.4g}, {du.to_display(b.high):.4g}] {du.unit}"
+
+
 def format_residual_report(analysis: ResidualAnalysis, *, channels: Sequence[str] | None = None) -> str:
     """lmfit-style text report of a :class:`ResidualAnalysis`.
 
@@ -861,13 +898,14 @@ def format_residual_report(analysis: ResidualAnalysis, *, channels: Sequence[str
         out.append(f"    # ignored (no partner) = {', '.join(analysis.ignored)}")
     for name in channels or list(analysis.channels):
         c = analysis[name]
-        u = f" {c.unit}" if c.unit else ""
+        kd, unit = _display(name, c.unit)  # a known signal in its display unit (rad/s -> rpm, m -> mm)
+        u = f" {unit}" if unit else ""
         w = c.whiteness
         out += [f"[[Channel {name}]]",
                 f"    valid samples      = {c.n}",
-                f"    RMS                = {c.rms:.6g}{u}",
-                f"    mean (bias)        = {c.mean:.6g}{u}",
-                f"    max |residual|     = {c.max_abs:.6g}{u} at t = {c.time_of_max:.6g} s",
+                f"    RMS                = {c.rms * kd:.6g}{u}",
+                f"    mean (bias)        = {c.mean * kd:.6g}{u}",
+                f"    max |residual|     = {c.max_abs * kd:.6g}{u} at t = {c.time_of_max:.6g} s",
                 f"    NRMSE              = {c.nrmse:.4g}",
                 f"    fit                = {c.fit_percent:.2f} %",
                 "  [[Whiteness]]",
@@ -890,11 +928,12 @@ def format_residual_report(analysis: ResidualAnalysis, *, channels: Sequence[str
                 sig = f"; significant: {', '.join(v.significant_bins)}" if v.significant_bins else ""
                 out.append(f"    {v.signal} ({v.binning}, eta^2 = {v.eta_squared:.3f}, lag-1 rho = "
                            f"{v.lag1_correlation:.2f}){sig}")
-                width = max(len(b.label) for b in v.bins) if v.bins else 0
-                for b in v.bins:
+                labels = [_bin_label(v, b) for b in v.bins]
+                width = max(len(lab) for lab in labels) if labels else 0
+                for b, lab in zip(v.bins, labels):
                     mark = ("*" if b.significant else " ") + ("+" if b.mean_significant else " ")
-                    out.append(f"      {mark} {b.label:<{width}}  n = {b.count:>7d}  mean = {b.mean:+.4g}  rms = "
-                               f"{b.rms:.4g}  ms ratio = {b.excess_ratio:.3g} (p = {_p(b.excess_p)})"
+                    out.append(f"      {mark} {lab:<{width}}  n = {b.count:>7d}  mean = {b.mean * kd:+.4g}  rms = "
+                               f"{b.rms * kd:.4g}  ms ratio = {b.excess_ratio:.3g} (p = {_p(b.excess_p)})"
                                f"  mean p = {_p(b.mean_p)}")
         sp = c.spectrum
         peaks = ", ".join(f"{p.frequency:.4g} Hz (x{p.ratio:.1f} median)" for p in sp.peaks) or "none"

@@ -194,6 +194,27 @@ class DesignAnalysis:
     switching: object | None
     timings: dict
 
+    def report(self) -> str:
+        """Requirements, worst margins and invalid points, as ``thsa report`` prints."""
+        from ..report.results import format_design_analysis
+
+        return format_design_analysis(self)
+
+    def to_dict(self) -> dict:
+        """``analysis.json`` (format ``thsa-analysis/1``, docs/analysis_schema.json)."""
+        from ..report.analysis_json import analysis_to_dict
+
+        return analysis_to_dict(self)
+
+    def plot(self, ax=None):
+        """Velocity-loop margin maps coloured against the requirements (a grid analysis); ``ax`` is not supported."""
+        from ..report.analysis_plots import plot_margin_maps
+
+        if ax is not None:
+            raise ValueError("DesignAnalysis.plot draws a grid of maps in a figure of its own; call "
+                             "self.loops.plot(ax=...) or self.requirements.plot(ax=...) to draw into given axes")
+        return plot_margin_maps(self.loops)
+
 
 def analyse_design(design: Design, params: ParameterSet | None = None, *, settings: AnalysisSettings | None = None,
                    switching=True, configurations: bool = True, limit_cycles: bool = True) -> DesignAnalysis:

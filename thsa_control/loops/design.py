@@ -42,7 +42,8 @@ from ..model.laws import back_emf_constant, kinematic_ratio, torque_constant
 from ..model.params import ParameterSet
 
 __all__ = ["Design", "load_design", "parse_design", "check_control_period", "derive_gains", "reflected_inertia",
-           "nominal_design_path", "VALIDATION_KEYS"]
+           "nominal_design_path", "VALIDATION_KEYS", "REQUIREMENT_KEYS",
+           "REQUIREMENT_LOOPS", "validate_requirements", "validate_validation"]
 
 _TABLES = {
     "current_loop": {"kp_V_per_A": True, "ki_V_per_A_s": True, "voltage_limit_V": False},
@@ -187,8 +188,8 @@ def parse_design(doc: dict, source: str = "<dict>") -> Design:
         if key in doc and not isinstance(doc[key], dict):
             raise DesignError(source, f"[{key}] must be a table")
     delay = doc.get("computation_delay_samples", 0)
-    _check_requirements(doc.get("requirements", {}), source)
-    _check_validation(doc.get("validation", {}), source)
+    validate_requirements(doc.get("requirements", {}), source)
+    validate_validation(doc.get("validation", {}), source)
     switching = doc.get("switching", {})
     extra = set(switching) - {"bumpless_handover"}
     if extra:
@@ -217,8 +218,11 @@ REQUIREMENT_KEYS = ("min_phase_margin_deg", "min_gain_margin_db", "min_delay_mar
                     "max_sensitivity_peak", "max_overshoot_percent", "max_settling_time_s", "max_rise_time_s")
 
 
-def _check_requirements(req: dict, source: str) -> None:
-    """Raise :class:`DesignError` naming the first unknown table or key, or a bad value."""
+def validate_requirements(req: dict, source: str) -> None:
+    """Raise :class:`DesignError` naming the first unknown ``[requirements.<loop>]`` table or key, or a bad value.
+
+    Public: ``thsa tune --require`` checks its overrides with it (re-exported by :mod:`thsa_control.verdict`).
+    """
     for loop, table in req.items():
         if loop not in REQUIREMENT_LOOPS:
             raise DesignError(source, f"unknown table [requirements.{loop}]; allowed: {list(REQUIREMENT_LOOPS)}")
@@ -237,7 +241,7 @@ VALIDATION_KEYS = ("max_speed_error_percent", "max_overshoot_percent", "max_sett
                    "max_current_peak_A", "max_current_rate_A_per_s")
 
 
-def _check_validation(table: dict, source: str) -> None:
+def validate_validation(table: dict, source: str) -> None:
     """Raise :class:`DesignError` naming an unknown ``[validation]`` key or a bad value."""
     for key, value in table.items():
         if key not in VALIDATION_KEYS:

@@ -493,6 +493,22 @@ class PlantLinearization:
         """``(condition, reasons)`` of every invalid point."""
         return [(self.conditions[k], self.reasons[k]) for k in np.flatnonzero(~self.valid)]
 
+    def report(self) -> str:
+        """Matrices, poles and validity of each linear model (:func:`format_linear_model`)."""
+        return format_linear_model(self)
+
+    def to_dict(self) -> dict:
+        """Per condition: validity, reasons, A/B/C/D with names (SI), JSON-able."""
+        from ..report.results import linearization_to_dict
+
+        return linearization_to_dict(self)
+
+    def plot(self, ax=None):
+        """Poles of every linear model in the s-plane; ``ax``: one Axes."""
+        from ..report.results import plot_linearization_poles
+
+        return plot_linearization_poles(self, ax)
+
 
 def _is_stribeck(slope, damping):
     """A friction slope that removes at least 1 % of the other speed-proportional damping."""

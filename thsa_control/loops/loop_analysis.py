@@ -67,6 +67,7 @@ from .loopmath import (
     _zoh,
     step_metrics,
 )
+from .catalog import LOAD_STEP_UNITS, LOOPS, METRIC_LABELS, METRICS, metric_unit  # noqa: F401 (re-exported)
 from .design import Design
 from ..errors import DesignError, ThsaError
 from .linear import (
@@ -94,53 +95,7 @@ __all__ = [
     "analyse_loops",
 ]
 
-#: The three loops of the cascade, inner to outer.
-LOOPS: tuple[str, ...] = ("current_loop", "velocity_loop", "position_loop")
-
-#: Metric name -> (unit, which way is worse: 'min', 'max', 'min_abs', 'max_abs').
-METRICS: dict[str, tuple[str, str]] = {
-    "crossover_hz": ("Hz", "min"),
-    "phase_margin_deg": ("deg", "min"),
-    "gain_margin_db": ("dB", "min_abs"),
-    "gain_margin_lower_db": ("dB", "max"),
-    "gain_margin_upper_db": ("dB", "min"),
-    "delay_margin_s": ("s", "min"),
-    "bandwidth_hz": ("Hz", "min"),
-    "ms": ("-", "max"),
-    "rise_time_s": ("s", "max"),
-    "settling_time_s": ("s", "max"),
-    "overshoot_percent": ("%", "max"),
-    "load_step_peak": ("m/s of nut speed per N of load (velocity loop), m of nut position per N (position loop)",
-                       "max_abs"),
-    "load_step_recovery_s": ("s", "max"),
-}
-
-#: Metric name -> words for tables and plots.
-METRIC_LABELS: dict[str, str] = {
-    "crossover_hz": "gain crossover",
-    "phase_margin_deg": "phase margin",
-    "gain_margin_db": "gain margin (nearest 0 dB)",
-    "gain_margin_lower_db": "lower gain margin",
-    "gain_margin_upper_db": "upper gain margin",
-    "delay_margin_s": "delay margin",
-    "bandwidth_hz": "closed-loop bandwidth",
-    "ms": "sensitivity peak Ms",
-    "rise_time_s": "rise time",
-    "settling_time_s": "settling time",
-    "overshoot_percent": "overshoot",
-    "load_step_peak": "load-step peak",
-    "load_step_recovery_s": "load-step recovery",
-}
-
-#: The unit of the load-step peak of each outer loop.
-LOAD_STEP_UNITS = {"velocity_loop": "m/s of nut speed per N of load", "position_loop": "m of nut position per N of load"}
-
-
-def metric_unit(loop: str, name: str) -> str:
-    """Unit of metric ``name`` of ``loop`` (the load-step peak's depends on the loop)."""
-    if name == "load_step_peak":
-        return LOAD_STEP_UNITS.get(loop, "-")
-    return METRICS[name][0]
+# the loops, metrics and their units: one table in catalog.py (read by the reports too)
 
 # ----------------------------------------------------------------------------------------------------------------
 # settings
@@ -621,6 +576,24 @@ class LoopAnalysis:
                 out[c.temperature] = (dist, k)
         return {t: v[1] for t, v in sorted(out.items())}
 
+    def report(self) -> str:
+        """Worst point of each metric (display units) and the points not analysed."""
+        from ..report.results import format_loop_analysis
+
+        return format_loop_analysis(self)
+
+    def to_dict(self) -> dict:
+        """Every metric of every loop at every point (SI, unit in the key), JSON-able."""
+        from ..report.results import loop_analysis_to_dict
+
+        return loop_analysis_to_dict(self)
+
+    def plot(self, ax=None, loop: str = "velocity_loop"):
+        """Open-loop Bode plot of ``loop`` across the grid; ``ax``: (magnitude, phase) Axes."""
+        from ..report.analysis_plots import plot_loop_bode
+
+        return plot_loop_bode(self, loop, axes=ax)
+
 
 def analyse_loops(design: Design, params: ParameterSet | None = None, conditions=None, *,
                   settings: AnalysisSettings | None = None, model: PlantModel | None = None,
@@ -692,3 +665,35 @@ def saturation_flags(lin: PlantLinearization, design: Design, params: ParameterS
             why.append(f"saturated: the steady motion needs {v:.4g} V, beyond the voltage limit {v_max:.4g} V")
         out.append(tuple(why))
     return tuple(out)
+
+
+def margins_with_extra_delay(design: Design, params: ParameterSet, settings: AnalysisSettings, *,
+                             loop: str = "velocity_loop", extra_delay: int = 0):
+    """Margins of one loop over the grid with ``extra_delay`` more samples of delay in series with it.
+
+    For robustness studies beyond the design's computation delay (the controllers take 0 or 1 sample).
+
+    Returns
+    -------
+    margins : MarginSet
+        Of every grid point (refined like :func:`analyse_loops`' margins).
+    valid : ndarray of bool
+        Points with a linear loop (linearisable and not saturated).
+    unstable : ndarray of bool
+        Points whose loop, closed with the extra delay, is unstable.
+    """
+    model = plant_model(settings.level, settings.effects, params, settings=settings.linearization)
+    lin = linearize_conditions(model, settings.grid())
+    loops = build_loops(lin, design, settings)
+    sysL = loops.open[loop]
+    if extra_delay:
+        sysL = _series(_gain_delay(len(lin), 1.0, int(extra_delay)), sysL)
+    h = design.control_period
+    resp = _Response(sysL)
+    L = resp.grid(np.exp(1j * loops.omega * h))
+    cl, fb = loops.closed[loop]
+    m = _margins(lambda i, w: resp.at(i, np.exp(1j * w * h)), loops.omega, L, _dcgain(cl, fb, 0))
+    valid = lin.valid & ~np.array([bool(r) for r in saturation_flags(lin, design, params)])
+    A = _close(sysL, _gain_delay(len(lin), 1.0, 0), 0, 0).A if extra_delay else cl.A
+    unstable = valid & (np.max(np.abs(np.linalg.eigvals(A)), axis=1) >= 1 - 1e-12)
+    return m, valid, unstable

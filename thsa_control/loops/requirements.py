@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .catalog import REQUIREMENT_METRICS
 from .design import REQUIREMENT_KEYS, REQUIREMENT_LOOPS
 from ..errors import DesignError
 from .linear import OperatingCondition
@@ -27,20 +28,9 @@ from .loop_analysis import METRICS, LoopAnalysis
 
 __all__ = ["Violation", "RequirementRow", "RequirementCheck", "check_requirements", "REQUIREMENT_METRICS"]
 
-#: requirement key -> (metric, comparison)
-_REQUIREMENTS = {
-    "min_phase_margin_deg": ("phase_margin_deg", ">="),
-    "min_gain_margin_db": ("gain_margin_db", "abs>="),
-    "min_delay_margin_s": ("delay_margin_s", ">="),
-    "min_bandwidth_hz": ("bandwidth_hz", ">="),
-    "max_sensitivity_peak": ("ms", "<="),
-    "max_overshoot_percent": ("overshoot_percent", "<="),
-    "max_settling_time_s": ("settling_time_s", "<="),
-    "max_rise_time_s": ("rise_time_s", "<="),
-}
+#: requirement key -> (metric, comparison) (catalog.py holds the table)
+_REQUIREMENTS = REQUIREMENT_METRICS
 assert set(_REQUIREMENTS) == set(REQUIREMENT_KEYS)  # noqa: S101 - import-time consistency of two constants
-#: Requirement key -> (metric it limits, comparison ``'>='``, ``'<='`` or ``'abs>='``), for reports.
-REQUIREMENT_METRICS = dict(_REQUIREMENTS)
 
 
 @dataclass(frozen=True)
@@ -127,6 +117,24 @@ class RequirementCheck:
         for loop, _, cond in self.unstable:
             lines.append(f"  {loop}: closed loop unstable at {cond.label()}")
         return "\n".join(lines)
+
+    def report(self) -> str:
+        """Each requirement: limit, worst value and where (display units), PASS/FAIL."""
+        from ..report.results import format_requirement_check
+
+        return format_requirement_check(self)
+
+    def to_dict(self) -> dict:
+        """Verdict, every requirement's worst value, the violations (SI), JSON-able."""
+        from ..report.results import requirement_check_to_dict
+
+        return requirement_check_to_dict(self)
+
+    def plot(self, ax=None):
+        """Spare of each requirement at its worst point, coloured pass / close / fail; ``ax``: one Axes."""
+        from ..report.results import plot_requirements
+
+        return plot_requirements(self, ax)
 
 
 def check_requirements(analysis: LoopAnalysis, requirements: Mapping | None = None) -> RequirementCheck:

@@ -76,6 +76,26 @@ class SwitchoverAnalysis:
                 return c
         raise KeyError(f"no case with delay {delay_s} s and handover {handover}")
 
+    def report(self) -> str:
+        """Recovery and peaks of each case (ms, mm/s, mm)."""
+        from ..report.results import format_switchover
+
+        return format_switchover(self)
+
+    def to_dict(self) -> dict:
+        """The cases' numbers (SI), JSON-able."""
+        from ..report.results import switchover_to_dict
+
+        return switchover_to_dict(self)
+
+    def plot(self, ax=None):
+        """Transients per delay and recovery vs delay; ``ax`` is not supported (a figure of its own)."""
+        from ..report.analysis_plots import plot_switching
+
+        if ax is not None:
+            raise ValueError("SwitchoverAnalysis.plot draws three panels in a figure of its own")
+        return plot_switching(self)
+
 
 def _fault_time(s: Scenario) -> float:
     offs = [t for t, v in s.primary_enable if v < 0.5]

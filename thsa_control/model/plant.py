@@ -42,7 +42,7 @@ from .structure import (
     INPUTS, STRUCTURE_STATES, Assembly, FrictionResolution, StateInfo, apply_structure, finish_structure, sum_terms,
 )
 
-__all__ = ["Plant", "Sensor", "SENSORS", "build_plant"]
+__all__ = ["Plant", "Sensor", "SENSORS", "SENSOR_OUTPUTS", "build_plant"]
 
 _TINY = 1e-300
 
@@ -65,6 +65,12 @@ class Sensor:
 
 #: Rig channels the measurement map covers: motor speed sensor, motor current, RVDT (screw speed), LVDT.
 SENSORS: tuple[str, ...] = ("motor_speed", "motor_current", "screw_speed", "nut_position")
+#: The plant output each sensor reads, the same for every effect set: the LVDT (``nut_position_mm``) reads
+#: the output rod, which is the surface position when the load path is compliant and the nut position
+#: otherwise (the structure defines ``surface_position`` as the nut position then); the motor sensor
+#: reads the rotors (output ``motor_speed``).
+SENSOR_OUTPUTS: dict[str, str] = {"motor_speed": "motor_speed", "motor_current": "motor_current",
+                                  "screw_speed": "screw_speed", "nut_position": "surface_position"}
 
 
 @dataclass(frozen=True)
@@ -343,12 +349,13 @@ def build_plant(level: str | None = "A", effects: Iterable[str] = (), *, remove:
     # ---- what the model knows beyond f and step, from the same assembly
     speed_state = "rotor_speed" if "rotor_speed" in x else "motor_speed"  # the motor sensor reads the rotors
     inv_n = ca.Function("inverse_gear_ratio", [psym], [1.0 / p["gear.ratio"]], ["p"], ["scale"])
+    O = SENSOR_OUTPUTS
     sensors = {
-        "motor_speed": Sensor("motor_speed", "motor_speed", speed_state),
-        "motor_current": Sensor("motor_current", "motor_current", "motor_current"),
-        "screw_speed": Sensor("screw_speed", "screw_speed", "motor_speed", inv_n),
+        "motor_speed": Sensor("motor_speed", O["motor_speed"], speed_state),
+        "motor_current": Sensor("motor_current", O["motor_current"], "motor_current"),
+        "screw_speed": Sensor("screw_speed", O["screw_speed"], "motor_speed", inv_n),
         # the LVDT reads the output rod: the surface when the load path is compliant, else the nut
-        "nut_position": Sensor("nut_position", "surface_position",
+        "nut_position": Sensor("nut_position", O["nut_position"],
                                "surface_position" if "surface_position" in x else "nut_position"),
     }
     measure = ca.Function("measure", [xsym, usym, psym], [ca.vertcat(*(y_c[out_names.index(sensors[c].output)]

@@ -9,7 +9,12 @@ from __future__ import annotations
 
 import math
 
-from ..loops.analysis import METRICS, DesignAnalysis
+from typing import TYPE_CHECKING
+
+from ..loops.catalog import METRICS
+
+if TYPE_CHECKING:  # annotations only
+    from ..loops.analysis import DesignAnalysis
 
 __all__ = ["ANALYSIS_FORMAT", "analysis_to_dict"]
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from matplotlib.collections import LineCollection
 from matplotlib.colors import ListedColormap
@@ -9,7 +11,7 @@ from matplotlib.patches import Patch, Rectangle
 from matplotlib.ticker import MultipleLocator
 
 from ..data.units import display_unit, label
-from ..loops.analysis import LOOPS, METRIC_LABELS, LoopAnalysis  # noqa: E402
+from ..loops.catalog import LOOPS, METRIC_LABELS
 from .display import (
     STATUS_COLORS,
     STATUS_LABELS,
@@ -20,6 +22,9 @@ from .display import (
     requirement_status,
 )
 from .figure import colormap, new_figure, subplots
+
+if TYPE_CHECKING:  # annotations only: the loop analysis calls this module, not the reverse
+    from ..loops.loop_analysis import LoopAnalysis
 
 __all__ = ["plot_loop_bode", "plot_steps", "plot_margin_maps", "plot_velocity_poles", "plot_friction_slopes",
            "plot_switching"]
@@ -221,8 +226,9 @@ def plot_steps(analysis: LoopAnalysis):
     ax.set_xlabel("time [ms]")
     ax.set_ylabel("motor speed / reference [-]")
     ax.grid(True, alpha=0.3)
-    for j, (loop, factor, unit) in enumerate((("velocity_loop", 1e6, "nut speed [mm/s per kN]"),
-                                              ("position_loop", 1e9, "nut position [um per kN]"))):
+    for j, (loop, quantity, what) in enumerate((("velocity_loop", "velocity_load_step", "nut speed"),
+                                                ("position_loop", "position_load_step", "nut position"))):
+        factor, unit = display_unit(quantity).factor, label(what, quantity)
         ax = axes[1, j + 1]
         lm = analysis.loops[loop]
         tscale = 1e3 if loop == "velocity_loop" else 1.0
@@ -439,7 +445,8 @@ def plot_switching(switching):
         ax.set_xlabel("time [s]")
         ax.set_ylabel("nut speed [mm/s]")
         ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=7, loc="lower right")
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7, loc="lower right")
     ax = fig.add_subplot(gs[1, :])
     for hand, style in ((False, "o-"), (True, "s--")):
         sel = sorted((c for c in cases if c.handover == hand), key=lambda c: c.delay_s)

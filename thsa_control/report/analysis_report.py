@@ -81,7 +81,7 @@ __all__ = [
 ]
 
 #: Figures of the report (HTML ids ``fig-<name>``, files ``figures/<name>.png``).
-FIGURES = ("bode_current_loop", "bode_velocity_loop", "bode_position_loop", "step_responses", "margin_maps",
+FIGURES = ("requirements_spare", "bode_current_loop", "bode_velocity_loop", "bode_position_loop", "step_responses", "margin_maps",
            "velocity_poles", "friction_slopes", "switching_transient")
 #: Tables of the report (HTML ids ``table-<name>``).
 TABLES = ("at_a_glance", "requirements", "worst_points", "margins_current_loop", "margins_velocity_loop", "margins_position_loop",
@@ -138,19 +138,19 @@ def _folded(line: str, body: str) -> str:
     return f"<details class='fold'><summary>{html.escape(line)}</summary>\n{body}\n</details>"
 
 
-def _table(name: str, header, rows, classes=None, caption: str = "") -> str:
+def _table(name: str, header, rows, classes=None, caption: str = "", left=()) -> str:
     """HTML table; ``rows`` of cells (str), ``classes`` per row: (row class, [cell classes])."""
     out = [f'<div class="scroll"><table id="table-{name}">']
     if caption:
         out.append(f"<caption class='note' style='caption-side:top;text-align:left'>{html.escape(caption)}</caption>")
-    out.append("<tr>" + "".join(f"<th class='l'>{html.escape(h)}</th>" if i == 0 else f"<th>{html.escape(h)}</th>"
+    out.append("<tr>" + "".join(f"<th class='l'>{html.escape(h)}</th>" if i == 0 or i in left else f"<th>{html.escape(h)}</th>"
                                  for i, h in enumerate(header)) + "</tr>")
     for i, row in enumerate(rows):
         rcls, ccls = (classes[i] if classes else ("", None))
         cells = []
         for j, cell in enumerate(row):
             cls = [] if ccls is None or not ccls[j] else [ccls[j]]
-            if j == 0 or (isinstance(cell, str) and not _NUMBER.match(cell)):
+            if j == 0 or j in left or (isinstance(cell, str) and not _NUMBER.match(cell)):
                 cls.append("l")
             attr = f" class='{' '.join(cls)}'" if cls else ""
             cells.append(f"<td{attr}>{cell}</td>")
@@ -227,7 +227,7 @@ def _glance(result: DesignAnalysis) -> str:
         lm = a.loops[loop]
         m = lm.margins
 
-        def worst(name, digits=3):
+        def worst(name, digits=4):
             w = a.worst(loop, name)
             if w is None:
                 return "-", ""
@@ -269,7 +269,7 @@ def _requirement_rows(result: DesignAnalysis):
     return rows, classes
 
 
-def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
+def _html(result: DesignAnalysis, figures: dict[str, bytes], verdict=None) -> str:
     a, d, check = result.loops, result.design, result.requirements
     lin = a.linearization
     extra_nav = (("tuning", "Tuning"),) if "objective_before" in (getattr(d, "tuning", None) or {}) else ()
@@ -281,10 +281,15 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
     parts.append(
         f"<p class='verdict {'ok' if check.passed else 'bad'}'>Requirements at every valid grid point: {status} "
         f"&mdash; {len(check.rows) - n_fail} of {len(check.rows)} requirements met at the "
-        f"{check.checked_points} analysed points; {check.skipped_points} points not analysed "
+        f"{check.checked_points} analysed points; {check.skipped_points} "
+        f"point{'' if check.skipped_points == 1 else 's'} not analysed "
         f"(<a href='#invalid'>why</a>).</p>")
     if not check.passed:
         parts.append("<pre>" + html.escape(check.summary()) + "</pre>")
+    if verdict is not None:  # --check: the verdict of thsa check on every requirement (linear + validation runs)
+        from .check_report import verdict_section
+
+        parts.append(verdict_section(verdict))
     parts.append(_glance(result))
     parts.append(
         f"<p class='note'>Design file <code>{html.escape(d.source)}</code>; control period "
@@ -300,10 +305,17 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
     rows, classes = _requirement_rows(result)
     parts.append(_h2("requirements", "Requirements"))
     parts.append(_table("requirements", ["loop", "requirement", "worst value", "worst point",
-                                         "failing points", "result"], rows, classes,
+                                         "failing points", "result"], rows, classes, left=(1, 2, 3, 5), caption=
                         "Each requirement at every valid grid point. Amber: met within "
                         f"{NEAR_FRACTION:.0%} of the limit. A closed-loop-unstable valid point fails every "
                         "requirement. " + GAIN_MARGIN_MEANING))
+    if "requirements_spare" in figures:
+        b64 = base64.b64encode(figures["requirements_spare"]).decode("ascii")
+        parts.append("<details><summary>Figure: how far each requirement's worst point is from its limit (click to "
+                     f"open)</summary><figure id='fig-requirements_spare'><img alt='requirements_spare' "
+                     f"src='data:image/png;base64,{b64}'><figcaption>Spare at the worst valid point, as a fraction of "
+                     "the limit (below 0 fails; amber within "
+                     f"{NEAR_FRACTION:.0%}).</figcaption></figure></details>")
     # worst points
     rows = []
     for w in a.worst_points():
@@ -331,6 +343,8 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
         "switching_transient": "Nonlinear switch-over transient (primary off, standby on after a detection delay).",
     }
     for name in FIGURES:
+        if name == "requirements_spare":
+            continue  # in the requirements section
         if name == "bode_current_loop":
             parts.append(_h2("bode", "Open-loop Bode plots across temperature"))
         if name == "step_responses":
@@ -452,8 +466,11 @@ def _html(result: DesignAnalysis, figures: dict[str, bytes]) -> str:
 
 
 def write_analysis_report(result: DesignAnalysis, out_dir: str | Path, *, force: bool = False,
-                          inputs: tuple | list = ()) -> Path:
+                          inputs: tuple | list = (), verdict=None) -> Path:
     """Write ``report.html`` (figures embedded), ``analysis.json`` and ``figures/*.png`` to ``out_dir``.
+
+    With ``verdict`` (:class:`thsa_control.verdict.Verdict`, ``thsa report --check``) the page shows it and
+    ``check.json`` holds it, as ``thsa check --out`` writes it.
 
     The folder is replaced atomically: on failure nothing is written.
 
@@ -470,6 +487,7 @@ def write_analysis_report(result: DesignAnalysis, out_dir: str | Path, *, force:
         The folder written.
     """
     figures = {
+        "requirements_spare": _png(result.requirements.plot()),
         "bode_current_loop": _png(plot_loop_bode(result.loops, "current_loop")),
         "bode_velocity_loop": _png(plot_loop_bode(result.loops, "velocity_loop")),
         "bode_position_loop": _png(plot_loop_bode(result.loops, "position_loop")),
@@ -482,11 +500,13 @@ def write_analysis_report(result: DesignAnalysis, out_dir: str | Path, *, force:
     if result.switching is not None:
         figures["switching_transient"] = _png(plot_switching(result.switching))
     doc = analysis_to_dict(result)
-    page = _html(result, figures)
+    page = _html(result, figures, verdict)
     with atomic_folder(out_dir, force=force, inputs=inputs, command="thsa report") as tmp:
         (tmp / "figures").mkdir()
         for name, data in figures.items():
             (tmp / "figures" / f"{name}.png").write_bytes(data)
         (tmp / "report.html").write_text(page, encoding="utf-8")
         write_json(tmp / "analysis.json", doc)
+        if verdict is not None:
+            write_json(tmp / "check.json", verdict.as_dict())
     return Path(out_dir).resolve()

@@ -13,8 +13,7 @@ import math
 import numpy as np
 
 from ..data.units import DisplayUnit, display_unit
-from ..loops.loop_analysis import METRIC_LABELS, METRICS
-from ..loops.requirements import REQUIREMENT_METRICS
+from ..loops.catalog import METRIC_LABELS, METRICS, REQUIREMENT_METRICS
 
 __all__ = ["metric_display", "metric_heading", "fmt", "fmt_metric", "requirement_text", "requirement_limit_text", "gain_margins_text",
            "GAIN_MARGIN_MEANING", "requirement_status", "requirement_for", "NEAR_FRACTION", "STATUS_COLORS",

@@ -11,6 +11,7 @@ from __future__ import annotations
 import base64
 import html
 import math
+import textwrap
 from pathlib import Path
 
 import numpy as np  # noqa: E402
@@ -67,7 +68,7 @@ def _panels(t, get, r, N, title, fault_times=()):
         a.grid(True, alpha=0.3)
         if a is not axes[4]:
             a.legend(loc="upper left", fontsize=7)
-    fig.suptitle(title)
+    fig.suptitle("\n".join(textwrap.fill(line, 110) for line in title.split("\n")), fontsize=11)
     return fig
 
 
@@ -97,10 +98,17 @@ def plot_fault_case(case, params):
     return fig
 
 
-def plot_sweep(analysis):
-    """Detection time of each fault scenario vs threshold scale (false alarms marked); recovery vs take-over delay."""
+def plot_sweep(analysis, axes=None):
+    """Detection time of each fault scenario vs threshold scale (false alarms marked); recovery vs take-over delay.
+
+    ``axes``: two Axes (default a new figure).
+    """
     pts = list(analysis.sweep)  # detection does not depend on the take-over delay: any point of the scale
-    fig, (ax, ax2) = subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
+    if axes is None:
+        fig, (ax, ax2) = subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
+    else:
+        ax, ax2 = list(np.ravel(axes))
+        fig = ax.figure
     names = sorted({n for p in pts for n in p.detection_s})
     scales = sorted({p.scale for p in pts})
     for n in names:
@@ -206,7 +214,7 @@ def _case_rows(cases):
                      _ms(c.detection_s["lvdt"]), _ms(c.detection_s["speed"]), takeover, _ms(c.safed_s),
                      f"{c.peaks['loadpath'] / 1e3:.1f}", f"{c.peaks['primary_attachment'] / 1e3:.1f}",
                      f"{c.peaks['secondary_path'] / 1e3:.1f}", f"{c.peaks['jam'] / 1e3:.1f}",
-                     f"{c.peaks['limiter_torque']:.0f}", f"{c.limiter_slip_rad:.3f}",
+                     f"{c.peaks['limiter_torque']:.0f}", f"{to_display('angle', c.limiter_slip_rad):.1f}",
                      f"{c.surface_displacement_m * 1e3:.2f}", "-" if math.isnan(c.recovery_s) else _ms(c.recovery_s),
                      f"{c.energy_residual * 100:.3f}"])
     return rows
@@ -214,7 +222,23 @@ def _case_rows(cases):
 
 _CASE_HEAD = ["scenario", "faults", "onset [s]", "discrepancy trip [ms]", "LVDT trip [ms]", "speed trip [ms]",
               "take-over [ms]", "safed [ms]", "load path [kN]", "upper gimbal [kN]", "secondary [kN]", "jam [kN]",
-              "limiter [N m]", "limiter slip [rad]", "surface displacement [mm]", "recovery [ms]", "energy residual [%]"]
+              "limiter [N m]", "limiter slip [deg]", "surface displacement [mm]", "recovery [ms]", "energy residual [%]"]
+
+
+def _sweep_block(analysis) -> str:
+    """The sweep: one line for the false alarms when no normal scenario trips anywhere, then the table."""
+    if not analysis.sweep:
+        return "<p class='note'>Sweep not run (--no-sweep).</p>"
+    any_trip = any(p.normal_trips for p in analysis.sweep)
+    head = ["threshold scale [-]", "take-over delay [ms]"] + (["normal scenarios tripping"] if any_trip else []) + [
+        "first trip [ms]", "recovery [ms]"]
+    rows = [[f"{p.scale:g}", f"{p.delay_s * 1e3:g}"] + ([", ".join(p.normal_trips) or "none"] if any_trip else [])
+            + ["; ".join(f"{k}: {_ms(v)}" for k, v in p.detection_s.items()),
+               "; ".join(f"{k}: {_ms(v)}" for k, v in p.recovery_s.items())] for p in analysis.sweep]
+    scales = sorted({p.scale for p in analysis.sweep})
+    line = ("" if any_trip else f"<p>No normal scenario trips a monitor at any threshold scale "
+            f"({', '.join(f'{x:g}' for x in scales)}) or take-over delay: no false alarm in the sweep.</p>")
+    return line + _table(head, rows)
 
 
 def write_fault_report(analysis, params, out_dir, **folder_options) -> Path:
@@ -274,12 +298,7 @@ def write_fault_report(analysis, params, out_dir, **folder_options) -> Path:
                           f"{monitor_display(x.monitor).to_display(x.persisted):.4g}", monitor_display(x.monitor).unit,
                           "inf" if not math.isfinite(x.margin) else f"{x.margin:.2f}", "yes" if x.tripped else "no"]
                          for x in analysis.margins]),
-                 "<h2 id='table-sweep'>Sweep</h2>",
-                 _table(["threshold scale [-]", "take-over delay [ms]", "normal scenarios tripping", "first trip [ms]",
-                         "recovery [ms]"],
-                        [[f"{p.scale:g}", f"{p.delay_s * 1e3:g}", ", ".join(p.normal_trips) or "none",
-                          "; ".join(f"{k}: {_ms(v)}" for k, v in p.detection_s.items()),
-                          "; ".join(f"{k}: {_ms(v)}" for k, v in p.recovery_s.items())] for p in analysis.sweep]),
+                 "<h2 id='table-sweep'>Sweep</h2>", _sweep_block(analysis),
                  "<h2 id='settings'>Monitor settings</h2>",
                  _table(["setting", "value", "unit", "monitored signal"], _setting_rows(m)),
                  "<h2 id='figures'>Figures</h2>"]

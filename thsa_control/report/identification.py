@@ -30,7 +30,7 @@ def _scale(channel: str) -> tuple[float, str]:
 
 
 def plot_overlay(time, measured: Mapping[str, np.ndarray], simulated: Mapping[str, Mapping[str, np.ndarray]],
-                 *, channels: Sequence[str] | None = None, title: str = ""):
+                 *, channels: Sequence[str] | None = None, title: str = "", axes=None):
     """Measured channels with one or more simulated versions overlaid, one panel per channel.
 
     Parameters
@@ -42,6 +42,8 @@ def plot_overlay(time, measured: Mapping[str, np.ndarray], simulated: Mapping[st
         E.g. ``{"before": ..., "after": ...}``.
     channels : sequence of str, optional
         Default: the measured channels.
+    axes : sequence of Axes, optional
+        One per channel; default a new figure.
 
     Returns
     -------
@@ -49,8 +51,12 @@ def plot_overlay(time, measured: Mapping[str, np.ndarray], simulated: Mapping[st
     """
     channels = list(channels or measured)
     t = np.asarray(time)
-    fig, axes = subplots(len(channels), 1, figsize=(10, 2.4 * len(channels) + 0.6), sharex=True,
+    if axes is None:
+        fig, axes = subplots(len(channels), 1, figsize=(10, 2.4 * len(channels) + 0.6), sharex=True,
                              squeeze=False, constrained_layout=True)
+    else:
+        axes = np.asarray(list(np.ravel(axes)), dtype=object).reshape(-1, 1)
+        fig = axes[0, 0].figure
     styles = ["tab:orange", "tab:blue", "tab:green", "tab:red"]
     for ax, c in zip(axes[:, 0], channels):
         k, unit = _scale(c)
@@ -69,25 +75,29 @@ def plot_overlay(time, measured: Mapping[str, np.ndarray], simulated: Mapping[st
     return fig
 
 
-def plot_segments(prediction: Mapping, *, title: str = ""):
+def plot_segments(prediction: Mapping, *, title: str = "", axes=None):
     """Multiple-shooting fit of one run: data, segment predictions before/after, segment starts."""
     t = np.asarray(prediction["time"])
     chans = list(prediction["measured"])
     fig = plot_overlay(t, prediction["measured"], {"initial": prediction["initial"], "identified": prediction["simulated"]},
-                       channels=chans, title=title)
-    for ax in fig.axes:
+                       channels=chans, title=title, axes=axes)
+    for ax in (fig.axes if axes is None else list(np.ravel(axes))):
         for s in np.asarray(prediction["segment_starts"]):
             ax.axvline(s, color="0.85", lw=0.5, zorder=0)
     return fig
 
 
-def plot_residual_channel(time, channel, *, title: str = ""):
-    """Residual of one channel: time series, autocorrelation with its band, spectrum.
+def plot_residual_channel(time, channel, *, title: str = "", axes=None):
+    """Residual of one channel: time series, autocorrelation with its band, spectrum (display units).
 
-    ``channel`` is a :class:`thsa_control.fit.residuals.ChannelResiduals`.
+    ``channel`` is a :class:`thsa_control.fit.residuals.ChannelResiduals`; ``axes`` three Axes (default a new figure).
     """
     k, unit = _scale(channel.name)
-    fig, axes = subplots(3, 1, figsize=(10, 8), constrained_layout=True)
+    if axes is None:
+        fig, axes = subplots(3, 1, figsize=(10, 8), constrained_layout=True)
+    else:
+        axes = list(np.ravel(axes))
+        fig = axes[0].figure
     ax = axes[0]
     ax.plot(np.asarray(time), np.asarray(channel.residual) * k, lw=0.6)
     ax.set_xlabel("time [s]")
@@ -269,7 +279,7 @@ def residual_tables(analysis) -> list[tuple[str, Html]]:
                (f"No significant bin for: {', '.join(quiet)}." if quiet else ""))
     if rows:
         out.append(("Where the residual concentrates", html_table(
-            ["channel", "conditioned on", "bin", "samples", "mean", "RMS", "mean-square ratio", "p", "eta^2"],
+            ["channel", "conditioned on", "bin", "samples", "mean", "RMS", "mean-square ratio [-]", "p [-]", "eta^2 [-]"],
             rows, caption=caption, left=(0, 1, 2))))
     else:
         out.append(("Where the residual concentrates", Html(f"<p class='note'>{html.escape(caption)} "
@@ -322,7 +332,7 @@ def identification_tables(result) -> list[tuple[str, Html]]:
     pairs = sorted(((names[i], names[j], result.correlation[i, j]) for i in range(len(names))
                     for j in range(i + 1, len(names)) if np.isfinite(result.correlation[i, j])),
                    key=lambda p: -abs(p[2]))
-    corr = html_table(["pair", "correlation"], [[f"{a} / {b}", f"{r:+.4f}"] for a, b, r in pairs],
+    corr = html_table(["pair", "correlation [-]"], [[f"{a} / {b}", f"{r:+.4f}"] for a, b, r in pairs],
                       classes=[["", "warn" if abs(r) > result.settings.correlation_threshold else ""]
                                for _, _, r in pairs]) if pairs else Html("<p class='note'>One free parameter.</p>")
     rows = []
@@ -332,8 +342,8 @@ def identification_tables(result) -> list[tuple[str, Html]]:
             k, unit = _scale(c)
             rows.append([run, c, unit, _num(f0.rms * k), _num(f.rms * k), _num(f0.nrmse), _num(f.nrmse),
                          f"{f0.fit_percent:.2f}", f"{f.fit_percent:.2f}"])
-    chans = html_table(["run", "channel", "unit", "RMS initial", "RMS identified", "NRMSE initial", "NRMSE identified",
-                        "fit initial [%]", "fit identified [%]"], rows, left=(0, 1, 2),
+    chans = html_table(["run", "channel", "unit", "RMS initial", "RMS identified", "NRMSE initial [-]",
+                        "NRMSE identified [-]", "fit initial [%]", "fit identified [%]"], rows, left=(0, 1, 2),
                        caption="Multiple-shooting segment predictions, initial and identified parameters.")
     return [("Parameters", params), ("Channels", chans), ("Correlations", corr), ("Fit statistics", stats)]
 
@@ -355,7 +365,6 @@ def write_residual_folder(folder: str | Path, replay_result, analysis, *, title:
 
     Returns the JSON content.
     """
-    from ..fit.residuals import format_residual_report
     from .build import write_json
 
     folder = Path(folder)
@@ -380,7 +389,7 @@ def write_residual_folder(folder: str | Path, replay_result, analysis, *, title:
     for c in analysis.channels.values():
         figures[f"residual of {c.name}"] = figure_png(plot_residual_channel(analysis.time, c, title=f"{r.run_name}: {c.name}"))
     sections = residual_tables(analysis) + [("Full residual analysis (text)", _text_block(
-        "click to open the full text report (every conditioning signal and bin)", format_residual_report(analysis)))]
+        "click to open the full text report (every conditioning signal and bin)", analysis.report()))]
     worst = min(analysis.channels.values(), key=lambda c: c.fit_percent, default=None)
     lead = (f"Lowest fit: <b>{html.escape(worst.name)} {worst.fit_percent:.1f} %</b>; residual "
             f"{'white' if worst.whiteness.white else '<b>not white</b>'} on that channel." if worst else "")

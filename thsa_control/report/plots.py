@@ -10,6 +10,7 @@ from collections.abc import Mapping
 
 import numpy as np  # noqa: E402
 
+from ..data.units import label, to_display
 from .figure import subplots
 
 __all__ = ["plot_run", "plot_levels", "close"]
@@ -30,38 +31,42 @@ def _mark_stops(ax, result):
         ax.axvspan(t[i], t[j - 1], color="0.92", zorder=0, lw=0)
 
 
-def plot_run(result, *, title: str | None = None):
-    """Four panels of one run: speeds, currents, forces, no-back.
+def plot_run(result, *, title: str | None = None, axes=None):
+    """Four panels of one run: speeds, currents, forces, no-back (``axes``: four Axes, default a new figure).
 
     Grey bands mark the motors de-energised (trim stops, faults).
     """
     t = np.asarray(result.time)
-    fig, axes = subplots(4, 1, figsize=(10, 10), sharex=True, constrained_layout=True)
+    if axes is None:
+        fig, axes = subplots(4, 1, figsize=(10, 10), sharex=True, constrained_layout=True)
+    else:
+        axes = list(np.ravel(axes))
+        fig = axes[0].figure
     ax = axes[0]
-    ax.plot(t, np.asarray(result["speed_cmd"]) * 1e3, "k--", lw=1, label="command")
-    ax.plot(t, np.asarray(result["nut_speed"]) * 1e3, label="nut")
+    ax.plot(t, to_display("nut_speed", result["speed_cmd"]), "k--", lw=1, label="command")
+    ax.plot(t, to_display("nut_speed", result["nut_speed"]), label="nut")
     if "loadpath_compliance" in result.effects:
-        ax.plot(t, np.asarray(result["surface_speed"]) * 1e3, lw=0.8, label="surface")
-    ax.set_ylabel("speed [mm/s]")
+        ax.plot(t, to_display("nut_speed", result["surface_speed"]), lw=0.8, label="surface")
+    ax.set_ylabel(label("speed", "nut_speed"))
     ax = axes[1]
     ax.plot(t, result["motor_current"], label="primary")
     if "standby_motor" in result.effects:
         ax.plot(t, result["standby_current"], label="standby")
     ax.plot(t, result["current_ref"], "k:", lw=0.8, label="reference")
-    ax.set_ylabel("q current [A]")
+    ax.set_ylabel(label("q current", "current"))
     ax = axes[2]
-    ax.plot(t, np.asarray(result["load_force"]) * 1e-3, "k--", lw=1, label="load (+ compressive)")
+    ax.plot(t, to_display("force", result["load_force"]), "k--", lw=1, label="load (+ compressive)")
     if "loadpath_compliance" in result.effects:
-        ax.plot(t, np.asarray(result["loadpath_force"]) * 1e-3, label="load path")
-    ax.set_ylabel("force [kN]")
+        ax.plot(t, to_display("force", result["loadpath_force"]), label="load path")
+    ax.set_ylabel(label("force", "force"))
     ax = axes[3]
     ax.plot(t, result["noback_torque"], label="no-back torque at screw")
-    ax.set_ylabel("no-back [N m]")
+    ax.set_ylabel(label("no-back", "torque"))
     ax2 = ax.twinx()
     ax2.plot(t, result["pawl_engaged"], color="tab:red", lw=0.8, label="pawl engaged (loaded side)")
     ax2.set_ylim(-0.1, 1.1)
     ax2.set_ylabel("pawl engaged [-]")
-    ax.set_xlabel("time [s]")
+    ax.set_xlabel(label("time", "duration"))
     for a in axes:
         _mark_stops(a, result)
         a.grid(True, alpha=0.3)
@@ -81,24 +86,24 @@ def plot_levels(results: Mapping[str, object], *, title: str | None = None):
     labels = list(results)
     fig, axes = subplots(3, len(labels), figsize=(4.2 * len(labels), 8), sharex=True, squeeze=False,
                              constrained_layout=True)
-    for col, label in enumerate(labels):
-        r = results[label]
+    for col, name in enumerate(labels):
+        r = results[name]
         t = np.asarray(r.time)
-        color = _LEVEL_COLORS.get(label, None)
+        color = _LEVEL_COLORS.get(name, None)
         a = axes[0, col]
-        a.plot(t, np.asarray(r["speed_cmd"]) * 1e3, "k--", lw=0.8, label="command")
-        a.plot(t, np.asarray(r["nut_speed"]) * 1e3, color=color, label="nut")
+        a.plot(t, to_display("nut_speed", r["speed_cmd"]), "k--", lw=0.8, label="command")
+        a.plot(t, to_display("nut_speed", r["nut_speed"]), color=color, label="nut")
         if "loadpath_compliance" in r.effects:
-            a.plot(t, np.asarray(r["surface_speed"]) * 1e3, color="tab:purple", lw=0.7, label="surface")
-        a.set_title(f"level {label}" if len(label) == 1 else label)
-        a.set_ylabel("speed [mm/s]" if col == 0 else "")
+            a.plot(t, to_display("nut_speed", r["surface_speed"]), color="tab:purple", lw=0.7, label="surface")
+        a.set_title(f"level {name}" if len(name) == 1 else name)
+        a.set_ylabel(label("speed", "nut_speed") if col == 0 else "")
         a = axes[1, col]
         a.plot(t, r["motor_current"], color=color)
-        a.set_ylabel("q current [A]" if col == 0 else "")
+        a.set_ylabel(label("q current", "current") if col == 0 else "")
         a = axes[2, col]
         a.plot(t, r["noback_torque"], color=color)
-        a.set_ylabel("no-back torque [N m]" if col == 0 else "")
-        a.set_xlabel("time [s]")
+        a.set_ylabel(label("no-back torque", "torque") if col == 0 else "")
+        a.set_xlabel(label("time", "duration"))
         for row in range(3):
             _mark_stops(axes[row, col], r)
             axes[row, col].grid(True, alpha=0.3)

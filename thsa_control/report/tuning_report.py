@@ -77,6 +77,28 @@ def tuning_section(design) -> str:
     if weaker:
         parts.append("<p class='note'>Where the tuned design is weaker than the source: "
                      + html.escape("; ".join(weaker)) + ".</p>")
+    if "verdict" in t:
+        parts.append(f"<p>Verdict of <code>thsa check</code> on every requirement when it was written: "
+                     f"<b>{html.escape(str(t['verdict']))}</b> after {len(t.get('rounds', []))} round(s) "
+                     "(the verdict section of this report, with --check, judges it again).</p>")
+        rows = [[str(r["round"]), ", ".join(_f(g) for g in r["gains"]), html.escape("; ".join(r["constraint_runs"])),
+                 html.escape(", ".join(r["failing"]) or "none")] for r in t.get("rounds", [])]
+        parts.append(_table("tuning_rounds", ["round", "gains", "constraint runs", "requirements not met"], rows))
+    rob = t.get("robustness")
+    if rob:
+        parts.append(f"<h3>Robustness beyond the grid</h3><p>Worst velocity-loop margins over the grid at "
+                     f"{html.escape(', '.join(f'{x:g}' for x in rob['margin_temperatures_C']))} degC and the ISE of "
+                     f"{html.escape(rob['scenario'])} at {_f(rob['temperature_C'])} degC, source and tuned design, "
+                     "under each case.</p>")
+        rows = [[html.escape(r["case"]), html.escape(r["design"]), _f(r["phase_margin_deg"]), _f(r["gain_margin_db"]),
+                 _f(1e3 * r["delay_margin_s"]), _f(r["sensitivity_peak"]), str(r["unstable_points"]),
+                 "-" if r["cold_ise"] == -1.0 else _f(r["cold_ise"])] for r in rob["rows"]]
+        parts.append(_table("tuning_robustness", ["case", "design", "PM [deg]", "|GM| [dB]", "DM [ms]", "Ms",
+                                                  "unstable points", "cold ISE [(mm/s)^2 s]"], rows))
+        flags = rob.get("flagged", [])
+        parts.append("<p class='note'>" + (("FLAG: " + html.escape("; ".join(flags))) if flags else
+                                           "The tuned design keeps its advantage in every case.")
+                     + "".join(f"<br>Note: {html.escape(n)}" for n in rob.get("notes", [])) + "</p>")
     return "\n".join(parts)
 
 

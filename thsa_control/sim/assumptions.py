@@ -30,8 +30,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numpy as np
-
 from ..loops.design import Design
 from ..model import build_plant
 from ..model.params import ParameterSet

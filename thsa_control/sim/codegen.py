@@ -45,7 +45,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-__all__ = ["cache_dir", "compile_run_loop", "compile_functions", "RunLoop"]
+__all__ = ["cache_dir", "compile_run_loop", "compile_functions", "RunLoop", "library_files", "install_library"]
 
 _NOTED: set[str] = set()  # fallbacks already reported in this process (said once)
 _PRIVATE_DIR: list[Path] = []  # per-process fallback cache, removed at exit
@@ -449,3 +449,59 @@ def compile_functions(functions: list[ca.Function], tag: str, *, flags: tuple[st
     """
     names = [f.name() for f in functions]
     return _find_or_build(list(functions), tag, "", flags, lambda lib, sha: _load_external(lib, sha, names))
+
+
+def library_files(path: str | os.PathLike) -> dict[str, bytes]:
+    """The bytes of a cached library and of its manifest, by file name, to ship to another machine.
+
+    Returns ``{}`` when ``path`` is not a verified library of the cache layout
+    (``<tag>_<hash>.so`` with its ``.json`` beside it).
+    """
+    lib = Path(path)
+    manifest = lib.with_suffix(".json")
+    try:
+        meta = json.loads(manifest.read_text(encoding="utf-8"))
+        if not _verified(lib, manifest, meta.get("source_sha256")):
+            return {}
+        return {lib.name: lib.read_bytes(), manifest.name: manifest.read_bytes()}
+    except (OSError, ValueError, AttributeError):
+        return {}
+
+
+def install_library(files: dict[str, bytes]) -> bool:
+    """Put shipped library files (:func:`library_files`) into this machine's cache, atomically.
+
+    A library already there and verified is kept.  The shipped bytes are
+    checked against their manifest before they are published; whether they
+    load here (same architecture, same casadi) is checked when they are used,
+    as for any cached file, which rebuilds from the generated source
+    otherwise.  Returns True when the library is in the cache.
+    """
+    libs = [n for n in files if n.endswith(".so") and "/" not in n and not n.startswith(".")]
+    if len(libs) != 1 or libs[0][:-3] + ".json" not in files:
+        return False
+    name = libs[0]
+    meta_name = name[:-3] + ".json"
+    try:
+        meta = json.loads(files[meta_name].decode("utf-8"))
+        folder = cache_dir()
+    except (OSError, ValueError, UnicodeDecodeError):
+        return False
+    if not isinstance(meta, dict) or not str(meta.get("source_sha256", "")) or \
+            not name.endswith(f"_{str(meta.get('source_sha256'))[:24]}.so"):
+        return False
+    lib, manifest = folder / name, folder / meta_name
+    if lib.exists() and _verified(lib, manifest, meta.get("source_sha256")):
+        return True
+    data = files[name]
+    if len(data) != meta.get("library_size") or hashlib.sha256(data).hexdigest() != meta.get("library_sha256"):
+        return False
+    with tempfile.TemporaryDirectory(prefix="thsa-ship-") as tmp:
+        for n in (name, meta_name):
+            (Path(tmp) / n).write_bytes(files[n])
+        try:
+            _publish(Path(tmp) / name, lib)
+            _publish(Path(tmp) / meta_name, manifest)
+        except OSError:
+            return False
+    return True

@@ -63,7 +63,8 @@ from ..errors import ScenarioError
 from .events import FaultEvent
 from .monitor_settings import MonitorSettings
 
-__all__ = ["Scenario", "SCENARIOS", "get_scenario", "TEMPERATURE_RANGE", "load_scenario_file", "scenario_from_dict"]
+__all__ = ["Scenario", "SCENARIOS", "get_scenario", "TEMPERATURE_RANGE", "load_scenario_file", "scenario_from_dict",
+           "scenario_to_dict"]
 
 #: Temperature range of the friction law and of the papers' tests [degC].
 TEMPERATURE_RANGE = (-55.0, 70.0)
@@ -380,6 +381,31 @@ def scenario_from_dict(data: dict, *, where: str = "scenario"):
         raise ScenarioError(f"{where}: {exc}") from None
     except TypeError as exc:
         raise ScenarioError(f"{where}: {exc}") from None
+
+
+def scenario_to_dict(scenario: Scenario) -> dict:
+    """The TOML-ready table of a :class:`Scenario` that :func:`scenario_from_dict` reads back to an equal one
+    (an infinite fault ``end`` as the string ``"inf"``; the default infinite ``jerk_limit`` left out)."""
+    out = {}
+    for f in fields(scenario):
+        value = getattr(scenario, f.name)
+        if f.name in _BREAKPOINTS:
+            if value is not None:
+                out[f.name] = [[float(a), float(b)] for a, b in value]
+        elif f.name == "faults":
+            if value:
+                out["faults"] = [{g.name: ("inf" if g.name == "end" and math.isinf(getattr(ev, g.name))
+                                           else getattr(ev, g.name)) for g in fields(ev)} for ev in value]
+        elif f.name == "monitors":
+            if value is not None:
+                out["monitors"] = {g.name: getattr(value, g.name) for g in fields(value)}
+        elif f.name == "required_effects":
+            out[f.name] = list(value)
+        elif f.name == "jerk_limit" and math.isinf(value):
+            continue
+        else:
+            out[f.name] = value
+    return out
 
 
 def load_scenario_file(path) -> Scenario:

@@ -202,6 +202,24 @@ class SimulationResult:
         """Boolean mask of samples with ``t0 <= time < t1``."""
         return (self.time >= t0) & (self.time < t1)
 
+    def report(self) -> str:
+        """Range and final value of every signal, in display units."""
+        from ..report.results import format_simulation
+
+        return format_simulation(self)
+
+    def to_dict(self) -> dict:
+        """Name, effects, units and every signal (SI), JSON-able."""
+        from ..report.results import simulation_to_dict
+
+        return simulation_to_dict(self)
+
+    def plot(self, ax=None):
+        """Speeds, currents, forces and no-back (``thsa_control.report.plots.plot_run``); ``ax``: four Axes."""
+        from ..report.plots import plot_run
+
+        return plot_run(self, axes=ax)
+
 
 class Simulator:
     """Closed-loop simulator of one plant (effect set).

@@ -55,6 +55,7 @@ from ..fit.profile import chi2_by_channel
 from ..fit.replay import channel_fit
 from ..fit.residuals import quadrant, reversal_proximity
 from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
+from ..model.laws import kinematic_ratio
 from ..model.params import ParameterSet, default_parameters
 from .threads import limit_blas_threads
 from .signature import (SignatureSettings, binned_mean, cross_correlation, current_offset_test, missing_torque,
@@ -757,7 +758,7 @@ def _signature_curves(e: np.ndarray, variables: dict, runs, s: SignatureSettings
         if "motor_speed" in run.source_columns and "nut_position" in run.source_columns:
             x_ = np.asarray(sig["nut_position"], float)
             cc[f"{run.name}: LVDT rate vs lead/(2 pi N) x motor_speed"] = cross_correlation(
-                np.r_[0.0, np.diff(x_)] / dt, run.screw_lead / (2 * math.pi * run.gear_ratio)
+                np.r_[0.0, np.diff(x_)] / dt, kinematic_ratio({"screw.lead": run.screw_lead, "gear.ratio": run.gear_ratio})
                 * np.asarray(sig["motor_speed"], float), dt)
     out["cross_correlation"] = cc
     return out

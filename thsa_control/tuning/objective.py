@@ -164,9 +164,9 @@ class Objective:
         monitors of a fault scenario) and the running cost integrals;
         ``S = ds/dg`` (column-major flattened).
         """
-        key = tuple(e.key() for e in extensions)
-        if key in self._fns:
-            return self._fns[key]
+        ext_key = tuple(e.key() for e in extensions)
+        if ext_key in self._fns:
+            return self._fns[ext_key]
         sim, plant = self.simulator, self.simulator.plant
         sample = sim.sample_function(tuple(extensions))
         nz, nw, nth = sample.size1_in(0), sample.size1_in(1), sample.size1_in(2)
@@ -219,7 +219,7 @@ class Objective:
             compiled, _ = compile_functions([fns["stage"], fns["sens"], fns["stage_block"], fns["sens_block"]], tag)
             if compiled is not None:
                 fns = dict(zip(("stage", "sens", "stage_block", "sens_block"), compiled))
-        self._fns[key] = fns
+        self._fns[ext_key] = fns
         return fns
 
     def runs(self) -> list[_Run]:
