@@ -27,9 +27,9 @@ from thsa_control.fit.replay import FIT_CHANNELS
 from thsa_control.loops.linear import LinearizationSettings
 from thsa_control.model import EFFECTS, CandidateSpec, NoNeutral, NotCandidate, build_plant, resolve_effects
 from thsa_control.model.params import default_parameters
+from thsa_control.trace.engine import WINDOWS  # the tracer's window kinds
 
 NAMES = tuple(EFFECTS)
-WINDOWS = ("moving", "all", "loaded", "reversal", "reversal_or_stop", "cold")
 FAULT_INPUTS = ("brake", "surface_jam", "loadpath_failure")
 
 

@@ -293,6 +293,10 @@ def candidate_specs(model_effects: Iterable[str], params: ParameterSet, names: S
     return out
 
 
+#: The windows a candidate may act in (:attr:`CandidateSpec.window`, :func:`_window`).
+WINDOWS = ("moving", "all", "loaded", "reversal", "reversal_or_stop", "cold", "resolved_cogging")
+
+
 def _window(kind: str, run: RigRun, params: ParameterSet | None = None) -> np.ndarray:
     s = run.signals
     w = np.nan_to_num(measured_motor_speed(run))
@@ -903,9 +907,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             at_plausible_bound = _explainers_at_bound(current, base_bounds)
             base_doc["signature_after"] = _signature_brief(
                 _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, noise))
-    windows_cache = {spec: {r.name: _window(spec, r, params) for r in runs}
-                     for spec in ("moving", "all", "loaded", "reversal", "reversal_or_stop", "cold",
-                                  "resolved_cogging")}
+    windows_cache = {spec: {r.name: _window(spec, r, params) for r in runs} for spec in WINDOWS}
     hurt: set[str] = set()
     while sum(1 for e in added if "implied_by" not in e) < st.max_effects:
         specs = candidate_specs(cur_effects, cur_params, st.candidates)
