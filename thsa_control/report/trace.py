@@ -53,9 +53,9 @@ def conclusion_table_html(doc: dict) -> str:
     if bc.get("accepted"):
         for c in bc.get("corrections", []):
             rows.append(("base correction", c["effect"],
-                         f"{c['parameter']} = {_num(c['value'])} {c['unit']}{_ci(c)}"
-                         f"{' (at its plausible bound)' if c['at_plausible_bound'] else ''}<br><small>bound "
-                         f"[{_num(c['bound'][0])}, {_num(c['bound'][1])}]: {esc(c['bound_source'])}</small>",
+                         (f"{c['parameter']} = {_num(c['value'])} {c['unit']}{_ci(c)}"
+                          f"{' (at its plausible bound)' if c['at_plausible_bound'] else ''}<br><small>bound "
+                          f"[{_num(c['bound'][0])}, {_num(c['bound'][1])}]: {esc(c['bound_source'])}</small>"),
                          _errors_cell(bc.get("error_before", {}), bc.get("error_after", {})), "", ""))
     for e in doc["effects_added"]:
         kind = f"implied by {e['implied_by']}" if e.get("implied_by") else (

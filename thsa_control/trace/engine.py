@@ -997,7 +997,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             nb = sum(_chi2_by_channel(null_base, noise, "holdout").values()) if "error" not in null_base else math.nan
             todo = list(promising)
 
-            def calibrate(batch):
+            def calibrate(batch, null=null, nb=nb):
                 say(f"calibrating {', '.join(c['name'] for c in batch)} on a null run")
                 null_fits = _run_jobs([{**c["_job"], "label": f"null {c['name']}", "runs": null,
                                         "free": tuple(c["_fit"]["free"]), "judge": {},
