@@ -33,6 +33,11 @@ pseudo-inverse, and infinite stderr).  ``aic = n ln(chi2/n) + 2 k``,
 channel: RMS, NRMSE = ``||y - yhat|| / ||y - mean(y)||`` and fit % = ``100 (1 -
 NRMSE)`` (MATLAB ``compare``).
 
+This module owns the settings (:class:`IdentificationSettings`) and the fit
+driver (:class:`Identifier`); the result type and its statistics live in
+:mod:`thsa_control.fit.identify_result`, the per-run multiple-shooting problem
+in :mod:`thsa_control.fit.shooting` (all re-exported here).
+
 Imports casadi, numpy, scipy; no matplotlib, no file parsing.
 """
 
@@ -41,35 +46,28 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field, replace as dc_replace
-from pathlib import Path
+from dataclasses import dataclass, replace as dc_replace
 from types import MappingProxyType
 
 import casadi as ca
 import numpy as np
 
-from ..errors import ParameterError, RigDataError, SolverError, ThsaError
+from ..errors import ParameterError, RigDataError, SolverError
 from ..model import build_plant
 from ..model.plant import Plant
 from ..model.params import ParameterSet, default_parameters
-from .replay import (
-    COMPARED_OUTPUT, channel_fit, check_run_model, current_driven_map, mech_inputs, replay_closed_loop, run_design,
-    sample_periods,
-)
-from ..data.rigdata import RigRun, motor_speed_from
+from .replay import channel_fit, current_driven_map
+from ..data.rigdata import RigRun
 from .kinematics import run_kinematics
-from .segment_states import drivetrain_segment_guess
 
-__all__ = ["IdentificationSettings", "ParameterEstimate", "IdentificationResult", "Identifier", "estimate_noise"]
+from .identify_result import (
+    COLLINEAR_CORRELATION, NOT_DETERMINED_REL_STDERR, IdentificationResult, ParameterEstimate,
+    collinearity_safe_inverse,
+)
+from .shooting import FREE_STATE_KINDS, MECH_CHANNELS, RunProblem, estimate_noise
 
-#: Channels the mechanics are fitted on (RigRun signals, compared with the plant
-#: outputs of :data:`~thsa_control.fit.replay.COMPARED_OUTPUT`: the LVDT with the surface position).
-MECH_CHANNELS = ("motor_speed", "nut_position", "screw_speed")
-#: A parameter whose standard error exceeds this fraction of its value is not determined by the data.
-NOT_DETERMINED_REL_STDERR = 0.5
-#: Above this |correlation| two parameters are collinear in the data: only their combination is determined.
-COLLINEAR_CORRELATION = 0.999
-_FREE_STATE_KINDS = ("speed", "velocity", "position")
+__all__ = ["IdentificationSettings", "ParameterEstimate", "IdentificationResult", "Identifier", "estimate_noise",
+           "RunProblem", "MECH_CHANNELS", "NOT_DETERMINED_REL_STDERR", "COLLINEAR_CORRELATION"]
 
 
 @dataclass(frozen=True)
@@ -180,515 +178,6 @@ class IdentificationSettings:
             raise ValueError(f"IdentificationSettings.global_span = {self.global_span!r} must be > 1")
 
 
-@dataclass(frozen=True)
-class ParameterEstimate:
-    """One identified parameter (lmfit's ``Parameter`` after a fit).
-
-    Attributes
-    ----------
-    name, unit : str
-    value : float
-        Estimate [SI].
-    stderr : float
-        Standard error [SI] (inf: not determined by the data).
-    init : float
-        Initial value [SI].
-    min, max : float
-        Bounds used.
-    at_bound : str or None
-        ``"min"`` / ``"max"`` when the estimate sits on a bound.
-    at_initial : bool
-        The estimate did not move from its initial value.
-    """
-
-    name: str
-    unit: str
-    value: float
-    stderr: float
-    init: float
-    min: float
-    max: float
-    at_bound: str | None
-    at_initial: bool
-
-    @property
-    def relative_stderr(self) -> float:
-        """``stderr / |value|`` [-]."""
-        return self.stderr / abs(self.value) if self.value != 0 else math.inf
-
-    def interval(self, level: float = 0.95) -> tuple[float, float]:
-        """Two-sided normal confidence interval ``value -+ z stderr`` at ``level``."""
-        from scipy.stats import norm
-
-        z = float(norm.ppf(0.5 + level / 2))
-        return self.value - z * self.stderr, self.value + z * self.stderr
-
-    def to_dict(self) -> dict:
-        """JSON-ready dict."""
-        d = dict(self.__dict__)
-        d["stderr"] = self.stderr if math.isfinite(self.stderr) else None
-        d["min"] = self.min if math.isfinite(self.min) else None
-        d["max"] = self.max if math.isfinite(self.max) else None
-        return d
-
-
-@dataclass(frozen=True)
-class IdentificationResult:
-    """What a fit found and how far to trust it (lmfit ``ModelResult`` style).
-
-    Attributes
-    ----------
-    method : str
-    effects : tuple of str
-        Effect set of the model.
-    runs : tuple of str
-        Names of the runs fitted together.
-    params : ParameterSet
-        The initial set (values, bounds, sources), untouched.
-    estimates : mapping name -> ParameterEstimate
-        The free parameters.
-    correlation : ndarray
-        Correlation matrix of the free parameters (``estimates`` order).
-    high_correlations : tuple of (str, str, float)
-        Pairs with ``|rho|`` above the threshold, largest first.
-    n_data, n_free, n_varys : int
-        Weighted residuals, free parameters, all decision variables
-        (parameters and segment initial states).
-    chisqr, redchi, aic, bic : float
-        Weighted statistics (weights = 1 / channel noise RMS).
-    channel_fits : mapping run -> mapping channel -> ChannelFit
-        Segment predictions against the data, after the fit.
-    initial_channel_fits : mapping run -> mapping channel -> ChannelFit
-        Same at the initial values (segments' states fitted for those).
-    noise : mapping run -> mapping channel -> float
-        Residual RMS per channel after the fit (the weights of the covariance).
-    success : bool
-    status : str
-        Solver status text.
-    nfev, njev : int
-    time_s : float
-        Wall time of the whole fit [s].
-    predictions : mapping run -> dict
-        ``time``, ``measured`` and ``simulated`` (dicts by channel) and
-        ``segment_starts`` [s], for plots.
-    settings : IdentificationSettings
-    global_stage : dict
-        Differential evolution summary (empty when not run).
-    converged : bool
-        False when the evaluation limit or the time budget stopped the fit:
-        the estimates are the best point found, not a converged optimum.
-    priors : mapping name -> (mean, sd)
-        Regularisation priors used (empty without).
-    holdout_fits : mapping run -> mapping channel -> ChannelFit
-        Error on the held-out segments (empty when none held out).
-    warnings : tuple of str
-        What the model only approximates in these runs.
-    """
-
-    method: str
-    effects: tuple[str, ...]
-    runs: tuple[str, ...]
-    params: ParameterSet
-    estimates: MappingProxyType
-    correlation: np.ndarray
-    high_correlations: tuple[tuple[str, str, float], ...]
-    n_data: int
-    n_free: int
-    n_varys: int
-    chisqr: float
-    redchi: float
-    aic: float
-    bic: float
-    channel_fits: MappingProxyType
-    initial_channel_fits: MappingProxyType
-    noise: MappingProxyType
-    success: bool
-    status: str
-    nfev: int
-    njev: int
-    time_s: float
-    predictions: MappingProxyType
-    settings: IdentificationSettings
-    global_stage: dict = field(default_factory=dict)
-    converged: bool = True
-    priors: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
-    holdout_fits: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
-    warnings: tuple[str, ...] = ()
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        """Free parameter names."""
-        return tuple(self.estimates)
-
-    @property
-    def values(self) -> dict[str, float]:
-        """Estimates by name [SI]."""
-        return {n: e.value for n, e in self.estimates.items()}
-
-    @property
-    def not_identifiable(self) -> tuple[str, ...]:
-        """Parameters the data do not determine: undetermined stderr, or stderr above half the value.
-
-        A high correlation (:attr:`high_correlations`) alone does not make a
-        parameter unidentifiable: its standard error comes from the
-        covariance, which already counts the correlation, so a correlated
-        parameter with a small standard error is determined (reported as
-        "correlated with ...").  A flagged pair (|rho| above the threshold)
-        one of whose members is undetermined, or whose correlation exceeds
-        :data:`COLLINEAR_CORRELATION`, is seen only as a combination: both
-        are flagged.
-        """
-        out = {n for n, e in self.estimates.items()
-               if not math.isfinite(e.stderr) or e.relative_stderr > NOT_DETERMINED_REL_STDERR}
-        for a, b, rho in self.high_correlations:  # only a combination of the pair is seen: both go
-            if a in out or b in out or abs(rho) > COLLINEAR_CORRELATION:
-                out |= {a, b}
-        return tuple(n for n in self.estimates if n in out)
-
-    def to_parameter_set(self, source: str | None = None) -> ParameterSet:
-        """The initial set with the estimates as values; their ``source`` says where they come from."""
-        new = {}
-        for n, e in self.estimates.items():
-            old = self.params[n]
-            src = source or (f"identified: {self.method} on {', '.join(self.runs)}; "
-                             f"stderr {e.stderr:.3g} {old.unit}" if math.isfinite(e.stderr) else
-                             f"identified: {self.method} on {', '.join(self.runs)}; stderr undetermined")
-            new[n] = dc_replace(old, value=e.value, source=src)  # keeps the search and physical bounds
-        return self.params.replace_parameters(new)
-
-    def parameters_toml(self) -> str:
-        """TOML of the identified entries only, for ``load_parameters(path, base=...)``."""
-        return self._identified_set().to_toml()
-
-    def full_parameters_toml(self) -> str:
-        """TOML of the whole set (identified entries replaced): replayable with ``--params`` alone."""
-        return self.to_parameter_set().to_toml()
-
-    def _identified_set(self) -> ParameterSet:
-        full = self.to_parameter_set()
-        return ParameterSet(tuple(full[n] for n in self.estimates))
-
-    def save_parameters(self, path: str | Path) -> Path:
-        """Write the whole set with the estimates (:meth:`full_parameters_toml`) to ``path`` (atomically).
-
-        It replays the identified model with ``--params`` alone; the
-        identified entries carry an ``identified:`` source.
-        """
-        return self.to_parameter_set().save(path)
-
-    def to_dict(self) -> dict:
-        """JSON-ready summary (no time series)."""
-        def fits(table):
-            return {r: {c: f.to_dict() for c, f in ch.items()} for r, ch in table.items()}
-
-        return {
-            "method": self.method, "effects": list(self.effects), "runs": list(self.runs),
-            "success": self.success, "status": self.status, "nfev": self.nfev, "njev": self.njev,
-            "time_s": self.time_s, "n_data": self.n_data, "n_free": self.n_free, "n_varys": self.n_varys,
-            "chisqr": self.chisqr, "redchi": self.redchi, "aic": self.aic, "bic": self.bic,
-            "parameters": {n: e.to_dict() for n, e in self.estimates.items()},
-            "correlation": {"names": list(self.names), "matrix": np.nan_to_num(self.correlation).tolist()},
-            "high_correlations": [list(p) for p in self.high_correlations],
-            "not_identifiable": list(self.not_identifiable),
-            "channel_fits": fits(self.channel_fits), "initial_channel_fits": fits(self.initial_channel_fits),
-            "noise_rms": {r: dict(v) for r, v in self.noise.items()},
-            "settings": {k: (dict(v) if isinstance(v, Mapping) else (list(v) if isinstance(v, tuple) else v))
-                         for k, v in self.settings.__dict__.items()},
-            "global_stage": dict(self.global_stage),
-            "converged": self.converged,
-            "priors": {n: {"mean": m, "sd": sd} for n, (m, sd) in self.priors.items()},
-            "holdout_fits": fits(self.holdout_fits),
-            "warnings": list(self.warnings),
-        }
-
-    def fit_report(self) -> str:
-        """lmfit-style text report."""
-        lines = ["[[Fit Statistics]]",
-                 f"    # method           = {self.method} (effects: {', '.join(self.effects) or 'functional'})",
-                 f"    # runs             = {', '.join(self.runs)}",
-                 f"    # solver           = scipy least_squares trf: {self.status}",
-                 *(["    # NOT CONVERGED: the estimates are the best point found before the limit"]
-                   if not self.converged else []),
-                 *([f"    # priors           = " + ", ".join(f"{n} ~ N({m:.4g}, {sd:.3g})"
-                                                               for n, (m, sd) in self.priors.items())]
-                   if self.priors else []),
-                 f"    # function evals   = {self.nfev} (jacobians {self.njev}), {self.time_s:.1f} s",
-                 f"    # data points      = {self.n_data}",
-                 f"    # variables        = {self.n_free} parameters + {self.n_varys - self.n_free} segment states",
-                 f"    chi-square         = {self.chisqr:.6g}",
-                 f"    reduced chi-square = {self.redchi:.6g}",
-                 f"    Akaike info crit   = {self.aic:.6g}",
-                 f"    Bayesian info crit = {self.bic:.6g}"]
-        if self.global_stage:
-            lines.append(f"    global stage       = differential evolution, {self.global_stage.get('nfev')} evals, "
-                         f"cost {self.global_stage.get('fun', float('nan')):.4g}")
-        lines.append("[[Variables]]")
-        for n, e in self.estimates.items():
-            # a relative error means nothing for a value at (or next to) zero
-            pct = f"({100 * e.relative_stderr:.2f}%)" if math.isfinite(e.relative_stderr) and e.relative_stderr < 1e3 else ""
-            err = f"+/- {e.stderr:.4g} {pct}" if math.isfinite(e.stderr) else "+/- undetermined"
-            flags = []
-            if e.at_bound:
-                flags.append(f"AT {e.at_bound.upper()} BOUND")
-            if e.at_initial:
-                flags.append("AT INITIAL VALUE")
-            if n in self.not_identifiable:
-                flags.append("NOT IDENTIFIABLE")
-            partners = [b if a == n else a for a, b, _ in self.high_correlations if n in (a, b)]
-            if partners:
-                flags.append(f"CORRELATED WITH {', '.join(partners)}")
-            lines.append(f"    {n}: {e.value:.6g} {err} [{e.unit}] (init = {e.init:.6g})"
-                         + (f"  <- {', '.join(flags)}" if flags else ""))
-        lines.append(f"[[Correlations]] (|rho| > {self.settings.correlation_threshold:g}: flagged, the pair moves together; "
-                     "the standard errors count it)")
-        names = self.names
-        pairs = [(names[i], names[j], self.correlation[i, j]) for i in range(len(names)) for j in range(i + 1, len(names))]
-        pairs = sorted((p for p in pairs if np.isfinite(p[2]) and abs(p[2]) > 0.1), key=lambda p: -abs(p[2]))
-        for a, b, r in pairs:
-            mark = "  <- FLAGGED" if abs(r) > self.settings.correlation_threshold else ""
-            lines.append(f"    C({a}, {b}) = {r:+.4f}{mark}")
-        if not pairs:
-            lines.append("    (none above 0.1)")
-        lines.append("[[Channels]] (segment predictions: before -> after; display units)")
-        from ..data.units import SIGNAL_QUANTITY, signal_display
-
-        for run, chans in self.channel_fits.items():
-            for c, f in chans.items():
-                f0 = self.initial_channel_fits[run][c]
-                du = signal_display(c)
-                k, unit = (du.factor, du.unit) if c in SIGNAL_QUANTITY and f.unit == du.si else (1.0, f.unit)
-                lines.append(f"    {run} {c}: RMS {f0.rms * k:.4g} -> {f.rms * k:.4g} [{unit}], NRMSE {f0.nrmse:.4g} -> "
-                             f"{f.nrmse:.4g}, fit {f0.fit_percent:.2f} -> {f.fit_percent:.2f} %")
-        return "\n".join(lines)
-
-    def report(self) -> str:
-        """lmfit-style text report (:meth:`fit_report`)."""
-        return self.fit_report()
-
-    def plot(self, ax=None, run: str | None = None):
-        """Segment predictions of ``run`` (default the first), initial and identified; ``ax``: one Axes per channel."""
-        from ..report.identification import plot_segments
-
-        name = run if run is not None else next(iter(self.predictions))
-        return plot_segments(self.predictions[name], title=f"{name}: segment predictions", axes=ax)
-
-
-def estimate_noise(y: np.ndarray) -> float:
-    """Noise RMS of a sampled signal from its second differences (robust, MAD based).
-
-    For white noise of RMS ``s`` on a smooth signal, ``diff(y, 2)`` has RMS
-    ``s sqrt(6)``.  Returns a floor of ``1e-9 * max|y|`` (and 1e-12) for
-    noise-free data.
-
-    Examples
-    --------
-    >>> rng = np.random.default_rng(0)
-    >>> t = np.linspace(0, 1, 5001)
-    >>> round(estimate_noise(np.sin(2 * np.pi * t) + 0.01 * rng.standard_normal(t.size)), 3)
-    0.01
-    """
-    y = np.asarray(y, float)
-    d = np.diff(y[np.isfinite(y)], 2)
-    if d.size < 3:
-        return 1.0
-    mad = 1.4826 * float(np.median(np.abs(d - np.median(d))))
-    floor = max(1e-9 * float(np.max(np.abs(y[np.isfinite(y)]))), 1e-12)
-    return max(mad / math.sqrt(6.0), floor)
-
-
-# ----------------------------------------------------------------------------- problem per run
-class RunProblem:
-    """Residuals and Jacobian of one run: casadi map over segments of the current-driven map."""
-
-    def __init__(self, run: RigRun, plant: Plant, mech: ca.Function, params: ParameterSet, free: Sequence[str],
-                 settings: IdentificationSettings):
-        self.run = run
-        self.plant = plant
-        t = np.asarray(run.time, float)
-        self.time = t
-        n = t.size
-        channels = settings.channels or MECH_CHANNELS
-        self.channels = tuple(c for c in channels if c in run.source_columns)
-        if not self.channels:
-            raise RigDataError(str(run.csv_path), [(None, None, f"no fitted channel measured; need one of {channels}")])
-        dt = float(np.median(np.diff(t)))
-        L = max(2, int(round(settings.segment_duration / dt)))
-        M = int(math.ceil(n / L))
-        self.L, self.M = L, M
-        npad = L * M - n
-        V = mech_inputs(run)
-        H = sample_periods(run)
-        V = np.hstack([V, np.repeat(V[:, -1:], npad, axis=1)])
-        H = np.r_[H, np.repeat(H[-1], npad)]
-        # measured data and noise weights
-        Ymeas = np.vstack([np.asarray(run.signals[c], float) for c in self.channels])
-        Ymeas = np.hstack([Ymeas, np.full((len(self.channels), npad), np.nan)])
-        self.Ymeas = Ymeas
-        noise = dict(settings.noise or {})
-        self.sigma0 = np.array([float(noise[c]) if c in noise else estimate_noise(run.signals[c])
-                                for c in self.channels])
-        self.mask = np.isfinite(Ymeas)
-        k_hold = settings.holdout_every
-        seg_of = np.arange(L * M) // L
-        self.holdout_samples = (seg_of % k_hold == k_hold - 1) if k_hold and M >= k_hold else np.zeros(L * M, bool)
-        # channel-major residual rows: weight 0 on held-out samples in the parameter fit
-        self.train_weight = np.tile((~self.holdout_samples).astype(float), len(self.channels))
-        # states: which are free per segment, initial guesses
-        states = plant.states
-        self.free_states = [i for i, s in enumerate(states) if s.kind in _FREE_STATE_KINDS
-                            and not (s.name == "nut_position" and "nut_position" not in run.source_columns)]
-        self.x_guess = self._initial_states(params, L, M)
-        self._track_custom_states(mech, params, V, H, L, M)
-        # casadi: one segment = mapaccum of the map; all segments = map
-        n_p = len(plant.parameters)
-        y_idx = [plant.index("output", COMPARED_OUTPUT[c]) for c in self.channels]
-        x = ca.SX.sym("x", len(states))
-        v = ca.SX.sym("v", V.shape[0])
-        p = ca.SX.sym("p", n_p)
-        h = ca.SX.sym("h")
-        xn, y = mech(x, v, p, h)
-        step = ca.Function("step_sel", [x, v, p, h], [xn, y[y_idx]])
-        seg = step.mapaccum("segment", L)
-        xs0 = ca.MX.sym("x0", len(states))
-        Vs = ca.MX.sym("V", V.shape[0], L)
-        ps = ca.MX.sym("p", n_p)
-        Hs = ca.MX.sym("H", 1, L)
-        _, Yseg = seg(xs0, Vs, ps, Hs)
-        segY = ca.Function("segY", [xs0, Vs, ps, Hs], [Yseg])
-        allY = segY.map("segments", "serial", M, [2], [])
-        self.V, self.H = V, H
-        self.n_p = n_p
-        # decision variables: free parameters (scaled deltas) and free segment states
-        self.free_idx = [plant.parameters.index(nm) for nm in free]
-        d_theta = ca.MX.sym("dtheta", len(free))
-        S = ca.MX.sym("S", len(self.free_states), M)
-        self.p0 = plant.p_vector(params)
-        self.scale = None  # set by the Identifier
-        P = ca.MX.sym("pbase", n_p)
-        scale = ca.MX.sym("scale", len(free))
-        pv = P
-        for k, j in enumerate(self.free_idx):
-            pv = pv + ca.DM.eye(n_p)[:, j] * (d_theta[k] * scale[k])
-        X0 = ca.MX(ca.DM(self.x_guess))
-        rows = []
-        k_free = 0
-        pawl = {"pawl_clearance_comp", "pawl_clearance_tens"}
-        for i in range(len(states)):
-            if i in self.free_states:
-                rows.append(S[k_free, :])
-                k_free += 1
-            elif states[i].name in pawl and M > 0:
-                # the run starts with the ratchets where they stopped: the clearance of the first segment is a
-                # parameter (noback.pawl_initial_clearance, a fraction of the pitch); later segments take it
-                # from the model's map driven by the measured speed at the initial parameters (no gradient:
-                # a pitch is profiled, thsa_control.fit.profile, each value with its own segment clearances)
-                ip, ic = plant.parameters.index("noback.pawl_pitch"), plant.parameters.index("noback.pawl_initial_clearance")
-                first = pv[ic] * pv[ip]
-                rows.append(ca.horzcat(first, X0[i, 1:]) if M > 1 else first)
-            else:
-                rows.append(X0[i, :])
-        X0full = ca.vertcat(*rows)
-        Y = allY(X0full, ca.DM(V), pv, ca.DM(H).T)  # (ny, L*M)
-        W = ca.DM(np.where(self.mask, 1.0, 0.0))
-        Ymeas0 = ca.DM(np.nan_to_num(Ymeas))
-        sig = ca.MX.sym("sigma", len(self.channels))
-        r = (Ymeas0 - Y) * W / ca.repmat(sig, 1, L * M)
-        r = ca.vec(r.T)  # channel-major: all samples of channel 0, then 1 ...
-        dec = ca.vertcat(d_theta, ca.vec(S))
-        self.n_dec_states = len(self.free_states) * M
-        self.f_res = ca.Function("res", [dec, P, scale, sig], [r])
-        self.f_jac = ca.Function("res_jac", [dec, P, scale, sig], [r, ca.jacobian(r, dec)])
-        self.f_pred = ca.Function("pred", [dec, P, scale], [Y])
-        # every state (at each sample's start) and every output of the same segment predictions, for the
-        # segmented open-loop residual (thsa_control.fit.segmented); not differentiated
-        step_all = ca.Function("step_all", [x, v, p, h], [xn, y])
-        Xs, Ys = step_all.mapaccum("segment_all", L)(xs0, Vs, ps, Hs)
-        seg_all = ca.Function("seg_all", [xs0, Vs, ps, Hs], [ca.horzcat(xs0, Xs[:, :L - 1]), Ys])
-        Xall, Yall = seg_all.map("segments_all", "serial", M, [2], [])(X0full, ca.DM(V), pv, ca.DM(H).T)
-        self.f_pred_all = ca.Function("pred_all", [dec, P, scale], [Xall, Yall])
-
-    def _initial_states(self, params: ParameterSet, L: int, M: int) -> np.ndarray:
-        """Segment initial states: measured where measured, else from a closed-loop replay or rest."""
-        run, plant = self.run, self.plant
-        starts = np.arange(M) * L
-        n = self.time.size
-        cl = None
-        if run.controller is not None:
-            try:
-                cl = replay_closed_loop(run, plant, params, design=run_design(run))
-            except ThsaError:
-                cl = None
-        X = np.zeros((len(plant.states), M))
-        for m, k in enumerate(starts):
-            k = min(k, n - 1)
-            f0 = float(run.signals["load_force"][k])
-            nut = self._measured_at("nut_position", k)
-            x_rest = plant.initial_state(params, load_force=f0, nut_position=nut if nut is not None else 0.0)
-            for i, s in enumerate(plant.states):
-                if cl is not None and s.name in cl.simulated:
-                    X[i, m] = cl.simulated[s.name][k]
-                else:
-                    X[i, m] = x_rest[i]
-            w = motor_speed_from(lambda c: self._measured_at(c, k), run.gear_ratio)
-            if w is not None:
-                X[plant.index("state", "motor_speed"), m] = w
-            if nut is not None:  # the LVDT reads the surface; the nut sits the load-path deflection ahead
-                i_nut = plant.index("state", "nut_position")
-                if "surface_position" in plant.state_names:
-                    i_srf = plant.index("state", "surface_position")
-                    deflection = X[i_nut, m] - X[i_srf, m]
-                    X[i_srf, m] = nut
-                    X[i_nut, m] = nut + deflection
-                else:
-                    X[i_nut, m] = nut
-        # a compliant drive train: rotors from the motor sensor, gear output from the screw sensor, twist quasi-static
-        drivetrain_segment_guess(plant, params, run, starts, X, self._measured_at)
-        return X
-
-    def _track_custom_states(self, mech: ca.Function, params: ParameterSet, V: np.ndarray, H: np.ndarray, L: int,
-                             M: int) -> None:
-        """Custom states (pawl clearances) at the segment starts from the model's own map driven by the
-        measured speeds at ``params`` (:func:`~thsa_control.fit.segment_states.custom_state_track`), so that
-        they are consistent with the parameters being fitted; unchanged when the run measures no speed."""
-        from .segment_states import custom_state_indices, custom_state_track, measured_state_matrix
-
-        run, plant = self.run, self.plant
-        idx = custom_state_indices(plant)
-        Xm = measured_state_matrix(run, plant, params) if idx else None
-        if Xm is None:
-            return
-        n = self.time.size
-        Xm[idx, 0] = self.x_guess[idx, 0]
-        track = custom_state_track(plant, mech, Xm, V[:, :n], H[:n], plant.p_vector(params))
-        starts = np.minimum(np.arange(M) * L, n - 1)
-        self.x_guess[idx, :] = track[:, starts]
-
-    def _measured_at(self, name: str, k: int) -> float | None:
-        if name not in self.run.source_columns:
-            return None
-        y = np.asarray(self.run.signals[name], float)
-        window = y[max(0, k - 2):k + 3]
-        window = window[np.isfinite(window)]
-        return float(np.median(window)) if window.size else None
-
-    def initial_decision(self) -> np.ndarray:
-        return self.x_guess[self.free_states, :].ravel(order="F")
-
-
-def _collinearity_safe_inverse(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pseudo-inverse of a symmetric PSD matrix and a mask of columns it cannot resolve."""
-    d = np.sqrt(np.clip(np.diag(A), 1e-300, None))
-    As = A / np.outer(d, d)
-    w, V = np.linalg.eigh(As)
-    tol = max(w.max(), 1e-300) * A.shape[0] * 1e-12
-    inv_w = np.where(w > tol, 1.0 / np.where(w > tol, w, 1.0), 0.0)
-    cov_s = (V * inv_w) @ V.T
-    unresolved = np.zeros(A.shape[0], bool)
-    for k in np.flatnonzero(w <= tol):
-        unresolved |= np.abs(V[:, k]) > 1e-3
-    return cov_s / np.outer(d, d), unresolved
-
-
 class Identifier:
     """Fit free parameters of a model to rig runs (multi-experiment).
 
@@ -737,7 +226,7 @@ class Identifier:
         xs, us, ps, hs = (ca.SX.sym(k, plant.step.size1_in(i)) for i, k in enumerate(("x", "u", "p", "h")))
         used = ca.which_depends(ca.vertcat(*plant.step(xs, us, ps, hs)), ps, 1, False)
         # initial values of the states the segments do not free (pawl clearances) act through init
-        custom = [i for i, s in enumerate(plant.states) if s.kind not in _FREE_STATE_KINDS and s.kind != "lag"]
+        custom = [i for i, s in enumerate(plant.states) if s.kind not in FREE_STATE_KINDS and s.kind != "lag"]
         if custom:
             x0 = plant.init(ca.SX.sym("n"), ca.SX.sym("f"), ps)
             used_init = ca.which_depends(ca.vertcat(*[x0[i] for i in custom]), ps, 1, False)
@@ -1028,7 +517,7 @@ class Identifier:
         sigmas = new_sig  # the covariance uses the residual RMS of each channel (lmfit: scale_covar)
         J = jacobian(z)
         JTJ = J.T @ J
-        cov_all, unresolved = _collinearity_safe_inverse(JTJ.toarray() if hasattr(JTJ, "toarray") else JTJ)
+        cov_all, unresolved = collinearity_safe_inverse(JTJ.toarray() if hasattr(JTJ, "toarray") else JTJ)
         cov_d = cov_all[:nf, :nf] * (n_data / dof)
         cov = cov_d * np.outer(scale, scale)
         sd = np.sqrt(np.clip(np.diag(cov), 0, None))

@@ -7,6 +7,13 @@ channel, and :func:`format_residual_report` prints them lmfit-style.  It
 imports numpy, scipy and :mod:`thsa_control.errors` only; never matplotlib
 (``thsa_control.report`` draws these results).
 
+This module owns the settings, the per-channel and whole-run result types,
+:func:`analyse_residuals` and the text report; the time-series statistics
+(whiteness, input cross-correlation, spectrum) live in
+:mod:`thsa_control.fit.residual_spectral`, the conditioning on operating
+regimes (quadrant, reversal proximity, binned residual) in
+:mod:`thsa_control.fit.residual_regimes` (all re-exported here).
+
 What is computed, per channel (keys common to ``measured`` and ``simulated``)
 -----------------------------------------------------------------------------
 * the residual ``e = measured - simulated`` (MATLAB ``resid`` sign), RMS,
@@ -69,10 +76,17 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
-from scipy import linalg, signal, stats
+from scipy import stats
 
 from thsa_control.errors import SignalError  # noqa: F401 (re-exported)
+
+from .residual_regimes import (
+    QUADRANT_LABELS, ConditionedResidual, ResidualBin, condition_residual, quadrant, reversal_proximity, wrapped_angle,
+)
+from .residual_spectral import (
+    CrossCorrelation, ResidualSpectrum, SpectralPeak, Whiteness, autocorrelation_test, cross_correlation_test,
+    residual_spectrum,
+)
 
 __all__ = [
     "SignalError",
@@ -92,11 +106,6 @@ __all__ = [
     "analyse_residuals",
     "format_residual_report",
 ]
-
-Float1D = NDArray[np.float64]
-
-#: Labels of :func:`quadrant` categories (FORMAT.md signs).
-QUADRANT_LABELS: dict[int, str] = {1: "opposing", -1: "aiding", 0: "unloaded/stopped"}
 
 
 # ------------------------------------------------------------------ settings
@@ -167,190 +176,14 @@ class ResidualSettings:
 
 
 # ------------------------------------------------------------------ results
-@dataclass(frozen=True, eq=False)
-class Whiteness:
-    """Autocorrelation of a residual and its whiteness test.
-
-    Parameters
-    ----------
-    lags : ndarray of int
-        ``0..max_lag`` [samples].
-    acf : ndarray
-        Normalised autocorrelation (``acf[0] = 1``).
-    band : float
-        Half width of the confidence band ``z / sqrt(N)``.
-    fraction_outside : float
-        Share of lags ``1..max_lag`` outside the band.
-    ljung_box_q : float
-        Ljung-Box statistic.
-    ljung_box_dof : int
-        Its degrees of freedom (``max_lag``).
-    ljung_box_p : float
-        Its p-value.
-    white : bool
-        ``ljung_box_p >= 1 - confidence``.
-    """
-
-    lags: np.ndarray
-    acf: np.ndarray
-    band: float
-    fraction_outside: float
-    ljung_box_q: float
-    ljung_box_dof: int
-    ljung_box_p: float
-    white: bool
 
 
-@dataclass(frozen=True, eq=False)
-class CrossCorrelation:
-    """Cross-correlation of a residual with one input and the leak test.
-
-    Parameters
-    ----------
-    input : str
-        Input name.
-    lags : ndarray of int
-        ``-max_lag..max_lag`` [samples]; ``k > 0``: the input leads.
-    ccf : ndarray
-        ``corr(e_t, u_{t-k})``.
-    band : float
-        ``z / sqrt(N)``.
-    fraction_outside : float
-        Share of lags outside the band.
-    max_abs : float
-        Largest ``|ccf|``.
-    lag_at_max : int
-        Its lag [samples].
-    statistic : float
-        ``N R^2`` of the prewhitened lag regression.
-    dof : int
-        Its degrees of freedom (independent lag columns).
-    p_value : float
-    prewhiten_order : int
-        AR order of the prewhitening filter used.
-    correlated : bool
-        ``p_value < 1 - confidence``: the input leaks into the residual.
-    """
-
-    input: str
-    lags: np.ndarray
-    ccf: np.ndarray
-    band: float
-    fraction_outside: float
-    max_abs: float
-    lag_at_max: int
-    statistic: float
-    dof: int
-    p_value: float
-    prewhiten_order: int
-    correlated: bool
 
 
-@dataclass(frozen=True)
-class ResidualBin:
-    """The residual in one bin of a conditioning signal.
-
-    Parameters
-    ----------
-    label : str
-        Category label or ``[lo, hi]`` interval.
-    low, high : float
-        Interval of a quantile bin; the category value twice for a category
-        (NaN for string categories).
-    count : int
-        Valid samples in the bin.
-    mean, rms : float
-        Residual mean and RMS in the bin [channel unit].
-    mean_p : float
-        p-value of the t-test of the bin mean against the overall mean.
-    mean_significant : bool
-        ``mean_p`` below the Bonferroni-corrected level.
-    excess_ratio : float
-        Bin mean square about the overall mean / that of the other samples [-].
-    excess_p : float
-        One-sided F-test p-value of that ratio being > 1.
-    significant : bool
-        ``excess_p`` below the Bonferroni-corrected level: the model fails here.
-    """
-
-    label: str
-    low: float
-    high: float
-    count: int
-    mean: float
-    rms: float
-    mean_p: float
-    mean_significant: bool
-    excess_ratio: float
-    excess_p: float
-    significant: bool
 
 
-@dataclass(frozen=True)
-class ConditionedResidual:
-    """The residual binned on one operating variable.
-
-    Parameters
-    ----------
-    signal : str
-        Conditioning signal name.
-    binning : str
-        ``"categorical"`` or ``"quantile"``.
-    bins : tuple of ResidualBin
-    eta_squared : float
-        Share of the residual variance explained by the bin means [-].
-    lag1_correlation : float
-        ``rho`` used for the effective sample size.
-    """
-
-    signal: str
-    binning: str
-    bins: tuple[ResidualBin, ...]
-    eta_squared: float
-    lag1_correlation: float
-
-    @property
-    def significant_bins(self) -> tuple[str, ...]:
-        """Labels of the bins where the residual is significantly larger."""
-        return tuple(b.label for b in self.bins if b.significant)
-
-    def bin(self, label: str) -> ResidualBin:
-        """The bin with this label (KeyError otherwise)."""
-        for b in self.bins:
-            if b.label == label:
-                return b
-        raise KeyError(f"no bin {label!r} for '{self.signal}'; bins: {[b.label for b in self.bins]}")
 
 
-@dataclass(frozen=True)
-class SpectralPeak:
-    """A dominant spectral peak: ``frequency`` [Hz], ``psd`` [unit^2/Hz], ``ratio`` to the median PSD [-]."""
-
-    frequency: float
-    psd: float
-    ratio: float
-
-
-@dataclass(frozen=True, eq=False)
-class ResidualSpectrum:
-    """Welch power spectral density of the residual.
-
-    Parameters
-    ----------
-    frequency : ndarray
-        [Hz].
-    psd : ndarray
-        One-sided PSD [unit^2/Hz].
-    peaks : tuple of SpectralPeak
-        Dominant peaks, largest first.
-    resolution : float
-        Frequency step [Hz].
-    """
-
-    frequency: np.ndarray
-    psd: np.ndarray
-    peaks: tuple[SpectralPeak, ...]
-    resolution: float
 
 
 @dataclass(frozen=True, eq=False)
@@ -482,77 +315,6 @@ def _finite_or_none(x):
     return x
 
 
-# ------------------------------------------------------------------ helpers
-def quadrant(speed, load, deadband: float | tuple[float, float] = 0.0) -> np.ndarray:
-    """Load quadrant of each sample with the FORMAT.md signs.
-
-    Parameters
-    ----------
-    speed : array_like
-        Speed, positive when the actuator extends [any speed unit].
-    load : array_like
-        Load force, positive compressive [N].
-    deadband : float or (float, float)
-        ``(speed_deadband, load_deadband)`` in the units of each signal; a
-        single number applies to both.  ``|speed| <= speed_deadband`` or
-        ``|load| <= load_deadband`` is category 0.
-
-    Returns
-    -------
-    ndarray of int
-        +1 where the load opposes the motion (``load * speed > 0``), -1 where
-        it aids it, 0 unloaded or stopped (labels in :data:`QUADRANT_LABELS`).
-
-    Examples
-    --------
-    >>> quadrant([1.0, 1.0, -1.0, 0.0], [5e3, -5e3, 5e3, 5e3], (0.1, 100.0))
-    array([ 1, -1, -1,  0])
-    """
-    v, f = np.asarray(speed, dtype=float), np.asarray(load, dtype=float)
-    if v.shape != f.shape:
-        raise SignalError("load", f"shape {f.shape} differs from the speed's {v.shape}")
-    dv, df = (deadband, deadband) if np.isscalar(deadband) else tuple(deadband)
-    if dv < 0 or df < 0:
-        raise ValueError(f"deadband must be >= 0, got {deadband!r}")
-    q = np.sign(v) * np.sign(f)
-    q[(np.abs(v) <= dv) | (np.abs(f) <= df)] = 0
-    return q.astype(int)
-
-
-def reversal_proximity(time, speed, *, deadband: float = 0.0) -> Float1D:
-    """Time to the nearest direction reversal of ``speed`` [s] (inf if none).
-
-    A reversal is where the sign of ``speed`` (values within ``deadband`` are
-    ignored) changes between two moving samples; its time is midway.
-
-    Examples
-    --------
-    >>> reversal_proximity([0.0, 1.0, 2.0, 3.0], [1.0, 1.0, -1.0, -1.0]).tolist()
-    [1.5, 0.5, 0.5, 1.5]
-    """
-    t, v = np.asarray(time, dtype=float), np.asarray(speed, dtype=float)
-    moving = np.flatnonzero(np.abs(v) > deadband)
-    s = np.sign(v[moving])
-    flips = np.flatnonzero(s[1:] != s[:-1])
-    if flips.size == 0:
-        return np.full(t.shape, np.inf)
-    tr = 0.5 * (t[moving[flips]] + t[moving[flips + 1]])
-    j = np.searchsorted(tr, t)
-    before = np.abs(t - tr[np.clip(j - 1, 0, tr.size - 1)])
-    after = np.abs(tr[np.clip(j, 0, tr.size - 1)] - t)
-    return np.minimum(before, after)
-
-
-def wrapped_angle(time, speed, *, periods_per_revolution: float = 1.0) -> Float1D:
-    """Angle wrapped to [0, 2 pi) from the trapezoidal integral of ``speed`` [rad/s].
-
-    With ``periods_per_revolution`` = pole pairs it is the electrical angle
-    (torque ripple, cogging show as a dependence on it).
-    """
-    t, w = np.asarray(time, dtype=float), np.asarray(speed, dtype=float)
-    ang = np.concatenate([[0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t))])
-    return np.mod(periods_per_revolution * ang, 2.0 * np.pi)
-
 
 def _array(name: str, x, n: int | None, numeric: bool = True) -> np.ndarray:
     a = np.asarray(x)
@@ -567,177 +329,11 @@ def _array(name: str, x, n: int | None, numeric: bool = True) -> np.ndarray:
     return a
 
 
-def _xcorr0(a: np.ndarray, b: np.ndarray, k: int) -> float:
-    """sum_t a_t b_{t-k} (zero outside)."""
-    if k >= 0:
-        return float(a[k:] @ b[:a.size - k]) if k < a.size else 0.0
-    return float(a[:k] @ b[-k:]) if -k < a.size else 0.0
 
 
-def _ar_prewhiten(e: np.ndarray, max_order: int) -> tuple[np.ndarray, int]:
-    """AR coefficients ``a`` (``e_t - sum a_i e_{t-i}``) by Yule-Walker, order by AIC."""
-    n = e.size
-    if max_order == 0 or n < 4 * max_order:
-        return np.zeros(0), 0
-    r = np.array([_xcorr0(e, e, k) for k in range(max_order + 1)]) / n
-    if r[0] <= 0:
-        return np.zeros(0), 0
-    best, best_aic, best_a = 0, n * math.log(r[0]), np.zeros(0)
-    for p in range(1, max_order + 1):
-        try:
-            a = linalg.solve_toeplitz(r[:p], r[1:p + 1])
-        except (linalg.LinAlgError, ValueError):
-            break
-        s2 = r[0] - a @ r[1:p + 1]
-        if s2 <= 0:
-            break
-        aic = n * math.log(s2) + 2 * p
-        if aic < best_aic:
-            best, best_aic, best_a = p, aic, a
-    return best_a, best
 
 
-def _whiteness(e: np.ndarray, n: int, lag: int, z: float, alpha: float) -> Whiteness:
-    c0 = float(e @ e)
-    acf = np.array([_xcorr0(e, e, k) for k in range(lag + 1)]) / c0 if c0 > 0 else np.zeros(lag + 1)
-    if c0 > 0:
-        acf[0] = 1.0
-    band = z / math.sqrt(n)
-    ks = np.arange(1, lag + 1)
-    q = float(n * (n + 2) * np.sum(acf[1:] ** 2 / (n - ks)))
-    p = float(stats.chi2.sf(q, lag))
-    return Whiteness(np.arange(lag + 1), acf, band, float(np.mean(np.abs(acf[1:]) > band)), q, lag, p,
-                     bool(p >= alpha))
 
-
-def _cross(name: str, e: np.ndarray, u: np.ndarray, n: int, lag: int, z: float, alpha: float,
-           max_order: int) -> CrossCorrelation:
-    lags = np.arange(-lag, lag + 1)
-    den = math.sqrt(float(e @ e) * float(u @ u))
-    ccf = np.array([_xcorr0(e, u, k) for k in lags]) / den if den > 0 else np.zeros(lags.size)
-    band = z / math.sqrt(n)
-    i = int(np.argmax(np.abs(ccf)))
-    # joint test: prewhitened residual regressed on the lagged (same-filtered) input
-    a, order = _ar_prewhiten(e, max_order)
-    filt = np.concatenate([[1.0], -a])
-    ew = signal.lfilter(filt, [1.0], e)[order:]
-    uw = signal.lfilter(filt, [1.0], u)
-    m = e.size  # samples including the zero-filled missing ones; n counts the valid ones
-    X = np.zeros((m, lags.size))
-    for j, k in enumerate(lags):
-        if k >= 0:
-            X[k:, j] = uw[:m - k]
-        else:
-            X[:k, j] = uw[-k:]
-    X = X[order:]
-    stat, dof, p = 0.0, 0, 1.0
-    tss = float(ew @ ew)
-    if tss > 0 and float(u @ u) > 0:
-        # explained sum of squares b' G+ b from the normal equations (eigen-decomposed, rank-revealing)
-        lam, vec = linalg.eigh(X.T @ X)
-        keep = lam > 1e-10 * max(float(lam[-1]), 1e-300)
-        proj = vec[:, keep].T @ (X.T @ ew)
-        ess = float(np.sum(proj ** 2 / lam[keep]))
-        stat, dof = float((n - order) * min(ess / tss, 1.0)), int(keep.sum())
-        p = float(stats.chi2.sf(stat, dof)) if dof > 0 else 1.0
-    return CrossCorrelation(name, lags, ccf, band, float(np.mean(np.abs(ccf) > band)), float(abs(ccf[i])),
-                            int(lags[i]), stat, dof, p, order, bool(p < alpha))
-
-
-def _lag1(x: np.ndarray) -> float:
-    c0 = float(x @ x)
-    return float(x[1:] @ x[:-1]) / c0 if c0 > 0 and x.size > 2 else 0.0
-
-
-def _condition(name: str, values: np.ndarray, e: np.ndarray, valid: np.ndarray, s: ResidualSettings,
-               alpha: float) -> ConditionedResidual:
-    labels_map = s.category_labels.get(name, {})
-    if values.dtype.kind in "biuf":
-        x = values.astype(float)
-        finite = np.isfinite(x)
-        uniq = np.unique(x[finite & valid])
-        categorical = values.dtype.kind == "b" or uniq.size <= s.max_categories
-    else:
-        x = values.astype(str)
-        finite = np.ones(x.size, dtype=bool)
-        uniq = np.unique(x[valid])
-        categorical = True
-    use = valid & finite
-    groups: list[tuple[str, float, float, np.ndarray]] = []
-    if not np.any(use):
-        return ConditionedResidual(name, "categorical" if categorical else "quantile", (), 0.0, 0.0)
-    if categorical:
-        for u in uniq:
-            m = use & (x == u)
-            if values.dtype.kind in "biuf":
-                lab = labels_map.get(float(u), f"{float(u):g}")
-                groups.append((lab, float(u), float(u), m))
-            else:
-                groups.append((str(u), math.nan, math.nan, m))
-        binning = "categorical"
-    else:
-        edges = np.unique(np.quantile(x[use], np.linspace(0.0, 1.0, s.n_bins + 1)))
-        idx = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, max(edges.size - 2, 0))
-        for b in range(max(edges.size - 1, 1)):
-            lo, hi = float(edges[b]), float(edges[min(b + 1, edges.size - 1)])
-            groups.append((f"[{lo:.4g}, {hi:.4g}]", lo, hi, use & (idx == b)))
-        binning = "quantile"
-    ev = e[use]
-    mu = float(np.mean(ev)) if ev.size else math.nan
-    # residual about its bin means, in time order, for the effective sample size
-    about = np.zeros(e.size)
-    between = 0.0
-    for _, _, _, m in groups:
-        if np.any(m):
-            mb = float(np.mean(e[m]))
-            about[m] = e[m] - mb
-            between += m.sum() * (mb - mu) ** 2
-    total = float(np.sum((ev - mu) ** 2))
-    rho = max(0.0, min(_lag1(about[use]), 0.99))
-    shrink = (1.0 - rho) / (1.0 + rho)
-    tested = [g for g in groups if g[3].sum() >= s.min_bin_count]
-    level = alpha / max(len(tested), 1)
-    bins = []
-    dev_all = (e - mu) ** 2
-    for lab, lo, hi, m in groups:
-        cnt = int(m.sum())
-        eb = e[m]
-        mean = float(np.mean(eb)) if cnt else math.nan
-        rms = float(np.sqrt(np.mean(eb ** 2))) if cnt else math.nan
-        mean_p = excess_p = 1.0
-        ratio = math.nan
-        rest = use & ~m
-        if cnt >= s.min_bin_count and rest.sum() >= s.min_bin_count:
-            n_eff = max(2.0, cnt * shrink)
-            sd = float(np.std(eb, ddof=1))
-            if sd > 0:
-                t = (mean - mu) / (sd / math.sqrt(n_eff))
-                mean_p = float(2.0 * stats.t.sf(abs(t), n_eff - 1.0))
-            ms_b, ms_r = float(np.mean(dev_all[m])), float(np.mean(dev_all[rest]))
-            if ms_r > 0:
-                ratio = ms_b / ms_r
-                excess_p = float(stats.f.sf(ratio, n_eff, max(2.0, rest.sum() * shrink)))
-        bins.append(ResidualBin(lab, lo, hi, cnt, mean, rms, mean_p, bool(mean_p < level), ratio, excess_p,
-                                bool(excess_p < level)))
-    return ConditionedResidual(name, binning, tuple(bins), between / total if total > 0 else 0.0, rho)
-
-
-def _spectrum(t: np.ndarray, e: np.ndarray, valid: np.ndarray, dt: float, uniform: bool,
-              s: ResidualSettings) -> ResidualSpectrum:
-    x = np.where(valid, e, np.mean(e[valid]))
-    if not uniform:
-        tu = np.arange(t[0], t[-1], dt)
-        x = np.interp(tu, t, x)
-    nper = min(s.nperseg, x.size)
-    f, psd = signal.welch(x, fs=1.0 / dt, nperseg=nper, detrend="constant")
-    med = float(np.median(psd[1:])) if psd.size > 1 else 0.0
-    peaks = []
-    if med > 0 and psd.size > 2:
-        idx, _ = signal.find_peaks(np.concatenate([[-np.inf], psd[1:]]))  # the DC bin is never a peak
-        idx = [i for i in idx if psd[i] >= s.peak_ratio * med]
-        for i in sorted(idx, key=lambda i: -psd[i])[:s.n_peaks]:
-            peaks.append(SpectralPeak(float(f[i]), float(psd[i]), float(psd[i] / med)))
-    return ResidualSpectrum(f, psd, tuple(peaks), float(f[1] - f[0]) if f.size > 1 else math.nan)
 
 
 # ------------------------------------------------------------------ main
@@ -833,15 +429,15 @@ def analyse_residuals(time, measured: Mapping[str, np.ndarray], simulated: Mappi
         for k, u in ins.items():
             uv = np.isfinite(u)
             uc = np.where(uv & valid, u - (np.mean(u[uv & valid]) if np.any(uv & valid) else 0.0), 0.0)
-            cross[k] = _cross(k, ec, uc, n, lag, s.z, alpha, s.prewhiten_max_order)
+            cross[k] = cross_correlation_test(k, ec, uc, n, lag, s.z, alpha, s.prewhiten_max_order)
         channels[name] = ChannelResiduals(
             name=name, unit=units.get(name, ""), residual=e, n=n, rms=float(np.sqrt(np.mean(ev ** 2))),
             mean=float(np.mean(ev)), std=float(np.std(ev, ddof=1)), max_abs=float(abs(e[imax])),
             time_of_max=float(t[imax]), nrmse=nrmse, fit_percent=100.0 * (1.0 - nrmse),
-            whiteness=_whiteness(ec, n, lag, s.z, alpha),
+            whiteness=autocorrelation_test(ec, n, lag, s.z, alpha),
             cross=cross,
-            conditioned={k: _condition(k, v, e, valid, s, alpha) for k, v in cond.items()},
-            spectrum=_spectrum(t, e, valid, dt, uniform, s),
+            conditioned={k: condition_residual(k, v, e, valid, s, alpha) for k, v in cond.items()},
+            spectrum=residual_spectrum(t, e, valid, dt, uniform, s),
         )
     return ResidualAnalysis(channels, t, dt, uniform, lag_used, s, ignored)
 

@@ -14,7 +14,7 @@ surface at level D), the unmeasured states from a closed-loop replay under
 the run's controller or at rest.  These are the multiple-shooting segments
 of the identification, evaluated at the declared parameters with the
 segments' initial states held at their measured values
-(:class:`thsa_control.fit.identify.RunProblem`: the same map, the same
+(:class:`thsa_control.fit.shooting.RunProblem`: the same map, the same
 initial states, no second simulator).  Each channel's residual is then the
 one-segment prediction error: it is bounded by what the model misses within
 one segment and does not drift.
