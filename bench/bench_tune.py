@@ -38,7 +38,7 @@ import scipy.optimize  # noqa: E402
 import thsa_control as thsa  # noqa: E402
 from thsa_control.model import build_plant  # noqa: E402
 from thsa_control.sim.simulate import Simulator  # noqa: E402
-from thsa_control.tuning.objective import Objective, ObjectiveSettings, gains_of  # noqa: E402
+from thsa_control.tuning.objective import Objective, gains_of  # noqa: E402
 from thsa_control.tuning.optimize import TuneSettings, linear_temperatures, objective_settings_for, tune  # noqa: E402
 from thsa_control.tuning.robust import RobustConstraints  # noqa: E402
 from thsa_control.tuning.validation import VALIDATION_SUITE, get_validation_scenario  # noqa: E402

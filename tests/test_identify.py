@@ -20,7 +20,7 @@ import json
 from thsa_control.cli import main
 from thsa_control.model import build_plant
 from thsa_control.fit.replay import replay_closed_loop
-from thsa_control.errors import ParameterError, RigDataError, SolverError
+from thsa_control.errors import ParameterError, RigDataError
 from thsa_control.fit.identify import IdentificationSettings, Identifier
 from thsa_control.model.params import default_parameters, load_parameters
 from thsa_control.data.rigdata import read_run

@@ -269,7 +269,7 @@ class IdentificationResult:
                  f"    # solver           = scipy least_squares trf: {self.status}",
                  *(["    # NOT CONVERGED: the estimates are the best point found before the limit"]
                    if not self.converged else []),
-                 *([f"    # priors           = " + ", ".join(f"{n} ~ N({m:.4g}, {sd:.3g})"
+                 *(["    # priors           = " + ", ".join(f"{n} ~ N({m:.4g}, {sd:.3g})"
                                                                for n, (m, sd) in self.priors.items())]
                    if self.priors else []),
                  f"    # function evals   = {self.nfev} (jacobians {self.njev}), {self.time_s:.1f} s",
