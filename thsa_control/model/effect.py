@@ -101,9 +101,9 @@ class CandidateSpec:
     profile: Mapping[str, tuple[float, float]] = field(default_factory=dict)
     #: a constant-torque explainer: besides being a candidate it may stand for the base mismatch every real
     #: drive has (a drag, an efficiency, a fixture force), fitted in the tracer's base-correction step within
-    #: the plausible magnitude (``trace.engine.PLAUSIBLE``) named here for each free parameter
+    #: the plausible magnitude (``trace.candidates.PLAUSIBLE``) named here for each free parameter
     base_correction: bool = False
-    #: free parameter -> plausibility rule of ``trace.engine.PLAUSIBLE``: the largest magnitude a healthy rig
+    #: free parameter -> plausibility rule of ``trace.candidates.PLAUSIBLE``: the largest magnitude a healthy rig
     #: can have (a base correction is bounded by it; a found periodic torque larger than it is implausible)
     plausible: Mapping[str, str] = field(default_factory=dict)
 

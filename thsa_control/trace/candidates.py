@@ -1,0 +1,165 @@
+"""The tracer's candidates: which effects it may add, where each acts, and how large it may plausibly be.
+
+Owns the documented default uncertain parameters of each level (:data:`DEFAULT_UNCERTAIN`), the live
+view of the effect registry's candidate specs (:data:`CANDIDATES`, :func:`not_candidates`,
+:func:`candidate_specs`), the plausible magnitudes (:data:`PLAUSIBLE`) and the base correction's
+efficiency explainer (:data:`EFFICIENCY_EXPLAINER`), and the windows a candidate acts in
+(:data:`WINDOWS`, :func:`_window`).  Used by :mod:`thsa_control.trace.engine`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from ..data.rigdata import RigRun, measured_motor_speed
+from ..fit.residuals import reversal_proximity
+from ..model import EFFECTS, CandidateSpec
+from ..model.params import ParameterSet
+
+#: The documented default uncertain parameters of each level (fitted before any candidate).
+#: The efficiencies are held at the parameter file's values by default: with a
+#: constant force on the nut, free efficiencies make a direction-dependent
+#: torque that stands in for any missing friction (and, at the papers' loads,
+#: a self-locking screw for a missing no-back); free them with ``uncertain``.
+DEFAULT_UNCERTAIN: dict[str, tuple[str, ...]] = {
+    "A": ("gear.viscous_friction",),
+    "B": ("gear.viscous_friction", "noback.mu_coulomb_pos", "noback.mu_coulomb_neg"),
+}
+DEFAULT_UNCERTAIN["C"] = DEFAULT_UNCERTAIN["B"]
+DEFAULT_UNCERTAIN["D"] = DEFAULT_UNCERTAIN["B"]
+
+
+class _CandidateView(Mapping):
+    """The registered effects' tracer candidate specs by name (a live view of the registry).
+
+    Each effect declares its spec (or why it is not a candidate) with its other
+    knowledge (:class:`~thsa_control.model.Effect`); this view lists the specs.
+    """
+
+    def __getitem__(self, name: str) -> CandidateSpec:
+        spec = EFFECTS[name].candidate if name in EFFECTS else None
+        if not isinstance(spec, CandidateSpec):
+            raise KeyError(name)
+        return spec
+
+    def __iter__(self):
+        return (n for n, e in EFFECTS.items() if isinstance(e.candidate, CandidateSpec))
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
+
+
+#: Candidate spec of every registered effect that is a candidate.
+CANDIDATES: Mapping[str, CandidateSpec] = _CandidateView()
+
+
+def not_candidates() -> tuple[str, ...]:
+    """Effects that are configurations or faults, not candidates of a healthy rig's residual.
+
+    Each says why (``Effect.candidate`` is a :class:`~thsa_control.model.NotCandidate`): the fault
+    effects (a jam, a load-path failure, the end stops, the limiter's slip, the motor brakes) act
+    through an event or a threshold that gives a fit no gradient on data where they do not fire.
+    Name one in ``candidates`` to score it anyway.
+    """
+    return tuple(n for n, e in EFFECTS.items() if not isinstance(e.candidate, CandidateSpec))
+
+
+#: The base correction's efficiency explainer: not an effect but the declared ball screw's efficiencies freed
+#: within their plausible spread (the rig's screw may be a little better or worse than the file says; a
+#: load-proportional drag while driving, such as a no-back that drags, is the same torque)
+EFFICIENCY_EXPLAINER = CandidateSpec("efficiency", ("screw.efficiency_direct", "screw.efficiency_inverse"), {}, "loaded",
+                                     base_correction=True, plausible={"screw.efficiency_direct": "efficiency",
+                                                                      "screw.efficiency_inverse": "efficiency"})
+
+
+def _rule_drag(params: ParameterSet, runs) -> tuple[float, str]:
+    t = 0.03 * params.value("motor.rated_torque")
+    return t, (f"3 % of motor.rated_torque ({params.value('motor.rated_torque'):g} N m) = {t:.3g} N m at the motor shaft: "
+               "a healthy drive's no-load drag is about 2 % of rated torque (the parameter file's gear.viscous_friction "
+               "source), with half as much again for a rig's seals and bearings")
+
+
+def _rule_axial(params: ParameterSet, runs) -> tuple[float, str]:
+    fmax = max((float(np.nanmax(np.abs(np.asarray(r.signals["load_force"], float)))) for r in runs), default=0.0)
+    f = 100.0 + 0.01 * fmax
+    return f, (f"100 N + 1 % of the largest measured load ({fmax:.0f} N) = {f:.0f} N: a load cell calibrated to 1 % of "
+               "the range the rig uses plus 100 N of fixture weight and seal drag; an axial force of kilonewtons the "
+               "load cell does not see is not a rig's base but an effect")
+
+
+def _rule_periodic(params: ParameterSet, runs) -> tuple[float, str]:
+    t = 0.05 * params.value("motor.rated_torque")
+    return t, (f"5 % of motor.rated_torque = {t:.3g} N m amplitude at the motor shaft: servo-motor cogging and ball-screw "
+               "friction ripple are a few per cent of rated torque (catalogue cogging below 2 %)")
+
+
+def _rule_efficiency(params: ParameterSet, runs) -> tuple[float, str]:
+    return 0.05, ("+-0.05 around the parameter file's efficiency: the spread of catalogue ball-screw efficiencies at "
+                  "one lead and diameter")
+
+
+#: Plausible magnitudes (rule -> function(params, runs) -> (bound, where the bound comes from)).
+PLAUSIBLE: dict[str, Callable] = {"drag": _rule_drag, "axial_force": _rule_axial, "periodic": _rule_periodic,
+                                  "efficiency": _rule_efficiency}
+
+
+# ----------------------------------------------------------------------------- candidates
+def _generic_spec(name: str, params: ParameterSet) -> CandidateSpec | None:
+    """An effect without a table entry: its non-zero, finitely bounded parameters (at most 3) are free."""
+    free = [n for n in EFFECTS[name].parameters
+            if n in params and params[n].value != 0 and math.isfinite(params[n].max - params[n].min)][:3]
+    return CandidateSpec(name, tuple(free), {}, "all") if free else None
+
+
+def candidate_specs(model_effects: Iterable[str], params: ParameterSet, names: Sequence[str] | None = None
+                    ) -> list[CandidateSpec]:
+    """Candidates for a model: every library effect it does not declare (or ``names``)."""
+    have = set(model_effects)
+    excluded = not_candidates()
+    pool = names if names is not None else [e for e in EFFECTS if e not in excluded]
+    out = []
+    for n in pool:
+        if n in have:
+            continue
+        spec = CANDIDATES.get(n) or _generic_spec(n, params)
+        if spec is not None and all(p in params for p in (*spec.free, *spec.profile)):
+            out.append(spec)
+    return out
+
+
+#: The windows a candidate may act in (:attr:`CandidateSpec.window`, :func:`_window`).
+WINDOWS = ("moving", "all", "loaded", "reversal", "reversal_or_stop", "cold", "resolved_cogging")
+
+
+def _window(kind: str, run: RigRun, params: ParameterSet | None = None) -> np.ndarray:
+    s = run.signals
+    w = np.nan_to_num(measured_motor_speed(run))
+    moving = np.abs(w) > 0.05 * max(float(np.max(np.abs(w))), 1e-9)
+    load = np.asarray(s["load_force"], float)
+    if kind == "all":
+        return np.ones(w.shape, bool)
+    if kind == "moving":
+        return moving
+    if kind == "loaded":
+        return moving & (np.abs(load) > max(0.05 * float(np.max(np.abs(load))), 500.0))
+    if kind == "reversal":
+        return moving & (reversal_proximity(run.time, w, deadband=0.05 * float(np.max(np.abs(w)))) < 0.3)
+    if kind == "reversal_or_stop":  # 0.3 s around a reversal, or after the motion stops (moving -> still)
+        t = np.asarray(run.time, float)
+        near = reversal_proximity(t, w, deadband=0.05 * float(np.max(np.abs(w)))) < 0.3
+        for ts in t[1:][moving[:-1] & ~moving[1:]]:
+            near |= (t >= ts) & (t < ts + 0.3)
+        return near
+    if kind == "resolved_cogging":  # moving slowly enough that the cogging's period spans 4 samples or more
+        t = np.asarray(run.time, float)
+        fs = 1.0 / float(np.median(np.diff(t))) if t.size > 1 else 0.0
+        n = params.value("drive.cogging_periods") if params is not None and "drive.cogging_periods" in params else 6.0
+        return moving & (n * np.abs(w) / (2 * math.pi) < fs / 4)
+    if kind == "cold":
+        temp = np.asarray(s["temperature"], float)
+        return np.abs(temp - 25.0) > 5.0
+    raise ValueError(f"unknown window {kind!r}")
+

@@ -1,0 +1,181 @@
+"""What a fit leaves: the remaining residual's signature and its errors by regime (numerics only).
+
+Owns the assembly of a fit's residual signature (the missing torque at the motor shaft tested against
+the operating variables, the sensors' consistency, :func:`_signature`, with the data of the report's
+signature plots, :func:`_signature_curves`) and the per-regime channel errors (:func:`_regime_errors`).
+The statistical tests themselves are :mod:`thsa_control.trace.signature`'s.  Used by
+:mod:`thsa_control.trace.engine`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+
+import numpy as np
+
+from ..data.rigdata import RigRun, measured_motor_speed, motor_speed_from
+from ..fit.residuals import quadrant, reversal_proximity
+from ..model.laws import kinematic_ratio
+from ..model.params import ParameterSet
+from .scoring import _rms_by_channel
+from .signature import (SignatureSettings, binned_mean, cross_correlation, current_offset_test, missing_torque,
+                        position_local_test, sensor_consistency, signature_tests)
+
+
+# ----------------------------------------------------------------------------- signature
+def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s: SignatureSettings,
+               noise: Mapping[str, float] | None = None) -> dict:
+    inertia = plant.inertia(params)[1]  # the signature's missing torque at the motor shaft (what the current drives)
+    torque: list = []
+    vars_: dict = {}
+    local_in: dict[str, list] = {"e": [], "x": [], "d": []}
+    for run in runs:
+        pr = fit["predictions"][run.name]
+        n = len(run.time)
+        meas, sim = pr["measured"], pr["simulated"]
+        # the speed error at the motor shaft, by the rule of a run's motor speed
+        e = motor_speed_from(lambda c: (np.asarray(meas[c]) - np.asarray(sim[c]))[:n] if c in meas else None,
+                             run.gear_ratio)
+        if e is None:
+            continue
+        t = np.asarray(run.time, float)
+        starts = np.searchsorted(t, pr["segment_starts"])
+        torque.append(missing_torque(t, e, starts, inertia, s.window))
+        w = np.nan_to_num(measured_motor_speed(run))
+        dt = np.r_[np.diff(t), 0.0]
+        angle = np.r_[0.0, np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t))]
+        load = np.asarray(run.signals["load_force"], float)
+        dv = 0.05 * max(float(np.max(np.abs(w))), 1e-9)
+        on = (np.asarray(run.signals["primary_enable"]) > 0.5) | (np.asarray(run.signals["standby_enable"]) > 0.5)
+        if run.motor_disabled_when_cmd_zero:
+            on &= np.asarray(run.signals["speed_cmd"]) != 0
+        cols = {
+            "quadrant": ("category", quadrant(w, load, (dv, max(0.02 * float(np.max(np.abs(load))), 1.0)))),
+            "motor_on": ("category", on.astype(float)),
+            "temperature": ("quantile", np.asarray(run.signals["temperature"], float)),
+            "time_since_reversal": ("quantile", np.minimum(reversal_proximity(t, w, deadband=dv), 10.0)),
+            "nut_position": ("position", np.asarray(run.signals["nut_position"], float)
+                             if "nut_position" in run.source_columns else np.full(n, np.nan)),
+            "motor_angle": ("angle", angle),
+            "screw_angle": ("angle", angle / run.gear_ratio),
+            "speed_sign": ("category", np.sign(np.where(np.abs(w) > dv, w, 0.0))),
+            # a slow drift (a load cell zero, a warming motor) and a torque-constant error (torque against current)
+            "time (slow drift)": ("linear", t),
+            "motor_current (torque constant)": ("linear", np.asarray(run.signals["motor_current"], float)),
+        }
+        del dt
+        for name, (kind, v) in cols.items():
+            vars_.setdefault(name, (kind, []))[1].append(np.asarray(v, float))
+        # the pass-replicated position test (runs separated by a gap that ends every pass)
+        gap = np.full(100, np.nan)
+        local_in["e"] += [torque[-1], gap]
+        local_in["x"] += [cols["nut_position"][1], gap]
+        local_in["d"] += [cols["speed_sign"][1], np.zeros(100)]
+    if not torque:
+        return {"missing_torque_rms": None, "tests": [], "sensors": []}
+    e_all = np.concatenate(torque)
+    variables = {n: (k, np.concatenate(v)) for n, (k, v) in vars_.items()}
+    tests = signature_tests(e_all, variables, unit="N m", settings=s)
+    loc = position_local_test(np.concatenate(local_in["e"]), np.concatenate(local_in["x"]),
+                              np.concatenate(local_in["d"]), bin_width=s.position_bin, alpha=s.local_alpha)
+    if loc is not None:
+        loc["unit"] = "N m"
+        tests.insert(0, loc) if loc["significant"] else tests.append(loc)
+    sensors = []
+    for run in runs:
+        for d in sensor_consistency(run.time, {c: run.signals[c] for c in ("motor_speed", "screw_speed", "nut_position")
+                                               if c in run.source_columns},
+                                    gear_ratio=run.gear_ratio, lead=run.screw_lead, alpha=s.alpha):
+            d["run"] = run.name
+            sensors.append(d)
+        on = (np.asarray(run.signals["primary_enable"]) > 0.5) | (np.asarray(run.signals["standby_enable"]) > 0.5)
+        if run.motor_disabled_when_cmd_zero:
+            on &= np.asarray(run.signals["speed_cmd"]) != 0
+        co = current_offset_test(run.signals["motor_current"], ~on, alpha=s.alpha)
+        if co is not None:
+            co["run"] = run.name
+            sensors.append(co)
+    ok = np.isfinite(e_all)
+    ratio = {c: math.sqrt(v / n) for c, (v, n) in _holdout_chi2_and_count(fit, noise or {}).items() if n > 0}
+    return {"residual": "missing torque at the motor shaft, J d(speed residual)/dt", "unit": "N m",
+            "reflected_inertia": inertia, "missing_torque_rms": float(np.sqrt(np.mean(e_all[ok] ** 2))),
+            "residual_to_noise": ratio, "max_noise_ratio": s.max_noise_ratio,
+            "tests": tests, "sensors": sensors, "curves": _signature_curves(e_all, variables, runs, s)}
+
+
+def _holdout_chi2_and_count(fit: dict, noise: Mapping[str, float]) -> dict:
+    """Per channel: the held-out noise-weighted squared error and its sample count."""
+    out: dict = {}
+    for p in fit["predictions"].values():
+        hold = np.asarray(p["holdout"], bool)
+        for c, y in p["measured"].items():
+            if c not in noise or not noise[c] > 0:
+                continue
+            e = (np.asarray(y) - np.asarray(p["simulated"][c]))[:hold.size]
+            m = hold[:e.size] & np.isfinite(e)
+            a, n = out.get(c, (0.0, 0))
+            out[c] = (a + float(np.sum((e[m] / noise[c]) ** 2)), n + int(m.sum()))
+    return out
+
+
+def _signature_curves(e: np.ndarray, variables: dict, runs, s: SignatureSettings) -> dict:
+    """Binned residual against nut position and motor / screw angle, and the redundant sensors'
+    cross-correlation: the data of the report's signature plots."""
+    out: dict = {}
+    x = variables["nut_position"][1]
+    if np.isfinite(x).sum() > 50 and np.nanmax(x) - np.nanmin(x) >= 2 * s.position_bin:
+        lo, hi = float(np.nanmin(x)), float(np.nanmax(x))
+        out["nut_position"] = binned_mean(e, x, np.arange(lo, hi + s.position_bin, s.position_bin))
+    for name in ("motor_angle", "screw_angle"):
+        out[name] = binned_mean(e, np.mod(variables[name][1], 2 * math.pi), np.linspace(0, 2 * math.pi, 37))
+    cc = {}
+    for run in runs:
+        t = np.asarray(run.time, float)
+        dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+        sig = run.signals
+        if "motor_speed" in run.source_columns and "screw_speed" in run.source_columns:
+            cc[f"{run.name}: motor_speed vs gear_ratio x screw_speed"] = cross_correlation(
+                sig["motor_speed"], run.gear_ratio * np.asarray(sig["screw_speed"], float), dt)
+        if "motor_speed" in run.source_columns and "nut_position" in run.source_columns:
+            x_ = np.asarray(sig["nut_position"], float)
+            cc[f"{run.name}: LVDT rate vs lead/(2 pi N) x motor_speed"] = cross_correlation(
+                np.r_[0.0, np.diff(x_)] / dt, kinematic_ratio({"screw.lead": run.screw_lead, "gear.ratio": run.gear_ratio})
+                * np.asarray(sig["motor_speed"], float), dt)
+    out["cross_correlation"] = cc
+    return out
+
+
+def _regime_errors(fit: dict, runs: Sequence[RigRun]) -> dict:
+    """RMS of each channel's error per regime (aiding/opposing/unloaded, motor on/off, temperature band)."""
+    by_run = {r.name: r for r in runs}
+    regimes: dict[str, Callable] = {}
+
+    def quad(r, label):
+        run = by_run[r]
+        w = np.nan_to_num(np.asarray(run.signals["speed_cmd"], float))
+        load = np.asarray(run.signals["load_force"], float)
+        q = quadrant(w, load, (0.05 * max(float(np.max(np.abs(w))), 1e-12), max(0.02 * float(np.max(np.abs(load))), 1.0)))
+        return q == label
+
+    for label, name in ((1, "opposing"), (-1, "aiding"), (0, "unloaded_or_stopped")):
+        regimes[name] = lambda r, p, label=label: quad(r, label)[:len(p["holdout"])]
+    for val, name in ((1, "motor_on"), (0, "motor_off")):
+        def on(r, p, val=val):
+            run = by_run[r]
+            m = (np.asarray(run.signals["primary_enable"]) > 0.5) | (np.asarray(run.signals["standby_enable"]) > 0.5)
+            if run.motor_disabled_when_cmd_zero:
+                m &= np.asarray(run.signals["speed_cmd"]) != 0
+            return (m if val else ~m)[:len(p["holdout"])]
+        regimes[name] = on
+    for lo, hi in ((-60, 0), (0, 40), (40, 80)):
+        regimes[f"temperature_{lo}_{hi}C"] = lambda r, p, lo=lo, hi=hi: (
+            (np.asarray(by_run[r].signals["temperature"]) >= lo) & (np.asarray(by_run[r].signals["temperature"]) < hi)
+        )[:len(p["holdout"])]
+    out = {}
+    for name, fn in regimes.items():
+        rms = _rms_by_channel(fit, fn)
+        if any(math.isfinite(v) for v in rms.values()):
+            out[name] = {c: (v if math.isfinite(v) else None) for c, v in rms.items()}
+    return out
+

@@ -1,0 +1,346 @@
+"""The tracer's fits and their honest scoring (numerics only).
+
+Owns the candidate fits run in worker processes (:func:`_fit_job`, :func:`_run_jobs`, with the
+identifiability check :func:`_undetermined`), the held-out scores of a fit (noise-weighted chi2 and RMS by
+channel, :func:`_plausibility`), the base-correction step (:func:`_base_correction`) and the null runs
+that calibrate a candidate's drop against what noise alone buys (:func:`_null_runs`).  Used by
+:mod:`thsa_control.trace.engine`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable, Mapping, Sequence
+
+import numpy as np
+
+from ..data.rigdata import RigRun
+from ..errors import ThsaError
+from ..fit.identify import Identifier
+from ..fit.profile import chi2_by_channel
+from ..fit.replay import channel_fit
+from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
+from ..model.params import ParameterSet
+from .candidates import CANDIDATES, EFFICIENCY_EXPLAINER
+from .threads import limit_blas_threads
+
+
+# ----------------------------------------------------------------------------- fits (run in workers)
+def _fit_job(job: dict) -> dict:
+    """One identification, summarised (picklable in and out)."""
+    t0 = time.perf_counter()
+    limit_blas_threads(1)
+    held: dict = {}
+    try:
+        params = ParameterSet.from_toml(job["params_toml"])
+        prof = None
+        if job.get("profile"):
+            from ..fit.profile import profile_identify
+
+            prof = profile_identify(job["runs"], params, job["free"], job["profile"], effects=job["effects"],
+                                    settings=job["settings"])
+            res = prof.result
+        else:
+            ident = Identifier(None, params, job["free"], effects=job["effects"], settings=job["settings"])
+            res = ident.fit(job["runs"])
+            held = _undetermined(res, job.get("judge") or {}, job.get("relative_stderr", 1.0))
+            if held and len(held) < len(job.get("judge") or {}):
+                # identifiability before plausibility: hold what the run does not determine at its file
+                # value and judge the candidate on what the others explain
+                keep = tuple(n for n in job["free"] if n not in held)
+                params = params.replace({n: job["hold_at"][n] for n in held})
+                settings = dataclasses.replace(job["settings"], no_prior=tuple(n for n in job["settings"].no_prior
+                                                                               if n in keep))
+                res = Identifier(None, params, keep, effects=job["effects"], settings=settings).fit(job["runs"])
+                job = {**job, "free": keep}
+                for n, h in held.items():
+                    h["held_at"] = job["hold_at"][n]
+            elif held:
+                for h in held.values():
+                    h["held_at"] = None  # nothing determined: the candidate is judged as such
+    except (ThsaError, ValueError, RuntimeError) as exc:  # casadi raises RuntimeError
+        return {"label": job["label"], "error": str(exc), "time_s": time.perf_counter() - t0}
+    est = {n: {"value": e.value, "stderr": e.stderr if math.isfinite(e.stderr) else None, "init": e.init,
+               "at_bound": e.at_bound, "min": e.min, "max": e.max, "unit": e.unit}
+           for n, e in res.estimates.items()}
+    if prof is not None:  # profiled: a value with an interval from the profile, no stderr
+        for n, (lo, hi) in job["profile"].items():
+            est[n] = {"value": prof.values[n], "stderr": None, "init": params.value(n), "at_bound": prof.at_bound[n],
+                      "min": lo, "max": hi, "unit": params[n].unit, "interval": prof.interval[n],
+                      "profiled": True, "mattered": prof.mattered[n]}
+    preds = {r: {"time": p["time"], "measured": dict(p["measured"]), "simulated": dict(p["simulated"]),
+                 "holdout": p["holdout"], "segment_starts": p["segment_starts"]} for r, p in res.predictions.items()}
+    if prof is None:
+        for n, h in held.items():
+            if h.get("held_at") is not None:
+                e = params[n]
+                est[n] = {"value": h["held_at"], "stderr": None, "init": h["held_at"], "at_bound": None, "min": e.min,
+                          "max": e.max, "unit": e.unit, "held": True, "undetermined": h}
+            elif n in est:
+                est[n]["undetermined"] = h
+    return {"label": job["label"], "effects": list(res.effects), "free": list(job["free"]), "estimates": est,
+            "held": {n: h for n, h in held.items() if h.get("held_at") is not None},
+            "aic": res.aic, "bic": res.bic, "chisqr": res.chisqr, "nfev": res.nfev, "converged": res.converged,
+            "status": res.status, "time_s": time.perf_counter() - t0, "predictions": preds,
+            "params_toml": res.to_parameter_set().to_toml(), "profile": prof.to_dict() if prof is not None else None}
+
+
+def _undetermined(res, judge: Mapping[str, float], rel: float) -> dict:
+    """Parameters of ``judge`` (name -> reference magnitude) the fit does not determine.
+
+    Not determined: an infinite standard error (a null direction of the
+    Fisher information: the run has no information on it, or only together
+    with another parameter), or one larger than ``rel`` times the parameter's
+    reference magnitude (the run cannot tell the value from zero nor from
+    twice its size).  A parameter so determined that it collapses to zero is
+    not here: that is a verdict on the effect (:func:`_plausibility`).
+    """
+    out = {}
+    for n, ref in judge.items():
+        e = res.estimates.get(n)
+        if e is None:
+            continue
+        sd = e.stderr
+        if not math.isfinite(sd):
+            out[n] = {"reason": "undetermined standard error (no information in this run, or only together with "
+                                "another parameter)", "value_if_free": e.value, "stderr_if_free": None}
+        elif sd > rel * ref:
+            out[n] = {"reason": f"standard error {sd:.3g} {e.unit} exceeds {rel:g} x its reference magnitude "
+                                f"{ref:.3g} {e.unit}", "value_if_free": e.value, "stderr_if_free": sd}
+    return out
+
+
+def _run_jobs(jobs: list[dict], workers: int, progress: Callable | None) -> list[dict]:
+    if not jobs:
+        return []
+    if workers <= 1 or len(jobs) == 1:
+        out = []
+        for j in jobs:
+            out.append(_fit_job(j))
+            if progress:
+                progress(f"fitted {j['label']} in {out[-1]['time_s']:.1f} s")
+        return out
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
+    out: dict[int, dict] = {}
+    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx) as ex:
+        futs = {ex.submit(_fit_job, j): i for i, j in enumerate(jobs)}
+        from concurrent.futures import as_completed
+
+        for f in as_completed(futs):
+            i = futs[f]
+            out[i] = f.result()
+            if progress:
+                progress(f"fitted {jobs[i]['label']} in {out[i]['time_s']:.1f} s")
+    return [out[i] for i in range(len(jobs))]
+
+
+# ----------------------------------------------------------------------------- scoring
+def _chi2_by_channel(fit: dict, noise: Mapping[str, float], select: str, windows: dict | None = None) -> dict:
+    """Noise-weighted squared error per channel of a fit over held-out (``select="holdout"``) or all samples."""
+    return chi2_by_channel(fit["predictions"], noise, select, windows)
+
+
+def _rms_by_channel(fit: dict, mask_fn=None) -> dict:
+    acc: dict[str, list] = {}
+    for r, p in fit["predictions"].items():
+        for c, y in p["measured"].items():
+            e = np.asarray(y) - np.asarray(p["simulated"][c])
+            m = np.isfinite(e)
+            if mask_fn is not None:
+                m &= mask_fn(r, p)
+            acc.setdefault(c, []).append(e[m])
+    return {c: float(np.sqrt(np.mean(np.concatenate(v) ** 2))) if sum(x.size for x in v) else math.nan
+            for c, v in acc.items()}
+
+
+def _channel_errors(fit: dict) -> dict:
+    out = {}
+    chans = {c for p in fit["predictions"].values() for c in p["measured"]}
+    for c in sorted(chans):
+        y = np.concatenate([np.asarray(p["measured"][c]) for p in fit["predictions"].values() if c in p["measured"]])
+        s = np.concatenate([np.asarray(p["simulated"][c]) for p in fit["predictions"].values() if c in p["measured"]])
+        f = channel_fit(c, y, s)
+        out[c] = {"rms": f.rms, "nrmse": f.nrmse, "fit_percent": f.fit_percent, "unit": f.unit}
+    return out
+
+
+def _plausibility(fit: dict, spec: CandidateSpec, plaus: Mapping | None = None) -> tuple[bool, list[str]]:
+    """Plausible: no parameter at a bound, none collapsing to zero, at least one determined by the data,
+    no periodic torque larger than a healthy drive's (:data:`PLAUSIBLE`).
+
+    A parameter the run does not determine was held at its file value (``held``) and is not judged: "collapses
+    to zero" is a verdict only for a parameter the data determine.
+    """
+    why, determined = [], 0
+    est = [(n, fit["estimates"][n]) for n in spec.free if n in fit["estimates"] and not fit["estimates"][n].get("held")]
+    lost = [n for n in spec.free if fit["estimates"].get(n, {}).get("undetermined")
+            and not fit["estimates"][n].get("held")]
+    if lost:
+        why.append("no parameter determined by the run: " + ", ".join(lost))
+    periodic = [n for n in spec.free if spec.plausible.get(n) == "periodic"]
+    if plaus and periodic and all(n in fit["estimates"] for n in periodic):
+        amp = math.hypot(*(fit["estimates"][n]["value"] for n in periodic))
+        bound, src = plaus["periodic"]
+        if amp > bound:
+            why.append(f"amplitude {amp:.3g} N m exceeds the plausible {bound:.3g} N m ({src})")
+    for n in spec.profile:  # profiled: determined when its profile interval closes inside the search range
+        e = fit["estimates"].get(n)
+        if e is None or not e.get("mattered"):
+            continue
+        if e["at_bound"]:
+            why.append(f"{n} at the {e['at_bound']} end of its profile range")
+        elif e["interval"] is not None:
+            determined += 1
+    pairs = spec.name in ("screw_friction_ripple", "cogging_torque")
+    for n, e in est:
+        if e["at_bound"]:
+            why.append(f"{n} at its {e['at_bound']} bound")
+        sd = e["stderr"]
+        if sd is None:
+            continue
+        determined += 1
+        if not pairs and abs(e["value"]) < 2 * sd:
+            why.append(f"{n} = {e['value']:.3g} collapses to zero (stderr {sd:.2g})")
+    if pairs and len(est) == 2:
+        (_, a), (_, b) = est
+        amp = math.hypot(a["value"], b["value"])
+        sd = math.hypot(a["stderr"] if a["stderr"] is not None else math.inf,
+                        b["stderr"] if b["stderr"] is not None else math.inf)
+        if not amp > 2 * sd:
+            why.append(f"amplitude {amp:.3g} collapses to zero (stderr {sd:.2g})")
+    if (est or spec.profile) and determined == 0 and not any("determined" in w for w in why):
+        why.append("no parameter determined by the data")
+    return not why, why
+
+
+def _param_entry(e: dict) -> dict:
+    sd = e["stderr"]
+    ci = [e["value"] - 1.96 * sd, e["value"] + 1.96 * sd] if sd is not None else e.get("interval")
+    return {"value": e["value"], "stderr": sd, "unit": e["unit"], "ci95": list(ci) if ci else None,
+            "at_bound": e["at_bound"], **({"profiled": True} if e.get("profiled") else {}),
+            **({"held": True} if e.get("held") else {})}
+
+
+def _held_out(fit: dict) -> list[dict]:
+    """The parameters a candidate fit held at their file values because the run does not determine them."""
+    return [{"parameter": n, "held_at": h["held_at"], "unit": fit["estimates"].get(n, {}).get("unit", ""),
+             "reason": h["reason"], "value_if_free": h["value_if_free"], "stderr_if_free": h["stderr_if_free"]}
+            for n, h in (fit.get("held") or {}).items()]
+
+
+def _held_params(toml: str, fit: dict) -> str:
+    """A job's parameter set with the fit's held parameters at their held values (for its null run)."""
+    held = fit.get("held") or {}
+    if not held:
+        return toml
+    return ParameterSet.from_toml(toml).replace({n: h["held_at"] for n, h in held.items()}).to_toml()
+
+
+def _signature_brief(sig: dict) -> dict:
+    """What a round leaves: the structured tests (name, kind, size) and whether anything is structured."""
+    tests = [t for t in sig.get("tests", []) + sig.get("sensors", []) if t["significant"]]
+    above = [f"held-out residual above noise ({c}: {r:.2g} x)" for c, r in sig.get("residual_to_noise", {}).items()
+             if r > sig.get("max_noise_ratio", math.inf)]
+    return {"unexplained": bool(tests or above), "structured": [t["variable"] for t in tests] + above,
+            "missing_torque_rms": sig.get("missing_torque_rms"),
+            "tests": [{k: t[k] for k in ("variable", "kind", "size", "unit", "p_value") if k in t} for t in tests]}
+
+
+def _base_correction(first: dict, declared, uncertain, params: ParameterSet, plaus: dict, fit_runs, noise, st,
+                     job: Callable, say: Callable) -> dict:
+    """The base-correction step: what every real drive has and the declared level may lack.
+
+    The constant-torque explainers (a Coulomb drag, an axial force the load cell does not see) and the ball
+    screw's efficiencies are fitted together with the declared uncertain set,
+    each inside its plausible magnitude (:data:`PLAUSIBLE`, the bound's source reported) and with a prior at
+    0 (the file's efficiency) of half that size, so that explainers that stand for the same torque share it
+    instead of drifting along their common direction.  Accepted when the held-out chi2 drop passes the
+    ``chi2(k)`` test.  An explainer at its bound is offered later as a found-effect candidate (the same
+    effect beyond what a rig's base can be).
+    """
+    from scipy.stats import chi2
+
+    # a drag is symmetric: the direction-dependent part of a rig's base is what the efficiencies (load
+    # proportional) and an axial force give; a direction drag on top would double the plausible drag one way
+    explainers = [CANDIDATES[n] for n in ("coulomb_friction", "force_offset")
+                  if n in CANDIDATES and n not in declared] + [EFFICIENCY_EXPLAINER]
+    bounds, priors, sources, owner = {}, {}, {}, {}
+    for e in explainers:
+        for n in e.free:
+            if n not in params:
+                continue
+            b, src = plaus[e.plausible[n]]
+            if e.plausible[n] == "efficiency":
+                v = params.value(n)
+                lo, hi, centre = max(v - b, params[n].min), min(v + b, params[n].max), v
+            elif params[n].min >= 0:
+                lo, hi, centre = 0.0, b, 0.0
+            else:
+                lo, hi, centre = -b, b, 0.0
+            bounds[n], priors[n], sources[n], owner[n] = (lo, hi), (centre, 0.5 * b), src, e.name
+    effs = resolve_effects(None, add=list(declared) + [e.name for e in explainers if e.name in EFFECTS])
+    plant = build_plant(None, effs, params=params)
+    bounds = {n: b for n, b in bounds.items() if n in plant.parameters}
+    pset = params.replace({n: priors[n][0] for n in bounds}).replace_parameters(
+        {n: dataclasses.replace(params[n], value=priors[n][0], min=lo, max=hi) for n, (lo, hi) in bounds.items()})
+    free = tuple(dict.fromkeys(tuple(uncertain) + tuple(bounds)))
+    jb = job("base correction", effs, free, pset, fit_runs, prior=True)
+    jb["settings"] = dataclasses.replace(jb["settings"], priors={n: priors[n] for n in bounds},
+                                         no_prior=tuple(n for n in jb["settings"].no_prior if n not in bounds))
+    f = _run_jobs([jb], 1, None)[0]
+    doc = {"explainers": {n: {"effect": owner[n], "bound": list(bounds[n]), "bound_source": sources[n]}
+                          for n in bounds}}
+    if "error" in f:
+        doc.update(accepted=False, reason=f"fit failed: {f['error']}")
+        return {"accepted": False, "doc": doc}
+    b0 = sum(_chi2_by_channel(first, noise, "holdout").values())
+    b1 = sum(_chi2_by_channel(f, noise, "holdout").values())
+    thr = float(chi2.ppf(1 - st.alpha, len(bounds)))
+    corrections = []
+    for n in bounds:
+        e = f["estimates"][n]
+        lo, hi = bounds[n]
+        hit = _at_edge(e["value"], lo, hi)
+        corrections.append({"effect": owner[n], "parameter": n, **_param_entry(e), "bound": [lo, hi],
+                            "bound_source": sources[n], "at_plausible_bound": bool(hit),
+                            "change": e["value"] - priors[n][0]})
+    accepted = b0 - b1 > thr
+    doc.update(accepted=bool(accepted), holdout_chi2_drop=b0 - b1, chi2_threshold=thr, corrections=corrections,
+               error_before=_channel_errors(first), error_after=_channel_errors(f), effects=list(effs),
+               fit_time_s=f["time_s"])
+    say(f"base correction {'accepted' if accepted else 'not significant'}: held-out chi2 drop {b0 - b1:.4g} "
+        f"(threshold {thr:.3g}); " + ", ".join(f"{c['parameter']} = {c['value']:.4g}" for c in corrections))
+    return {"accepted": bool(accepted), "doc": doc, "fit": f, "effects": effs, "free": free,
+            "priors": {n: priors[n] for n in bounds},
+            "bounds": {n: (*bounds[n], owner[n]) for n in bounds if owner[n] in EFFECTS}}
+
+
+def _at_edge(v: float, lo: float, hi: float) -> bool:
+    edge = 0.02 * (hi - lo)
+    return v >= hi - edge or (lo < 0 and v <= lo + edge)
+
+
+def _explainers_at_bound(fit: dict, base_bounds: Mapping[str, tuple]) -> dict[str, str]:
+    """Explainer parameter -> its effect, for the base corrections at their plausible bound in ``fit``."""
+    return {n: eff for n, (lo, hi, eff) in base_bounds.items()
+            if n in fit["estimates"] and _at_edge(fit["estimates"][n]["value"], lo, hi)}
+
+
+def _null_runs(fit: dict, runs: Sequence[RigRun], noise: Mapping[str, float], seed: int) -> list[RigRun]:
+    """The fitted model's own segment predictions plus white noise of the measured level, as runs."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for run in runs:
+        p = fit["predictions"][run.name]
+        sig = dict(run.signals)
+        for c, y in p["simulated"].items():
+            y = np.asarray(y, float)[:len(run.time)]
+            sig[c] = y + noise[c] * rng.standard_normal(y.size)
+        out.append(dataclasses.replace(run, signals=sig))
+    return out
+
