@@ -3,12 +3,14 @@
 
 from __future__ import annotations
 
+from functools import partial
+
 import re
 import sys
 
 from ..errors import ThsaError
-from .common import (EXIT_OK, EXIT_REQUIREMENT_FAILED, analysis_effects, effects_arg, load_params, out_arg, out_options,
-                     preflight_out, progress_for, scaled_floats)
+from .common import (add_command, EXIT_OK, EXIT_REQUIREMENT_FAILED, analysis_effects, effects_arg, load_params,
+                     out_arg, out_options, preflight_out, progress_for, scaled_floats)
 
 __all__ = ["add_parsers", "cmd_report", "cmd_linearize"]
 
@@ -126,10 +128,7 @@ def load_newtons(text: str) -> float:
 
 def add_parsers(sub, shared) -> None:
     """``thsa report``, ``thsa linearize``."""
-    def add(name: str, help: str, fn):
-        p = sub.add_parser(name, help=help, parents=[shared])
-        p.set_defaults(fn=fn)
-        return p
+    add = partial(add_command, sub, shared)
 
     p = add("report", "loop analysis of a design over speed, load and temperature: HTML + JSON", cmd_report)
     p.add_argument("--design", help="design TOML (default designs/nominal.toml)")

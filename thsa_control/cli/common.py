@@ -13,7 +13,7 @@ from pathlib import Path
 from ..errors import ThsaError, UsageError
 
 __all__ = ["EXIT_OK", "EXIT_REQUIREMENT_FAILED", "EXIT_USAGE", "EXIT_INTERNAL", "MAX_CONTROL_PERIODS",
-           "progress_for", "out_options", "out_arg", "preflight_out", "positive", "check_output_period",
+           "progress_for", "out_options", "add_command", "out_arg", "preflight_out", "positive", "check_output_period",
            "check_run_length", "load_params_design", "effects_arg", "parse_column_map", "read_runs", "run_inputs",
            "load_params", "replay_mode", "bounds_arg", "scaled_floats", "analysis_effects"]
 
@@ -36,6 +36,13 @@ def out_options(args, inputs=()) -> dict:
     extra = [*(params if isinstance(params, (list, tuple)) else [params]), getattr(args, "design", None)]
     return {"force": bool(getattr(args, "force", False)), "inputs": [p for p in (*inputs, *extra) if p],
             "command": " ".join(["thsa", *getattr(args, "argv", [])])}
+
+
+def add_command(sub, shared, name: str, help: str, fn):
+    """Add subcommand ``name`` (with the shared options) whose handler is ``fn``; returns its parser."""
+    p = sub.add_parser(name, help=help, parents=[shared])
+    p.set_defaults(fn=fn)
+    return p
 
 
 def out_arg(p) -> None:

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from functools import partial
+
 import sys
 from pathlib import Path
 
 from ..errors import UsageError
-from .common import (bounds_arg, effects_arg, load_params, out_arg, out_options, parse_column_map, positive,
-                     preflight_out, progress_for, read_runs, replay_mode, run_inputs)
+from .common import (add_command, bounds_arg, effects_arg, load_params, out_arg, out_options, parse_column_map,
+                     positive, preflight_out, progress_for, read_runs, replay_mode, run_inputs)
 
 __all__ = ["add_parsers", "cmd_check_data", "cmd_identify", "cmd_residual"]
 
@@ -108,10 +110,7 @@ def cmd_residual(args) -> int:
 
 def add_parsers(sub, shared) -> None:
     """``thsa check-data``, ``thsa identify``, ``thsa residual``."""
-    def add(name: str, help: str, fn):
-        p = sub.add_parser(name, help=help, parents=[shared])
-        p.set_defaults(fn=fn)
-        return p
+    add = partial(add_command, sub, shared)
 
     p = add("check-data", "validate and summarise a rig run (format: docs/rig_format.md)", cmd_check_data)
     p.add_argument("run", help="RUN.csv (RUN.json beside it; format: docs/rig_format.md)")

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from functools import partial
+
 import sys
 from pathlib import Path
 
-from .common import (check_output_period, check_run_length, effects_arg, load_params_design, out_arg, out_options,
-                     positive, preflight_out, progress_for)
+from .common import (add_command, check_output_period, check_run_length, effects_arg, load_params_design, out_arg,
+                     out_options, positive, preflight_out, progress_for)
 
 __all__ = ["add_parsers", "cmd_scenarios", "cmd_levels", "cmd_simulate", "load_common", "run_levels"]
 
@@ -156,10 +158,7 @@ def cmd_simulate(args) -> int:
 
 def add_parsers(sub, shared) -> None:
     """``thsa scenarios``, ``thsa levels``, ``thsa simulate``."""
-    def add(name: str, help: str, fn):
-        p = sub.add_parser(name, help=help, parents=[shared])
-        p.set_defaults(fn=fn)
-        return p
+    add = partial(add_command, sub, shared)
 
     add("scenarios", "list the named scenarios", cmd_scenarios)
 
