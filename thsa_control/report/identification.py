@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np  # noqa: E402
 
 from ..data.units import signal_display
+from .display import fmt
 from .figure import png_bytes, subplots
 
 __all__ = ["plot_overlay", "plot_residual_channel", "plot_segments", "figure_png", "write_html_report", "Html",
@@ -226,17 +227,6 @@ def write_html_report(path: str | Path, *, title: str, sections: Sequence[tuple[
     return path
 
 
-def _num(x, digits: int = 4) -> str:
-    if x is None:
-        return "-"
-    x = float(x)
-    if np.isnan(x):
-        return "-"
-    if np.isinf(x):
-        return "inf" if x > 0 else "-inf"
-    return f"{x:.{digits}g}"
-
-
 def _p(p) -> str:
     return "-" if p is None or not np.isfinite(p) else ("< 1e-4" if p < 1e-4 else f"{p:.3g}")
 
@@ -248,8 +238,8 @@ def residual_tables(analysis) -> list[tuple[str, Html]]:
         k, unit = _scale(c.name)
         w = c.whiteness
         corr = [n for n, x in c.cross.items() if x.correlated]
-        rows.append([c.name, unit, _num(c.rms * k), _num(c.mean * k), f"{_num(c.max_abs * k)} at {c.time_of_max:.3g} s",
-                     _num(c.nrmse), f"{c.fit_percent:.2f}", f"{'white' if w.white else 'NOT white'} (p {_p(w.ljung_box_p)})",
+        rows.append([c.name, unit, fmt(c.rms * k), fmt(c.mean * k), f"{fmt(c.max_abs * k)} at {c.time_of_max:.3g} s",
+                     fmt(c.nrmse), f"{c.fit_percent:.2f}", f"{'white' if w.white else 'NOT white'} (p {_p(w.ljung_box_p)})",
                      ", ".join(corr) or "none"])
         classes.append([""] * 7 + ["ok" if w.white else "bad", "bad" if corr else "ok"])
     out = [("Residual per channel", html_table(
@@ -309,9 +299,9 @@ def identification_tables(result) -> list[tuple[str, Html]]:
         partners = [b if a == n else a for a, b, r in result.high_correlations if n in (a, b)]
         if partners:
             flags.append(f"correlated with {', '.join(partners)}")
-        rows.append([n, _num(e.value, 6), _num(e.stderr, 3) if np.isfinite(e.stderr) else "undetermined", pct,
-                     f"{_num(lo)} .. {_num(hi)}" if np.isfinite(lo) else "-", e.unit, _num(e.init, 6),
-                     f"{_num(e.min)} .. {_num(e.max)}", "; ".join(flags) or "ok"])
+        rows.append([n, fmt(e.value, 6), fmt(e.stderr, 3) if np.isfinite(e.stderr) else "undetermined", pct,
+                     f"{fmt(lo)} .. {fmt(hi)}" if np.isfinite(lo) else "-", e.unit, fmt(e.init, 6),
+                     f"{fmt(e.min)} .. {fmt(e.max)}", "; ".join(flags) or "ok"])
         classes.append([""] * 8 + ["bad" if (n in flagged or e.at_bound) else ("warn" if flags else "ok")])
     params = html_table(["parameter", "value", "standard error", "relative", "95 % interval", "unit", "initial",
                          "search bounds", "verdict"], rows, classes=classes, left=(0, 5, 8),
@@ -340,7 +330,7 @@ def identification_tables(result) -> list[tuple[str, Html]]:
         for c, f in chans.items():
             f0 = result.initial_channel_fits[run][c]
             k, unit = _scale(c)
-            rows.append([run, c, unit, _num(f0.rms * k), _num(f.rms * k), _num(f0.nrmse), _num(f.nrmse),
+            rows.append([run, c, unit, fmt(f0.rms * k), fmt(f.rms * k), fmt(f0.nrmse), fmt(f.nrmse),
                          f"{f0.fit_percent:.2f}", f"{f.fit_percent:.2f}"])
     chans = html_table(["run", "channel", "unit", "RMS initial", "RMS identified", "NRMSE initial [-]",
                         "NRMSE identified [-]", "fit initial [%]", "fit identified [%]"], rows, left=(0, 1, 2),
@@ -428,7 +418,7 @@ def write_identification_folder(folder: str | Path, result, before: Sequence, af
         for c in a.fits:
             k, unit = _scale(c)
             rows.append([c, unit, f"{b.fits[c].fit_percent:.2f}", f"{a.fits[c].fit_percent:.2f}",
-                         _num(b.fits[c].rms * k), _num(a.fits[c].rms * k)])
+                         fmt(b.fits[c].rms * k), fmt(a.fits[c].rms * k)])
         sections.append((f"{b.run_name}: {b.mode.replace('_', ' ')} replay, initial -> identified", html_table(
             ["channel", "unit", "fit initial [%]", "fit identified [%]", "RMS initial", "RMS identified"], rows,
             left=(0, 1))))
