@@ -6,6 +6,5 @@ is ``thsa_control/cli/faults.py``.  The fault schedule of a scenario (``sim/even
 monitor settings (``sim/monitor_settings.py``), the monitors and
 reconfiguration as a loop extension (``sim/monitors.py``) and the scenario
 files (``sim/scenarios.py``) are part of the simulator, which never imports
-this package; ``events``, ``settings``, ``monitors`` and ``scenario_file``
-here re-export them for existing imports.
+this package.
 """

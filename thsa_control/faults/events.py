@@ -1,5 +1,0 @@
-"""Moved to :mod:`thsa_control.sim.events` (scenario data and the monitor loop extension live beside the
-simulator, which never imports this package); this name is kept so that existing imports work."""
-
-from ..sim.events import *  # noqa: F401,F403
-from ..sim.events import __all__  # noqa: F401
