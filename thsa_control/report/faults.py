@@ -19,8 +19,7 @@ import numpy as np  # noqa: E402
 from ..model.laws import kinematic_ratio  # noqa: E402
 from ..data.units import display_unit, label, to_display
 from .build import atomic_folder, write_json  # noqa: E402
-from .figure import subplots
-from .identification import figure_png  # noqa: E402
+from .figure import render_pngs, subplots
 
 __all__ = ["plot_fault_run", "plot_fault_case", "plot_sweep", "fault_analysis_to_dict", "write_fault_report"]
 
@@ -247,13 +246,15 @@ def write_fault_report(analysis, params, out_dir, **folder_options) -> Path:
     ``folder_options`` go to :func:`~thsa_control.report.build.atomic_folder` (``force``, ``inputs``).
     """
     with atomic_folder(out_dir, **folder_options) as tmp:
-        figs = []
+        figs = []  # (file name, caption, (function, arguments)): drawn in parallel processes (figure.render_pngs)
         for c in analysis.cases + analysis.rigid_cases:
             name = f"case_{c.scenario}{'_rigid' if c in analysis.rigid_cases else ''}.png"
-            figs.append((name, figure_png(plot_fault_case(c, params)), f"{c.title}: {', '.join(c.faults)}"))
+            figs.append((name, f"{c.title}: {', '.join(c.faults)}", (plot_fault_case, (c, params))))
         if analysis.sweep:
-            figs.append(("sweep.png", figure_png(plot_sweep(analysis)), "monitor sweep"))
-        for name, png, _caption in figs:  # each figure rendered once: the same PNG is the file and the page's image
+            figs.append(("sweep.png", "monitor sweep", (plot_sweep, (analysis,))))
+        pngs = render_pngs([job for _name, _caption, job in figs], dpi=100)
+        figs = [(name, png, caption) for (name, caption, _job), png in zip(figs, pngs)]
+        for name, png, _caption in figs:  # each figure drawn once: the same PNG is the file and the page's image
             (tmp / name).write_bytes(png)
         write_json(tmp / "faults.json", fault_analysis_to_dict(analysis))
         m = analysis.monitors
