@@ -70,7 +70,7 @@ _DRIVER = r"""
    the same bits as evaluating the period from theta alone. */
 typedef struct {
   const double** arg; double** res; casadi_int* iw; double* w; double* za; double* zb; double* wk; double* yk;
-  double* q; const double** wp;
+  double* q; const double** wp; casadi_int* iv;
 } thsa_buf;
 
 static casadi_int thsa_nz(void) { return thsa_sample_sparsity_in(0)[0]; }
@@ -102,12 +102,13 @@ static int thsa_buf_init(thsa_buf* b) {
   b->yk = (double*) malloc(sizeof(double) * (ny + 1));
   b->q = (double*) malloc(sizeof(double) * (nq + 1));
   b->wp = (const double**) malloc(sizeof(double*) * (nw + 1));
-  return (b->arg && b->res && b->iw && b->w && b->za && b->zb && b->wk && b->yk && b->q && b->wp) ? 0 : -1;
+  b->iv = (casadi_int*) malloc(sizeof(casadi_int) * (nw + 1));
+  return (b->arg && b->res && b->iw && b->w && b->za && b->zb && b->wk && b->yk && b->q && b->wp && b->iv) ? 0 : -1;
 }
 
 static void thsa_buf_free(thsa_buf* b) {
   free(b->arg); free(b->res); free(b->iw); free(b->w); free(b->za); free(b->zb); free(b->wk); free(b->yk);
-  free(b->q); free(b->wp);
+  free(b->q); free(b->wp); free(b->iv);
 }
 
 /* One run: n_steps control periods from z (updated in place).  Input j of period k is
@@ -120,27 +121,36 @@ static int thsa_run_one(thsa_buf* b, double* z, const double* const* W, const lo
   const long long n_out = (n_steps + decim - 1) / decim;
   double* zc = b->za;
   double* zn = b->zb;
+  casadi_int* vary = b->iv;  /* the inputs that change from period to period */
+  casadi_int n_vary = 0;
   int flag;
   *bad = -1;
   b->arg[0] = theta; b->res[0] = b->q;
   flag = thsa_pre(b->arg, b->res, b->iw, b->w, 0);
   if (flag) return flag;
   memcpy(zc, z, sizeof(double) * nz);
-  for (casadi_int j = 0; j < nw; ++j) b->wp[j] = W[j];
+  for (casadi_int j = 0; j < nw; ++j) {
+    b->wp[j] = W[j];
+    b->wk[j] = n_steps > 0 ? W[j][0] : 0.0;  /* a constant input is set once */
+    if (ws[j]) vary[n_vary++] = j;
+  }
   b->arg[1] = b->wk; b->arg[2] = theta; b->arg[3] = b->q;
+  long long until_out = 0, col = 0;
   for (long long k = 0; k < n_steps; ++k) {
-    for (casadi_int j = 0; j < nw; ++j) { b->wk[j] = *b->wp[j]; b->wp[j] += ws[j]; }
+    for (casadi_int v = 0; v < n_vary; ++v) b->wk[vary[v]] = b->wp[vary[v]][k];
     b->arg[0] = zc; b->res[0] = zn;
-    if (k % decim == 0) {
-      const long long col = k / decim;
+    if (until_out == 0) {
       double nan_if_bad = 0.0;  /* x * 0 is NaN exactly when x is not finite */
       b->res[1] = b->yk;
       flag = thsa_sample(b->arg, b->res, b->iw, b->w, 0);
       for (casadi_int i = 0; i < ny; ++i) { Y[i * n_out + col] = b->yk[i]; nan_if_bad += b->yk[i] * 0.0; }
       if (nan_if_bad != nan_if_bad) { *bad = col; break; }
+      ++col;
+      until_out = decim;
     } else {
       flag = thsa_sample_x(b->arg, b->res, b->iw, b->w, 0);
     }
+    --until_out;
     if (flag) break;
     double* t = zc; zc = zn; zn = t;
   }
