@@ -241,22 +241,30 @@ def _sweep_block(analysis) -> str:
     return line + _table(head, rows)
 
 
-def write_fault_report(analysis, params, out_dir, **folder_options) -> Path:
+def write_fault_report(analysis, params, out_dir, *, progress=None, **folder_options) -> Path:
     """Write ``faults.json``, ``report.html`` and the figures (PNG) to ``out_dir`` (atomically).
 
-    ``folder_options`` go to :func:`~thsa_control.report.build.atomic_folder` (``force``, ``inputs``).
+    ``folder_options`` go to :func:`~thsa_control.report.build.atomic_folder` (``force``, ``inputs``);
+    ``progress`` (a :class:`thsa_control.progress.Progress` or None) gets a line per figure.
     """
     with atomic_folder(out_dir, **folder_options) as tmp:
         figs = []
-        for c in analysis.cases + analysis.rigid_cases:
+        cases = analysis.cases + analysis.rigid_cases
+        for k, c in enumerate(cases, 1):
+            if progress is not None:
+                progress.step(k, len(cases) + bool(analysis.sweep), f"figure of {c.title}: {c.scenario}")
             fig = plot_fault_case(c, params)
             name = f"case_{c.scenario}{'_rigid' if c in analysis.rigid_cases else ''}.png"
             fig.savefig(tmp / name, dpi=100)
             figs.append((name, fig, f"{c.title}: {', '.join(c.faults)}"))
         if analysis.sweep:
+            if progress is not None:
+                progress.step(len(cases) + 1, len(cases) + 1, "figure of the monitor sweep")
             fig = plot_sweep(analysis)
             fig.savefig(tmp / "sweep.png", dpi=100)
             figs.append(("sweep.png", fig, "monitor sweep"))
+        if progress is not None:
+            progress.phase("faults.json and report.html (figures embedded)")
         write_json(tmp / "faults.json", fault_analysis_to_dict(analysis))
         m = analysis.monitors
         css = ("body{font-family:system-ui,Segoe UI,Helvetica,Arial,sans-serif;max-width:1250px;margin:1em auto;color:#222}"
