@@ -5,9 +5,14 @@ objective's stage Functions (:func:`compile_functions`, loaded as casadi
 ``external`` Functions) go through the same generation, cache and checks.
 
 casadi generates the C source of one control period (``sample``, with
-outputs, and ``sample_x``, the state update alone); a small C driver added
-here loops over the periods in place (no copies between periods) and writes
-one output column per output period.  The library is built once per source
+outputs, and ``sample_x``, the state update alone) and of ``thsa_pre``, the
+parts of a period that depend on the parameters alone (``extract_parametric``),
+computed once per run; a small C driver added here loops over the periods in
+place (no copies between periods), reads constant inputs once, writes one
+output column per output period, stops a run at its first non-finite output
+and spreads a batch of runs over threads (:class:`RunLoop`).  Every change to
+the generated code keeps the operations and their order: the same bits
+(``bench/bit_identity.py``).  The library is built once per source
 hash with the system C compiler and reused by every later process.  The cache
 lives in ``$THSA_CACHE_DIR`` or ``~/.cache/thsa-control``.
 
@@ -35,6 +40,7 @@ import ctypes
 import hashlib
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -395,7 +401,7 @@ class NonFiniteOutput(ArithmeticError):
         self.run, self.sample = run, sample
 
 
-def _find_or_build(functions, stem_tag: str, driver: str, flags: tuple[str, ...], load):
+def _find_or_build(functions, stem_tag: str, driver: str, flags: tuple[str, ...], load, edit=None):
     """Generate the C code of ``functions`` (+ ``driver``), find it in the cache (verified) or build it, load it.
 
     ``load(path, source_sha)`` returns the loaded object, or None when the file
@@ -411,6 +417,8 @@ def _find_or_build(functions, stem_tag: str, driver: str, flags: tuple[str, ...]
         source = src_path.read_text()
         for old, new in _INLINE_MINMAX:
             source = source.replace(old, new)
+        if edit is not None:
+            source = edit(source)
         source += driver
         source_sha = hashlib.sha256((source + " ".join(flags) + ca.__version__).encode()).hexdigest()
         source += f'\nconst char* thsa_source_sha256(void) {{ return "{source_sha}"; }}\n'
@@ -511,7 +519,18 @@ def compile_run_loop(sample: ca.Function, sample_x: ca.Function, *, flags: tuple
     f1 = ca.Function("thsa_sample", [z, w, theta, q], [ret[:nz_out], ret[nz_out:]], opts)
     f2 = ca.Function("thsa_sample_x", [z, w, theta, q], [ret[:nz_out]], opts)
     dims = (sample.size1_in(0), sample.size1_in(1), sample.size1_out(1))
-    return _find_or_build([f_pre, f1, f2], "thsa_run", _DRIVER, flags, lambda lib, sha: _load(lib, sha, dims))
+    return _find_or_build([f_pre, f1, f2], "thsa_run", _DRIVER, flags, lambda lib, sha: _load(lib, sha, dims),
+                          edit=_no_null_checks)
+
+
+def _no_null_checks(source: str) -> str:
+    """The run loop's driver always passes every argument and result buffer, so casadi's check of the
+    pointer at every access (``arg[2]? arg[2][90] : 0``, ``if (res[0]!=0) res[0][3]=...``) goes: the
+    same arithmetic on the same values (the same bits), 15-20 % less time per period (measured).
+    Only the run loop's library is edited; the Functions of :func:`compile_functions` are called by
+    casadi, which may pass null pointers."""
+    source = re.sub(r"arg\[(\d+)\]\? arg\[\1\]\[(\d+)\] : 0", r"arg[\1][\2]", source)
+    return re.sub(r"if \(res\[(\d+)\]!=0\) res\[\1\]\[", r"res[\1][", source)
 
 
 def _load_external(lib: Path, source_sha: str, names: list[str]):
