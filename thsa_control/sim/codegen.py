@@ -69,6 +69,8 @@ _DRIVER = r"""
 #include <string.h>
 #include <pthread.h>
 
+#define THSA_YBLOCK 64  /* output columns gathered before they are written to Y (thsa_flush) */
+
 /* The per-run constants: thsa_pre(theta) -> q, the parts of a control period that depend on the
    parameters alone (casadi's extract_parametric), computed once per run instead of once per period;
    thsa_sample(z, w, theta, q) -> (z_next, y) and thsa_sample_x(z, w, theta, q) -> z_next are the
@@ -76,7 +78,7 @@ _DRIVER = r"""
    the same bits as evaluating the period from theta alone. */
 typedef struct {
   const double** arg; double** res; casadi_int* iw; double* w; double* za; double* zb; double* wk; double* yk;
-  double* q; const double** wp; casadi_int* iv;
+  double* q; const double** wp; casadi_int* iv; double* yb;
 } thsa_buf;
 
 static casadi_int thsa_nz(void) { return thsa_sample_sparsity_in(0)[0]; }
@@ -109,12 +111,23 @@ static int thsa_buf_init(thsa_buf* b) {
   b->q = (double*) malloc(sizeof(double) * (nq + 1));
   b->wp = (const double**) malloc(sizeof(double*) * (nw + 1));
   b->iv = (casadi_int*) malloc(sizeof(casadi_int) * (nw + 1));
-  return (b->arg && b->res && b->iw && b->w && b->za && b->zb && b->wk && b->yk && b->q && b->wp && b->iv) ? 0 : -1;
+  b->yb = (double*) malloc(sizeof(double) * (ny * THSA_YBLOCK + 1));
+  return (b->arg && b->res && b->iw && b->w && b->za && b->zb && b->wk && b->yk && b->q && b->wp && b->iv && b->yb) ? 0 : -1;
 }
 
 static void thsa_buf_free(thsa_buf* b) {
   free(b->arg); free(b->res); free(b->iw); free(b->w); free(b->za); free(b->zb); free(b->wk); free(b->yk);
-  free(b->q); free(b->wp); free(b->iv);
+  free(b->q); free(b->wp); free(b->iv); free(b->yb);
+}
+
+/* Output columns are gathered THSA_YBLOCK at a time and written to Y (output-major) as short
+   contiguous rows: writing each column straight into Y touches ny rows n_out apart (ny pages per
+   sample: TLB misses). */
+static void thsa_flush(const double* yb, casadi_int n_cols, casadi_int ny, double* Y, long long n_out, long long col0) {
+  for (casadi_int i = 0; i < ny; ++i) {
+    double* row = Y + i * n_out + col0;
+    for (casadi_int c = 0; c < n_cols; ++c) row[c] = yb[c * ny + i];
+  }
 }
 
 /* One run: n_steps control periods from z (updated in place).  Input j of period k is
@@ -141,17 +154,20 @@ static int thsa_run_one(thsa_buf* b, double* z, const double* const* W, const lo
     if (ws[j]) vary[n_vary++] = j;
   }
   b->arg[1] = b->wk; b->arg[2] = theta; b->arg[3] = b->q;
-  long long until_out = 0, col = 0;
+  long long until_out = 0, col = 0, col0 = 0;
+  casadi_int in_block = 0;  /* output columns gathered in b->yb (column-major), written to Y as rows */
   for (long long k = 0; k < n_steps; ++k) {
     for (casadi_int v = 0; v < n_vary; ++v) b->wk[vary[v]] = b->wp[vary[v]][k];
     b->arg[0] = zc; b->res[0] = zn;
     if (until_out == 0) {
-      double nan_if_bad = 0.0;  /* x * 0 is NaN exactly when x is not finite */
-      b->res[1] = b->yk;
+      double* yk = b->yb + in_block * ny;
+      int finite = 1;  /* x * 0 == 0 exactly when x is finite (independent compares, no chain of adds) */
+      b->res[1] = yk;
       flag = thsa_sample(b->arg, b->res, b->iw, b->w, 0);
-      for (casadi_int i = 0; i < ny; ++i) { Y[i * n_out + col] = b->yk[i]; nan_if_bad += b->yk[i] * 0.0; }
-      if (nan_if_bad != nan_if_bad) { *bad = col; break; }
+      for (casadi_int i = 0; i < ny; ++i) finite &= (yk[i] * 0.0 == 0.0);
+      if (!finite) { *bad = col; break; }
       ++col;
+      if (++in_block == THSA_YBLOCK) { thsa_flush(b->yb, in_block, ny, Y, n_out, col0); col0 = col; in_block = 0; }
       until_out = decim;
     } else {
       flag = thsa_sample_x(b->arg, b->res, b->iw, b->w, 0);
@@ -160,6 +176,7 @@ static int thsa_run_one(thsa_buf* b, double* z, const double* const* W, const lo
     if (flag) break;
     double* t = zc; zc = zn; zn = t;
   }
+  if (in_block) thsa_flush(b->yb, in_block, ny, Y, n_out, col0);
   memcpy(z, zc, sizeof(double) * nz);
   return flag;
 }
