@@ -14,12 +14,14 @@ Batched runs
 ------------
 :meth:`Simulator.run_batch` simulates many runs in one call: each of
 ``inputs`` (scenarios or input series), ``design``, ``params`` and ``x0`` is
-one value for all runs or a list with one per run.  Runs of the same loop
-and length go to the compiled library together, which loops over them in C
-and spreads them over the CPUs (``threads``); each result is bit-identical
-to :meth:`Simulator.run` of the same run.  :func:`stack_signals` turns the
-list into one array.  For the tracer's candidate fits, the tuning's
-validation runs and sweeps::
+one value for all runs or a list with one per run.  Every run is checked and
+laid out first (an error names the bad run's index); runs of the same loop
+and length then go to the compiled library in one call, which loops over
+them in C, spreads them over the CPUs (``threads``) and writes one
+(runs x signals x samples) block (``runs.blocks``) whose rows the results
+view; each result is bit-identical to :meth:`Simulator.run` of the same run.
+:func:`stack_signals` turns the list into one array.  For parameter studies,
+the validation runs of ``thsa check`` and sweeps::
 
     sim = Simulator(build_plant("D"))
     runs = sim.run_batch([sc.with_temperature(T) for T in (-55, -30, 25, 70)], design, params)
