@@ -169,9 +169,9 @@ class RunProblem:
         # the segment states alone (parameters held: the "before" fit and the held-out segments): casadi colours
         # the block-diagonal columns with one direction per free state instead of one more per parameter
         self.f_jac_states = ca.Function("res_jac_states", [dec, P, scale, sig], [r, ca.jacobian(r, ca.vec(S))])
-        self._res = _Buffered(self.f_res)
-        self._jac = _Buffered(self.f_jac)
-        self._jac_states = _Buffered(self.f_jac_states)
+        self._res = BufferedFunction(self.f_res)
+        self._jac = BufferedFunction(self.f_jac)
+        self._jac_states = BufferedFunction(self.f_jac_states)
         self.f_pred = ca.Function("pred", [dec, P, scale], [Y])
         # every state (at each sample's start) and every output of the same segment predictions, for the
         # segmented open-loop residual (thsa_control.fit.segmented); not differentiated
@@ -259,9 +259,10 @@ class RunProblem:
         return (self._jac_states if states_only else self._jac)(dec, p0, scale, sigma)[1]
 
 
-class _Buffered:
-    """A casadi Function evaluated into preallocated numpy buffers (no conversion of its outputs through
-    Python lists); a sparse output comes back as a scipy CSC matrix of its structural non-zeros."""
+class BufferedFunction:
+    """A casadi Function evaluated into numpy buffers (no conversion of its outputs through Python lists): a
+    dense column comes back flat, a dense matrix as (rows, columns), a sparse output as a scipy CSC matrix of
+    its structural non-zeros."""
 
     def __init__(self, f: ca.Function):
         import scipy.sparse as sps
@@ -272,10 +273,9 @@ class _Buffered:
         self.sparse = []
         for i in range(f.n_out()):
             sp = f.sparsity_out(i)
-            dense = sp.is_dense() and sp.size2() == 1
             colind, row = sp.get_ccs()
-            self.sparse.append(None if dense else (np.asarray(row, np.int32), np.asarray(colind, np.int32),
-                                                   (sp.size1(), sp.size2())))
+            self.sparse.append((sp.size1(), sp.size2()) if sp.is_dense() else
+                               (np.asarray(row, np.int32), np.asarray(colind, np.int32), (sp.size1(), sp.size2())))
         self.buf = None
 
     def __call__(self, *args):
@@ -295,8 +295,8 @@ class _Buffered:
         call()
         res = []
         for o, sp in zip(outs, self.sparse):
-            if sp is None:
-                res.append(o)
+            if len(sp) == 2:  # dense: a column vector flat, a matrix (rows, columns)
+                res.append(o if sp[1] == 1 else o.reshape(sp, order="F"))
             else:
                 row, colind, shape = sp
                 res.append(self._sps.csc_matrix((o, row, colind), shape=shape))
