@@ -124,6 +124,11 @@ class IdentificationSettings:
         Explicit Gaussian priors of these free parameters (SI), replacing the
         ``prior_relative_sd`` rule for them (the tracer's base corrections:
         centred at 0 with a standard deviation of half their plausible size).
+    quasi_static_starts : bool
+        Start each segment with the plant's fast internal modes (``Plant.quasi_static_states``: the surface on a
+        compliant load path) at their quasi-static values (the static deflection of the measured load, moving
+        with the nut) instead of freeing them: free, they let the fit ring the mode to absorb another channel's
+        mismatch, and the channel the mode shows in (the LVDT) gets worse.
     holdout_every : int
         0: every segment is fitted.  k >= 2: every k-th segment is held out of
         the parameter fit; its initial state is fitted afterwards at the
@@ -148,6 +153,7 @@ class IdentificationSettings:
     prior_relative_sd: float | None = None
     no_prior: tuple[str, ...] = ()
     holdout_every: int = 0
+    quasi_static_starts: bool = False
     priors: Mapping[str, tuple[float, float]] | None = None
 
     def validate(self) -> None:

@@ -202,21 +202,44 @@ class OneStepScreen:
             raise ParameterError("<profile>", "no run measures a motor or screw speed: nothing to screen a profile on")
         self.n = sum(p[2].size for p in self.parts)
 
-    def chi2(self, params: ParameterSet) -> float:
-        """Sum of squared one-step speed errors over the runs, each weighted by its noise."""
+    def _errors(self, params: ParameterSet) -> np.ndarray:
         p = self.plant.p_vector(params)
         # the first custom states follow the parameters (initial clearance fraction x pitch)
         c0 = self.plant.initial_state(params)[custom_state_indices(self.plant)]
-        tot = 0.0
+        out = []
         for F, U, w_next, sigma in self.parts:
             _, W = F(c0, U, p)
-            e = (np.asarray(W).ravel() - w_next) / sigma
-            e = e[np.isfinite(e)]
-            tot += float(e @ e)
-        return tot
+            out.append((np.asarray(W).ravel() - w_next) / sigma)
+        return np.concatenate(out)
+
+    def chi2(self, params: ParameterSet, solve: Sequence[str] = ()) -> float:
+        """Sum of squared one-step speed errors over the runs, each weighted by its noise.
+
+        ``solve``: parameters whose one-step effect is taken as linear and solved for at this point (one
+        Gauss-Newton step from their values in ``params``, sensitivities by finite differences): the screen
+        of a count (periods per revolution) whose terms' sizes are free, where the count changes which
+        terms act, not how large they are.
+        """
+        e0 = self._errors(params)
+        if solve:
+            cols = []
+            for n in solve:
+                par = params[n]
+                d = 1e-3 * max(abs(par.value), 1e-3 * (par.max - par.min) if math.isfinite(par.max - par.min)
+                               else 1e-6, 1e-12)
+                cols.append((self._errors(params.replace({n: par.value + d})) - e0) / d)
+            A = np.column_stack(cols)
+            ok = np.isfinite(e0) & np.isfinite(A).all(axis=1)
+            if ok.sum() > len(solve):
+                coef = np.linalg.lstsq(A[ok], -e0[ok], rcond=None)[0]
+                e0 = np.where(ok, e0 + A @ coef, e0)
+        e0 = e0[np.isfinite(e0)]
+        return float(e0 @ e0)
 
 
-def _grid(lo: float, hi: float, n: int) -> np.ndarray:
+def _grid(lo: float, hi: float, n: int, integer: bool = False) -> np.ndarray:
+    if integer:  # a count: every whole value of the range
+        return np.arange(math.ceil(lo), math.floor(hi) + 1, dtype=float)
     if lo > 0:
         return np.geomspace(lo, hi, n)
     return np.linspace(lo, hi, n)
@@ -304,13 +327,22 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
     screen = OneStepScreen(runs, plant, params, st.substeps)
     names = list(profile)
     main = names[0]
-    # 1-2: screen the first parameter, then refine around its best local minima
+    # 1-2: screen the first parameter, then refine around its best local minima; an integer parameter (a
+    # count) is screened at every whole value, with the free parameters solved linearly at each (the count
+    # decides which terms act; their sizes are what the fit is for)
     lo, hi = profile[main]
-    x = _grid(lo, hi, ps.screen_points)
-    y = np.array([screen.chi2(params.replace({main: float(v)})) for v in x])
+    integer = bool(params[main].integer)
+    solve = tuple(free) if integer else ()
+    x = _grid(lo, hi, ps.screen_points, integer)
+    if x.size == 0:
+        raise ParameterError(main, f"profile range {lo:g}..{hi:g} holds no whole value")
+    y = np.array([screen.chi2(params.replace({main: float(v)}), solve) for v in x])
     say(f"profile {main}: screened {x.size} values")
     cands, fine_pts = [], {}
     for i in _local_minima(x, y, ps.local_minima):
+        if integer:
+            cands.append(float(x[i]))
+            continue
         a, b = x[max(i - 1, 0)], x[min(i + 1, x.size - 1)]
         xf = np.linspace(a, b, ps.fine_points)
         yf = np.array([screen.chi2(params.replace({main: float(v)})) for v in xf])
@@ -356,7 +388,7 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
         fit_at(v)
     if best is None:
         raise SolverError("profile", f"every profile fit of {main} failed: {fits[-1]['error']}")
-    if ps.refine_fits:
+    if ps.refine_fits and not integer:
         step = float(np.min(np.diff(np.sort(allx)))) if allx.size > 1 else 0.0
         v0 = best[1]
         for v in (v0 - 0.5 * step, v0 + 0.5 * step):

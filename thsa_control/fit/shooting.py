@@ -103,7 +103,8 @@ class RunProblem:
         self.train_weight = np.tile((~self.holdout_samples).astype(float), len(self.channels))
         # states: which are free per segment, initial guesses
         states = plant.states
-        self.free_states = [i for i, s in enumerate(states) if s.kind in FREE_STATE_KINDS
+        tied = set(plant.quasi_static_states) if settings.quasi_static_starts else set()
+        self.free_states = [i for i, s in enumerate(states) if s.kind in FREE_STATE_KINDS and s.name not in tied
                             and not (s.name == "nut_position" and "nut_position" not in run.source_columns)]
         self.x_guess = self._initial_states(params, L, M)
         self._track_custom_states(mech, params, V, H, L, M)
@@ -156,6 +157,11 @@ class RunProblem:
             else:
                 rows.append(X0[i, :])
         X0full = ca.vertcat(*rows)
+        if tied and M > 0:  # fast internal modes start quasi-static, from the free states and the measured load
+            U0 = np.zeros((len(plant.inputs), M))
+            starts = np.minimum(np.arange(M) * L, n - 1)
+            U0[plant.index("input", "load_force")] = np.nan_to_num(np.asarray(run.signals["load_force"], float)[starts])
+            X0full = plant.quasi_static.map(M)(X0full, ca.DM(U0), pv)
         Y = allY(X0full, ca.DM(V), pv, ca.DM(H).T)  # (ny, L*M)
         W = ca.DM(np.where(self.mask, 1.0, 0.0))
         Ymeas0 = ca.DM(np.nan_to_num(Ymeas))
@@ -200,6 +206,8 @@ class RunProblem:
             w = motor_speed_from(lambda c: self._measured_at(c, k), run.gear_ratio)
             if w is not None:
                 X[plant.index("state", "motor_speed"), m] = w
+                if "surface_speed" in plant.state_names:  # the surface moves with the nut (the rest state has it still)
+                    X[plant.index("state", "surface_speed"), m] = w * plant.kinematic_ratio(params)
             if nut is not None:  # the LVDT reads the surface; the nut sits the load-path deflection ahead
                 i_nut = plant.index("state", "nut_position")
                 if "surface_position" in plant.state_names:

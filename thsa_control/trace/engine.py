@@ -57,7 +57,8 @@ from ..errors import ThsaError
 from ..fit.identify import IdentificationSettings, estimate_noise
 from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
 from ..model.params import ParameterSet, default_parameters
-from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, PLAUSIBLE, WINDOWS, _window,
+from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, PLAUSIBLE, PROFILE_LIMITS, STARTS, WINDOWS,
+                         _window,
                          candidate_specs, not_candidates)
 from .residual import _regime_errors, _signature
 from .scoring import (_base_correction, _channel_errors, _chi2_by_channel, _explainers_at_bound, _held_out,
@@ -243,7 +244,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         return IdentificationSettings(no_prior=tuple(no_prior), segment_duration=st.segment_duration, substeps=st.substeps, channels=channels,
                                       noise=noise, max_nfev=st.max_nfev, tolerance=st.tolerance, time_budget=st.fit_time_budget,
                                       prior_relative_sd=st.prior_relative_sd if prior else None,
-                                      holdout_every=st.holdout_every, priors=dict(priors or {}) or None)
+                                      holdout_every=st.holdout_every, priors=dict(priors or {}) or None,
+                                      quasi_static_starts=True)
 
     plaus = {k: fn(params, runs) for k, fn in PLAUSIBLE.items()}
     base_priors: dict[str, tuple[float, float]] = {}  # the base corrections' priors (kept in every later fit)
@@ -325,13 +327,17 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             replaced = {x for e in req + [spec.name] for x in EFFECTS[e].supersedes}
             effs = resolve_effects(None, add=[e for e in cur_effects if e not in replaced] + req + [spec.name])
             pset = cur_params.replace({n: v for n, v in spec.seeds.items() if cur_params.value(n) == 0})
+            if spec.start:  # starting values read off the runs (a static screen), within the search bounds
+                pset = pset.replace({n: min(max(v, pset[n].min), pset[n].max)
+                                     for n, v in STARTS[spec.start](pset, runs).items() if n in pset})
             if spec.profile:
                 # a switch the model lacks distorts the declared fit (a missing pawl clearance drives the
                 # retraction disk friction to 0): a profiled candidate restarts the declared parameters, and
                 # centres their priors, at the parameter file's values
                 pset = pset.replace({n: params.value(n) for n in uncertain})
             free = tuple(dict.fromkeys(cur_free + spec.free))
-            jobs.append(job(spec.name, effs, free, pset, fit_runs, profile=spec.profile, spec=spec))
+            prof = {n: (PROFILE_LIMITS[n](pset, runs, *r) if n in PROFILE_LIMITS else r) for n, r in spec.profile.items()}
+            jobs.append(job(spec.name, effs, free, pset, fit_runs, profile=prof, spec=spec))
         say(f"round {len(rounds) + 1}: scoring {len(jobs)} candidates ({', '.join(s.name for s in scorable)})")
         fits = _run_jobs(jobs, st.workers, say)
         base_hold = _chi2_by_channel(current, noise, "holdout")
