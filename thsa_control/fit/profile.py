@@ -332,7 +332,8 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
     # decides which terms act; their sizes are what the fit is for)
     lo, hi = profile[main]
     integer = bool(params[main].integer)
-    solve = tuple(free) if integer else ()
+    # solved in the screen: the effect being tried (the free parameters without a prior), else every free one
+    solve = (tuple(n for n in free if n in st.no_prior) or tuple(free)) if integer else ()
     x = _grid(lo, hi, ps.screen_points, integer)
     if x.size == 0:
         raise ParameterError(main, f"profile range {lo:g}..{hi:g} holds no whole value")

@@ -309,7 +309,15 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             elif spec.name in hurt:
                 skipped.append({"name": spec.name, "reason": f"made the held-out error worse in round {len(rounds)}"})
             else:
-                scorable.append(spec)
+                # a profiled range narrowed to what the runs resolve (the cogging's period counts)
+                prof = {n: (PROFILE_LIMITS[n](cur_params, runs, *r) if n in PROFILE_LIMITS else r)
+                        for n, r in spec.profile.items()}
+                empty = [f"{n} {lo:g}..{hi:g}" for n, (lo, hi) in prof.items() if not hi > lo]
+                if empty:
+                    skipped.append({"name": spec.name, "reason": "the runs resolve too few values to profile: "
+                                                                 + ", ".join(empty)})
+                else:
+                    scorable.append(dataclasses.replace(spec, profile=prof) if prof != dict(spec.profile) else spec)
         if not scorable:
             break
         # the longest fits first, so that the workers finish together (profiled, then the structural effects)
@@ -336,8 +344,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 # centres their priors, at the parameter file's values
                 pset = pset.replace({n: params.value(n) for n in uncertain})
             free = tuple(dict.fromkeys(cur_free + spec.free))
-            prof = {n: (PROFILE_LIMITS[n](pset, runs, *r) if n in PROFILE_LIMITS else r) for n, r in spec.profile.items()}
-            jobs.append(job(spec.name, effs, free, pset, fit_runs, profile=prof, spec=spec))
+            jobs.append(job(spec.name, effs, free, pset, fit_runs, profile=spec.profile, spec=spec))
         say(f"round {len(rounds) + 1}: scoring {len(jobs)} candidates ({', '.join(s.name for s in scorable)})")
         fits = _run_jobs(jobs, st.workers, say)
         base_hold = _chi2_by_channel(current, noise, "holdout")
