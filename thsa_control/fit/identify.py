@@ -129,6 +129,12 @@ class IdentificationSettings:
         compliant load path) at their quasi-static values (the static deflection of the measured load, moving
         with the nut) instead of freeing them: free, they let the fit ring the mode to absorb another channel's
         mismatch, and the channel the mode shows in (the LVDT) gets worse.
+    speed_sensors : mapping channel -> interval, optional
+        How the speed sensors read, over each run's own declaration
+        (:func:`~thsa_control.data.rigformat.speed_sensor_intervals`: the run JSON's ``speed_sensors``, else its
+        ``sensors`` text as a reported fallback, else instantaneous): a difference interval [s], ``"sample"``
+        or ``"instantaneous"``.  A difference-quotient sensor is compared with the model's angle travelled over
+        that interval divided by it (resolved to the plant steps: ``substeps`` per sample).
     holdout_every : int
         0: every segment is fitted.  k >= 2: every k-th segment is held out of
         the parameter fit; its initial state is fitted afterwards at the
@@ -154,6 +160,7 @@ class IdentificationSettings:
     no_prior: tuple[str, ...] = ()
     holdout_every: int = 0
     quasi_static_starts: bool = False
+    speed_sensors: Mapping[str, object] | None = None
     priors: Mapping[str, tuple[float, float]] | None = None
 
     def validate(self) -> None:
