@@ -125,3 +125,113 @@ def test_no_cogging_on_a_null_whose_record_resolves_no_count(params):
     st = TraceSettings(workers=1, candidates=("cogging_torque",), base_corrections=True, max_effects=1)
     doc = trace(_run("null_papers_trim_s1", params), "A", params=params, settings=st).to_dict()
     assert not [e for e in doc["effects_added"] if e["name"] == "cogging_torque"], doc["effects_added"]
+
+
+# ----------------------------------------------------------------------------- speed sensors as difference quotients
+def test_speed_sensor_declaration_structured_field_text_fallback_and_option(params, tmp_path):
+    """The run JSON's structured ``speed_sensors`` wins over its free ``sensors`` text, which is read only as a
+    reported fallback; an explicit option wins over both; a malformed interval names the field."""
+    from thsa_control.data.rigformat import speed_sensor_intervals
+
+    run = _run("rig_drivetrain_compliance", params)
+    got = speed_sensor_intervals(run)
+    assert got["motor_speed"]["interval"] == pytest.approx(1e-3) and got["screw_speed"]["interval"] == "sample"
+    assert all(v["source"].startswith("fallback") for v in got.values()), got
+    import dataclasses
+
+    declared = dataclasses.replace(run, metadata={**run.metadata, "speed_sensors": {"motor_speed_rpm": 0.002,
+                                                                                    "screw_speed_rpm": "instantaneous"}})
+    got = speed_sensor_intervals(declared)
+    assert got["motor_speed"] == {"interval": 0.002, "source": "run JSON speed_sensors"}
+    assert got["screw_speed"]["interval"] is None
+    got = speed_sensor_intervals(declared, {"motor_speed": "instantaneous"})
+    assert got["motor_speed"] == {"interval": None, "source": "explicit option"}
+    bad = dataclasses.replace(run, metadata={**run.metadata, "speed_sensors": {"screw_speed_rpm": -1}})
+    with pytest.raises(ValueError, match="speed_sensors.screw_speed_rpm"):
+        speed_sensor_intervals(bad)
+    plain = dataclasses.replace(run, metadata={k: v for k, v in run.metadata.items() if k != "sensors"})
+    assert {v["interval"] for v in speed_sensor_intervals(plain).values()} == {None}
+    with pytest.raises(ValueError, match="speed_sensors"):
+        TraceSettings(speed_sensors={"lvdt": 0.001}).validate()
+
+
+def test_difference_quotient_reading_is_the_angle_over_the_interval(params):
+    """The screw sensor's quotient over one sample equals the nut travel over that sample divided by the lead
+    and the period (the RVDT angle differentiated over one sample); over half the period, the travel of the
+    last half; the instantaneous reading at the period's end differs from both while the drive accelerates."""
+    import math
+
+    import numpy as np
+
+    from thsa_control.fit.replay import MECH_INPUTS, current_driven_map
+    from thsa_control.model import build_plant
+
+    plant = build_plant("A", params=params)
+    S = 4
+    mech_q = current_driven_map(plant, S, {"screw_speed": S, "motor_speed": S // 2})
+    mech_fine = current_driven_map(plant, 1)
+    p = plant.p_vector(params)
+    x = plant.initial_state(params, load_force=5e3)
+    v = np.zeros(len(MECH_INPUTS))
+    for name, val in (("current_start", 6.0), ("current_end", 6.0), ("load_start", 5e3), ("load_end", 5e3),
+                      ("temperature", 25.0)):
+        v[MECH_INPUTS.index(name)] = val
+    h = 2e-3
+    i_nut = plant.index("state", "nut_position")
+    xs = [np.asarray(x, float).ravel()]
+    for _ in range(S):  # the same plant steps one by one
+        xs.append(np.asarray(mech_fine(xs[-1], v, p, h / S)[0]).ravel())
+    xn, _, q = mech_q(x, v, p, h)
+    q = np.asarray(q).ravel()
+    lead, ratio = params.value("screw.lead"), plant.kinematic_ratio(p)
+    travel = xs[-1][i_nut] - xs[0][i_nut]
+    assert travel > 0
+    assert q[0] == pytest.approx(travel / lead * 2 * math.pi / h, rel=1e-9)
+    half = xs[-1][i_nut] - xs[S // 2][i_nut]
+    assert q[1] == pytest.approx(half / ratio / (h / 2), rel=1e-9)
+    w_end = float(np.asarray(xn).ravel()[plant.index("state", "motor_speed")])
+    assert abs(w_end - q[1]) > 1e-3 * abs(w_end)
+
+
+@pytest.fixture(scope="module")
+def drivetrain_traced(params):
+    cache = {}
+
+    def go(speed_sensors):
+        key = json.dumps(speed_sensors)
+        if key not in cache:
+            st = TraceSettings(workers=2, candidates=("drivetrain_compliance",), base_corrections=True, max_effects=1,
+                               substeps=2, speed_sensors=speed_sensors)
+            # the rig carries two rotors (its JSON: rig.motors = 2): the declared model has the standby rotor
+            cache[key] = trace(_run("rig_drivetrain_compliance", params), "A", ("standby_motor",), params=params,
+                               settings=st).to_dict()
+        return cache[key]
+
+    return go
+
+
+@pytest.mark.slow
+def test_drivetrain_compliance_improves_the_screw_speed_read_as_a_quotient(drivetrain_traced):
+    """rig base + drive-train compliance (47 Hz) under a speed chirp, speeds read as rig-sim's sensors do (run
+    JSON sensors text: the motor's angle over 1 ms, the RVDT's over one sample): the compliance fit makes its
+    own channel, the screw speed, better (it made it 166 % worse before), with the series stiffness within
+    20 % of rig-sim's 8e3 N m/rad; the quotient reading fits the rigid model's screw speed better than the
+    instantaneous one."""
+    doc = drivetrain_traced(None)
+    assert doc["datasets"][0]["speed_sensors"]["screw_speed"]["interval"] == "sample"
+    c = _last_scored(doc, "drivetrain_compliance")
+    assert c["window_reduction"]["screw_speed"] > 0.0, c
+    k_gear = c["parameters"]["gear.torsional_stiffness"]["value"]
+    k_screw = 4.0e4  # the parameter file's screw torsional stiffness, in series (held)
+    assert 1.0 / (1.0 / k_gear + 1.0 / k_screw) == pytest.approx(8.0e3, rel=0.2), c["parameters"]
+    inst = drivetrain_traced({"motor_speed": "instantaneous", "screw_speed": "instantaneous"})
+    assert (doc["base_corrections"]["error_after"]["screw_speed"]["rms"]
+            < inst["base_corrections"]["error_after"]["screw_speed"]["rms"])
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=False, reason="measured: the screw-speed window error drops 13 % but the motor speed's rises "
+                                        "2 %, whose chi2 dominates: held-out chi2 drop -432, not significant")
+def test_drivetrain_compliance_is_added(drivetrain_traced):
+    doc = drivetrain_traced(None)
+    assert [e["name"] for e in doc["effects_added"]] == ["drivetrain_compliance"], doc["rounds"]
