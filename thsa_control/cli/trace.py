@@ -27,6 +27,13 @@ def add_parser(subparsers) -> None:
                         "efficiencies within plausible magnitudes; reported as base corrections, not effects). "
                         "auto: on with the default candidates, off with --candidates")
     p.add_argument("--workers", type=int, default=2, help="parallel candidate fits (default 2)")
+    p.add_argument("--substeps", type=int, default=1, help="plant steps per sample period of the fits (default 1; "
+                   "a speed sensor's difference interval shorter than a sample needs more)")
+    p.add_argument("--speed-sensors", help="how the speed sensors read, over the run JSON's declaration: "
+                   "comma-separated CHANNEL=INTERVAL, CHANNEL motor_speed or screw_speed, INTERVAL a difference "
+                   "interval in seconds, 'sample' (one logged sample) or 'instantaneous' (e.g. "
+                   "motor_speed=0.001,screw_speed=sample); default: each run JSON's speed_sensors, else its "
+                   "sensors text (reported as a fallback), else instantaneous")
     p.add_argument("--column-map", help="JSON mapping of rig column names to FORMAT names")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
     p.add_argument("--out", required=True,
@@ -62,8 +69,16 @@ def run(args) -> int:
     runs = [run_kinematics(read_run(p, column_map=mapping, default_kinematics=kin), params) for p in args.runs]
     split = lambda s: tuple(x.strip() for x in s.split(",") if x.strip()) if s else None  # noqa: E731
     try:
+        sensors = None
+        if args.speed_sensors:
+            sensors = {}
+            for item in split(args.speed_sensors):
+                k, sep, v = item.partition("=")
+                if not sep:
+                    raise ValueError(f"--speed-sensors {item!r}: give CHANNEL=INTERVAL")
+                sensors[k.strip()] = v.strip()
         settings = TraceSettings(segment_duration=args.segment, max_effects=args.max_effects, max_nfev=args.max_nfev,
-                                 workers=args.workers,
+                                 workers=args.workers, substeps=args.substeps, speed_sensors=sensors,
                                  base_corrections={"auto": None, "on": True, "off": False}[args.base_corrections], uncertain=split(args.free), candidates=split(args.candidates))
         settings.validate()
     except ValueError as exc:

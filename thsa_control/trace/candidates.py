@@ -106,6 +106,34 @@ PLAUSIBLE: dict[str, Callable] = {"drag": _rule_drag, "axial_force": _rule_axial
                                   "efficiency": _rule_efficiency}
 
 
+def _start_loadpath(params: ParameterSet, runs) -> dict[str, float]:
+    from ..fit.loadpath_screen import loadpath_static_screen
+
+    return loadpath_static_screen(runs, params)
+
+
+def _resolved_periods(params: ParameterSet, runs, lo: float, hi: float) -> tuple[float, float]:
+    """Cogging periods per motor revolution the record resolves: 4 samples or more per period at the median
+    moving motor speed (half the moving samples or more resolve it)."""
+    best = 0.0
+    for run in runs:
+        t = np.asarray(run.time, float)
+        w = np.abs(np.nan_to_num(measured_motor_speed(run)))
+        moving = w > 0.05 * max(float(np.max(w)), 1e-9)
+        if t.size < 2 or not moving.any():
+            continue
+        fs = 1.0 / float(np.median(np.diff(t)))
+        best = max(best, (fs / 4) / (float(np.median(w[moving])) / (2 * math.pi)))
+    return lo, max(lo, min(hi, math.floor(best)))
+
+
+#: Narrowing of a profiled parameter's range to what the runs resolve (name -> function(params, runs, lo, hi)).
+PROFILE_LIMITS: dict[str, Callable] = {"drive.cogging_periods": _resolved_periods}
+
+#: Starting values read off the runs (:attr:`CandidateSpec.start` -> function(params, runs) -> {name: value}).
+STARTS: dict[str, Callable] = {"loadpath_static": _start_loadpath}
+
+
 # ----------------------------------------------------------------------------- candidates
 def _generic_spec(name: str, params: ParameterSet) -> CandidateSpec | None:
     """An effect without a table entry: its non-zero, finitely bounded parameters (at most 3) are free."""

@@ -47,7 +47,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -55,9 +55,11 @@ import numpy as np
 from ..data.rigdata import RigRun
 from ..errors import ThsaError
 from ..fit.identify import IdentificationSettings, estimate_noise
+from ..data.rigformat import speed_sensor_intervals
 from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
 from ..model.params import ParameterSet, default_parameters
-from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, PLAUSIBLE, WINDOWS, _window,
+from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, PLAUSIBLE, PROFILE_LIMITS, STARTS, WINDOWS,
+                         _window,
                          candidate_specs, not_candidates)
 from .residual import _regime_errors, _signature
 from .scoring import (_base_correction, _channel_errors, _chi2_by_channel, _explainers_at_bound, _held_out,
@@ -150,9 +152,23 @@ class TraceSettings:
     base_corrections: bool | None = None
     undetermined_relative_stderr: float = 1.0
     window_tolerance: float = 0.01
+    #: how the speed sensors read, over each run's declaration (IdentificationSettings.speed_sensors): channel
+    #: -> difference interval [s], "sample" or "instantaneous"; None: each run's own (its JSON's
+    #: ``speed_sensors``, else its ``sensors`` text as a reported fallback, else instantaneous)
+    speed_sensors: Mapping[str, object] | None = None
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad field."""
+        if self.speed_sensors is not None:
+            from ..data.rigformat import SPEED_SENSOR_COLUMNS, _interval_from
+
+            for k, v in dict(self.speed_sensors).items():
+                if k not in SPEED_SENSOR_COLUMNS and k not in SPEED_SENSOR_COLUMNS.values():
+                    raise ValueError(f"TraceSettings.speed_sensors: unknown channel {k!r}; channels are "
+                                     f"{', '.join(SPEED_SENSOR_COLUMNS.values())}")
+                _interval_from(v, f"TraceSettings.speed_sensors[{k!r}]")
+        if not (isinstance(self.substeps, int) and self.substeps >= 1):
+            raise ValueError(f"TraceSettings.substeps = {self.substeps!r} must be an integer >= 1")
         if not (isinstance(self.holdout_every, int) and self.holdout_every >= 2):
             raise ValueError(f"TraceSettings.holdout_every = {self.holdout_every!r} must be an integer >= 2")
         if not (isinstance(self.workers, int) and self.workers >= 1):
@@ -243,7 +259,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         return IdentificationSettings(no_prior=tuple(no_prior), segment_duration=st.segment_duration, substeps=st.substeps, channels=channels,
                                       noise=noise, max_nfev=st.max_nfev, tolerance=st.tolerance, time_budget=st.fit_time_budget,
                                       prior_relative_sd=st.prior_relative_sd if prior else None,
-                                      holdout_every=st.holdout_every, priors=dict(priors or {}) or None)
+                                      holdout_every=st.holdout_every, priors=dict(priors or {}) or None,
+                                      quasi_static_starts=True, speed_sensors=st.speed_sensors)
 
     plaus = {k: fn(params, runs) for k, fn in PLAUSIBLE.items()}
     base_priors: dict[str, tuple[float, float]] = {}  # the base corrections' priors (kept in every later fit)
@@ -307,7 +324,15 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             elif spec.name in hurt:
                 skipped.append({"name": spec.name, "reason": f"made the held-out error worse in round {len(rounds)}"})
             else:
-                scorable.append(spec)
+                # a profiled range narrowed to what the runs resolve (the cogging's period counts)
+                prof = {n: (PROFILE_LIMITS[n](cur_params, runs, *r) if n in PROFILE_LIMITS else r)
+                        for n, r in spec.profile.items()}
+                empty = [f"{n} {lo:g}..{hi:g}" for n, (lo, hi) in prof.items() if not hi > lo]
+                if empty:
+                    skipped.append({"name": spec.name, "reason": "the runs resolve too few values to profile: "
+                                                                 + ", ".join(empty)})
+                else:
+                    scorable.append(dataclasses.replace(spec, profile=prof) if prof != dict(spec.profile) else spec)
         if not scorable:
             break
         # the longest fits first, so that the workers finish together (profiled, then the structural effects)
@@ -325,6 +350,9 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             replaced = {x for e in req + [spec.name] for x in EFFECTS[e].supersedes}
             effs = resolve_effects(None, add=[e for e in cur_effects if e not in replaced] + req + [spec.name])
             pset = cur_params.replace({n: v for n, v in spec.seeds.items() if cur_params.value(n) == 0})
+            if spec.start:  # starting values read off the runs (a static screen), within the search bounds
+                pset = pset.replace({n: min(max(v, pset[n].min), pset[n].max)
+                                     for n, v in STARTS[spec.start](pset, runs).items() if n in pset})
             if spec.profile:
                 # a switch the model lacks distorts the declared fit (a missing pawl clearance drives the
                 # retraction disk friction to 0): a profiled candidate restarts the declared parameters, and
@@ -489,7 +517,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     doc = {
         "format": TRACE_FORMAT,
         "datasets": [{"name": r.name, "csv": str(r.csv_path), "samples": int(len(r.time)),
-                      "duration_s": r.duration_s} for r in runs],
+                      "duration_s": r.duration_s, "speed_sensors": speed_sensor_intervals(r, st.speed_sensors)}
+                     for r in runs],
         "base_model": lvl if level is not None else None,
         "removed_effects": list(remove),
         "declared_effects": list(declared),
