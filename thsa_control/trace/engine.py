@@ -52,7 +52,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..data.rigdata import RigRun
+from ..data.rigdata import RigRun, measured_motor_speed
 from ..errors import ThsaError
 from ..fit.identify import IdentificationSettings, estimate_noise
 from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
@@ -64,13 +64,16 @@ from .scoring import (_base_correction, _channel_errors, _chi2_by_channel, _expl
                       _holdout_segment_changes,
                       _held_params, _null_runs, _param_entry, _plausibility, _rms_by_channel, _run_jobs,
                       _signature_brief)
-from .signature import SignatureSettings, split_remainder
+from .signature import SignatureSettings, base_transients, split_remainder
 from .threads import limit_blas_threads
 
 __all__ = ["TraceSettings", "CandidateSpec", "CANDIDATES", "DEFAULT_UNCERTAIN", "TraceResult", "trace",
            "candidate_specs", "TRACE_FORMAT", "not_candidates", "PLAUSIBLE", "EFFICIENCY_EXPLAINER", "WINDOWS"]
 
 TRACE_FORMAT = "thsa-trace/1"
+
+#: candidate windows at the transients themselves: scored on every sample (``score_outside_transients``)
+TRANSIENT_WINDOWS = ("reversal", "reversal_or_stop")
 
 
 @dataclass(frozen=True)
@@ -129,6 +132,15 @@ class TraceSettings:
         A significant physical effect whose window RMS drop is within this of
         the best constant-torque explainer's comes before it
         (:func:`_physical_first`).
+    score_outside_transients : bool
+        With the base step (data the declared model may not describe), score
+        the candidates' held-out drops, window drops and null drops on the
+        samples outside the base's transients
+        (:func:`~thsa_control.trace.signature.base_transients`: starts, stops,
+        reversals, load changes), except candidates that act there (windows
+        ``reversal``, ``reversal_or_stop``): a declared model of another
+        rig's base leaves its largest residual at those transients, and a
+        few such held-out segments decided the sign of every drop.
     """
 
     segment_duration: float = 0.05
@@ -151,6 +163,7 @@ class TraceSettings:
     base_corrections: bool | None = None
     undetermined_relative_stderr: float = 1.0
     window_tolerance: float = 0.01
+    score_outside_transients: bool = True
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad field."""
@@ -319,6 +332,16 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             base_doc["signature_after"] = _signature_brief(
                 _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, noise))
     windows_cache = {spec: {r.name: _window(spec, r, params) for r in runs} for spec in WINDOWS}
+    # where the candidates are scored: outside the base's transients on data the declared model may not describe
+    steady = ({r.name: ~base_transients(r.time, measured_motor_speed(r), r.signals["load_force"],
+                                        st.signature.transient_time) for r in runs}
+              if use_base and st.score_outside_transients else None)
+
+    def score_mask(window: str):
+        return None if steady is None or window in TRANSIENT_WINDOWS else steady
+
+    win_scored = {w: (windows_cache[w] if score_mask(w) is None else
+                      {r: windows_cache[w][r] & steady[r] for r in windows_cache[w]}) for w in WINDOWS}
     hurt: set[str] = set()
     while sum(1 for e in added if "implied_by" not in e) < st.max_effects:
         specs = candidate_specs(cur_effects, cur_params, st.candidates)
@@ -364,7 +387,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             jobs.append(job(spec.name, effs, free, pset, fit_runs, profile=spec.profile, spec=spec))
         say(f"round {len(rounds) + 1}: scoring {len(jobs)} candidates ({', '.join(s.name for s in scorable)})")
         fits = _run_jobs(jobs, st.workers, say)
-        base_hold = _chi2_by_channel(current, noise, "holdout")
+        base_holds = {w: _chi2_by_channel(current, noise, "holdout", score_mask(w)) for w in WINDOWS}
         scored = []
         for spec, f, jb in zip(scorable, fits, jobs):
             if "error" in f:
@@ -372,13 +395,14 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                                "error_reduction": {}})
                 continue
             cand_times.append(f["time_s"])
-            hold = _chi2_by_channel(f, noise, "holdout")
+            base_hold = base_holds[spec.window]
+            hold = _chi2_by_channel(f, noise, "holdout", score_mask(spec.window))
             drop = sum(base_hold.values()) - sum(hold.values())
             k = len(spec.free) + len(spec.profile)
             from scipy.stats import chi2
 
             thr = float(chi2.ppf(1 - st.alpha, k))
-            win = windows_cache[spec.window]
+            win = win_scored[spec.window]
             wb = _chi2_by_channel(current, noise, "holdout", win)
             wc = _chi2_by_channel(f, noise, "holdout", win)
             win_red = {c: (1 - math.sqrt(wc[c] / wb[c])) if wb.get(c, 0) > 0 else 0.0 for c in wc}
@@ -397,6 +421,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "fit_time_s": f["time_s"], "converged": f["converged"], "prelim": prelim, "_fit": f, "_job": jb,
                 "not_determined": _held_out(f),
                 "holdout_segments": _holdout_segment_changes(current, f, noise),
+                **({"scored_outside_transients": True} if score_mask(spec.window) is not None else {}),
+                "_mask": score_mask(spec.window),
                 **({"beyond_base_correction": True} if any(n in at_plausible_bound for n in spec.free) else {}),
                 **({"profile": f["profile"]} if f.get("profile") else {}),
                 "_noise": noise,
@@ -409,17 +435,20 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         if promising:
             null = _null_runs(current, fit_runs, noise, st.seed + len(rounds))
             null_base = _run_jobs([job("null base", cur_effects, cur_free, cur_params, null)], 1, None)[0]
-            nb = sum(_chi2_by_channel(null_base, noise, "holdout").values()) if "error" not in null_base else math.nan
+            nbs = {w: (sum(_chi2_by_channel(null_base, noise, "holdout", score_mask(w)).values())
+                       if "error" not in null_base else math.nan) for w in WINDOWS}
             todo = list(promising)
 
-            def calibrate(batch, null=null, nb=nb):
+            def calibrate(batch, null=null, nbs=nbs):
                 say(f"calibrating {', '.join(c['name'] for c in batch)} on a null run")
                 null_fits = _run_jobs([{**c["_job"], "label": f"null {c['name']}", "runs": null,
                                         "free": tuple(c["_fit"]["free"]), "judge": {},
                                         "params_toml": _held_params(c["_job"]["params_toml"], c["_fit"])}
                                        for c in batch], st.workers, say)
                 for c, nf in zip(batch, null_fits):
-                    nd = (nb - sum(_chi2_by_channel(nf, noise, "holdout").values())) if "error" not in nf else math.nan
+                    w = c["window"]
+                    nd = ((nbs[w] - sum(_chi2_by_channel(nf, noise, "holdout", score_mask(w)).values()))
+                          if "error" not in nf else math.nan)
                     c["null_chi2_drop"] = nd
                 return [c for c in batch if math.isfinite(c["null_chi2_drop"]) and c["holdout_chi2_drop"]
                         > st.null_factor * max(c["null_chi2_drop"], 0.0)]
@@ -459,7 +488,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         if best is None:
             say("no candidate is significant: stop")
             break
-        best, yielded = _physical_first(best, scored, st.window_tolerance, current, noise, windows_cache)
+        best, yielded = _physical_first(best, scored, st.window_tolerance, current, noise, win_scored)
         if yielded:
             rounds[-1]["physical_first"] = {"chosen": best["name"], "over": yielded}
             say(f"{best['name']} explains as much inside its window as the constant-torque "
@@ -675,9 +704,10 @@ def _rivals(best: dict, scored: list[dict], alpha: float) -> list[dict]:
     """
     from scipy.stats import chi2
 
-    hold = sum(_chi2_by_channel(best["_fit"], best["_noise"], "holdout").values())
-    n = _holdout_samples(best["_fit"])
-    tau = _holdout_iact(best["_fit"], best["_noise"])
+    mask = best.get("_mask")  # the samples the drops were scored on
+    hold = sum(_chi2_by_channel(best["_fit"], best["_noise"], "holdout", mask).values())
+    n = _holdout_samples(best["_fit"], mask)
+    tau = _holdout_iact(best["_fit"], best["_noise"], mask)
     gap = float(chi2.ppf(1 - alpha, 1)) * max(1.0, hold / max(n, 1)) * tau
     best["_indistinct_below"] = gap
     best["_holdout_iact"] = tau
@@ -685,7 +715,7 @@ def _rivals(best: dict, scored: list[dict], alpha: float) -> list[dict]:
             and best["holdout_chi2_drop"] - s["holdout_chi2_drop"] < gap]
 
 
-def _holdout_iact(fit: dict, noise) -> float:
+def _holdout_iact(fit: dict, noise, mask: dict | None = None) -> float:
     """Integrated autocorrelation time of a fit's held-out residual (noise-weighted, Geyer's estimate per held-out
     segment run and channel, averaged with the channels' chi2 as weights), at least 1.
 
@@ -696,8 +726,10 @@ def _holdout_iact(fit: dict, noise) -> float:
     from .signature import _effective_n_iact
 
     acc, wsum = 0.0, 0.0
-    for p in fit["predictions"].values():
+    for r, p in fit["predictions"].items():
         hold = np.asarray(p["holdout"], bool)
+        if mask is not None:
+            hold = hold & np.asarray(mask[r], bool)[:hold.size]
         for c, y in p["measured"].items():
             if not noise.get(c):
                 continue
@@ -712,11 +744,13 @@ def _holdout_iact(fit: dict, noise) -> float:
     return max(acc / wsum, 1.0) if wsum > 0 else 1.0
 
 
-def _holdout_samples(fit: dict) -> int:
-    """Number of finite held-out samples over all channels of a fit."""
+def _holdout_samples(fit: dict, mask: dict | None = None) -> int:
+    """Number of finite held-out samples over all channels of a fit (inside ``mask[run]`` when given)."""
     n = 0
-    for p in fit["predictions"].values():
+    for r, p in fit["predictions"].items():
         hold = np.asarray(p["holdout"], bool)
+        if mask is not None:
+            hold = hold & np.asarray(mask[r], bool)[:hold.size]
         for c, y in p["measured"].items():
             n += int(np.sum(hold & np.isfinite(np.asarray(y) - np.asarray(p["simulated"][c]))[:hold.size]))
     return n

@@ -377,14 +377,16 @@ def _corrections(f: dict, bounds, owner, sources, priors) -> list[dict]:
         e = f["estimates"][n]
         lo, hi = bounds[n]
         out.append({"effect": owner[n], "parameter": n, **_param_entry(e), "bound": [lo, hi],
-                    "bound_source": sources[n], "at_plausible_bound": bool(_at_edge(e["value"], lo, hi)),
+                    "bound_source": sources[n], "at_plausible_bound": bool(_at_edge(e["value"], lo, hi, priors[n][0])),
                     "change": e["value"] - priors[n][0]})
     return out
 
 
-def _at_edge(v: float, lo: float, hi: float) -> bool:
+def _at_edge(v: float, lo: float, hi: float, centre: float = 0.0) -> bool:
+    """At a plausible bound: within 2 % of the range of its upper end, or of its lower end when that lies below
+    the prior centre (a drag at 0 is no correction, an efficiency at centre - bound is one at its bound)."""
     edge = 0.02 * (hi - lo)
-    return v >= hi - edge or (lo < 0 and v <= lo + edge)
+    return v >= hi - edge or (lo < centre and v <= lo + edge)
 
 
 def _explainers_at_bound(fit: dict, base_bounds: Mapping[str, tuple]) -> dict[str, str]:
