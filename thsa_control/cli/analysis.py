@@ -39,16 +39,19 @@ def cmd_report(args) -> int:
     resolve_effects(settings.level, add=list(settings.effects))  # validate names before any work
     progress.phase(f"linearising level {settings.level} over the grid and analysing the loops"
                    + ("" if args.no_switching else ", then the switch-over transient"))
-    result = analyse_design(design, params, settings=settings, switching=not args.no_switching)
+    with progress.heartbeat():
+        result = analyse_design(design, params, settings=settings, switching=not args.no_switching)
     verdict = None
     if args.check:  # the verdict of thsa check: this grid's linear requirements + the validation runs
         from .tuning import report_verdict
 
         progress.phase("judging every requirement (the validation runs of thsa check)")
-        verdict = report_verdict(result, params)
+        with progress.heartbeat():
+            verdict = report_verdict(result, params)
     progress.phase("writing the report")
     opts = out_options(args)
-    out = write_analysis_report(result, args.out, force=opts["force"], inputs=opts["inputs"], verdict=verdict)
+    with progress.heartbeat():
+        out = write_analysis_report(result, args.out, force=opts["force"], inputs=opts["inputs"], verdict=verdict)
     progress.done()
     print(result.requirements.summary())
     if verdict is not None:

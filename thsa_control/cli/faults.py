@@ -60,9 +60,11 @@ def run(args) -> int:
     from ..progress import Progress
 
     progress = Progress("thsa faults", enabled=not getattr(args, "quiet", False))
-    a = analyse_faults(design, params, scales=scales, delays_s=delays, sweep=not args.no_sweep, progress=progress)
+    with progress.heartbeat():
+        a = analyse_faults(design, params, scales=scales, delays_s=delays, sweep=not args.no_sweep, progress=progress)
     progress.phase("writing the report")
-    write_fault_report(a, params, args.out, **out_options(args))
+    with progress.heartbeat():
+        write_fault_report(a, params, args.out, progress=progress, **out_options(args))
     progress.done()
     print(a.report())  # the cases by plant as in the HTML, the margins, the sweep (display units)
     print(f"wrote {Path(args.out).resolve() / 'report.html'}")

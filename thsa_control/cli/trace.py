@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 __all__ = ["add_parser", "run"]
@@ -67,10 +66,16 @@ def run(args) -> int:
         from ..errors import ThsaError
 
         raise ThsaError(str(exc)) from None
-    say = None if args.quiet else (lambda m: print(f"trace: {m}", file=sys.stderr, flush=True))
-    result = trace(runs, args.model, args.effects or (), remove=args.remove or (), params=params, settings=settings, progress=say)
+    from .common import progress_for
+
+    progress = progress_for(args, "thsa trace")
+    with progress.heartbeat():
+        result = trace(runs, args.model, args.effects or (), remove=args.remove or (), params=params,
+                       settings=settings, progress=progress if progress.enabled else None)
+    progress.phase("writing the trace folder")
     with atomic_folder(args.out, **out_opts, command=" ".join(["thsa", *getattr(args, "argv", [])])) as tmp:
         write_trace_folder(tmp, result)
+    progress.done()
     print(format_trace_summary(result.to_dict()))
     print(f"wrote {Path(args.out).resolve()}")
     return 0

@@ -61,6 +61,7 @@ from .segment_states import (
     custom_state_indices,
     measured_speed,
     measured_state_matrix,
+    one_step_loop,
     one_step_map,
 )
 
@@ -188,6 +189,7 @@ class OneStepScreen:
     def __init__(self, runs: Sequence[RigRun], plant, params: ParameterSet, substeps: int = 1):
         self.plant = plant
         mech = current_driven_map(plant, substeps)
+        self.loop = one_step_loop(plant, mech)
         self.parts = []
         for run in runs:
             w = measured_speed(run)
@@ -197,22 +199,34 @@ class OneStepScreen:
             n = w.size
             sigma = estimate_noise(w) * math.sqrt(2.0)  # the start speed and the compared one both carry noise
             U = np.vstack([X[:, :-1], mech_inputs(run)[:, :n - 1], sample_periods(run)[None, :n - 1]])
-            self.parts.append((one_step_map(plant, mech, n - 1), U, w[1:], sigma))
+            self.parts.append((None if self.loop is not None else one_step_map(plant, mech, n - 1),
+                               np.ascontiguousarray(U), w[1:], sigma))
         if not self.parts:
             raise ParameterError("<profile>", "no run measures a motor or screw speed: nothing to screen a profile on")
         self.n = sum(p[2].size for p in self.parts)
 
     def chi2(self, params: ParameterSet) -> float:
         """Sum of squared one-step speed errors over the runs, each weighted by its noise."""
-        p = self.plant.p_vector(params)
+        return float(self.chi2_many([params])[0])
+
+    def chi2_many(self, psets: Sequence[ParameterSet]) -> np.ndarray:
+        """:meth:`chi2` of several parameter sets (a profile's grid), in one compiled call per run where a C
+        compiler works (each set computed exactly as alone)."""
+        P = np.array([self.plant.p_vector(ps) for ps in psets], float)
         # the first custom states follow the parameters (initial clearance fraction x pitch)
-        c0 = self.plant.initial_state(params)[custom_state_indices(self.plant)]
-        tot = 0.0
+        idx = custom_state_indices(self.plant)
+        C0 = np.array([self.plant.initial_state(ps)[idx] for ps in psets], float).reshape(len(psets), len(idx))
+        tot = np.zeros(len(psets))
         for F, U, w_next, sigma in self.parts:
-            _, W = F(c0, U, p)
-            e = (np.asarray(W).ravel() - w_next) / sigma
-            e = e[np.isfinite(e)]
-            tot += float(e @ e)
+            if F is None:
+                Y, _ = self.loop.batch(C0, [U] * len(psets), P, 1)
+                Ws = Y[:, -1, :]  # the predicted speed (the rows before: the custom states)
+            else:
+                Ws = [np.asarray(F(c0, U, p)[1]).ravel() for c0, p in zip(C0, P)]
+            for k, W in enumerate(Ws):
+                e = (W - w_next) / sigma
+                e = e[np.isfinite(e)]
+                tot[k] += float(e @ e)
         return tot
 
 
@@ -307,13 +321,13 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
     # 1-2: screen the first parameter, then refine around its best local minima
     lo, hi = profile[main]
     x = _grid(lo, hi, ps.screen_points)
-    y = np.array([screen.chi2(params.replace({main: float(v)})) for v in x])
+    y = screen.chi2_many([params.replace({main: float(v)}) for v in x])
     say(f"profile {main}: screened {x.size} values")
     cands, fine_pts = [], {}
     for i in _local_minima(x, y, ps.local_minima):
         a, b = x[max(i - 1, 0)], x[min(i + 1, x.size - 1)]
         xf = np.linspace(a, b, ps.fine_points)
-        yf = np.array([screen.chi2(params.replace({main: float(v)})) for v in xf])
+        yf = screen.chi2_many([params.replace({main: float(v)}) for v in xf])
         fine_pts.update(zip(xf.tolist(), yf.tolist()))
         cands.append(float(xf[int(np.argmin(yf))]))
     allx = np.array(sorted(set(x.tolist()) | set(fine_pts)))
@@ -327,7 +341,7 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
     for name in names[1:]:
         a, b = profile[name]
         xo = np.linspace(a, b, ps.other_points)
-        yo = np.array([screen.chi2(params.replace({**best_vals, name: float(v)})) for v in xo])
+        yo = screen.chi2_many([params.replace({**best_vals, name: float(v)}) for v in xo])
         screens[name] = list(zip(xo.tolist(), yo.tolist()))
         mattered[name] = bool(np.ptp(yo) > thr)
         best_vals[name] = float(xo[int(np.argmin(yo))]) if mattered[name] else params.value(name)

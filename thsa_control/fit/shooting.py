@@ -166,6 +166,12 @@ class RunProblem:
         self.n_dec_states = len(self.free_states) * M
         self.f_res = ca.Function("res", [dec, P, scale, sig], [r])
         self.f_jac = ca.Function("res_jac", [dec, P, scale, sig], [r, ca.jacobian(r, dec)])
+        # the segment states alone (parameters held: the "before" fit and the held-out segments): casadi colours
+        # the block-diagonal columns with one direction per free state instead of one more per parameter
+        self.f_jac_states = ca.Function("res_jac_states", [dec, P, scale, sig], [r, ca.jacobian(r, ca.vec(S))])
+        self._res = BufferedFunction(self.f_res)
+        self._jac = BufferedFunction(self.f_jac)
+        self._jac_states = BufferedFunction(self.f_jac_states)
         self.f_pred = ca.Function("pred", [dec, P, scale], [Y])
         # every state (at each sample's start) and every output of the same segment predictions, for the
         # segmented open-loop residual (thsa_control.fit.segmented); not differentiated
@@ -241,3 +247,57 @@ class RunProblem:
 
     def initial_decision(self) -> np.ndarray:
         return self.x_guess[self.free_states, :].ravel(order="F")
+
+    def residuals(self, dec, p0, scale, sigma) -> np.ndarray:
+        """``f_res`` as a flat array (the channel-major residual rows)."""
+        r = self._res(dec, p0, scale, sigma)[0]
+        return r if isinstance(r, np.ndarray) else r.toarray().ravel(order="F")
+
+    def jacobian(self, dec, p0, scale, sigma, states_only: bool = False):
+        """Residual rows' exact Jacobian (scipy CSC) with respect to every decision variable, or to the segment
+        states alone (``states_only``: the columns after the free parameters)."""
+        return (self._jac_states if states_only else self._jac)(dec, p0, scale, sigma)[1]
+
+
+class BufferedFunction:
+    """A casadi Function evaluated into numpy buffers (no conversion of its outputs through Python lists): a
+    dense column comes back flat, a dense matrix as (rows, columns), a sparse output as a scipy CSC matrix of
+    its structural non-zeros."""
+
+    def __init__(self, f: ca.Function):
+        import scipy.sparse as sps
+
+        self._sps = sps
+        self.f = f
+        self.n_in = [f.nnz_in(i) for i in range(f.n_in())]
+        self.sparse = []
+        for i in range(f.n_out()):
+            sp = f.sparsity_out(i)
+            colind, row = sp.get_ccs()
+            self.sparse.append((sp.size1(), sp.size2()) if sp.is_dense() else
+                               (np.asarray(row, np.int32), np.asarray(colind, np.int32), (sp.size1(), sp.size2())))
+        self.buf = None
+
+    def __call__(self, *args):
+        if self.buf is None:  # made on first use (a buffer does not survive pickling or fork)
+            self.buf = self.f.buffer()
+        fb, call = self.buf
+        keep = []
+        for i, (a, n) in enumerate(zip(args, self.n_in)):
+            a = np.ascontiguousarray(np.asarray(a, float).ravel(order="F"))
+            if a.size != n:
+                raise ValueError(f"{self.f.name()}: input {i} has {a.size} values, expected {n}")
+            keep.append(a)
+            fb.set_arg(i, memoryview(a))
+        outs = [np.empty(self.f.nnz_out(i)) for i in range(self.f.n_out())]
+        for i, o in enumerate(outs):
+            fb.set_res(i, memoryview(o))
+        call()
+        res = []
+        for o, sp in zip(outs, self.sparse):
+            if len(sp) == 2:  # dense: a column vector flat, a matrix (rows, columns)
+                res.append(o if sp[1] == 1 else o.reshape(sp, order="F"))
+            else:
+                row, colind, shape = sp
+                res.append(self._sps.csc_matrix((o, row, colind), shape=shape))
+        return res
