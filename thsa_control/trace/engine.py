@@ -174,13 +174,13 @@ class TraceSettings:
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad field."""
         if self.speed_sensors is not None:
-            from ..data.rigformat import SPEED_SENSOR_COLUMNS, _interval_from
+            from ..data.rigformat import SPEED_SENSOR_COLUMNS, speed_interval_from
 
             for k, v in dict(self.speed_sensors).items():
                 if k not in SPEED_SENSOR_COLUMNS and k not in SPEED_SENSOR_COLUMNS.values():
                     raise ValueError(f"TraceSettings.speed_sensors: unknown channel {k!r}; channels are "
                                      f"{', '.join(SPEED_SENSOR_COLUMNS.values())}")
-                _interval_from(v, f"TraceSettings.speed_sensors[{k!r}]")
+                speed_interval_from(v, f"TraceSettings.speed_sensors[{k!r}]")
         if not (isinstance(self.substeps, int) and self.substeps >= 1):
             raise ValueError(f"TraceSettings.substeps = {self.substeps!r} must be an integer >= 1")
         if not (isinstance(self.holdout_every, int) and self.holdout_every >= 2):
