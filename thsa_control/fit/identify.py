@@ -124,6 +124,17 @@ class IdentificationSettings:
         Explicit Gaussian priors of these free parameters (SI), replacing the
         ``prior_relative_sd`` rule for them (the tracer's base corrections:
         centred at 0 with a standard deviation of half their plausible size).
+    quasi_static_starts : bool
+        Start each segment with the plant's fast internal modes (``Plant.quasi_static_states``: the surface on a
+        compliant load path) at their quasi-static values (the static deflection of the measured load, moving
+        with the nut) instead of freeing them: free, they let the fit ring the mode to absorb another channel's
+        mismatch, and the channel the mode shows in (the LVDT) gets worse.
+    speed_sensors : mapping channel -> interval, optional
+        How the speed sensors read, over each run's own declaration
+        (:func:`~thsa_control.data.rigformat.speed_sensor_intervals`: the run JSON's ``speed_sensors``, else its
+        ``sensors`` text as a reported fallback, else instantaneous): a difference interval [s], ``"sample"``
+        or ``"instantaneous"``.  A difference-quotient sensor is compared with the model's angle travelled over
+        that interval divided by it (resolved to the plant steps: ``substeps`` per sample).
     holdout_every : int
         0: every segment is fitted.  k >= 2: every k-th segment is held out of
         the parameter fit; its initial state is fitted afterwards at the
@@ -148,6 +159,8 @@ class IdentificationSettings:
     prior_relative_sd: float | None = None
     no_prior: tuple[str, ...] = ()
     holdout_every: int = 0
+    quasi_static_starts: bool = False
+    speed_sensors: Mapping[str, object] | None = None
     priors: Mapping[str, tuple[float, float]] | None = None
 
     def validate(self) -> None:
@@ -352,8 +365,7 @@ class Identifier:
         def residuals(z, weights=None):
             counters["nfev"] += 1
             weights = fit_w if weights is None else weights
-            parts = [np.asarray(pb.f_res(d, p0, scale, sg)).ravel() * w
-                     for pb, d, sg, w in zip(problems, split(z), sigmas, weights)]
+            parts = [pb.residuals(d, p0, scale, sg) * w for pb, d, sg, w in zip(problems, split(z), sigmas, weights)]
             if prior_w is not None:
                 parts.append((z[:nf] - prior_z0) * prior_w)
             r = np.concatenate(parts)
@@ -369,15 +381,14 @@ class Identifier:
                     raise _Budget()
             return r
 
+        import scipy.sparse as sps
+
         def jacobian(z, weights=None):
             counters["njev"] += 1
             weights = fit_w if weights is None else weights
-            import scipy.sparse as sps
-
             blocks = []
             for i, (pb, d, sg) in enumerate(zip(problems, split(z), sigmas)):
-                _, Ji = pb.f_jac(d, p0, scale, sg)
-                Ji = sps.diags(weights[i]) @ sps.csc_matrix(Ji.sparse())
+                Ji = sps.diags(weights[i]) @ pb.jacobian(d, p0, scale, sg)
                 m = Ji.shape[0]
                 left = offsets[i] - nf
                 right = z.size - offsets[i] - sizes[i]
@@ -391,6 +402,17 @@ class Identifier:
             J.data = np.nan_to_num(J.data)
             if tracking["on"] and st.time_budget is not None and time.perf_counter() - t_start > st.time_budget:
                 raise _Budget()
+            return J if sparse_jac else J.toarray()
+
+        def jacobian_states(z, weights, prior_rows=True):
+            """The Jacobian's segment-state columns (``jacobian(z, weights)[:, nf:]``) without differentiating
+            by the parameters: each run's states act on its own rows only (block-diagonal)."""
+            blocks = [sps.diags(weights[i]) @ pb.jacobian(d, p0, scale, sg, states_only=True)
+                      for i, (pb, d, sg) in enumerate(zip(problems, split(z), sigmas))]
+            J = sps.block_diag(blocks, format="csr")
+            if prior_rows and prior_w is not None:
+                J = sps.vstack([J, sps.csr_matrix((nf, J.shape[1]))], format="csr")
+            J.data = np.nan_to_num(J.data)
             return J if sparse_jac else J.toarray()
 
         z0 = np.concatenate([np.zeros(nf)] + [pb.initial_decision() for pb in problems])
@@ -436,7 +458,8 @@ class Identifier:
             return residuals(np.r_[dtheta, zs], ones_w)
 
         def jac_states(zs, dtheta):
-            return jacobian(np.r_[dtheta, zs], ones_w)[:, nf:]
+            counters["njev"] += 1
+            return jacobian_states(np.r_[dtheta, zs], ones_w)
 
         z_before = z0.copy()
         if st.max_nfev > 0:
@@ -491,14 +514,28 @@ class Identifier:
                 zz[cols] = zh
                 return zz
 
+            # start each held-out state fit from the better of where the parameter fit left those states (they
+            # have no weight there, so they can drift along its null directions: a held-out segment of a drive-off
+            # phase was found starting at -295 rad/s) and the states fitted at the initial parameters
+            def _cost_h(zz):
+                r = residuals(zz, hold_w)[:n_rows]
+                return float(r @ r)
+
+            if z0.size == z.size and _cost_h(_zh(z0[cols])) < _cost_h(z):
+                z = _zh(z0[cols])
+
+            def _jac_hold(zz):
+                counters["njev"] += 1
+                return jacobian_states(zz, hold_w, prior_rows=False)[:, cols - nf]
+
             sol_h = least_squares(lambda zh: residuals(_zh(zh), hold_w)[:n_rows], z[cols],
-                                  jac=lambda zh: jacobian(_zh(zh), hold_w)[:n_rows][:, cols],
+                                  jac=lambda zh: _jac_hold(_zh(zh)),
                                   method="trf", x_scale="jac", max_nfev=30, ftol=1e-10, xtol=1e-10, gtol=1e-10, **tr)
             z = _zh(sol_h.x)
 
         # -- statistics
         parts_z = split(z)
-        r_runs = [np.asarray(pb.f_res(d, p0, scale, np.ones(len(pb.channels)))).ravel()
+        r_runs = [pb.residuals(d, p0, scale, np.ones(len(pb.channels)))
                   for pb, d in zip(problems, parts_z)]  # unweighted residuals, channel-major
         noise_after, new_sig = {}, []
         for pb, r in zip(problems, r_runs):

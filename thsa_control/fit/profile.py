@@ -61,6 +61,7 @@ from .segment_states import (
     custom_state_indices,
     measured_speed,
     measured_state_matrix,
+    one_step_loop,
     one_step_map,
 )
 
@@ -188,6 +189,7 @@ class OneStepScreen:
     def __init__(self, runs: Sequence[RigRun], plant, params: ParameterSet, substeps: int = 1):
         self.plant = plant
         mech = current_driven_map(plant, substeps)
+        self.loop = one_step_loop(plant, mech)
         self.parts = []
         for run in runs:
             w = measured_speed(run)
@@ -197,26 +199,67 @@ class OneStepScreen:
             n = w.size
             sigma = estimate_noise(w) * math.sqrt(2.0)  # the start speed and the compared one both carry noise
             U = np.vstack([X[:, :-1], mech_inputs(run)[:, :n - 1], sample_periods(run)[None, :n - 1]])
-            self.parts.append((one_step_map(plant, mech, n - 1), U, w[1:], sigma))
+            self.parts.append((None if self.loop is not None else one_step_map(plant, mech, n - 1),
+                               np.ascontiguousarray(U), w[1:], sigma))
         if not self.parts:
             raise ParameterError("<profile>", "no run measures a motor or screw speed: nothing to screen a profile on")
         self.n = sum(p[2].size for p in self.parts)
 
-    def chi2(self, params: ParameterSet) -> float:
-        """Sum of squared one-step speed errors over the runs, each weighted by its noise."""
-        p = self.plant.p_vector(params)
+    def chi2(self, params: ParameterSet, solve: Sequence[str] = ()) -> float:
+        """Sum of squared one-step speed errors over the runs, each weighted by its noise.
+
+        ``solve``: parameters whose one-step effect is taken as linear and solved for at this point (one
+        Gauss-Newton step from their values in ``params``, sensitivities by finite differences): the screen
+        of a count (periods per revolution) whose terms' sizes are free, where the count changes which
+        terms act, not how large they are.
+        """
+        if not solve:
+            return float(self.chi2_many([params])[0])
+        steps = []
+        for n in solve:
+            par = params[n]
+            steps.append(1e-3 * max(abs(par.value), 1e-3 * (par.max - par.min) if math.isfinite(par.max - par.min)
+                                    else 1e-6, 1e-12))
+        errs = self._errors_many([params] + [params.replace({n: params.value(n) + d}) for n, d in zip(solve, steps)])
+        e0 = errs[0]
+        A = np.column_stack([(e - e0) / d for e, d in zip(errs[1:], steps)])
+        ok = np.isfinite(e0) & np.isfinite(A).all(axis=1)
+        if ok.sum() > len(solve):
+            coef = np.linalg.lstsq(A[ok], -e0[ok], rcond=None)[0]
+            e0 = np.where(ok, e0 + A @ coef, e0)
+        e0 = e0[np.isfinite(e0)]
+        return float(e0 @ e0)
+
+    def _errors_many(self, psets: Sequence[ParameterSet]) -> list[np.ndarray]:
+        """Noise-weighted one-step speed errors of several parameter sets (the runs concatenated)."""
+        P = np.array([self.plant.p_vector(ps) for ps in psets], float)
         # the first custom states follow the parameters (initial clearance fraction x pitch)
-        c0 = self.plant.initial_state(params)[custom_state_indices(self.plant)]
-        tot = 0.0
+        idx = custom_state_indices(self.plant)
+        C0 = np.array([self.plant.initial_state(ps)[idx] for ps in psets], float).reshape(len(psets), len(idx))
+        out = [[] for _ in psets]
         for F, U, w_next, sigma in self.parts:
-            _, W = F(c0, U, p)
-            e = (np.asarray(W).ravel() - w_next) / sigma
+            if F is None:
+                Y, _ = self.loop.batch(C0, [U] * len(psets), P, 1)
+                Ws = Y[:, -1, :]  # the predicted speed (the rows before: the custom states)
+            else:
+                Ws = [np.asarray(F(c0, U, p)[1]).ravel() for c0, p in zip(C0, P)]
+            for k, W in enumerate(Ws):
+                out[k].append((np.asarray(W, float) - w_next) / sigma)
+        return [np.concatenate(e) for e in out]
+
+    def chi2_many(self, psets: Sequence[ParameterSet]) -> np.ndarray:
+        """:meth:`chi2` of several parameter sets (a profile's grid), in one compiled call per run where a C
+        compiler works (each set computed exactly as alone)."""
+        tot = np.zeros(len(psets))
+        for k, e in enumerate(self._errors_many(psets)):
             e = e[np.isfinite(e)]
-            tot += float(e @ e)
+            tot[k] = float(e @ e)
         return tot
 
 
-def _grid(lo: float, hi: float, n: int) -> np.ndarray:
+def _grid(lo: float, hi: float, n: int, integer: bool = False) -> np.ndarray:
+    if integer:  # a count: every whole value of the range
+        return np.arange(math.ceil(lo), math.floor(hi) + 1, dtype=float)
     if lo > 0:
         return np.geomspace(lo, hi, n)
     return np.linspace(lo, hi, n)
@@ -304,16 +347,29 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
     screen = OneStepScreen(runs, plant, params, st.substeps)
     names = list(profile)
     main = names[0]
-    # 1-2: screen the first parameter, then refine around its best local minima
+    # 1-2: screen the first parameter, then refine around its best local minima; an integer parameter (a
+    # count) is screened at every whole value, with the free parameters solved linearly at each (the count
+    # decides which terms act; their sizes are what the fit is for)
     lo, hi = profile[main]
-    x = _grid(lo, hi, ps.screen_points)
-    y = np.array([screen.chi2(params.replace({main: float(v)})) for v in x])
+    integer = bool(params[main].integer)
+    # solved in the screen: the effect being tried (the free parameters without a prior), else every free one
+    solve = (tuple(n for n in free if n in st.no_prior) or tuple(free)) if integer else ()
+    x = _grid(lo, hi, ps.screen_points, integer)
+    if x.size == 0:
+        raise ParameterError(main, f"profile range {lo:g}..{hi:g} holds no whole value")
+    if solve:
+        y = np.array([screen.chi2(params.replace({main: float(v)}), solve) for v in x])
+    else:
+        y = screen.chi2_many([params.replace({main: float(v)}) for v in x])
     say(f"profile {main}: screened {x.size} values")
     cands, fine_pts = [], {}
     for i in _local_minima(x, y, ps.local_minima):
+        if integer:
+            cands.append(float(x[i]))
+            continue
         a, b = x[max(i - 1, 0)], x[min(i + 1, x.size - 1)]
         xf = np.linspace(a, b, ps.fine_points)
-        yf = np.array([screen.chi2(params.replace({main: float(v)})) for v in xf])
+        yf = screen.chi2_many([params.replace({main: float(v)}) for v in xf])
         fine_pts.update(zip(xf.tolist(), yf.tolist()))
         cands.append(float(xf[int(np.argmin(yf))]))
     allx = np.array(sorted(set(x.tolist()) | set(fine_pts)))
@@ -327,7 +383,7 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
     for name in names[1:]:
         a, b = profile[name]
         xo = np.linspace(a, b, ps.other_points)
-        yo = np.array([screen.chi2(params.replace({**best_vals, name: float(v)})) for v in xo])
+        yo = screen.chi2_many([params.replace({**best_vals, name: float(v)}) for v in xo])
         screens[name] = list(zip(xo.tolist(), yo.tolist()))
         mattered[name] = bool(np.ptp(yo) > thr)
         best_vals[name] = float(xo[int(np.argmin(yo))]) if mattered[name] else params.value(name)
@@ -356,7 +412,7 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
         fit_at(v)
     if best is None:
         raise SolverError("profile", f"every profile fit of {main} failed: {fits[-1]['error']}")
-    if ps.refine_fits:
+    if ps.refine_fits and not integer:
         step = float(np.min(np.diff(np.sort(allx)))) if allx.size > 1 else 0.0
         v0 = best[1]
         for v in (v0 - 0.5 * step, v0 + 0.5 * step):

@@ -117,6 +117,11 @@ def one_step_map(plant: Plant, mech: ca.Function, n: int) -> ca.Function:
     states after each step, ``W`` the motor speed the map predicts one sample
     ahead.  Build it once per plant and run length: the parameters are an input.
     """
+    return one_step_function(plant, mech).mapaccum("one_step", n)
+
+
+def one_step_function(plant: Plant, mech: ca.Function) -> ca.Function:
+    """``f(c, u, p) -> (c_next, w_next)``: one step of :func:`one_step_map` (``u``: one column of its ``U``)."""
     idx = custom_state_indices(plant)
     nx = len(plant.states)
     nv = mech.size1_in(1)
@@ -130,8 +135,29 @@ def one_step_map(plant: Plant, mech: ca.Function, n: int) -> ca.Function:
         parts[i] = c[k]
     xn, _ = mech(ca.vertcat(*parts), v, ps, h)
     w_next = xn[plant.index("state", "motor_speed")]
-    step = ca.Function("custom_step", [c, ca.vertcat(xm, v, h), ps], [xn[idx] if idx else ca.SX(0, 1), w_next])
-    return step.mapaccum("one_step", n)
+    return ca.Function("custom_step", [c, ca.vertcat(xm, v, h), ps], [xn[idx] if idx else ca.SX(0, 1), w_next])
+
+
+def one_step_loop(plant: Plant, mech: ca.Function):
+    """:func:`one_step_map`'s loop over the samples compiled to C, or None (no custom state, or no working C
+    compiler: use :func:`one_step_map` in casadi's interpreter).
+
+    A :class:`~thsa_control.sim.codegen.RunLoop` (the simulator's verified build cache; the same operations in
+    the same order as the interpreter, so the same bits): the carried state is the custom states, the inputs a
+    column of ``U``, the parameters ``p``; each step outputs the custom states after it and the predicted motor
+    speed (last row).  ``loop.batch`` runs many parameter vectors (a profile's grid) in one call.
+    """
+    from ..sim.codegen import compile_run_loop
+
+    if not custom_state_indices(plant):
+        return None
+    f = one_step_function(plant, mech)
+    c, u, p = f.sx_in()
+    c_next, w_next = f(c, u, p)
+    sample = ca.Function("onestep_sample", [c, u, p], [c_next, ca.vertcat(c_next, w_next)])
+    sample_x = ca.Function("onestep_sample_x", [c, u, p], [c_next])
+    loop, _ = compile_run_loop(sample, sample_x)
+    return loop
 
 
 def custom_state_track(plant: Plant, mech: ca.Function, x_measured: np.ndarray, inputs: np.ndarray,
@@ -168,7 +194,11 @@ def custom_state_track(plant: Plant, mech: ca.Function, x_measured: np.ndarray, 
     out[:, 0] = X[idx, 0]
     if n > 1:
         U = np.vstack([X[:, :-1], inputs[:, :n - 1], np.asarray(periods, float)[None, :n - 1]])
-        out[:, 1:] = np.asarray(one_step_map(plant, mech, n - 1)(X[idx, 0], U, p)[0])
+        loop = one_step_loop(plant, mech)
+        if loop is not None:
+            out[:, 1:] = loop(X[idx, 0], U, np.asarray(p, float), 1)[0][:-1]
+        else:
+            out[:, 1:] = np.asarray(one_step_map(plant, mech, n - 1)(X[idx, 0], U, p)[0])
     return out
 
 

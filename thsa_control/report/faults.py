@@ -240,20 +240,29 @@ def _sweep_block(analysis) -> str:
     return line + _table(head, rows)
 
 
-def write_fault_report(analysis, params, out_dir, **folder_options) -> Path:
+def write_fault_report(analysis, params, out_dir, *, progress=None, **folder_options) -> Path:
     """Write ``faults.json``, ``report.html`` and the figures (PNG) to ``out_dir`` (atomically).
 
-    ``folder_options`` go to :func:`~thsa_control.report.build.atomic_folder` (``force``, ``inputs``).
+    ``folder_options`` go to :func:`~thsa_control.report.build.atomic_folder` (``force``, ``inputs``);
+    ``progress`` (a :class:`thsa_control.progress.Progress` or None) gets a line per figure.
     """
     with atomic_folder(out_dir, **folder_options) as tmp:
-        figs = []  # (file name, caption, (function, arguments)): drawn in parallel processes (figure.render_pngs)
+        figs = []  # (file name, caption, (function, arguments), progress text): drawn in parallel (figure.render_pngs)
         for c in analysis.cases + analysis.rigid_cases:
             name = f"case_{c.scenario}{'_rigid' if c in analysis.rigid_cases else ''}.png"
-            figs.append((name, f"{c.title}: {', '.join(c.faults)}", (plot_fault_case, (c, params))))
+            figs.append((name, f"{c.title}: {', '.join(c.faults)}", (plot_fault_case, (c, params)),
+                         f"figure of {c.title}: {c.scenario}"))
         if analysis.sweep:
-            figs.append(("sweep.png", "monitor sweep", (plot_sweep, (analysis,))))
-        pngs = render_pngs([job for _name, _caption, job in figs], dpi=100)
-        figs = [(name, png, caption) for (name, caption, _job), png in zip(figs, pngs)]
+            figs.append(("sweep.png", "monitor sweep", (plot_sweep, (analysis,)), "figure of the monitor sweep"))
+
+        def done(i: int) -> None:
+            if progress is not None:
+                progress.step(i + 1, len(figs), figs[i][3])
+
+        pngs = render_pngs([f[2] for f in figs], dpi=100, done=done)
+        figs = [(name, png, caption) for (name, caption, _job, _text), png in zip(figs, pngs)]
+        if progress is not None:
+            progress.phase("faults.json and report.html (figures embedded)")
         for name, png, _caption in figs:  # each figure drawn once: the same PNG is the file and the page's image
             (tmp / name).write_bytes(png)
         write_json(tmp / "faults.json", fault_analysis_to_dict(analysis))

@@ -74,13 +74,14 @@ def _render(job: tuple[int, int]) -> bytes:
     return _build_png(*_JOBS[i], dpi)
 
 
-def render_pngs(jobs, *, dpi: int = 100, processes: int | None = None) -> list[bytes]:
+def render_pngs(jobs, *, dpi: int = 100, processes: int | None = None, done=None) -> list[bytes]:
     """PNG bytes of the figures that ``jobs`` build, in order; each job is ``(function, args)`` returning a figure.
 
     Building and drawing a report's figures is most of the time of writing it, and each figure is
     independent: they are drawn in up to ``processes`` forked processes (default: the cores this process may
     use), each figure once.  The PNGs are the same bytes as drawn in-process.  Without ``fork`` (Windows),
-    with one core or one figure, they are drawn here, one after the other.
+    with one core or one figure, they are drawn here, one after the other.  ``done(i)`` (optional) is called
+    in this process as figure ``i`` is ready, in order (progress lines).
     """
     import multiprocessing as mp
 
@@ -88,11 +89,20 @@ def render_pngs(jobs, *, dpi: int = 100, processes: int | None = None) -> list[b
     if processes is None:
         processes = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     processes = min(processes, len(jobs))
+    out: list[bytes] = []
     if processes <= 1 or "fork" not in mp.get_all_start_methods():
-        return [_build_png(fn, args, dpi) for fn, args in jobs]
+        for fn, args in jobs:
+            out.append(_build_png(fn, args, dpi))
+            if done is not None:
+                done(len(out) - 1)
+        return out
     _JOBS[:] = jobs
     try:
         with mp.get_context("fork").Pool(processes) as pool:
-            return pool.map(_render, [(i, dpi) for i in range(len(jobs))], chunksize=1)
+            for png in pool.imap(_render, [(i, dpi) for i in range(len(jobs))], chunksize=1):
+                out.append(png)
+                if done is not None:
+                    done(len(out) - 1)
     finally:
         _JOBS.clear()
+    return out
