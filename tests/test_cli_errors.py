@@ -154,6 +154,19 @@ def test_help_imports_no_numerics_and_version():
     assert proc.returncode == 0 and "check-data" in proc.stdout
 
 
+def test_help_and_a_bad_argument_answer_before_any_numerics_import():
+    """``thsa --help`` and a usage error (exit 2) of a command whose work needs casadi import no numerics:
+    they answer in start-up time (issue #17, item 5)."""
+    code = ("import sys\nfrom thsa_control.cli import main\n"
+            "for argv in (['--help'], ['faults', '--bogus'], ['levels', '--levels', 'A']):\n"
+            "    try:\n        code = main(argv)\n    except SystemExit as exc:\n        code = exc.code\n"
+            "    print('EXIT', code, sorted(m for m in ('casadi', 'control', 'scipy', 'matplotlib')\n"
+            "                               if m in sys.modules), file=sys.stderr)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=_env(), timeout=60)
+    lines = [x for x in out.stderr.splitlines() if x.startswith("EXIT ")]
+    assert lines == ["EXIT 0 []", "EXIT 2 []", "EXIT 2 []"], out.stderr[-2000:]
+
+
 def test_public_names_still_importable_from_the_package():
     import thsa_control
 
@@ -170,3 +183,29 @@ def test_progress_on_stderr_and_quiet(tmp_path, capsys):
     assert "thsa levels:" not in captured.out
     assert main(argv + [str(tmp_path / "b"), "--quiet"]) == 0
     assert "thsa levels:" not in capsys.readouterr().err
+
+
+def test_progress_heartbeat_fills_silences_and_stops_with_its_block():
+    import io
+    import time
+
+    from thsa_control.progress import Progress
+
+    buf = io.StringIO()
+    p = Progress("thsa demo", stream=buf)
+    p.phase("fitting")
+    with p.heartbeat(0.2):
+        time.sleep(0.75)
+    beats = [x for x in buf.getvalue().splitlines() if x.startswith("thsa demo: fitting ... (")]
+    assert 2 <= len(beats) <= 4, buf.getvalue()
+    n = len(buf.getvalue())
+    time.sleep(0.5)
+    assert len(buf.getvalue()) == n  # stopped with the block
+    cb = p.fit_callback(every_s=0.0)
+    cb(7, 1.5, 0.1)
+    assert buf.getvalue().splitlines()[-1] == "thsa demo: 7 evaluations, best cost 1.5, 0.1 s"
+    quiet = Progress("thsa demo", stream=buf, enabled=False)
+    assert quiet.fit_callback() is None
+    with quiet.heartbeat(0.05):
+        time.sleep(0.2)
+    assert len(buf.getvalue().splitlines()) == len(beats) + 2

@@ -22,7 +22,9 @@ thsa demo: done in 0.0 s
 
 from __future__ import annotations
 
+import contextlib
 import sys
+import threading
 import time
 from collections.abc import Callable
 from typing import TextIO
@@ -58,24 +60,54 @@ class Progress:
         self._t0 = clock()
         self._last = -float("inf")
         self._open_line = False
+        self._lock = threading.Lock()
+        self._last_emit = self._t0  # wall time of the last line (the heartbeat fills silences)
+        self._last_text = "working"
         try:
             self._tty = bool(self.stream.isatty())
         except (AttributeError, ValueError):
             self._tty = False
 
-    def _emit(self, text: str, *, transient: bool = False) -> None:
+    def _emit(self, text: str, *, transient: bool = False, remember: bool = True) -> None:
         if not self.enabled:
             return
         line = f"{self.label}: {text}"
-        if self._tty and transient:
-            self.stream.write("\r\x1b[K" + line)
-            self._open_line = True
-        else:
-            if self._open_line:
-                self.stream.write("\r\x1b[K")
-                self._open_line = False
-            self.stream.write(line + "\n")
-        self.stream.flush()
+        with self._lock:
+            if remember:
+                self._last_text = text.rsplit(" (", 1)[0] if text.endswith(" s)") else text
+            self._last_emit = self._clock()
+            if self._tty and transient:
+                self.stream.write("\r\x1b[K" + line)
+                self._open_line = True
+            else:
+                if self._open_line:
+                    self.stream.write("\r\x1b[K")
+                    self._open_line = False
+                self.stream.write(line + "\n")
+            self.stream.flush()
+
+    @contextlib.contextmanager
+    def heartbeat(self, every_s: float = 2.0):
+        """Within the block, a line whenever ``every_s`` seconds passed without one: the last message
+        and the time so far (a background thread; stopped when the block ends, also on an error).
+        For long calls that report nothing themselves (a fit, a linearisation grid)."""
+        if not self.enabled or every_s <= 0:
+            yield self
+            return
+        stop = threading.Event()
+
+        def beat():
+            while not stop.wait(min(0.25, every_s / 4)):
+                if self._clock() - self._last_emit >= every_s:
+                    self._emit(f"{self._last_text} ... ({self.elapsed:.1f} s)", transient=True, remember=False)
+
+        thread = threading.Thread(target=beat, name=f"{self.label} heartbeat", daemon=True)
+        thread.start()
+        try:
+            yield self
+        finally:
+            stop.set()
+            thread.join()
 
     @property
     def elapsed(self) -> float:
@@ -93,6 +125,25 @@ class Progress:
             return
         self._last = now
         self._emit(f"{i}/{n}{' ' + text if text else ''} ({now - self._t0:.1f} s)", transient=i < n)
+
+    def __call__(self, text: str) -> None:
+        """``progress(text)``: a phase; so a :class:`Progress` serves where a message callback is expected."""
+        self.phase(text)
+
+    def fit_callback(self, every_s: float = 2.0):
+        """A ``callback(nfev, cost, elapsed_s)`` for long fits: one line at most every ``every_s`` seconds
+        (None when disabled, so that the fit skips the calls)."""
+        if not self.enabled:
+            return None
+        last = [-float("inf")]
+
+        def callback(nfev: int, cost: float, elapsed: float) -> None:
+            now = self._clock()
+            if now - last[0] >= every_s:
+                last[0] = now
+                self._emit(f"{nfev} evaluations, best cost {cost:.6g}, {elapsed:.1f} s")
+
+        return callback
 
     def done(self) -> None:
         """Close the progress output with the total time."""

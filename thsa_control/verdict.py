@@ -223,11 +223,20 @@ def simulation_verdict(design: Design, params, *, levels: Sequence[str] = DEFAUL
         for T in temperatures:
             if progress:
                 progress(f"check: validation runs at level {level}, {T:g} degC ...")
+            todo = []
             for name in scenarios:
                 where = f"level {level}, {T:g} degC, {name}"
                 try:
-                    sc = get_validation_scenario(name).with_temperature(T)
-                    m = run_metrics(sim.run(sc, design, params))
+                    todo.append((name, where, get_validation_scenario(name).with_temperature(T)))
+                except Exception as exc:
+                    errors.append((where, f"{type(exc).__name__}: {exc}"))
+            try:  # the suite at this level and temperature in one batch (each run has the bits of run())
+                runs = sim.run_batch([sc for _, _, sc in todo], design, params) if todo else []
+            except Exception:  # noqa: BLE001 -- a run fails: one at a time, so that each failure names its run
+                runs = None
+            for i, (name, where, sc) in enumerate(todo):
+                try:
+                    m = run_metrics(runs[i] if runs is not None else sim.run(sc, design, params))
                 except Exception as exc:
                     errors.append((where, f"{type(exc).__name__}: {exc}"))
                     continue

@@ -16,14 +16,16 @@ __all__ = ["add_parsers", "cmd_report", "cmd_linearize"]
 
 
 def cmd_report(args) -> int:
-    from ..data.units import display_unit
-    from ..loops.analysis import AnalysisSettings, analyse_design
-    from ..loops.design import load_design, nominal_design_path
-    from ..model import resolve_effects
-    from ..report.analysis_report import write_analysis_report
-
     preflight_out(args)
     progress = progress_for(args, "thsa report")
+    progress.phase("loading the model and the linear-analysis libraries")
+    with progress.heartbeat():
+        from ..data.units import display_unit
+        from ..loops.analysis import AnalysisSettings, analyse_design
+        from ..loops.design import load_design, nominal_design_path
+        from ..model import resolve_effects
+        from ..report.analysis_report import write_analysis_report
+
     params = load_params(args)
     design = load_design(args.design or nominal_design_path())
     design.check_against(params)
@@ -39,16 +41,19 @@ def cmd_report(args) -> int:
     resolve_effects(settings.level, add=list(settings.effects))  # validate names before any work
     progress.phase(f"linearising level {settings.level} over the grid and analysing the loops"
                    + ("" if args.no_switching else ", then the switch-over transient"))
-    result = analyse_design(design, params, settings=settings, switching=not args.no_switching)
+    with progress.heartbeat():
+        result = analyse_design(design, params, settings=settings, switching=not args.no_switching)
     verdict = None
     if args.check:  # the verdict of thsa check: this grid's linear requirements + the validation runs
         from .tuning import report_verdict
 
         progress.phase("judging every requirement (the validation runs of thsa check)")
-        verdict = report_verdict(result, params)
+        with progress.heartbeat():
+            verdict = report_verdict(result, params)
     progress.phase("writing the report")
     opts = out_options(args)
-    out = write_analysis_report(result, args.out, force=opts["force"], inputs=opts["inputs"], verdict=verdict)
+    with progress.heartbeat():
+        out = write_analysis_report(result, args.out, force=opts["force"], inputs=opts["inputs"], verdict=verdict)
     progress.done()
     print(result.requirements.summary())
     if verdict is not None:

@@ -38,7 +38,6 @@ def cmd_identify(args) -> int:
     runs = read_runs(args.runs, args.column_map, params)
     effects = effects_arg(args.effects)
     free = [n.strip() for n in (args.free or "").split(",") if n.strip()]
-    from ..fit.progress import stderr_progress
     from ..trace.threads import limit_blas_threads
 
     limit_blas_threads(1)  # a many-threaded BLAS on a small shared machine is 40x slower per SVD
@@ -52,7 +51,7 @@ def cmd_identify(args) -> int:
     progress.phase(f"fitting {', '.join(free) or 'nothing'} at level {args.model}")
     result = Identifier(args.model, params, free, effects=effects, settings=settings,
                         bounds=bounds_arg(args.bounds)).fit(
-        runs, progress=stderr_progress("identify", quiet=getattr(args, "quiet", False)))
+        runs, progress=progress.fit_callback())
     fitted = result.to_parameter_set()
     before, after, analyses = [], [], []
     for i, run in enumerate(runs, 1):

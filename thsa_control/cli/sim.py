@@ -73,7 +73,9 @@ def _summary(result) -> dict:
     return out
 
 
-def _write_results(args, results, scenario, params, design):
+def _write_results(args, results, scenario, params, design, progress=None):
+    if progress is not None:
+        progress.phase("loading the plotting library")
     from ..data.export import write_simulation
     from ..report import atomic_folder, write_json
     from ..report.plots import close, plot_levels, plot_run
@@ -81,7 +83,9 @@ def _write_results(args, results, scenario, params, design):
     with atomic_folder(args.out, **out_options(args)) as tmp:
         summary = {"scenario": scenario.name, "description": scenario.description, "temperature_C": scenario.temperature,
                    "design": design.source, "levels": {}}
-        for level, res in results.items():
+        for i, (level, res) in enumerate(results.items(), 1):
+            if progress is not None:
+                progress.phase(f"writing the run and plots of level {level} ({i}/{len(results)})")
             stem = tmp / f"{scenario.name}_{level}"
             write_simulation(res, stem, level=level)
             if getattr(args, "format", "csv") == "mat":  # MATLAB: load NAME.mat (SI, units beside)
@@ -100,6 +104,8 @@ def _write_results(args, results, scenario, params, design):
                 close(fig)
             summary["levels"][level] = _summary(res)
         if len(results) > 1:
+            if progress is not None:
+                progress.phase(f"plotting the {len(results)} levels side by side")
             fig = plot_levels(results)
             fig.savefig(tmp / f"{scenario.name}_levels.png", dpi=110)
             close(fig)
@@ -114,8 +120,7 @@ def cmd_levels(args) -> int:
     params, design, scenario = load_common(args)
     levels = [lv.strip().upper() for lv in args.levels.split(",") if lv.strip()]
     results = run_levels(params, design, scenario, levels, effects_arg(args.effects), args.output_period, progress)
-    progress.phase("writing runs and plots")
-    summary = _write_results(args, results, scenario, params, design)
+    summary = _write_results(args, results, scenario, params, design, progress)
     for level, s in summary["levels"].items():
         line = f"level {level}: {s['real_time_factor']:.0f}x real time, peak |I| {s['peak_abs_current_A']:.1f} A"
         if "backdrive" in s:
@@ -146,8 +151,7 @@ def cmd_simulate(args) -> int:
         print("note: --temperature changes nothing without --effects temperature_friction", file=sys.stderr)
     progress = progress_for(args, "thsa simulate")
     results = run_levels(params, design, scenario, [args.level.upper()], effects, args.output_period, progress)
-    progress.phase("writing the run and its plots")
-    _write_results(args, results, scenario, params, design)
+    _write_results(args, results, scenario, params, design, progress)
     progress.done()
     res = results[args.level.upper()]
     print(f"{scenario.name} at level {args.level.upper()} ({', '.join(res.effects) or 'functional'}): "

@@ -120,10 +120,15 @@ def tune_command(args) -> int:
 
     names = args.scenario or ["cold_ramp"]
     scenarios = [get_validation_scenario(n) for n in names]  # a bad name fails before the heavy imports
-    from ..tuning.check import PROVENANCE_MARKER, write_design
-    from ..tuning.optimize import TuneSettings, objective_settings_for, tune
+    from .common import progress_for
 
-    params, design = _common(args)
+    progress = progress_for(args, "thsa tune")
+    progress.phase("loading the model and the optimiser")
+    with progress.heartbeat():
+        from ..tuning.check import PROVENANCE_MARKER, write_design
+        from ..tuning.optimize import TuneSettings, objective_settings_for, tune
+
+        params, design = _common(args)
     out = Path(args.out)
     if out.exists():  # refuse early, before any work
         import tomllib
@@ -154,9 +159,11 @@ def tune_command(args) -> int:
     settings = TuneSettings(
         temperature=args.temperature, robust_temperatures=_floats(args.robust_temperatures, "--robust-temperatures"),
         level=args.level, effects=effects, bound_factor=args.bound_factor, max_iter=args.max_iter,
-        objective=objective_settings_for(design, current_weight=args.current_weight, rate_weight=args.rate_weight))
+        objective=objective_settings_for(design, current_weight=args.current_weight, rate_weight=args.rate_weight),
+        progress=progress if progress.enabled else False)
     try:
-        result = tune(source, params, scenarios, settings)
+        with progress.heartbeat():
+            result = tune(source, params, scenarios, settings)
     except SolverError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
@@ -165,6 +172,7 @@ def tune_command(args) -> int:
     validation.update(design.validation)
     from ..tuning.check import suite_metrics
 
+    progress.phase("validation runs before and after")
     before = suite_metrics(source, params, settings.level, settings.temperature, scenarios=names, effects=effects)
     after = suite_metrics(result.design, params, settings.level, settings.temperature, scenarios=names,
                           effects=effects)
@@ -173,11 +181,12 @@ def tune_command(args) -> int:
     if not args.no_robustness:
         from ..tuning.robust import robustness_spread
 
-        print("tune: robustness beyond the grid (friction, inertia, stiffness, delay spread) ...", file=sys.stderr,
-              flush=True)
-        robust_report = robustness_spread(source, result.design, params, temperature=settings.temperature,
-                                          scenario=names[0], level=settings.level, effects=effects)
+        progress.phase("robustness beyond the grid (friction, inertia, stiffness, delay spread)")
+        with progress.heartbeat():
+            robust_report = robustness_spread(source, result.design, params, temperature=settings.temperature,
+                                              scenario=names[0], level=settings.level, effects=effects)
         prov["robustness"] = robust_report.as_dict()
+    progress.done()
     tuned = replace(result.design, name=out.stem, source=str(out),
                     description=(f"velocity loop tuned by thsa tune for {', '.join(names)} at {args.temperature:g} degC, "
                                  f"margins kept at {args.robust_temperatures} degC (from {design.name})"),
@@ -232,15 +241,21 @@ def check_command(args) -> int:
         check_output_folder(args.out, force=args.force, inputs=inputs)  # refuse early, before any work
     levels = tuple(v.strip().upper() for v in args.levels.split(",") if v.strip())
     effects = tuple(e for v in (args.effects or DEFAULT_ANALYSIS_EFFECTS) for e in v.split(",") if e)
-    say = (lambda m: print(m, file=sys.stderr, flush=True))
+    from .common import progress_for
+
+    progress = progress_for(args, "thsa check")
+    say = progress.phase
     measured, mrows = (), []
     if args.runs:  # first: an unreadable run is bad input (exit 2) before any simulation
         from ..tuning.measured import judge_runs
 
-        say(f"check: {len(args.runs)} measured run(s) against the validation limits, beside the model's prediction ...")
-        mrows, measured = judge_runs(design, params, args.runs, level=args.run_level, effects=effects)
-    verdict = check_design(design, params, levels=levels, temperatures=temps, scenarios=scen, effects=effects,
-                           progress=say)
+        say(f"{len(args.runs)} measured run(s) against the validation limits, beside the model's prediction")
+        with progress.heartbeat():
+            mrows, measured = judge_runs(design, params, args.runs, level=args.run_level, effects=effects)
+    with progress.heartbeat():
+        verdict = check_design(design, params, levels=levels, temperatures=temps, scenarios=scen, effects=effects,
+                               progress=lambda m: say(m.removeprefix("check: ").removesuffix(" ...")))
+    progress.done()
     if args.runs:
         verdict = replace(verdict, rows=verdict.rows + tuple(mrows),
                           scope=verdict.scope | {"measured": [str(p) for p in args.runs]})

@@ -106,6 +106,9 @@ class CandidateSpec:
     #: free parameter -> plausibility rule of ``trace.candidates.PLAUSIBLE``: the largest magnitude a healthy rig
     #: can have (a base correction is bounded by it; a found periodic torque larger than it is implausible)
     plausible: Mapping[str, str] = field(default_factory=dict)
+    #: rule of ``trace.candidates.STARTS`` giving starting values read off the runs (a static screen), for
+    #: parameters whose right value a fit started at the file's cannot reach (a soft zone vs a preload)
+    start: str | None = None
 
 
 @dataclass(frozen=True)

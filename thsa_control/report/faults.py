@@ -241,22 +241,28 @@ def _sweep_block(analysis) -> str:
     return line + _table(head, rows)
 
 
-def write_fault_report(analysis, params, out_dir, **folder_options) -> Path:
+def write_fault_report(analysis, params, out_dir, *, progress=None, **folder_options) -> Path:
     """Write ``faults.json``, ``report.html`` and the figures (PNG) to ``out_dir`` (atomically).
 
-    ``folder_options`` go to :func:`~thsa_control.report.build.atomic_folder` (``force``, ``inputs``).
+    ``folder_options`` go to :func:`~thsa_control.report.build.atomic_folder` (``force``, ``inputs``);
+    ``progress`` (a :class:`thsa_control.progress.Progress` or None) gets a line per figure.
     """
     with atomic_folder(out_dir, **folder_options) as tmp:
         figs = []
-        for c in analysis.cases + analysis.rigid_cases:
-            fig = plot_fault_case(c, params)
+        cases = analysis.cases + analysis.rigid_cases
+        for k, c in enumerate(cases, 1):
+            if progress is not None:
+                progress.step(k, len(cases) + bool(analysis.sweep), f"figure of {c.title}: {c.scenario}")
             name = f"case_{c.scenario}{'_rigid' if c in analysis.rigid_cases else ''}.png"
-            fig.savefig(tmp / name, dpi=100)
-            figs.append((name, fig, f"{c.title}: {', '.join(c.faults)}"))
+            figs.append((name, figure_png(plot_fault_case(c, params)), f"{c.title}: {', '.join(c.faults)}"))
         if analysis.sweep:
-            fig = plot_sweep(analysis)
-            fig.savefig(tmp / "sweep.png", dpi=100)
-            figs.append(("sweep.png", fig, "monitor sweep"))
+            if progress is not None:
+                progress.step(len(cases) + 1, len(cases) + 1, "figure of the monitor sweep")
+            figs.append(("sweep.png", figure_png(plot_sweep(analysis)), "monitor sweep"))
+        if progress is not None:
+            progress.phase("faults.json and report.html (figures embedded)")
+        for name, png, _caption in figs:  # each figure rendered once: the same PNG is the file and the page's image
+            (tmp / name).write_bytes(png)
         write_json(tmp / "faults.json", fault_analysis_to_dict(analysis))
         m = analysis.monitors
         css = ("body{font-family:system-ui,Segoe UI,Helvetica,Arial,sans-serif;max-width:1250px;margin:1em auto;color:#222}"
@@ -302,11 +308,10 @@ def write_fault_report(analysis, params, out_dir, **folder_options) -> Path:
                  "<h2 id='settings'>Monitor settings</h2>",
                  _table(["setting", "value", "unit", "monitored signal"], _setting_rows(m)),
                  "<h2 id='figures'>Figures</h2>"]
-        for name, fig, caption in figs:
-            data = base64.b64encode(figure_png(fig)).decode()
+        for name, png, caption in figs:
+            data = base64.b64encode(png).decode()
             parts.append(f"<figure id='fig-{html.escape(name[:-4])}'><img alt='{html.escape(caption)}' "
                          f"src='data:image/png;base64,{data}'><figcaption>{html.escape(caption)}</figcaption></figure>")
-            fig.clear()
         parts.append("</body></html>\n")
         (tmp / "report.html").write_text("\n".join(parts), encoding="utf-8")
     return Path(out_dir)

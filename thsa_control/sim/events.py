@@ -122,9 +122,11 @@ class FaultEvent:
 
 
 def fault_signals(faults, t) -> dict[str, np.ndarray]:
-    """Per-sample fault inputs (``FAULT_INPUTS``) of ``faults`` at times ``t`` [s]."""
+    """Per-sample fault inputs (``FAULT_INPUTS``) of ``faults`` at times ``t`` [s]; an input no fault
+    touches is a read-only zero-stride view of 0.0 (no array of zeros)."""
     t = np.asarray(t, dtype=float)
-    out = {name: np.zeros_like(t) for name in FAULT_INPUTS}
+    zero = np.broadcast_to(0.0, t.shape)
+    out = {name: zero for name in FAULT_INPUTS}
     for ev in faults:
         on = (t >= ev.time) & (t < ev.end)
         if ev.kind in ("surface_jam", "loadpath_failure"):

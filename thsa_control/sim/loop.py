@@ -259,16 +259,18 @@ class ClosedLoop:
         return self._compiled
 
     # ---- numeric layout of a run
-    def input_matrix(self, inputs, scenario=None) -> np.ndarray:
-        """``W`` (len(inputs) x n): the run inputs of ``inputs`` (an ``InputSeries``), then each extension's."""
-        W = inputs.matrix()
-        if not self.extensions:
-            return W
-        rows = [W]
+    def input_rows(self, inputs, scenario=None) -> tuple[np.ndarray, ...]:
+        """The rows of ``W``: the run inputs of ``inputs`` (an ``InputSeries``), then each extension's
+        (as they are: no copies; a constant may be a zero-stride view)."""
+        rows = inputs.rows()
         for e in self.extensions:
             sig = e.input_signals(scenario, inputs.time)
-            rows += [np.asarray(sig[n], dtype=float) for n in e.inputs]
-        return np.vstack(rows)
+            rows += tuple(np.asarray(sig[n], dtype=float) for n in e.inputs)
+        return rows
+
+    def input_matrix(self, inputs, scenario=None) -> np.ndarray:
+        """``W`` (len(inputs) x n): :meth:`input_rows` as one new array."""
+        return np.vstack(self.input_rows(inputs, scenario))
 
     def theta(self, p: np.ndarray, k: np.ndarray, h: float) -> np.ndarray:
         """``[p; k; h; m_1; ...]``."""

@@ -201,6 +201,59 @@ class Scenario:
         put("temperature", float(self.temperature))
         return out
 
+    def sampled_inputs(self, t: np.ndarray) -> dict[str, np.ndarray]:
+        """:meth:`inputs` at the ordered sample times ``t`` (from 0), with every signal that is
+        constant over ``t`` as a read-only zero-stride view of its value (``np.broadcast_to``):
+        the same values, bit for bit, without n copies of a constant."""
+        t = np.asarray(t, dtype=float)
+        n = t.shape[0]
+
+        def const(value):
+            return np.broadcast_to(float(value), (n,))
+
+        def steps(points):
+            v = _constant_steps(points, float(t[0]) if n else 0.0)
+            return const(v) if v is not None else _steps(points, t)
+
+        def linear(points):
+            v = _constant_linear(points)
+            return const(v) if v is not None else _linear(points, t)
+
+        pos_mode = self.position_cmd is not None
+        return {"speed_target": steps(self.speed_target),
+                "position_cmd": linear(self.position_cmd) if pos_mode else const(0.0),
+                "position_mode": const(1.0 if pos_mode else 0.0),
+                "primary_enable": steps(self.primary_enable),
+                "standby_enable": steps(self.standby_enable),
+                "load_force": linear(self.load),
+                "temperature": const(self.temperature)}
+
+
+def _same_bits(a: float, b: float) -> bool:
+    return a == b and math.copysign(1.0, a) == math.copysign(1.0, b)
+
+
+def _constant_steps(points: Breakpoints, t0: float) -> float | None:
+    """The value of :func:`_steps` at every time from ``t0`` on when it is one value, else None."""
+    v = points[0][1]
+    if not all(_same_bits(p[1], v) for p in points):
+        return None
+    if points[0][0] <= t0 or _same_bits(v, 0.0):  # before the first breakpoint _steps gives +0.0
+        return v
+    return None
+
+
+def _constant_linear(points: Breakpoints) -> float | None:
+    """The value of :func:`_linear` (``np.interp``) everywhere when it is one value, else None:
+    one breakpoint, or all of one value other than -0.0 (interp gives 0 * dt + v there)."""
+    v = points[0][1]
+    if len(points) == 1:
+        return v
+    if all(_same_bits(p[1], v) for p in points) and not _same_bits(v, -0.0):
+        return v
+    return None
+
+
 _MM = 1e-3
 
 SCENARIOS: dict[str, Scenario] = {

@@ -14,12 +14,14 @@ Batched runs
 ------------
 :meth:`Simulator.run_batch` simulates many runs in one call: each of
 ``inputs`` (scenarios or input series), ``design``, ``params`` and ``x0`` is
-one value for all runs or a list with one per run.  Runs of the same loop
-and length go to the compiled library together, which loops over them in C
-and spreads them over the CPUs (``threads``); each result is bit-identical
-to :meth:`Simulator.run` of the same run.  :func:`stack_signals` turns the
-list into one array.  For the tracer's candidate fits, the tuning's
-validation runs and sweeps::
+one value for all runs or a list with one per run.  Every run is checked and
+laid out first (an error names the bad run's index); runs of the same loop
+and length then go to the compiled library in one call, which loops over
+them in C, spreads them over the CPUs (``threads``) and writes one
+(runs x signals x samples) block (``runs.blocks``) whose rows the results
+view; each result is bit-identical to :meth:`Simulator.run` of the same run.
+:func:`stack_signals` turns the list into one array.  For parameter studies,
+the validation runs of ``thsa check`` and sweeps::
 
     sim = Simulator(build_plant("D"))
     runs = sim.run_batch([sc.with_temperature(T) for T in (-55, -30, 25, 70)], design, params)
@@ -46,6 +48,7 @@ from __future__ import annotations
 import math
 import os
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
@@ -61,7 +64,7 @@ from .monitors import extensions_for
 from .scenarios import TEMPERATURE_RANGE, Scenario
 
 __all__ = ["SimulationSettings", "InputSeries", "SimulationResult", "Simulator", "simulate", "plant_input_vector",
-           "available_cpus", "stack_signals",
+           "available_cpus", "stack_signals", "SignalViews", "BatchResults",
            "RUN_INPUTS", "OPTIONAL_INPUTS", "output_decimation"]
 
 
@@ -135,24 +138,36 @@ class InputSeries:
 
     @classmethod
     def from_scenario(cls, scenario: Scenario, control_period: float) -> "InputSeries":
-        """Sample ``scenario`` at the control period [s]."""
+        """Sample ``scenario`` at the control period [s].
+
+        A signal constant over the run (a temperature, an enable, a zero position command)
+        is a read-only zero-stride view of its one value (``np.broadcast_to``), not an
+        array of n copies; the others are read-only arrays.  The values are those of
+        ``scenario.inputs(time)``, bit for bit.  The scenario's own checks (finite
+        breakpoints, temperature range) stand for the checks of the sampled signals.
+        """
         n = int(round(scenario.duration / control_period))
-        t = np.arange(n) * control_period
-        block = np.zeros((len(RUN_INPUTS), n))  # the signals are rows of the run's input matrix
-        rows = dict(zip(RUN_INPUTS, block))
-        signals = scenario.inputs(t, out=rows)
-        block.setflags(write=False)
-        series = cls(scenario.name, t, {**signals, **{k: rows[k] for k in OPTIONAL_INPUTS}}, scenario.accel_limit,
-                     scenario.jerk_limit, scenario.motor_off_at_zero, scenario.description, scenario.required_effects)
-        object.__setattr__(series, "_block", (block, tuple(rows[k] for k in RUN_INPUTS)))
+        t = _time_grid(n, control_period)
+        signals = scenario.sampled_inputs(t)
+        signals.update({k: np.broadcast_to(0.0, (n,)) for k in OPTIONAL_INPUTS})
+        for v in signals.values():
+            if v.flags.writeable:
+                v.setflags(write=False)
+        series = object.__new__(cls)  # the fields of __init__, without re-checking what the scenario checked
+        for name, value in (("name", scenario.name), ("time", t), ("signals", signals),
+                            ("accel_limit", scenario.accel_limit), ("jerk_limit", scenario.jerk_limit),
+                            ("motor_off_at_zero", scenario.motor_off_at_zero), ("description", scenario.description),
+                            ("required_effects", scenario.required_effects)):
+            object.__setattr__(series, name, value)
         return series
 
+    def rows(self) -> tuple[np.ndarray, ...]:
+        """The signals of ``RUN_INPUTS`` in order, as they are (no copies; constant ones may be zero-stride)."""
+        return tuple(np.asarray(self.signals[k], dtype=float) for k in RUN_INPUTS)
+
     def matrix(self) -> np.ndarray:
-        """Inputs as a (len(RUN_INPUTS) x n) array (read-only when the series was sampled from a scenario)."""
-        block = self.__dict__.get("_block")
-        if block is not None and all(self.signals[k] is r for k, r in zip(RUN_INPUTS, block[1])):
-            return block[0]
-        return np.vstack([np.asarray(self.signals[k], dtype=float) for k in RUN_INPUTS])
+        """Inputs as a new (len(RUN_INPUTS) x n) array."""
+        return np.vstack(self.rows())
 
 
 @dataclass(frozen=True)
@@ -281,7 +296,9 @@ class Simulator:
         return None, {"compiled": False, "cached": False, "codegen_s": 0.0, "compile_s": 0.0}
 
     def _run_interpreted(self, extensions, z, W, theta, decimation):
-        """casadi virtual machine fallback (no C compiler), chunked mapaccum."""
+        """casadi virtual machine fallback (no C compiler), chunked mapaccum; ``W`` the input rows."""
+        W = np.vstack([np.broadcast_to(r, W[0].shape) if r.shape != W[0].shape else r for r in W]) \
+            if not isinstance(W, np.ndarray) else W
         nb = self.settings.chunk_blocks
         key = (tuple(e.key() for e in extensions), decimation)
         if key not in self._chunks:
@@ -330,18 +347,25 @@ class Simulator:
             The run needs an effect the plant lacks, or inputs are malformed.
         DesignError
             The design asks more than the actuator has.
+        ThsaError
+            The run diverged (a non-finite signal).
         """
         prep = self._prepare(inputs, design, params, x0, extensions)
         run_loop, cinfo = self._compiled_loop(prep.loop)
         t0 = time.perf_counter()
         if run_loop is not None:
-            Y, z = run_loop(prep.z0, prep.W, prep.theta, prep.decimation)
+            Y, z, bad = run_loop.batch(prep.z0[None, :], [prep.rows], prep.theta, prep.decimation, n_steps=prep.n)
+            Y, z, bad = Y[0], z[0], int(bad[0])
         else:
-            Y, z = self._run_interpreted(prep.extensions, prep.z0, prep.W, prep.theta, prep.decimation)
+            Y, z = self._run_interpreted(prep.extensions, prep.z0, prep.rows, prep.theta, prep.decimation)
+            bad = _first_non_finite(Y)
+        if bad >= 0:
+            raise ThsaError(f"simulation of {prep.inputs.name!r} diverged "
+                            f"(non-finite signal at t = {bad * prep.decimation * prep.h:g} s)")
         return self._result(prep, Y, z, time.perf_counter() - t0, cinfo)
 
     def run_batch(self, inputs, design, params, *, x0=None, extensions=None, threads: int | None = None,
-                  max_block: int = 64) -> list[SimulationResult]:
+                  max_block: int = 256) -> "BatchResults":
         """Simulate many runs in one call, looping over them in the compiled library.
 
         Each of ``inputs``, ``design``, ``params`` and ``x0`` is one value for every run
@@ -349,48 +373,77 @@ class Simulator:
         parameter sets, designs, scenarios or input series (temperatures: ``Scenario.with_temperature``;
         fault timings: scenarios with other ``faults``), in any combination.
 
-        Runs of the same loop (extension set), length and output period go to C
-        together, ``max_block`` at a time, spread over ``threads`` threads (default:
-        the CPUs this process may use); runs sharing one input object share its
-        input matrix.  Each result is bit-identical to :meth:`run` of the same run.
+        All runs are checked and laid out first (runs sharing one input object share its
+        sampled inputs: nothing is copied); then runs of the same loop (extension set), length
+        and output period go to C together, ``max_block`` at a time, writing one
+        preallocated (runs x signals x samples) block, while C threads (``threads``,
+        default: the CPUs this process may use) take the runs one after the other.  The
+        results are cheap views of that block.  Each is bit-identical to :meth:`run` of the
+        same run, whatever ``threads``.
 
         Returns
         -------
-        list of SimulationResult
-            In the order of the runs; ``info["wall_s"]`` is the wall time of the
-            C call the run was part of, ``info["batch"]`` its size.
+        BatchResults
+            A list of :class:`SimulationResult` in the order of the runs (``info["wall_s"]``:
+            the wall time of the C call the run was part of, ``info["batch"]`` its size), with
+            ``.blocks``: the output blocks and the run indices each holds.
+
+        Raises
+        ------
+        ThsaError (or the subclass of the failing check)
+            Naming the index of the bad run: malformed inputs, a missing effect, a design
+            beyond the actuator, or a run that diverged.
         """
         runs = _broadcast(inputs=inputs, design=design, params=params, x0=x0)
-        memo: dict = {}  # runs of one input object share its sampled inputs and input matrix
-        preps = [self._prepare(r["inputs"], r["design"], r["params"], r["x0"], extensions, memo) for r in runs]
+        memo: dict = {}  # runs of one input object share its sampled inputs
+        preps = []
+        for i, r in enumerate(runs):
+            try:
+                preps.append(self._prepare(r["inputs"], r["design"], r["params"], r["x0"], extensions, memo))
+            except ThsaError as exc:
+                raise _member_error(exc, i, r["inputs"]) from exc
         if threads is None:
             threads = available_cpus()
-        out: list = [None] * len(preps)
+        out = BatchResults([None] * len(preps))
         groups: dict = {}
         for i, prep in enumerate(preps):
-            groups.setdefault((id(prep.loop), prep.W.shape[1], prep.decimation), []).append(i)
+            groups.setdefault((id(prep.loop), prep.n, prep.decimation), []).append(i)
         for idx in groups.values():
-            loop = preps[idx[0]].loop
-            run_loop, cinfo = self._compiled_loop(loop)
+            p0 = preps[idx[0]]
+            run_loop, cinfo = self._compiled_loop(p0.loop)
+            n_out = -(-p0.n // p0.decimation)
+            Y = np.empty((len(idx), len(p0.loop.signals), n_out))  # the group's one output block
+            Z = np.empty((len(idx), p0.loop.nz))
+            bad = np.full(len(idx), -1, dtype=np.int64)
+            walls = np.zeros(len(idx))
+            sizes = np.zeros(len(idx), dtype=int)
             for start in range(0, len(idx), max_block):
-                block = idx[start:start + max_block]
-                ps = [preps[i] for i in block]
+                block = slice(start, min(start + max_block, len(idx)))
+                ps = [preps[i] for i in idx[block]]
                 t0 = time.perf_counter()
                 if run_loop is None:
-                    res = [self._run_interpreted(p.extensions, p.z0, p.W, p.theta, p.decimation) for p in ps]
-                    wall = time.perf_counter() - t0
-                    for i, p, (Y, z) in zip(block, ps, res):
-                        out[i] = self._result(p, Y, z, wall, cinfo, batch=len(block))
-                    continue
-                Y, Z = run_loop.batch(np.stack([p.z0 for p in ps]), [p.W for p in ps], np.stack([p.theta for p in ps]),
-                                      ps[0].decimation, threads=threads)
-                wall = time.perf_counter() - t0
-                for j, (i, p) in enumerate(zip(block, ps)):
-                    out[i] = self._result(p, Y[j], Z[j], wall, cinfo, batch=len(block))
+                    for j, p in enumerate(ps, start):
+                        Y[j], Z[j] = self._run_interpreted(p.extensions, p.z0, p.rows, p.theta, p.decimation)
+                        bad[j] = _first_non_finite(Y[j])
+                else:
+                    theta = np.stack([p.theta for p in ps])
+                    _, Z[block], bad[block] = run_loop.batch(np.stack([p.z0 for p in ps]), [p.rows for p in ps],
+                                                             theta, p0.decimation, threads=threads, n_steps=p0.n,
+                                                             out=Y[block])
+                walls[block] = time.perf_counter() - t0
+                sizes[block] = len(ps)
+            for j, i in enumerate(idx):
+                if bad[j] >= 0:
+                    p = preps[i]
+                    raise ThsaError(f"run_batch: run {i} ({p.inputs.name!r}) diverged "
+                                    f"(non-finite signal at t = {bad[j] * p.decimation * p.h:g} s)")
+            out.blocks.append((Y, tuple(idx)))
+            for j, i in enumerate(idx):
+                out[i] = self._result(preps[i], Y[j], Z[j], float(walls[j]), cinfo, batch=int(sizes[j]))
         return out
 
     def _prepare(self, inputs, design: Design, params: ParameterSet, x0, extensions, memo=None) -> "_Prepared":
-        """Check a run and lay out its numbers (the loop, ``z0``, ``W``, ``theta``)."""
+        """Check a run and lay out its numbers (the loop, ``z0``, the input rows, ``theta``)."""
         h = design.control_period
         scenario = inputs if isinstance(inputs, Scenario) else None
         if extensions is None:
@@ -399,10 +452,10 @@ class Simulator:
         key = (id(inputs), h, tuple(e.key() for e in extensions))
         shared = memo.get(key) if memo is not None else None
         if shared is not None and shared[0] is inputs:
-            inputs, W = shared[1], shared[2]
+            inputs, rows = shared[1], shared[2]
         else:
-            W = None
-        if W is None and scenario is not None:
+            rows = None
+        if rows is None and scenario is not None:
             inputs = InputSeries.from_scenario(scenario, h)
         needed = tuple(inputs.required_effects) + tuple(e for x in extensions for e in x.required_effects(scenario))
         missing = [e for e in dict.fromkeys(needed) if e not in self.plant.effects]
@@ -415,33 +468,28 @@ class Simulator:
                                      motor_off_at_zero=inputs.motor_off_at_zero)
         loop = self.closed_loop(extensions)
         theta = loop.theta(self.plant.p_vector(params), k, h)
-        if W is None:
-            W = loop.input_matrix(inputs, scenario)
+        if rows is None:
+            rows = loop.input_rows(inputs, scenario)
             if memo is not None:
-                memo[key] = (scenario if scenario is not None else inputs, inputs, W)
+                memo[key] = (scenario if scenario is not None else inputs, inputs, rows)
         if x0 is None:
-            x0 = self.plant.initial_state(params, load_force=float(W[RUN_INPUTS.index("load_force"), 0]))
+            x0 = self.plant.initial_state(params, load_force=float(rows[RUN_INPUTS.index("load_force")][0]))
         z0 = loop.initial_state(x0, k)
-        return _Prepared(loop, extensions, scenario, inputs, design, params, h, decimation, z0, W, theta)
+        return _Prepared(loop, extensions, scenario, inputs, design, params, h, decimation, z0, rows, theta,
+                         len(inputs.time))
 
     def _result(self, prep: "_Prepared", Y: np.ndarray, z: np.ndarray, wall: float, cinfo: dict, *,
                 batch: int | None = None) -> SimulationResult:
+        """The result of a finite run: ``Y`` (signals x samples) becomes read-only views, no copies."""
         h, decimation, inputs = prep.h, prep.decimation, prep.inputs
-        n_out = Y.shape[1]
-        if not np.all(np.isfinite(Y)):
-            bad = np.argwhere(~np.isfinite(Y))[0]
-            raise ThsaError(f"simulation of {inputs.name!r} diverged (non-finite signal at t = {bad[1] * decimation * h:g} s)")
-        Y.setflags(write=False)  # one block, row per signal: the signals are read-only views of it
-        signals = dict(zip(prep.loop.signals, Y))
-        t = np.arange(n_out) * decimation * h
-        t.setflags(write=False)
-        info = {"wall_s": wall, "compile": dict(cinfo), "control_period_s": h, "output_period_s": decimation * h,
+        t = _time_grid(Y.shape[1], h, decimation)
+        info = {"wall_s": wall, "compile": cinfo, "control_period_s": h, "output_period_s": decimation * h,
                 "substeps": self.settings.substeps, "final_state": z}
         if batch is not None:
             info["batch"] = batch
         for e in prep.extensions:
             info.update(e.info(prep.scenario))
-        return SimulationResult(t, MappingProxyType(signals), MappingProxyType(dict(prep.loop.units)),
+        return SimulationResult(t, SignalViews(prep.loop.signals, Y), MappingProxyType(prep.loop.units),
                                 self.plant.effects, inputs.name, prep.design, prep.params, inputs, info)
 
 
@@ -456,8 +504,108 @@ class _Prepared:
     h: float
     decimation: int
     z0: np.ndarray
-    W: np.ndarray
+    rows: tuple
     theta: np.ndarray
+    n: int
+
+
+class SignalViews(Mapping):
+    """Signals of a run by name: read-only row views of one (signals x samples) block, made on first access."""
+
+    __slots__ = ("_names", "_index", "_block", "_views")
+
+    def __init__(self, names, block: np.ndarray):
+        if block.flags.writeable:
+            block = block.view()
+            block.setflags(write=False)
+        self._names = tuple(names)
+        self._index = _name_index(self._names)
+        self._block = block
+        self._views: dict = {}
+
+    @property
+    def block(self) -> np.ndarray:
+        """The (signals x samples) block, read-only (rows in the order of the names)."""
+        return self._block
+
+    def __getitem__(self, name):
+        v = self._views.get(name)
+        if v is None:
+            v = self._views[name] = self._block[self._index[name]]
+        return v
+
+    def __iter__(self):
+        return iter(self._names)
+
+    def __len__(self):
+        return len(self._names)
+
+    def __contains__(self, name):
+        return name in self._index
+
+    def __repr__(self):
+        return f"SignalViews({len(self._names)} signals x {self._block.shape[1]} samples)"
+
+    def __getstate__(self):
+        return {"names": self._names, "block": self._block}
+
+    def __setstate__(self, state):
+        self.__init__(state["names"], state["block"])
+
+
+_NAME_INDEX: dict = {}
+
+
+def _name_index(names: tuple) -> dict:
+    d = _NAME_INDEX.get(names)
+    if d is None:
+        d = _NAME_INDEX[names] = {n: i for i, n in enumerate(names)}
+    return d
+
+
+class BatchResults(list):
+    """The results of :meth:`Simulator.run_batch`, in run order; ``blocks``: ``(Y, run indices)`` per
+    group of runs simulated together, ``Y`` (runs x signals x samples) the block their signals view."""
+
+    def __init__(self, *args):
+        super().__init__(*args)
+        self.blocks: list = []
+
+
+_TIME_GRIDS: dict = {}
+
+
+def _time_grid(n: int, h: float, decimation: int = 1) -> np.ndarray:
+    """``np.arange(n) * decimation * h`` (that grouping: the same bits as ever), read-only and shared by the
+    runs of one length and period (a few recent grids are kept)."""
+    key = (n, h, decimation)
+    t = _TIME_GRIDS.get(key)
+    if t is None:
+        t = np.arange(n) * decimation * h if decimation != 1 else np.arange(n) * h
+        t.setflags(write=False)
+        if len(_TIME_GRIDS) >= 16:
+            _TIME_GRIDS.pop(next(iter(_TIME_GRIDS)))
+        _TIME_GRIDS[key] = t
+    return t
+
+
+def _first_non_finite(Y: np.ndarray) -> int:
+    """First output sample (column) of ``Y`` with a non-finite value, -1 when all are finite."""
+    ok = np.isfinite(Y).all(axis=0)
+    return -1 if ok.all() else int(np.argmin(ok))
+
+
+def _member_error(exc: Exception, i: int, inputs) -> Exception:
+    """``exc`` with the index of the batch member it came from in front of its message."""
+    name = getattr(inputs, "name", None)
+    msg = f"run_batch: run {i}{f' ({name!r})' if name else ''}: {exc}"
+    try:
+        new = type(exc).__new__(type(exc))
+        Exception.__init__(new, msg)
+        new.__dict__.update(getattr(exc, "__dict__", {}))
+        return new
+    except Exception:  # noqa: BLE001 -- an exception class that cannot be rebuilt: the base class
+        return ThsaError(msg)
 
 
 def stack_signals(results, names=None) -> tuple[np.ndarray, np.ndarray]:

@@ -33,12 +33,13 @@ def sweep_command(spec_path: str, out: str, *, scheduler: str | None = None, wor
     progress = Progress("thsa sweep", enabled=not quiet)
     spec = load_spec(spec_path)
     progress.phase(f"{spec.name}: {spec.total_runs} runs in chunks of {spec.chunk_runs}")
-    stats = run_sweep(spec, out, scheduler=scheduler, workers=workers, force=force, progress=progress,
-                      command=command)
-    progress.phase("analysing the table and writing the report")
-    table = read_results(out)
-    analysis = analyse_sweep(spec, table)
-    report = write_sweep_report(spec, analysis, Path(out) / "report")
+    with progress.heartbeat():  # a line whenever a chunk or the warm-up keeps it silent for 2 s
+        stats = run_sweep(spec, out, scheduler=scheduler, workers=workers, force=force, progress=progress,
+                          command=command)
+        progress.phase("analysing the table and writing the report")
+        table = read_results(out)
+        analysis = analyse_sweep(spec, table)
+        report = write_sweep_report(spec, analysis, Path(out) / "report")
     progress.done()
     if stats.simulated:
         rate = stats.simulated / stats.compute_s if stats.compute_s > 0 else math.nan

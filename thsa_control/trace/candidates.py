@@ -96,14 +96,54 @@ def _rule_periodic(params: ParameterSet, runs) -> tuple[float, str]:
                "friction ripple are a few per cent of rated torque (catalogue cogging below 2 %)")
 
 
+#: spread of a two-stage reduction's efficiency around the file's assumed 0.95 (0.93..0.97: 0.98..0.985 per stage,
+#: catalogue values of spur and planetary stages); the gearbox efficiency is not freed (in a steady motion only the
+#: product with the screw's shows), so the screw's efficiency explainer carries it
+GEAR_EFFICIENCY_SPREAD = 0.02
+
+
 def _rule_efficiency(params: ParameterSet, runs) -> tuple[float, str]:
-    return 0.05, ("+-0.05 around the parameter file's efficiency: the spread of catalogue ball-screw efficiencies at "
-                  "one lead and diameter")
+    es, eg = params.value("screw.efficiency_direct"), params.value("gear.efficiency")
+    gear = es * GEAR_EFFICIENCY_SPREAD / eg
+    b = 0.05 + gear
+    return b, (f"+-{b:.3f} around the parameter file's efficiency: 0.05, the spread of catalogue ball-screw "
+               f"efficiencies at one lead and diameter, plus {gear:.3f}, the gearbox's +-{GEAR_EFFICIENCY_SPREAD:g} "
+               f"around its assumed {eg:g} (two-stage reductions 0.93..0.97) carried by the screw's efficiency "
+               f"(x {es:g}/{eg:g}; only the product shows in a steady motion); a no-back's load-proportional drag "
+               "while driven also shows as a direct-efficiency loss and is not covered beyond this")
 
 
 #: Plausible magnitudes (rule -> function(params, runs) -> (bound, where the bound comes from)).
 PLAUSIBLE: dict[str, Callable] = {"drag": _rule_drag, "axial_force": _rule_axial, "periodic": _rule_periodic,
                                   "efficiency": _rule_efficiency}
+
+
+def _start_loadpath(params: ParameterSet, runs) -> dict[str, float]:
+    from ..fit.loadpath_screen import loadpath_static_screen
+
+    return loadpath_static_screen(runs, params)
+
+
+def _resolved_periods(params: ParameterSet, runs, lo: float, hi: float) -> tuple[float, float]:
+    """Cogging periods per motor revolution the record resolves: 4 samples or more per period at the median
+    moving motor speed (half the moving samples or more resolve it)."""
+    best = 0.0
+    for run in runs:
+        t = np.asarray(run.time, float)
+        w = np.abs(np.nan_to_num(measured_motor_speed(run)))
+        moving = w > 0.05 * max(float(np.max(w)), 1e-9)
+        if t.size < 2 or not moving.any():
+            continue
+        fs = 1.0 / float(np.median(np.diff(t)))
+        best = max(best, (fs / 4) / (float(np.median(w[moving])) / (2 * math.pi)))
+    return lo, max(lo, min(hi, math.floor(best)))
+
+
+#: Narrowing of a profiled parameter's range to what the runs resolve (name -> function(params, runs, lo, hi)).
+PROFILE_LIMITS: dict[str, Callable] = {"drive.cogging_periods": _resolved_periods}
+
+#: Starting values read off the runs (:attr:`CandidateSpec.start` -> function(params, runs) -> {name: value}).
+STARTS: dict[str, Callable] = {"loadpath_static": _start_loadpath}
 
 
 # ----------------------------------------------------------------------------- candidates

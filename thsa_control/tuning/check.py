@@ -43,11 +43,9 @@ def suite_metrics(design: Design, params: ParameterSet, level: str, temperature:
     from ..sim.simulate import SimulationSettings, Simulator
 
     sim = Simulator(build_plant(level, effects, params=params), SimulationSettings(output_period=None))
-    out = {}
-    for name in scenarios:
-        sc = get_validation_scenario(name).with_temperature(temperature)
-        out[name] = run_metrics(sim.run(sc, design, params))
-    return out
+    scenarios = tuple(scenarios)
+    runs = sim.run_batch([get_validation_scenario(n).with_temperature(temperature) for n in scenarios], design, params)
+    return {name: run_metrics(r) for name, r in zip(scenarios, runs)}
 
 
 def write_design(design: Design, path: str | Path, *, force_marker: str = PROVENANCE_MARKER) -> Path:

@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import casadi as ca
@@ -83,8 +84,9 @@ class TuneSettings:
     max_iter, tol : IPOPT's iteration limit and tolerance (no wall-clock limit: the answer does not
         depend on the machine's load).
     objective : ObjectiveSettings
-    progress : bool
-        Print progress on stderr.
+    progress : bool or callable
+        Print progress on stderr; a callable (e.g. a :class:`thsa_control.progress.Progress`) gets each
+        message instead.
     suite : tuple of str or None
         Validation runs judged and used as constraint runs (None: the validation suite of ``thsa check``).
     requirements : dict or None
@@ -106,7 +108,7 @@ class TuneSettings:
     max_iter: int = 60
     tol: float = 1e-7
     objective: ObjectiveSettings = field(default_factory=ObjectiveSettings)
-    progress: bool = True
+    progress: bool | Callable[[str], None] = True
     suite: tuple[str, ...] | None = None
     requirements: dict | None = None
 
@@ -223,7 +225,11 @@ class _Cache:
             self.history.append((np.asarray(q, float).ravel().copy(), (self.val, self.jac)))
             if self.progress:
                 gs = " ".join(f"{n}={v:.5g}" for n, v in zip(self.obj.tuned, g))
-                print(f"  [{self.label}] eval {self.n_jac:3d}: J/J0 = {J / self.J0:.6f}  {gs}", file=sys.stderr, flush=True)
+                msg = f"[{self.label}] eval {self.n_jac:3d}: J/J0 = {J / self.J0:.6f}  {gs}"
+                if callable(self.progress):
+                    self.progress(msg)
+                else:
+                    print("  " + msg, file=sys.stderr, flush=True)
         return self.val, self.jac
 
 
@@ -316,7 +322,9 @@ def objective_settings_for(design: Design, **kw) -> ObjectiveSettings:
 
 
 def _say(settings: TuneSettings, msg: str) -> None:
-    if settings.progress:
+    if callable(settings.progress):
+        settings.progress(msg.removeprefix("tune: "))
+    elif settings.progress:
         print(msg, file=sys.stderr, flush=True)
 
 
