@@ -194,10 +194,14 @@ def custom_state_track(plant: Plant, mech: ca.Function, x_measured: np.ndarray, 
     out[:, 0] = X[idx, 0]
     if n > 1:
         U = np.vstack([X[:, :-1], inputs[:, :n - 1], np.asarray(periods, float)[None, :n - 1]])
+        from ..sim.codegen import NonFiniteOutput
+
         loop = one_step_loop(plant, mech)
-        if loop is not None:
+        try:
+            if loop is None:
+                raise NonFiniteOutput(0, -1)
             out[:, 1:] = loop(X[idx, 0], U, np.asarray(p, float), 1)[0][:-1]
-        else:
+        except NonFiniteOutput:  # no compiler, or a non-finite prediction that stops a compiled run
             out[:, 1:] = np.asarray(one_step_map(plant, mech, n - 1)(X[idx, 0], U, p)[0])
     return out
 
