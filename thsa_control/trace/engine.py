@@ -279,7 +279,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         return {"label": label, "effects": tuple(effs), "free": tuple(free), "params_toml": pset.to_toml(),
                 "settings": id_settings(prior, [n for n in free if n not in uncertain and n not in pri], pri),
                 "runs": data, "profile": dict(profile or {}), "judge": judge,
-                "hold_at": {n: params.value(n) for n in judge}, "relative_stderr": st.undetermined_relative_stderr}
+                "hold_at": {n: (pset.value(n) if spec is not None and spec.start else params.value(n)) for n in judge}, "relative_stderr": st.undetermined_relative_stderr}
 
     say(f"fitting the declared model ({', '.join(declared) or 'level A'}): {', '.join(uncertain)}")
     t0 = time.perf_counter()
@@ -350,7 +350,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             replaced = {x for e in req + [spec.name] for x in EFFECTS[e].supersedes}
             effs = resolve_effects(None, add=[e for e in cur_effects if e not in replaced] + req + [spec.name])
             pset = cur_params.replace({n: v for n, v in spec.seeds.items() if cur_params.value(n) == 0})
-            if spec.start:  # starting values read off the runs (a static screen), within the search bounds
+            if spec.start:  # starting values read off the runs (a static screen), within the search bounds; a
+                # parameter the fit then finds undetermined is held there, not at the file's value
                 pset = pset.replace({n: min(max(v, pset[n].min), pset[n].max)
                                      for n, v in STARTS[spec.start](pset, runs).items() if n in pset})
             if spec.profile:
