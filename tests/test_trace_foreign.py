@@ -180,6 +180,26 @@ def test_nulls_add_only_what_the_base_contains(traced, name):
     assert not [e for e in doc["effects_added"] if e.get("beyond_base_correction")], doc["effects_added"]
 
 
+@pytest.mark.campaign
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["null_rig_trim_s1", "rig_noback_quadrant"])
+def test_base_step_details_the_declared_no_back(traced, name):
+    """Level A's ideal no-back is no real one: the base step fits the no-back's disks jointly with the base
+    corrections, keeps them as the declared component detailed (what the base contains, not a found effect), with
+    a disk coefficient the run does not load held at its file value, and the corrections stay inside their
+    bounds, each with its source."""
+    doc = traced(name)
+    bc = doc["base_corrections"]
+    det = {d["name"]: d for d in bc["declared_components_detailed"]}
+    assert det["noback_quadrant_friction"]["accepted"], det
+    step = doc["effects_added"][0]
+    assert step["name"] == "noback_quadrant_friction" and step["refines_declared"] == ["noback_ideal"]
+    assert step["base_step"] == "declared component detailed" and step not in _physical(doc)
+    assert step["not_determined"], step  # one disk is never loaded on these one-signed loads
+    for c in bc["corrections"]:
+        assert c["bound"][0] - 1e-9 <= c["value"] <= c["bound"][1] + 1e-9 and c["bound_source"], c
+
+
 FOREIGN = {
     "rig_friction_bump": ("nut_position",),
     "rig_sensor_lag": ("motor_speed vs gear_ratio x screw_speed",),

@@ -47,16 +47,20 @@ def run(args) -> int:
     """Handler of ``thsa trace``."""
     import json
 
-    from ..data.rigdata import read_run
-    from ..model.params import default_parameters, load_parameters
-    from ..report import atomic_folder
     from ..report.build import check_output_folder
-    from ..report.trace import format_trace_summary, write_trace_folder
-    from ..trace.engine import TraceSettings, trace
+    from .common import progress_for
 
     inputs = [q for r in args.runs for q in (Path(r), Path(r).with_suffix(".json"))] + list(args.params or ())
     out_opts = {"force": bool(args.force), "inputs": inputs}
     check_output_folder(args.out, **out_opts)  # refuse a foreign output folder before the long computation
+    progress = progress_for(args, "thsa trace")
+    progress.phase(f"loading the model and reading {len(args.runs)} run(s)")
+    with progress.heartbeat():
+        from ..data.rigdata import read_run
+        from ..model.params import default_parameters, load_parameters
+        from ..report import atomic_folder
+        from ..report.trace import format_trace_summary, write_trace_folder
+        from ..trace.engine import TraceSettings, trace
     params = load_parameters(args.params, base=default_parameters()) if args.params else default_parameters()
     mapping = json.loads(args.column_map) if args.column_map else None
     from ..fit.kinematics import run_kinematics
@@ -81,9 +85,6 @@ def run(args) -> int:
         from ..errors import ThsaError
 
         raise ThsaError(str(exc)) from None
-    from .common import progress_for
-
-    progress = progress_for(args, "thsa trace")
     with progress.heartbeat():
         result = trace(runs, args.model, args.effects or (), remove=args.remove or (), params=params,
                        settings=settings, progress=progress if progress.enabled else None)

@@ -360,7 +360,7 @@ SPEED_SENSOR_COLUMNS = {"motor_speed_rpm": "motor_speed", "screw_speed_rpm": "sc
 _SAMPLE_WORDS = ("sample", "samples")
 
 
-def _interval_from(value: Any, where: str) -> float | str | None:
+def speed_interval_from(value: Any, where: str) -> float | str | None:
     """A declared difference interval: seconds (> 0), ``"sample"`` (one logged sample), or None (instantaneous)."""
     if value is None or value == "instantaneous":
         return None
@@ -413,10 +413,10 @@ def speed_sensor_intervals(run, override=None) -> dict[str, dict]:
             continue
         if sig in override or col in override:
             key = sig if sig in override else col
-            out[sig] = {"interval": _interval_from(override[key], f"speed sensor option {key}"),
+            out[sig] = {"interval": speed_interval_from(override[key], f"speed sensor option {key}"),
                         "source": "explicit option"}
         elif isinstance(declared, dict) and col in declared:
-            out[sig] = {"interval": _interval_from(declared[col], f"{run.json_path}: speed_sensors.{col}"),
+            out[sig] = {"interval": speed_interval_from(declared[col], f"{run.json_path}: speed_sensors.{col}"),
                         "source": "run JSON speed_sensors"}
         elif isinstance(texts, dict) and isinstance(texts.get(col), str) and _interval_from_text(texts[col]):
             out[sig] = {"interval": _interval_from_text(texts[col]),

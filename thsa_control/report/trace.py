@@ -60,6 +60,8 @@ def conclusion_table_html(doc: dict) -> str:
     for e in doc["effects_added"]:
         kind = f"implied by {e['implied_by']}" if e.get("implied_by") else (
             "found effect (beyond a base correction)" if e.get("beyond_base_correction") else
+            f"declared component detailed ({', '.join(e['refines_declared'])}; base step, what the base contains)"
+            if e.get("refines_declared") and e.get("base_step") else
             f"detailed declared {', '.join(e['refines_declared'])}" if e.get("refines_declared") else "found effect")
         pars = "<br>".join(f"{esc(n)} = {_num(p['value'])} {esc(p['unit'])}{_ci(p)}"
                            + (" (profiled)" if p.get("profiled") else "") + (" (held)" if p.get("held") else "")
@@ -76,8 +78,11 @@ def conclusion_table_html(doc: dict) -> str:
             "<th>channel RMS before &rarr; after</th><th>error drop in its window</th>"
             "<th>not determined by this run</th></tr>")
     body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in (esc(r[0]), esc(r[1]), *r[2:])) + "</tr>" for r in rows)
+    base_like = doc["residual_signature"].get("base_like") or []
     tail = (f"<p>unexplained: <b>{doc['unexplained']}</b>"
             + (f" (structured: {esc(', '.join(doc['residual_signature']['structured']))})" if doc["unexplained"] else "")
+            + (f"<br><small>left as a declared model of another rig's base leaves it (starts, stops, reversals, "
+               f"quadrant; not counted as unexplained): {esc('; '.join(base_like))}</small>" if base_like else "")
             + "</p>")
     return head + body + "</table>" + tail
 
@@ -156,6 +161,9 @@ def format_trace_summary(doc: dict) -> str:
         for c in bc.get("corrections", []):
             lines.append(f"    {c['effect']:<20} {c['parameter']} = {_num(c['value'])} {c['unit']}{_ci(c)}, bound "
                          f"[{_num(c['bound'][0])}, {_num(c['bound'][1])}]{'  AT BOUND' if c['at_plausible_bound'] else ''}")
+    for d in (bc or {}).get("declared_components_detailed", []):
+        lines.append(f"    declared component detailed: {d['name']} (for {', '.join(d.get('refines', []))}): "
+                     f"{'kept' if d['accepted'] else 'not kept'}, {d.get('reason', '')}")
     step = 0
     for e in doc["effects_added"]:
         if e.get("implied_by"):
@@ -164,7 +172,10 @@ def format_trace_summary(doc: dict) -> str:
                          + ")")
             continue
         step += 1
-        lines.append(f"step {step}: added {e['name']}{' (beyond its base correction)' if e.get('beyond_base_correction') else ''}"
+        how = (" (beyond its base correction)" if e.get("beyond_base_correction") else
+               " (base step: declared component detailed, counted as what the base contains)" if e.get("base_step")
+               else "")
+        lines.append(f"step {step}: added {e['name']}{how}"
                      f" (score {_num(e['score'], '.3f')}, AIC drop {_num(e['aic_drop'], '.1f')}, "
                      f"BIC drop {_num(e['bic_drop'], '.1f')})")
         for n, p in e["parameters"].items():
@@ -207,6 +218,9 @@ def format_trace_summary(doc: dict) -> str:
     sig = doc["residual_signature"]
     lines.append(f"unexplained: {doc['unexplained']}" + (f" (structured in: {', '.join(sig['structured'])})"
                                                          if doc["unexplained"] else ""))
+    if sig.get("base_like"):
+        lines.append("left as a declared model of another rig's base leaves it (not unexplained): "
+                     + "; ".join(sig["base_like"]))
     for t in sig["tests"][:6] + sig["sensors"]:
         extra = ""
         if t["kind"] == "periodic":

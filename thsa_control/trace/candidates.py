@@ -96,9 +96,21 @@ def _rule_periodic(params: ParameterSet, runs) -> tuple[float, str]:
                "friction ripple are a few per cent of rated torque (catalogue cogging below 2 %)")
 
 
+#: spread of a two-stage reduction's efficiency around the file's assumed 0.95 (0.93..0.97: 0.98..0.985 per stage,
+#: catalogue values of spur and planetary stages); the gearbox efficiency is not freed (in a steady motion only the
+#: product with the screw's shows), so the screw's efficiency explainer carries it
+GEAR_EFFICIENCY_SPREAD = 0.02
+
+
 def _rule_efficiency(params: ParameterSet, runs) -> tuple[float, str]:
-    return 0.05, ("+-0.05 around the parameter file's efficiency: the spread of catalogue ball-screw efficiencies at "
-                  "one lead and diameter")
+    es, eg = params.value("screw.efficiency_direct"), params.value("gear.efficiency")
+    gear = es * GEAR_EFFICIENCY_SPREAD / eg
+    b = 0.05 + gear
+    return b, (f"+-{b:.3f} around the parameter file's efficiency: 0.05, the spread of catalogue ball-screw "
+               f"efficiencies at one lead and diameter, plus {gear:.3f}, the gearbox's +-{GEAR_EFFICIENCY_SPREAD:g} "
+               f"around its assumed {eg:g} (two-stage reductions 0.93..0.97) carried by the screw's efficiency "
+               f"(x {es:g}/{eg:g}; only the product shows in a steady motion); a no-back's load-proportional drag "
+               "while driven also shows as a direct-efficiency loss and is not covered beyond this")
 
 
 #: Plausible magnitudes (rule -> function(params, runs) -> (bound, where the bound comes from)).

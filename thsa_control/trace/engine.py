@@ -52,7 +52,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..data.rigdata import RigRun
+from ..data.rigdata import RigRun, measured_motor_speed
 from ..errors import ThsaError
 from ..fit.identify import IdentificationSettings, estimate_noise
 from ..data.rigformat import speed_sensor_intervals
@@ -63,15 +63,19 @@ from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, PL
                          candidate_specs, not_candidates)
 from .residual import _regime_errors, _signature
 from .scoring import (_base_correction, _channel_errors, _chi2_by_channel, _explainers_at_bound, _held_out,
+                      _holdout_segment_changes,
                       _held_params, _null_runs, _param_entry, _plausibility, _rms_by_channel, _run_jobs,
                       _signature_brief)
-from .signature import SignatureSettings
+from .signature import SignatureSettings, base_transients, split_remainder
 from .threads import limit_blas_threads
 
 __all__ = ["TraceSettings", "CandidateSpec", "CANDIDATES", "DEFAULT_UNCERTAIN", "TraceResult", "trace",
            "candidate_specs", "TRACE_FORMAT", "not_candidates", "PLAUSIBLE", "EFFICIENCY_EXPLAINER", "WINDOWS"]
 
 TRACE_FORMAT = "thsa-trace/1"
+
+#: candidate windows at the transients themselves: scored on every sample (``score_outside_transients``)
+TRANSIENT_WINDOWS = ("reversal", "reversal_or_stop")
 
 
 @dataclass(frozen=True)
@@ -130,6 +134,15 @@ class TraceSettings:
         A significant physical effect whose window RMS drop is within this of
         the best constant-torque explainer's comes before it
         (:func:`_physical_first`).
+    score_outside_transients : bool
+        With the base step (data the declared model may not describe), score
+        the candidates' held-out drops, window drops and null drops on the
+        samples outside the base's transients
+        (:func:`~thsa_control.trace.signature.base_transients`: starts, stops,
+        reversals, load changes), except candidates that act there (windows
+        ``reversal``, ``reversal_or_stop``): a declared model of another
+        rig's base leaves its largest residual at those transients, and a
+        few such held-out segments decided the sign of every drop.
     """
 
     segment_duration: float = 0.05
@@ -156,17 +169,18 @@ class TraceSettings:
     #: -> difference interval [s], "sample" or "instantaneous"; None: each run's own (its JSON's
     #: ``speed_sensors``, else its ``sensors`` text as a reported fallback, else instantaneous)
     speed_sensors: Mapping[str, object] | None = None
+    score_outside_transients: bool = True
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad field."""
         if self.speed_sensors is not None:
-            from ..data.rigformat import SPEED_SENSOR_COLUMNS, _interval_from
+            from ..data.rigformat import SPEED_SENSOR_COLUMNS, speed_interval_from
 
             for k, v in dict(self.speed_sensors).items():
                 if k not in SPEED_SENSOR_COLUMNS and k not in SPEED_SENSOR_COLUMNS.values():
                     raise ValueError(f"TraceSettings.speed_sensors: unknown channel {k!r}; channels are "
                                      f"{', '.join(SPEED_SENSOR_COLUMNS.values())}")
-                _interval_from(v, f"TraceSettings.speed_sensors[{k!r}]")
+                speed_interval_from(v, f"TraceSettings.speed_sensors[{k!r}]")
         if not (isinstance(self.substeps, int) and self.substeps >= 1):
             raise ValueError(f"TraceSettings.substeps = {self.substeps!r} must be an integer >= 1")
         if not (isinstance(self.holdout_every, int) and self.holdout_every >= 2):
@@ -295,9 +309,17 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     base_doc = None
     at_plausible_bound: dict[str, str] = {}  # explainer parameter -> its effect, where the base correction hit the bound
     base_bounds: dict[str, tuple[float, float, str]] = {}  # explainer parameter -> (lo, hi, effect) while bounded
+    base_step_refused: set[str] = set()  # declared components detailed (or tried) in the base step
     if use_base:
         say("base-correction step: constant-torque explainers and screw efficiencies within plausible magnitudes")
-        bc = _base_correction(first, declared, uncertain, params, plaus, fit_runs, noise, st, job, say)
+        windows_cache = {spec: {r.name: _window(spec, r, params) for r in runs} for spec in WINDOWS}
+        refinements = [sp for sp in candidate_specs(declared, params, st.candidates)
+                       if set(EFFECTS[sp.name].supersedes) & set(declared) and not sp.profile
+                       and sum(int(w.sum()) for w in windows_cache[sp.window].values()) >= 50]
+        if refinements:
+            say("base step: the corrections fitted with and without the detailed "
+                f"{', '.join(sp.name for sp in refinements)} (declared {', '.join(sorted({x for sp in refinements for x in EFFECTS[sp.name].supersedes}))})")
+        bc = _base_correction(first, declared, uncertain, params, plaus, fit_runs, noise, st, job, say, refinements)
         base_doc = bc["doc"]
         if bc["accepted"]:
             base_priors.update(bc["priors"])
@@ -305,10 +327,38 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             cur_params = ParameterSet.from_toml(current["params_toml"])
             cur_free = tuple(bc["free"])
             base_bounds = bc["bounds"]
+            detailed = _detail_declared(bc["refinements"], current, cur_effects, cur_free, fit_runs, noise, st,
+                                        job, say, plaus, windows_cache, runs)
+            base_doc["declared_components_detailed"] = [d["doc"] for d in detailed]
+            kept = next((d for d in detailed if d["doc"]["accepted"]), None)
+            for d in detailed:
+                base_step_refused.add(d["doc"]["name"])
+            if kept is not None:
+                f = kept["fit"]
+                added.append(kept["step"])
+                base_doc["corrections_before_detail"] = base_doc.get("corrections")
+                base_doc["corrections"] = bc["corrections_of"](f)
+                say("base corrections with the detailed component: " + ", ".join(
+                    f"{c['parameter']} = {c['value']:.4g}{' (at bound)' if c['at_plausible_bound'] else ''}"
+                    for c in base_doc["corrections"]))
+                base_doc["error_after"] = _channel_errors(f)
+                current, cur_effects = f, tuple(f["effects"])
+                cur_params = ParameterSet.from_toml(f["params_toml"])
+                cur_free = tuple(f["free"])
             at_plausible_bound = _explainers_at_bound(current, base_bounds)
             base_doc["signature_after"] = _signature_brief(
                 _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, noise))
     windows_cache = {spec: {r.name: _window(spec, r, params) for r in runs} for spec in WINDOWS}
+    # where the candidates are scored: outside the base's transients on data the declared model may not describe
+    steady = ({r.name: ~base_transients(r.time, measured_motor_speed(r), r.signals["load_force"],
+                                        st.signature.transient_time) for r in runs}
+              if use_base and st.score_outside_transients else None)
+
+    def score_mask(window: str):
+        return None if steady is None or window in TRANSIENT_WINDOWS else steady
+
+    win_scored = {w: (windows_cache[w] if score_mask(w) is None else
+                      {r: windows_cache[w][r] & steady[r] for r in windows_cache[w]}) for w in WINDOWS}
     hurt: set[str] = set()
     while sum(1 for e in added if "implied_by" not in e) < st.max_effects:
         specs = candidate_specs(cur_effects, cur_params, st.candidates)
@@ -321,6 +371,9 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             win = windows_cache[spec.window]
             if sum(int(w.sum()) for w in win.values()) < 50:
                 skipped.append({"name": spec.name, "reason": f"does not act on these runs (window '{spec.window}' empty)"})
+            elif spec.name in base_step_refused:
+                skipped.append({"name": spec.name, "reason": "the detailed model of a declared component, judged in "
+                                                             "the base step (not significant there)"})
             elif spec.name in hurt:
                 skipped.append({"name": spec.name, "reason": f"made the held-out error worse in round {len(rounds)}"})
             else:
@@ -363,7 +416,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             jobs.append(job(spec.name, effs, free, pset, fit_runs, profile=spec.profile, spec=spec))
         say(f"round {len(rounds) + 1}: scoring {len(jobs)} candidates ({', '.join(s.name for s in scorable)})")
         fits = _run_jobs(jobs, st.workers, say)
-        base_hold = _chi2_by_channel(current, noise, "holdout")
+        base_holds = {w: _chi2_by_channel(current, noise, "holdout", score_mask(w)) for w in WINDOWS}
         scored = []
         for spec, f, jb in zip(scorable, fits, jobs):
             if "error" in f:
@@ -371,13 +424,14 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                                "error_reduction": {}})
                 continue
             cand_times.append(f["time_s"])
-            hold = _chi2_by_channel(f, noise, "holdout")
+            base_hold = base_holds[spec.window]
+            hold = _chi2_by_channel(f, noise, "holdout", score_mask(spec.window))
             drop = sum(base_hold.values()) - sum(hold.values())
             k = len(spec.free) + len(spec.profile)
             from scipy.stats import chi2
 
             thr = float(chi2.ppf(1 - st.alpha, k))
-            win = windows_cache[spec.window]
+            win = win_scored[spec.window]
             wb = _chi2_by_channel(current, noise, "holdout", win)
             wc = _chi2_by_channel(f, noise, "holdout", win)
             win_red = {c: (1 - math.sqrt(wc[c] / wb[c])) if wb.get(c, 0) > 0 else 0.0 for c in wc}
@@ -395,6 +449,9 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "plausible": plausible, "implausible_because": why, "parameters": _params_out(f, spec),
                 "fit_time_s": f["time_s"], "converged": f["converged"], "prelim": prelim, "_fit": f, "_job": jb,
                 "not_determined": _held_out(f),
+                "holdout_segments": _holdout_segment_changes(current, f, noise),
+                **({"scored_outside_transients": True} if score_mask(spec.window) is not None else {}),
+                "_mask": score_mask(spec.window),
                 **({"beyond_base_correction": True} if any(n in at_plausible_bound for n in spec.free) else {}),
                 **({"profile": f["profile"]} if f.get("profile") else {}),
                 "_noise": noise,
@@ -407,17 +464,20 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         if promising:
             null = _null_runs(current, fit_runs, noise, st.seed + len(rounds))
             null_base = _run_jobs([job("null base", cur_effects, cur_free, cur_params, null)], 1, None)[0]
-            nb = sum(_chi2_by_channel(null_base, noise, "holdout").values()) if "error" not in null_base else math.nan
+            nbs = {w: (sum(_chi2_by_channel(null_base, noise, "holdout", score_mask(w)).values())
+                       if "error" not in null_base else math.nan) for w in WINDOWS}
             todo = list(promising)
 
-            def calibrate(batch, null=null, nb=nb):
+            def calibrate(batch, null=null, nbs=nbs):
                 say(f"calibrating {', '.join(c['name'] for c in batch)} on a null run")
                 null_fits = _run_jobs([{**c["_job"], "label": f"null {c['name']}", "runs": null,
                                         "free": tuple(c["_fit"]["free"]), "judge": {},
                                         "params_toml": _held_params(c["_job"]["params_toml"], c["_fit"])}
                                        for c in batch], st.workers, say)
                 for c, nf in zip(batch, null_fits):
-                    nd = (nb - sum(_chi2_by_channel(nf, noise, "holdout").values())) if "error" not in nf else math.nan
+                    w = c["window"]
+                    nd = ((nbs[w] - sum(_chi2_by_channel(nf, noise, "holdout", score_mask(w)).values()))
+                          if "error" not in nf else math.nan)
                     c["null_chi2_drop"] = nd
                 return [c for c in batch if math.isfinite(c["null_chi2_drop"]) and c["holdout_chi2_drop"]
                         > st.null_factor * max(c["null_chi2_drop"], 0.0)]
@@ -457,7 +517,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         if best is None:
             say("no candidate is significant: stop")
             break
-        best, yielded = _physical_first(best, scored, st.window_tolerance, current, noise, windows_cache)
+        best, yielded = _physical_first(best, scored, st.window_tolerance, current, noise, win_scored)
         if yielded:
             rounds[-1]["physical_first"] = {"chosen": best["name"], "over": yielded}
             say(f"{best['name']} explains as much inside its window as the constant-torque "
@@ -468,7 +528,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             rounds[-1]["ambiguous"] = names_amb
             ambiguous.append({"round": len(rounds), "candidates": names_amb,
                               "holdout_chi2_drop": {s["name"]: s["holdout_chi2_drop"] for s in [best, *rivals]},
-                              "indistinct_below": best["_indistinct_below"]})
+                              "indistinct_below": best["_indistinct_below"],
+                              "holdout_iact": best.get("_holdout_iact")})
             say(f"{', '.join(names_amb)} explain the same part of the residual (held-out chi2 drops within "
                 f"{best['_indistinct_below']:.3g}): none is named; stop")
             break
@@ -512,9 +573,11 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, noise))
     sig_before = _signature(first, runs, ParameterSet.from_toml(first["params_toml"]), base_plant, st.signature, noise)
     sig_after = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, noise)
-    structured = [t for t in sig_after["tests"] + sig_after["sensors"] if t["significant"]]
-    structured += [{"variable": f"held-out residual above noise ({c}: {r:.2g} x)"}
-                   for c, r in sig_after.get("residual_to_noise", {}).items() if r > st.signature.max_noise_ratio]
+    # unexplained: structure an unmodelled-but-declared base does not leave; a residual above noise with only the
+    # regime dependences of a base mismatch (starts, stops, reversals, quadrant) is reported as base-like
+    structured, base_like = split_remainder(sig_after)
+    base_like += [{"variable": f"held-out residual above noise ({c}: {r:.2g} x)"}
+                  for c, r in sig_after.get("residual_to_noise", {}).items() if r > st.signature.max_noise_ratio]
     doc = {
         "format": TRACE_FORMAT,
         "datasets": [{"name": r.name, "csv": str(r.csv_path), "samples": int(len(r.time)),
@@ -535,7 +598,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         "error_by_regime_after": _regime_errors(current, runs),
         "unexplained": bool(structured),
         "ambiguous": ambiguous,
-        "residual_signature": {**sig_after, "structured": [t["variable"] for t in structured]},
+        "residual_signature": {**sig_after, "structured": [t["variable"] for t in structured],
+                               "base_like": [t["variable"] for t in base_like]},
         "residual_signature_before": sig_before,
         "candidates": rounds[0]["candidates"] if rounds else [],
         "rounds": rounds,
@@ -545,6 +609,83 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                    "total_s": time.perf_counter() - t_start},
     }
     return TraceResult(doc, {"before": first, "after": current})
+
+
+def _detail_declared(refinements, current: dict, cur_effects, cur_free, fit_runs, noise, st, job, say, plaus,
+                     windows_cache, runs) -> list[dict]:
+    """Judge each detailed model of a declared idealised component (fitted jointly with the base corrections) by
+    the rules of a candidate: held-out chi2 drop above the ``chi2(k)`` quantile and ``null_factor`` times the drop
+    the same refinement buys on a null run of the corrected base, window RMS drop, own channel not worse,
+    plausible on the parameters the run determines (the others held at their file values)."""
+    from scipy.stats import chi2
+
+    out = []
+    base_hold = sum(_chi2_by_channel(current, noise, "holdout").values())
+    todo = []
+    for spec, jb, f in refinements:
+        d = {"name": spec.name, "refines": [x for x in EFFECTS[spec.name].supersedes if x in cur_effects],
+             "accepted": False}
+        if "error" in f:
+            d["reason"] = f"fit failed: {f['error']}"
+            out.append({"doc": d})
+            continue
+        drop = base_hold - sum(_chi2_by_channel(f, noise, "holdout").values())
+        thr = float(chi2.ppf(1 - st.alpha, len(spec.free)))
+        win = windows_cache[spec.window]
+        wb = _chi2_by_channel(current, noise, "holdout", win)
+        wc = _chi2_by_channel(f, noise, "holdout", win)
+        win_red = {c: (1 - math.sqrt(wc[c] / wb[c])) if wb.get(c, 0) > 0 else 0.0 for c in wc}
+        plausible, why = _plausibility(f, spec, plaus)
+        if win_red.get(spec.channel, 0.0) < -st.max_channel_increase:
+            plausible = False
+            why.append(f"{spec.channel} error grows by {-win_red[spec.channel]:.0%}")
+        rms_b, rms_c = _rms_by_channel(current), _rms_by_channel(f)
+        d.update(holdout_chi2_drop=drop, chi2_threshold=thr, window=spec.window, window_reduction=win_red,
+                 plausible=plausible, implausible_because=why, parameters=_params_out(f, spec),
+                 not_determined=_held_out(f), holdout_segments=_holdout_segment_changes(current, f, noise),
+                 error_reduction={c: (1 - rms_c[c] / rms_b[c]) if rms_b[c] > 0 else 0.0 for c in rms_c})
+        if drop > thr and max(win_red.values(), default=0.0) >= st.min_window_reduction and plausible:
+            todo.append((spec, jb, f, d))
+        else:
+            d["reason"] = "not significant" if plausible else "implausible: " + "; ".join(why)
+            say(f"base step: {spec.name} not kept ({d['reason']}; held-out chi2 drop {drop:.4g}, window "
+                f"drop {max(win_red.values(), default=0.0):.0%})")
+        out.append({"doc": d, "fit": f, "spec": spec})
+    if todo:
+        null = _null_runs(current, fit_runs, noise, st.seed + 1000)
+        say(f"calibrating {', '.join(t[0].name for t in todo)} on a null run of the corrected base")
+        nfits = _run_jobs([job("null base", cur_effects, cur_free, ParameterSet.from_toml(current["params_toml"]), null)]
+                          + [{**jb, "label": f"null {spec.name}", "runs": null, "free": tuple(f["free"]), "judge": {},
+                              "params_toml": _held_params(jb["params_toml"], f)} for spec, jb, f, _ in todo],
+                          st.workers, say)
+        nb = sum(_chi2_by_channel(nfits[0], noise, "holdout").values()) if "error" not in nfits[0] else math.nan
+        for (spec, jb, f, d), nf in zip(todo, nfits[1:]):
+            nd = (nb - sum(_chi2_by_channel(nf, noise, "holdout").values())) if "error" not in nf else math.nan
+            d["null_chi2_drop"] = nd
+            ok = math.isfinite(nd) and d["holdout_chi2_drop"] > st.null_factor * max(nd, 0.0)
+            d["accepted"] = bool(ok)
+            d["reason"] = ("significant: declared component detailed" if ok
+                           else f"not significant against its null drop {nd:.3g}")
+    # one detailed model per declared component: the one with the largest held-out drop among the accepted
+    acc = [o for o in out if o["doc"]["accepted"]]
+    if acc:
+        best = max(acc, key=lambda o: o["doc"]["holdout_chi2_drop"])
+        for o in acc:
+            if o is not best:
+                o["doc"]["accepted"] = False
+                o["doc"]["reason"] = f"{best['doc']['name']} explains more"
+        d, f = best["doc"], best["fit"]
+        say(f"base step: declared component detailed: {d['name']} (held-out chi2 drop {d['holdout_chi2_drop']:.4g}, "
+            f"null {d.get('null_chi2_drop', math.nan):.3g})")
+        best["step"] = {"name": d["name"], "parameters": d["parameters"], "error_reduction": d["error_reduction"],
+                        "aic_drop": current["aic"] - f["aic"], "bic_drop": current["bic"] - f["bic"],
+                        "score": d["holdout_chi2_drop"] / max(base_hold, 1e-300), "window": d["window"],
+                        "window_reduction": d["window_reduction"], "holdout_chi2_drop": d["holdout_chi2_drop"],
+                        "error_before": _channel_errors(current), "error_after": _channel_errors(f),
+                        "segments_explained": _explained_regimes(current, f, runs),
+                        "not_determined": d["not_determined"], "refines_declared": d["refines"],
+                        "base_step": "declared component detailed"}
+    return out
 
 
 def _is_explainer(s: dict) -> bool:
@@ -593,19 +734,53 @@ def _rivals(best: dict, scored: list[dict], alpha: float) -> list[dict]:
     """
     from scipy.stats import chi2
 
-    hold = sum(_chi2_by_channel(best["_fit"], best["_noise"], "holdout").values())
-    n = _holdout_samples(best["_fit"])
-    gap = float(chi2.ppf(1 - alpha, 1)) * max(1.0, hold / max(n, 1))
+    mask = best.get("_mask")  # the samples the drops were scored on
+    hold = sum(_chi2_by_channel(best["_fit"], best["_noise"], "holdout", mask).values())
+    n = _holdout_samples(best["_fit"], mask)
+    tau = _holdout_iact(best["_fit"], best["_noise"], mask)
+    gap = float(chi2.ppf(1 - alpha, 1)) * max(1.0, hold / max(n, 1)) * tau
     best["_indistinct_below"] = gap
+    best["_holdout_iact"] = tau
     return [s for s in scored if s is not best and "error" not in s and s["plausible"]
             and best["holdout_chi2_drop"] - s["holdout_chi2_drop"] < gap]
 
 
-def _holdout_samples(fit: dict) -> int:
-    """Number of finite held-out samples over all channels of a fit."""
-    n = 0
-    for p in fit["predictions"].values():
+def _holdout_iact(fit: dict, noise, mask: dict | None = None) -> float:
+    """Integrated autocorrelation time of a fit's held-out residual (noise-weighted, Geyer's estimate per held-out
+    segment run and channel, averaged with the channels' chi2 as weights), at least 1.
+
+    A chi2 difference between two fits is a sum over the residual times the change of the prediction; when the
+    residual is autocorrelated structure, not white noise, its variance grows by this factor (the quasi-likelihood
+    scaling by the reduced chi2 covers the residual's size, this its correlation).
+    """
+    from .signature import _effective_n_iact
+
+    acc, wsum = 0.0, 0.0
+    for r, p in fit["predictions"].items():
         hold = np.asarray(p["holdout"], bool)
+        if mask is not None:
+            hold = hold & np.asarray(mask[r], bool)[:hold.size]
+        for c, y in p["measured"].items():
+            if not noise.get(c):
+                continue
+            e = ((np.asarray(y, float) - np.asarray(p["simulated"][c], float)) / noise[c])[:hold.size]
+            m = hold[:e.size] & np.isfinite(e)
+            x = e[m]
+            if x.size < 8:
+                continue
+            w = float(x @ x)
+            acc += w * x.size / max(_effective_n_iact(x), 1.0)
+            wsum += w
+    return max(acc / wsum, 1.0) if wsum > 0 else 1.0
+
+
+def _holdout_samples(fit: dict, mask: dict | None = None) -> int:
+    """Number of finite held-out samples over all channels of a fit (inside ``mask[run]`` when given)."""
+    n = 0
+    for r, p in fit["predictions"].items():
+        hold = np.asarray(p["holdout"], bool)
+        if mask is not None:
+            hold = hold & np.asarray(mask[r], bool)[:hold.size]
         for c, y in p["measured"].items():
             n += int(np.sum(hold & np.isfinite(np.asarray(y) - np.asarray(p["simulated"][c]))[:hold.size]))
     return n

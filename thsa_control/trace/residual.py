@@ -19,8 +19,8 @@ from ..fit.residuals import quadrant, reversal_proximity
 from ..model.laws import kinematic_ratio
 from ..model.params import ParameterSet
 from .scoring import _rms_by_channel
-from .signature import (SignatureSettings, binned_mean, cross_correlation, current_offset_test, missing_torque,
-                        position_local_test, sensor_consistency, signature_tests)
+from .signature import (SignatureSettings, base_transients, binned_mean, cross_correlation, current_offset_test,
+                        missing_torque, position_local_test, remainder_kind, sensor_consistency, signature_tests)
 
 
 # ----------------------------------------------------------------------------- signature
@@ -67,9 +67,11 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         del dt
         for name, (kind, v) in cols.items():
             vars_.setdefault(name, (kind, []))[1].append(np.asarray(v, float))
-        # the pass-replicated position test (runs separated by a gap that ends every pass)
+        # the pass-replicated position test (runs separated by a gap that ends every pass), on the residual
+        # outside the base's transients: a declared model whose base differs from the rig's leaves structure at
+        # starts, stops, reversals and load changes, and a trim run starts and stops at the same positions
         gap = np.full(100, np.nan)
-        local_in["e"] += [torque[-1], gap]
+        local_in["e"] += [np.where(base_transients(t, w, load, s.transient_time), np.nan, torque[-1]), gap]
         local_in["x"] += [cols["nut_position"][1], gap]
         local_in["d"] += [cols["speed_sign"][1], np.zeros(100)]
     if not torque:
@@ -96,6 +98,16 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         if co is not None:
             co["run"] = run.name
             sensors.append(co)
+    # which remainder each test describes: structure an unmodelled-but-declared base does not leave (local in
+    # position over passes, periodic in angle, a drift, a torque-constant error, the sensors) or the regime
+    # dependences such a base leaves (quadrant, motor on/off, time since a reversal, direction, position bins
+    # not replicated over passes, temperature within a few kelvin: a proxy for time)
+    t_span = float(np.nanmax(variables["temperature"][1]) - np.nanmin(variables["temperature"][1])) \
+        if np.isfinite(variables["temperature"][1]).any() else 0.0
+    for d in tests:
+        d["remainder"] = remainder_kind(d, t_span, s)
+    for d in sensors:
+        d["remainder"] = "structured"
     ok = np.isfinite(e_all)
     ratio = {c: math.sqrt(v / n) for c, (v, n) in _holdout_chi2_and_count(fit, noise or {}).items() if n > 0}
     return {"residual": "missing torque at the motor shaft, J d(speed residual)/dt", "unit": "N m",

@@ -40,8 +40,67 @@ import numpy as np
 from ..model.laws import kinematic_ratio
 
 __all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missing_torque", "current_offset_test",
-           "binned_mean", "cross_correlation",
-           "position_local_test"]
+           "binned_mean", "cross_correlation", "position_local_test", "base_transients", "remainder_kind",
+           "STRUCTURED_VARIABLES", "split_remainder"]
+
+#: signature variables whose structure an unmodelled-but-declared base does not leave: a feature repeated at a nut
+#: position over passes, periodic in motor or screw angle, a slow drift, a torque proportional to the current
+STRUCTURED_VARIABLES = ("nut_position (repeated over passes)", "motor_angle", "screw_angle", "time (slow drift)",
+                        "motor_current (torque constant)")
+
+
+def remainder_kind(test: dict, temperature_span: float, s: "SignatureSettings") -> str:
+    """``"structured"`` for a test of :data:`STRUCTURED_VARIABLES` (or a temperature dependence over more than
+    ``s.temperature_span``), else ``"base"``: the regime dependences a declared model of another rig's base
+    leaves (load quadrant, motor on/off, time since a reversal, direction, position bins not replicated)."""
+    if test["variable"] in STRUCTURED_VARIABLES:
+        return "structured"
+    if test["variable"] == "temperature" and temperature_span > s.temperature_span:
+        return "structured"
+    return "base"
+
+
+def split_remainder(sig: dict) -> tuple[list[dict], list[dict]]:
+    """(structured, base-like) significant tests of a signature; sensors are always structured."""
+    sig_tests = [t for t in sig.get("tests", []) + sig.get("sensors", []) if t["significant"]]
+    structured = [t for t in sig_tests if t.get("remainder", "structured") == "structured"]
+    return structured, [t for t in sig_tests if t not in structured]
+
+
+def base_transients(time, speed, load, duration: float = 0.3) -> np.ndarray:
+    """Samples within ``duration`` of a start, stop, reversal or load change, or while the speed changes fast
+    (a speed step taking less than 2 s over the record's speed range): where a declared model of another rig's
+    base leaves structure (its stiction, Stribeck curve and loop settling)."""
+    t = np.asarray(time, float)
+    w = np.nan_to_num(np.asarray(speed, float))
+    f = np.nan_to_num(np.asarray(load, float))
+    n = t.size
+    out = np.zeros(n, bool)
+    if n < 3:
+        return out
+    wmax = max(float(np.max(np.abs(w))), 1e-9)
+    dv = 0.05 * wmax
+    state = np.where(w > dv, 1, np.where(w < -dv, -1, 0))
+    ev = list(t[1:][state[1:] != state[:-1]])
+    dt = float(np.median(np.diff(t)))
+    k = max(int(round(duration / dt)), 1)
+    frange = max(float(np.ptp(f)), 1.0)
+    if n > k:
+        df = np.abs(f[k:] - f[:-k])
+        ev += list(t[k:][df > max(0.05 * frange, 500.0)])
+    ev = np.asarray(sorted(ev))
+    if ev.size:
+        i = np.searchsorted(ev, t)
+        near = np.full(n, np.inf)
+        near = np.minimum(near, np.abs(t - ev[np.clip(i, 0, ev.size - 1)]))
+        near = np.minimum(near, np.abs(t - ev[np.clip(i - 1, 0, ev.size - 1)]))
+        out |= near <= duration
+    m = max(int(round(0.05 / dt)), 1)  # speed change rate over 50 ms
+    if n > m:
+        acc = np.zeros(n)
+        acc[m:] = np.abs(w[m:] - w[:-m]) / (m * dt)
+        out |= acc > 0.5 * wmax
+    return out
 
 
 @dataclass(frozen=True)
@@ -57,8 +116,14 @@ class SignatureSettings:
     min_samples_per_bin: int = 20
     #: the pass-replicated position test's level (its replicates are passes, not samples)
     local_alpha: float = 1e-4
-    #: held-out residual RMS above this multiple of the channel's noise is a remainder (``unexplained``)
+    #: held-out residual RMS above this multiple of the channel's noise is reported (``residual_to_noise``); alone
+    #: it is not ``unexplained``: a declared model of another rig's base leaves such a remainder at its transients
     max_noise_ratio: float = 2.0
+    #: a rig's base transients last this long after (and before) a start, stop, reversal or load change [s]
+    #: (the base's Stribeck and stiction and the speed loop's settling; the tracer's reversal window, 0.3 s)
+    transient_time: float = 0.3
+    #: a temperature span above this [K] is a temperature dependence, below it a proxy for time
+    temperature_span: float = 5.0
 
 
 def missing_torque(time, e_speed, segment_starts, inertia: float, window: int = 21) -> np.ndarray:
