@@ -239,7 +239,7 @@ class OneStepScreen:
         out = [[] for _ in psets]
         for F, U, w_next, sigma in self.parts:
             if F is None:
-                Y, _ = self.loop.batch(C0, [U] * len(psets), P, 1)
+                Y = self.loop.batch(C0, [U] * len(psets), P, 1)[0]  # (outputs, final states, non-finite flags)
                 Ws = Y[:, -1, :]  # the predicted speed (the rows before: the custom states)
             else:
                 Ws = [np.asarray(F(c0, U, p)[1]).ravel() for c0, p in zip(C0, P)]
