@@ -56,6 +56,7 @@ from ..data.rigdata import RigRun, measured_motor_speed
 from ..errors import ThsaError
 from ..fit.identify import IdentificationSettings, estimate_noise
 from ..data.rigformat import speed_sensor_intervals
+from ..fit.replay import check_run_model
 from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
 from ..model.params import ParameterSet, default_parameters
 from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, PLAUSIBLE, PROFILE_LIMITS, STARTS, WINDOWS,
@@ -295,6 +296,9 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "runs": data, "profile": dict(profile or {}), "judge": judge,
                 "hold_at": {n: (pset.value(n) if spec is not None and spec.start else params.value(n)) for n in judge}, "relative_stderr": st.undetermined_relative_stderr}
 
+    for r in runs:
+        for w in check_run_model(r, base_plant, mode="open_loop"):
+            say(f"warning: {w}")
     say(f"fitting the declared model ({', '.join(declared) or 'level A'}): {', '.join(uncertain)}")
     t0 = time.perf_counter()
     base = _run_jobs([job("base", declared, uncertain, params, fit_runs)], 1, None)[0]
@@ -581,7 +585,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     doc = {
         "format": TRACE_FORMAT,
         "datasets": [{"name": r.name, "csv": str(r.csv_path), "samples": int(len(r.time)),
-                      "duration_s": r.duration_s, "speed_sensors": speed_sensor_intervals(r, st.speed_sensors)}
+                      "duration_s": r.duration_s, "speed_sensors": speed_sensor_intervals(r, st.speed_sensors),
+                      "model_warnings": check_run_model(r, base_plant, mode="open_loop")}
                      for r in runs],
         "base_model": lvl if level is not None else None,
         "removed_effects": list(remove),
