@@ -76,7 +76,7 @@ __all__ = ["TraceSettings", "CandidateSpec", "CANDIDATES", "DEFAULT_UNCERTAIN", 
 TRACE_FORMAT = "thsa-trace/1"
 
 #: candidate windows at the transients themselves: scored on every sample (``score_outside_transients``)
-TRANSIENT_WINDOWS = ("reversal", "reversal_or_stop")
+TRANSIENT_WINDOWS = ("reversal", "reversal_or_stop", "load_change")
 
 
 @dataclass(frozen=True)

@@ -332,11 +332,11 @@ register(Effect(
              Output("surface_speed", "m/s", lambda a: kinematic_ratio(a.p) * a.x["motor_speed"]),
              Output("loadpath_force", "N", lambda a: a.u["load_force"]), Output("loadpath_deflection", "m")),
     # the contact stiffnesses and the signed soft zone (free play, or a preload when negative): the LVDT reads the
-    # surface, so a load change shows the deflection whether the drive moves or not (window "all")
+    # surface, so a load change shows the deflection whether the drive moves or not (window "load_change")
     candidate=CandidateSpec("loadpath_compliance",
                             ("loadpath.contact_stiffness_upper", "loadpath.contact_stiffness_lower",
                              "loadpath.backlash"),
-                            {}, "all", "nut_position", start="loadpath_static"),
+                            {}, "load_change", "nut_position", start="loadpath_static"),
     linear=LinearHints(
         # a steady motion ramps both positions: the deflection nut - surface is its equilibrium state
         relative={"surface_position": ("loadpath_deflection", "nut_position")},
