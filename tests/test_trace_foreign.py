@@ -87,8 +87,6 @@ def _physical(doc: dict) -> list[dict]:
 #: Cases measured to fail on this branch (docs/trace_notes.md, "Still failing"): the assertion stays, the case is
 #: marked with what was measured so that a fix shows as XPASS.
 KNOWN_FAILING = {
-    "rig_cogging": "rig-sim's cogging has 18 periods per motor revolution, the library's file value is 6 and the "
-                   "period count is not profiled: nothing is added",
     "rig_screw_ripple": "found first among the physical effects with the right amplitude (0.054 N m at the motor, "
                         "truth 0.050) but its window RMS drop is 5 %: the remaining base mismatch dominates",
     "rig_temp_friction": "at one temperature the cold drag is a constant drag: the base corrections absorb it and "
@@ -104,8 +102,6 @@ KNOWN_FAILING = {
     "null_rig_reversals_s2": "a direction drag is added on one compressive load (the no-back's aiding friction)",
     "null_rig_trim_s1": "on one compressive load the no-back's aiding friction is a direction drag: the direction "
                         "drag's window drop is more than a point above the no-back's, so it is added",
-    "null_papers_trim_s1": "a 6-per-revolution cogging (5 % window drop, 0.07 N m) is fitted to the start and stop "
-                           "transients where the record resolves its period",
 }
 
 

@@ -389,6 +389,15 @@ def check_run_model(run: RigRun, plant: Plant, *, mode: str = "closed_loop") -> 
     from ..errors import ModelError
 
     uses_standby = bool(np.any(np.asarray(run.signals["standby_enable"]) > 0.5))
+    rig = run.metadata.get("rig") if isinstance(run.metadata, dict) else None
+    motors = rig.get("motors") if isinstance(rig, dict) else None
+    if not uses_standby and motors == 2 and "standby_motor" not in plant.effects:
+        # the run JSON's rig block (as this project writes it) says a second rotor is carried along: without it
+        # the model has half the rotor inertia (rig-sim's speed-chirp run: motor-speed error 11.5 -> 1.8 rad/s
+        # rms with it)
+        return [f"run {run.name!r}: its JSON says rig.motors = 2 (a standby rotor carried along) but the model "
+                f"({', '.join(plant.effects) or 'level A'}) has one motor: the standby rotor's inertia and drag are "
+                "missing; add the effect standby_motor (--effects standby_motor)"]
     if not uses_standby or "standby_motor" in plant.effects:
         return []
     msg = (f"run {run.name!r} enables the standby channel (standby_enable) but the model "

@@ -56,6 +56,7 @@ from ..data.rigdata import RigRun, measured_motor_speed
 from ..errors import ThsaError
 from ..fit.identify import IdentificationSettings, estimate_noise
 from ..data.rigformat import speed_sensor_intervals
+from ..fit.replay import check_run_model
 from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
 from ..model.params import ParameterSet, default_parameters
 from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, PLAUSIBLE, PROFILE_LIMITS, STARTS, WINDOWS,
@@ -75,7 +76,7 @@ __all__ = ["TraceSettings", "CandidateSpec", "CANDIDATES", "DEFAULT_UNCERTAIN", 
 TRACE_FORMAT = "thsa-trace/1"
 
 #: candidate windows at the transients themselves: scored on every sample (``score_outside_transients``)
-TRANSIENT_WINDOWS = ("reversal", "reversal_or_stop")
+TRANSIENT_WINDOWS = ("reversal", "reversal_or_stop", "load_change")
 
 
 @dataclass(frozen=True)
@@ -293,8 +294,11 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         return {"label": label, "effects": tuple(effs), "free": tuple(free), "params_toml": pset.to_toml(),
                 "settings": id_settings(prior, [n for n in free if n not in uncertain and n not in pri], pri),
                 "runs": data, "profile": dict(profile or {}), "judge": judge,
-                "hold_at": {n: params.value(n) for n in judge}, "relative_stderr": st.undetermined_relative_stderr}
+                "hold_at": {n: (pset.value(n) if spec is not None and spec.start else params.value(n)) for n in judge}, "relative_stderr": st.undetermined_relative_stderr}
 
+    for r in runs:
+        for w in check_run_model(r, base_plant, mode="open_loop"):
+            say(f"warning: {w}")
     say(f"fitting the declared model ({', '.join(declared) or 'level A'}): {', '.join(uncertain)}")
     t0 = time.perf_counter()
     base = _run_jobs([job("base", declared, uncertain, params, fit_runs)], 1, None)[0]
@@ -403,7 +407,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             replaced = {x for e in req + [spec.name] for x in EFFECTS[e].supersedes}
             effs = resolve_effects(None, add=[e for e in cur_effects if e not in replaced] + req + [spec.name])
             pset = cur_params.replace({n: v for n, v in spec.seeds.items() if cur_params.value(n) == 0})
-            if spec.start:  # starting values read off the runs (a static screen), within the search bounds
+            if spec.start:  # starting values read off the runs (a static screen), within the search bounds; a
+                # parameter the fit then finds undetermined is held there, not at the file's value
                 pset = pset.replace({n: min(max(v, pset[n].min), pset[n].max)
                                      for n, v in STARTS[spec.start](pset, runs).items() if n in pset})
             if spec.profile:
@@ -580,7 +585,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     doc = {
         "format": TRACE_FORMAT,
         "datasets": [{"name": r.name, "csv": str(r.csv_path), "samples": int(len(r.time)),
-                      "duration_s": r.duration_s, "speed_sensors": speed_sensor_intervals(r, st.speed_sensors)}
+                      "duration_s": r.duration_s, "speed_sensors": speed_sensor_intervals(r, st.speed_sensors),
+                      "model_warnings": check_run_model(r, base_plant, mode="open_loop")}
                      for r in runs],
         "base_model": lvl if level is not None else None,
         "removed_effects": list(remove),

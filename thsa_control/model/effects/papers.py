@@ -305,11 +305,10 @@ register(Effect(
     phase=Phase.BODIES,
     neutral=NoNeutral("the rotors are a body of their own: no parameter value makes the drive train rigid exactly"),
     outputs=(Output("drivetrain_twist", "rad"), Output("drivetrain_torque", "N m")),
-    # only the series stiffness is identifiable: the gearbox's is freed, the screw's held; the damping is freed
-    # too (held at the file's 20 N m s/rad, ten times rig-sim's, the fit ran the stiffness to a third of the truth
-    # to damp the mode and the screw-speed error grew)
-    candidate=CandidateSpec("drivetrain_compliance", ("gear.torsional_stiffness", "gear.torsional_damping"), {},
-                            "all", "screw_speed"),
+    # only the series stiffness is identifiable: the gearbox's is freed, the screw's and the damping held (a free
+    # damping stands in for a lag on rigid data; held at the file's 20 N m s/rad, ten times rig-sim's 2, the
+    # 47 Hz mode of rig_drivetrain_compliance cannot ring and the screw-speed error grows: docs/trace_notes.md)
+    candidate=CandidateSpec("drivetrain_compliance", ("gear.torsional_stiffness",), {}, "all", "screw_speed"),
     linear=LinearHints(
         # the spring torque k * twist enters the gear-output body with unit gain
         inertia_probe=("drivetrain_twist", drivetrain_stiffness),
@@ -333,11 +332,11 @@ register(Effect(
              Output("surface_speed", "m/s", lambda a: kinematic_ratio(a.p) * a.x["motor_speed"]),
              Output("loadpath_force", "N", lambda a: a.u["load_force"]), Output("loadpath_deflection", "m")),
     # the contact stiffnesses and the signed soft zone (free play, or a preload when negative): the LVDT reads the
-    # surface, so a load change shows the deflection whether the drive moves or not (window "all")
+    # surface, so a load change shows the deflection whether the drive moves or not (window "load_change")
     candidate=CandidateSpec("loadpath_compliance",
                             ("loadpath.contact_stiffness_upper", "loadpath.contact_stiffness_lower",
                              "loadpath.backlash"),
-                            {}, "all", "nut_position", start="loadpath_static"),
+                            {}, "load_change", "nut_position", start="loadpath_static"),
     linear=LinearHints(
         # a steady motion ramps both positions: the deflection nut - surface is its equilibrium state
         relative={"surface_position": ("loadpath_deflection", "nut_position")},
