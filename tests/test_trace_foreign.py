@@ -97,8 +97,12 @@ KNOWN_FAILING = {
                         "opposite bound (-406 N); the 1500 N offset beyond it is not significant after the no-back",
     "rig_direction_friction": "found first after the no-back (a direction drag) but its window RMS drop is 8 %: "
                               "the no-back's aiding friction took most of it on this one load",
-    "rig_drivetrain_compliance": "refused: the screw-speed error grows (rig-sim's speeds are difference quotients "
-                                 "over 1-2 ms, the replay compares instantaneous speeds)",
+    "rig_drivetrain_compliance": "refused: the screw-speed error grows; level A has one rotor where the rig "
+                                 "carries two (JSON rig.motors = 2: half the inertia) and the damping is held at "
+                                 "the file's 20 N m s/rad (rig-sim's 2), so the 47 Hz mode cannot ring",
+    "rig_loadpath_preload": "the load-path fit cuts the LVDT window error 40 % with x0 = -0.017 mm (truth -0.03) "
+                            "after the no-back, but the motor-speed chi2 (400 x the LVDT's) rises: held-out chi2 "
+                            "drop -3.2e3, not significant",
     "null_rig_reversals_s2": "a direction drag is added on one compressive load (the no-back's aiding friction)",
     "null_rig_trim_s1": "on one compressive load the no-back's aiding friction is a direction drag: the direction "
                         "drag's window drop is more than a point above the no-back's, so it is added",
