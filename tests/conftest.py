@@ -2,6 +2,17 @@
 
 from __future__ import annotations
 
+import os
+
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # One BLAS thread per pytest-xdist worker: the workers already fill every core (``-n auto``), and OpenBLAS's
+    # own threads (one per core by default, spinning while they wait) would oversubscribe the machine, more so
+    # with the tracer's fit processes.  Before numpy is imported; a value the user set is kept.
+    # Likewise the report's figures are drawn in this process, not in forked ones (report.figure.render_pngs;
+    # tests/test_report_pages.py draws with two processes explicitly).
+    for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "THSA_FIGURE_PROCESSES"):
+        os.environ.setdefault(_var, "1")
+
 from pathlib import Path
 
 import matplotlib
@@ -56,6 +67,17 @@ def run(params, design):
         return cache[key]
 
     return _run
+
+
+def pytest_collection_modifyitems(config, items):
+    """The tests marked slow first, each part in collection order (modules stay together).
+
+    With ``--dist worksteal`` (pyproject's addopts) each pytest-xdist worker starts on its half of this list
+    and an idle worker takes the tail of the other's: the long tests start early and the short ones fill the
+    end, instead of one long test running alone at the end while the other core idles.  Order only: which
+    tests run, and what they check, is unchanged.
+    """
+    items[:] = sorted(items, key=lambda item: item.get_closest_marker("slow") is None)
 
 
 @pytest.fixture(autouse=True)

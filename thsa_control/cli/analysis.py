@@ -16,14 +16,16 @@ __all__ = ["add_parsers", "cmd_report", "cmd_linearize"]
 
 
 def cmd_report(args) -> int:
-    from ..data.units import display_unit
-    from ..loops.analysis import AnalysisSettings, analyse_design
-    from ..loops.design import load_design, nominal_design_path
-    from ..model import resolve_effects
-    from ..report.analysis_report import write_analysis_report
-
     preflight_out(args)
     progress = progress_for(args, "thsa report")
+    progress.phase("loading the model and the linear-analysis libraries")
+    with progress.heartbeat():
+        from ..data.units import display_unit
+        from ..loops.analysis import AnalysisSettings, analyse_design
+        from ..loops.design import load_design, nominal_design_path
+        from ..model import resolve_effects
+        from ..report.analysis_report import write_analysis_report
+
     params = load_params(args)
     design = load_design(args.design or nominal_design_path())
     design.check_against(params)

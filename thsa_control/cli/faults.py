@@ -47,19 +47,18 @@ def _ms(v: float) -> str:
 
 def run(args) -> int:
     """Handler of ``thsa faults``; returns the exit status."""
-    from ..faults.analysis import analyse_faults
-    from ..report.faults import write_fault_report
-    from .common import out_options, preflight_out
+    from .common import load_params_design, out_options, preflight_out, progress_for
 
     preflight_out(args)  # refuse a foreign output folder before the long computation
-    from .common import load_params_design
-
-    params, design = load_params_design(args)
     scales = _floats(args.scales, "scales")
     delays = tuple(d * 1e-3 for d in _floats(args.delays, "delays"))
-    from ..progress import Progress
+    progress = progress_for(args, "thsa faults")
+    progress.phase("loading the model")
+    with progress.heartbeat():
+        from ..faults.analysis import analyse_faults
+        from ..report.faults import write_fault_report
 
-    progress = Progress("thsa faults", enabled=not getattr(args, "quiet", False))
+        params, design = load_params_design(args)
     with progress.heartbeat():
         a = analyse_faults(design, params, scales=scales, delays_s=delays, sweep=not args.no_sweep, progress=progress)
     progress.phase("writing the report")

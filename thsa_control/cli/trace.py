@@ -27,6 +27,13 @@ def add_parser(subparsers) -> None:
                         "efficiencies within plausible magnitudes; reported as base corrections, not effects). "
                         "auto: on with the default candidates, off with --candidates")
     p.add_argument("--workers", type=int, default=2, help="parallel candidate fits (default 2)")
+    p.add_argument("--substeps", type=int, default=1, help="plant steps per sample period of the fits (default 1; "
+                   "a speed sensor's difference interval shorter than a sample needs more)")
+    p.add_argument("--speed-sensors", help="how the speed sensors read, over the run JSON's declaration: "
+                   "comma-separated CHANNEL=INTERVAL, CHANNEL motor_speed or screw_speed, INTERVAL a difference "
+                   "interval in seconds, 'sample' (one logged sample) or 'instantaneous' (e.g. "
+                   "motor_speed=0.001,screw_speed=sample); default: each run JSON's speed_sensors, else its "
+                   "sensors text (reported as a fallback), else instantaneous")
     p.add_argument("--column-map", help="JSON mapping of rig column names to FORMAT names")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
     p.add_argument("--out", required=True,
@@ -40,16 +47,20 @@ def run(args) -> int:
     """Handler of ``thsa trace``."""
     import json
 
-    from ..data.rigdata import read_run
-    from ..model.params import default_parameters, load_parameters
-    from ..report import atomic_folder
     from ..report.build import check_output_folder
-    from ..report.trace import format_trace_summary, write_trace_folder
-    from ..trace.engine import TraceSettings, trace
+    from .common import progress_for
 
     inputs = [q for r in args.runs for q in (Path(r), Path(r).with_suffix(".json"))] + list(args.params or ())
     out_opts = {"force": bool(args.force), "inputs": inputs}
     check_output_folder(args.out, **out_opts)  # refuse a foreign output folder before the long computation
+    progress = progress_for(args, "thsa trace")
+    progress.phase(f"loading the model and reading {len(args.runs)} run(s)")
+    with progress.heartbeat():
+        from ..data.rigdata import read_run
+        from ..model.params import default_parameters, load_parameters
+        from ..report import atomic_folder
+        from ..report.trace import format_trace_summary, write_trace_folder
+        from ..trace.engine import TraceSettings, trace
     params = load_parameters(args.params, base=default_parameters()) if args.params else default_parameters()
     mapping = json.loads(args.column_map) if args.column_map else None
     from ..fit.kinematics import run_kinematics
@@ -58,17 +69,22 @@ def run(args) -> int:
     runs = [run_kinematics(read_run(p, column_map=mapping, default_kinematics=kin), params) for p in args.runs]
     split = lambda s: tuple(x.strip() for x in s.split(",") if x.strip()) if s else None  # noqa: E731
     try:
+        sensors = None
+        if args.speed_sensors:
+            sensors = {}
+            for item in split(args.speed_sensors):
+                k, sep, v = item.partition("=")
+                if not sep:
+                    raise ValueError(f"--speed-sensors {item!r}: give CHANNEL=INTERVAL")
+                sensors[k.strip()] = v.strip()
         settings = TraceSettings(segment_duration=args.segment, max_effects=args.max_effects, max_nfev=args.max_nfev,
-                                 workers=args.workers,
+                                 workers=args.workers, substeps=args.substeps, speed_sensors=sensors,
                                  base_corrections={"auto": None, "on": True, "off": False}[args.base_corrections], uncertain=split(args.free), candidates=split(args.candidates))
         settings.validate()
     except ValueError as exc:
         from ..errors import ThsaError
 
         raise ThsaError(str(exc)) from None
-    from .common import progress_for
-
-    progress = progress_for(args, "thsa trace")
     with progress.heartbeat():
         result = trace(runs, args.model, args.effects or (), remove=args.remove or (), params=params,
                        settings=settings, progress=progress if progress.enabled else None)

@@ -120,10 +120,15 @@ def tune_command(args) -> int:
 
     names = args.scenario or ["cold_ramp"]
     scenarios = [get_validation_scenario(n) for n in names]  # a bad name fails before the heavy imports
-    from ..tuning.check import PROVENANCE_MARKER, write_design
-    from ..tuning.optimize import TuneSettings, objective_settings_for, tune
+    from .common import progress_for
 
-    params, design = _common(args)
+    progress = progress_for(args, "thsa tune")
+    progress.phase("loading the model and the optimiser")
+    with progress.heartbeat():
+        from ..tuning.check import PROVENANCE_MARKER, write_design
+        from ..tuning.optimize import TuneSettings, objective_settings_for, tune
+
+        params, design = _common(args)
     out = Path(args.out)
     if out.exists():  # refuse early, before any work
         import tomllib
@@ -151,9 +156,6 @@ def tune_command(args) -> int:
     from ..loops.analysis import DEFAULT_ANALYSIS_EFFECTS
 
     effects = tuple(e for v in (args.effects or DEFAULT_ANALYSIS_EFFECTS) for e in v.split(",") if e)
-    from .common import progress_for
-
-    progress = progress_for(args, "thsa tune")
     settings = TuneSettings(
         temperature=args.temperature, robust_temperatures=_floats(args.robust_temperatures, "--robust-temperatures"),
         level=args.level, effects=effects, bound_factor=args.bound_factor, max_iter=args.max_iter,

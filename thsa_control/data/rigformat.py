@@ -351,3 +351,76 @@ def _add_rows(problems: list, label: str, rows: np.ndarray, message: Callable[[i
         problems.append((label, int(rest[0]) + 1,
                          f"... and {rest.size} more row(s) with the same problem "
                          f"(rows {rest[0] + 1} to {rest[-1] + 1})"))
+
+
+# --------------------------------------------------------------------- speed sensors as difference quotients
+#: Channels whose sensor may be a difference quotient of an angle (JSON column name -> canonical signal).
+SPEED_SENSOR_COLUMNS = {"motor_speed_rpm": "motor_speed", "screw_speed_rpm": "screw_speed"}
+
+_SAMPLE_WORDS = ("sample", "samples")
+
+
+def speed_interval_from(value: Any, where: str) -> float | str | None:
+    """A declared difference interval: seconds (> 0), ``"sample"`` (one logged sample), or None (instantaneous)."""
+    if value is None or value == "instantaneous":
+        return None
+    if isinstance(value, str) and value.strip().lower() in _SAMPLE_WORDS:
+        return "sample"
+    v = _number(value)
+    if v is None or not (v > 0 and math.isfinite(v)):
+        raise ValueError(f"{where} = {value!r}: give a difference interval in seconds (> 0), \"sample\" or "
+                         "\"instantaneous\"")
+    return float(v)
+
+
+def _interval_from_text(text: str) -> float | str | None:
+    """The fallback: a difference interval read from a free-text sensor description (rig-sim writes "speed =
+    angle difference over 1 ms", "RVDT angle differentiated over one sample"); None when the text says none."""
+    import re
+
+    t = text.lower()
+    if not re.search(r"differen(ce|tiated)", t):
+        return None
+    if re.search(r"over (one|1|a) (logged )?sample", t):
+        return "sample"
+    m = re.search(r"over ([0-9]*\.?[0-9]+) ?(ms|s)\b", t)
+    if m:
+        return float(m.group(1)) * (1e-3 if m.group(2) == "ms" else 1.0)
+    return None
+
+
+def speed_sensor_intervals(run, override=None) -> dict[str, dict]:
+    """How each speed sensor of ``run`` reads: ``{signal: {"interval": s | "sample" | None, "source": ...}}``.
+
+    The reading of a difference-quotient sensor is the angle difference over the interval divided by it (a
+    resolver's speed estimate over 1 ms, an RVDT angle differentiated over one logged sample), not the
+    instantaneous speed.  Sources, in order: ``override`` (signal or column name -> interval: the caller's
+    explicit option), the run JSON's structured ``speed_sensors`` object (column name -> interval in seconds,
+    ``"sample"`` or ``"instantaneous"``; proposed extension of FORMAT.md, free metadata there), and as a
+    fallback, reported as such, the free text of the JSON's ``sensors`` object.  Default: instantaneous.
+
+    Raises
+    ------
+    ValueError
+        A malformed interval (names the field and the value).
+    """
+    override = dict(override or {})
+    declared = run.metadata.get("speed_sensors") if isinstance(run.metadata, dict) else None
+    texts = run.metadata.get("sensors") if isinstance(run.metadata, dict) else None
+    out = {}
+    for col, sig in SPEED_SENSOR_COLUMNS.items():
+        if sig not in run.source_columns:
+            continue
+        if sig in override or col in override:
+            key = sig if sig in override else col
+            out[sig] = {"interval": speed_interval_from(override[key], f"speed sensor option {key}"),
+                        "source": "explicit option"}
+        elif isinstance(declared, dict) and col in declared:
+            out[sig] = {"interval": speed_interval_from(declared[col], f"{run.json_path}: speed_sensors.{col}"),
+                        "source": "run JSON speed_sensors"}
+        elif isinstance(texts, dict) and isinstance(texts.get(col), str) and _interval_from_text(texts[col]):
+            out[sig] = {"interval": _interval_from_text(texts[col]),
+                        "source": f"fallback: read from the run JSON's sensors text {texts[col]!r}"}
+        else:
+            out[sig] = {"interval": None, "source": "default: instantaneous"}
+    return out

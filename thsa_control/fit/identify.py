@@ -124,6 +124,17 @@ class IdentificationSettings:
         Explicit Gaussian priors of these free parameters (SI), replacing the
         ``prior_relative_sd`` rule for them (the tracer's base corrections:
         centred at 0 with a standard deviation of half their plausible size).
+    quasi_static_starts : bool
+        Start each segment with the plant's fast internal modes (``Plant.quasi_static_states``: the surface on a
+        compliant load path) at their quasi-static values (the static deflection of the measured load, moving
+        with the nut) instead of freeing them: free, they let the fit ring the mode to absorb another channel's
+        mismatch, and the channel the mode shows in (the LVDT) gets worse.
+    speed_sensors : mapping channel -> interval, optional
+        How the speed sensors read, over each run's own declaration
+        (:func:`~thsa_control.data.rigformat.speed_sensor_intervals`: the run JSON's ``speed_sensors``, else its
+        ``sensors`` text as a reported fallback, else instantaneous): a difference interval [s], ``"sample"``
+        or ``"instantaneous"``.  A difference-quotient sensor is compared with the model's angle travelled over
+        that interval divided by it (resolved to the plant steps: ``substeps`` per sample).
     holdout_every : int
         0: every segment is fitted.  k >= 2: every k-th segment is held out of
         the parameter fit; its initial state is fitted afterwards at the
@@ -148,6 +159,8 @@ class IdentificationSettings:
     prior_relative_sd: float | None = None
     no_prior: tuple[str, ...] = ()
     holdout_every: int = 0
+    quasi_static_starts: bool = False
+    speed_sensors: Mapping[str, object] | None = None
     priors: Mapping[str, tuple[float, float]] | None = None
 
     def validate(self) -> None:
@@ -500,6 +513,16 @@ class Identifier:
                 zz = z.copy()
                 zz[cols] = zh
                 return zz
+
+            # start each held-out state fit from the better of where the parameter fit left those states (they
+            # have no weight there, so they can drift along its null directions: a held-out segment of a drive-off
+            # phase was found starting at -295 rad/s) and the states fitted at the initial parameters
+            def _cost_h(zz):
+                r = residuals(zz, hold_w)[:n_rows]
+                return float(r @ r)
+
+            if z0.size == z.size and _cost_h(_zh(z0[cols])) < _cost_h(z):
+                z = _zh(z0[cols])
 
             def _jac_hold(zz):
                 counters["njev"] += 1

@@ -189,6 +189,7 @@ class OneStepScreen:
     def __init__(self, runs: Sequence[RigRun], plant, params: ParameterSet, substeps: int = 1):
         self.plant = plant
         mech = current_driven_map(plant, substeps)
+        self._mech = mech
         self.loop = one_step_loop(plant, mech)
         self.parts = []
         for run in runs:
@@ -205,32 +206,66 @@ class OneStepScreen:
             raise ParameterError("<profile>", "no run measures a motor or screw speed: nothing to screen a profile on")
         self.n = sum(p[2].size for p in self.parts)
 
-    def chi2(self, params: ParameterSet) -> float:
-        """Sum of squared one-step speed errors over the runs, each weighted by its noise."""
-        return float(self.chi2_many([params])[0])
+    def chi2(self, params: ParameterSet, solve: Sequence[str] = ()) -> float:
+        """Sum of squared one-step speed errors over the runs, each weighted by its noise.
 
-    def chi2_many(self, psets: Sequence[ParameterSet]) -> np.ndarray:
-        """:meth:`chi2` of several parameter sets (a profile's grid), in one compiled call per run where a C
-        compiler works (each set computed exactly as alone)."""
+        ``solve``: parameters whose one-step effect is taken as linear and solved for at this point (one
+        Gauss-Newton step from their values in ``params``, sensitivities by finite differences): the screen
+        of a count (periods per revolution) whose terms' sizes are free, where the count changes which
+        terms act, not how large they are.
+        """
+        if not solve:
+            return float(self.chi2_many([params])[0])
+        steps = []
+        for n in solve:
+            par = params[n]
+            steps.append(1e-3 * max(abs(par.value), 1e-3 * (par.max - par.min) if math.isfinite(par.max - par.min)
+                                    else 1e-6, 1e-12))
+        errs = self._errors_many([params] + [params.replace({n: params.value(n) + d}) for n, d in zip(solve, steps)])
+        e0 = errs[0]
+        A = np.column_stack([(e - e0) / d for e, d in zip(errs[1:], steps)])
+        ok = np.isfinite(e0) & np.isfinite(A).all(axis=1)
+        if ok.sum() > len(solve):
+            coef = np.linalg.lstsq(A[ok], -e0[ok], rcond=None)[0]
+            e0 = np.where(ok, e0 + A @ coef, e0)
+        e0 = e0[np.isfinite(e0)]
+        return float(e0 @ e0)
+
+    def _errors_many(self, psets: Sequence[ParameterSet]) -> list[np.ndarray]:
+        """Noise-weighted one-step speed errors of several parameter sets (the runs concatenated)."""
         P = np.array([self.plant.p_vector(ps) for ps in psets], float)
         # the first custom states follow the parameters (initial clearance fraction x pitch)
         idx = custom_state_indices(self.plant)
         C0 = np.array([self.plant.initial_state(ps)[idx] for ps in psets], float).reshape(len(psets), len(idx))
-        tot = np.zeros(len(psets))
+        out = [[] for _ in psets]
         for F, U, w_next, sigma in self.parts:
             if F is None:
-                Y, _ = self.loop.batch(C0, [U] * len(psets), P, 1)
-                Ws = Y[:, -1, :]  # the predicted speed (the rows before: the custom states)
+                Y, _, bad = self.loop.batch(C0, [U] * len(psets), P, 1)
+                Ws = list(Y[:, -1, :])  # the predicted speed (the rows before: the custom states)
+                bad = np.flatnonzero(bad[:len(psets)] >= 0)
+                if bad.size:  # a non-finite prediction stops a compiled run: the interpreter carries on past it
+                    G = one_step_map(self.plant, self._mech, U.shape[1])
+                    for k in bad:
+                        Ws[k] = np.asarray(G(C0[k], U, P[k])[1]).ravel()
             else:
                 Ws = [np.asarray(F(c0, U, p)[1]).ravel() for c0, p in zip(C0, P)]
             for k, W in enumerate(Ws):
-                e = (W - w_next) / sigma
-                e = e[np.isfinite(e)]
-                tot[k] += float(e @ e)
+                out[k].append((np.asarray(W, float) - w_next) / sigma)
+        return [np.concatenate(e) for e in out]
+
+    def chi2_many(self, psets: Sequence[ParameterSet]) -> np.ndarray:
+        """:meth:`chi2` of several parameter sets (a profile's grid), in one compiled call per run where a C
+        compiler works (each set computed exactly as alone)."""
+        tot = np.zeros(len(psets))
+        for k, e in enumerate(self._errors_many(psets)):
+            e = e[np.isfinite(e)]
+            tot[k] = float(e @ e)
         return tot
 
 
-def _grid(lo: float, hi: float, n: int) -> np.ndarray:
+def _grid(lo: float, hi: float, n: int, integer: bool = False) -> np.ndarray:
+    if integer:  # a count: every whole value of the range
+        return np.arange(math.ceil(lo), math.floor(hi) + 1, dtype=float)
     if lo > 0:
         return np.geomspace(lo, hi, n)
     return np.linspace(lo, hi, n)
@@ -318,13 +353,26 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
     screen = OneStepScreen(runs, plant, params, st.substeps)
     names = list(profile)
     main = names[0]
-    # 1-2: screen the first parameter, then refine around its best local minima
+    # 1-2: screen the first parameter, then refine around its best local minima; an integer parameter (a
+    # count) is screened at every whole value, with the free parameters solved linearly at each (the count
+    # decides which terms act; their sizes are what the fit is for)
     lo, hi = profile[main]
-    x = _grid(lo, hi, ps.screen_points)
-    y = screen.chi2_many([params.replace({main: float(v)}) for v in x])
+    integer = bool(params[main].integer)
+    # solved in the screen: the effect being tried (the free parameters without a prior), else every free one
+    solve = (tuple(n for n in free if n in st.no_prior) or tuple(free)) if integer else ()
+    x = _grid(lo, hi, ps.screen_points, integer)
+    if x.size == 0:
+        raise ParameterError(main, f"profile range {lo:g}..{hi:g} holds no whole value")
+    if solve:
+        y = np.array([screen.chi2(params.replace({main: float(v)}), solve) for v in x])
+    else:
+        y = screen.chi2_many([params.replace({main: float(v)}) for v in x])
     say(f"profile {main}: screened {x.size} values")
     cands, fine_pts = [], {}
     for i in _local_minima(x, y, ps.local_minima):
+        if integer:
+            cands.append(float(x[i]))
+            continue
         a, b = x[max(i - 1, 0)], x[min(i + 1, x.size - 1)]
         xf = np.linspace(a, b, ps.fine_points)
         yf = screen.chi2_many([params.replace({main: float(v)}) for v in xf])
@@ -370,7 +418,7 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
         fit_at(v)
     if best is None:
         raise SolverError("profile", f"every profile fit of {main} failed: {fits[-1]['error']}")
-    if ps.refine_fits:
+    if ps.refine_fits and not integer:
         step = float(np.min(np.diff(np.sort(allx)))) if allx.size > 1 else 0.0
         v0 = best[1]
         for v in (v0 - 0.5 * step, v0 + 0.5 * step):

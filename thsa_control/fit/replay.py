@@ -34,6 +34,7 @@ Functions and the simulator.  No file I/O (rigdata does it), no matplotlib.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
@@ -388,6 +389,15 @@ def check_run_model(run: RigRun, plant: Plant, *, mode: str = "closed_loop") -> 
     from ..errors import ModelError
 
     uses_standby = bool(np.any(np.asarray(run.signals["standby_enable"]) > 0.5))
+    rig = run.metadata.get("rig") if isinstance(run.metadata, dict) else None
+    motors = rig.get("motors") if isinstance(rig, dict) else None
+    if not uses_standby and motors == 2 and "standby_motor" not in plant.effects:
+        # the run JSON's rig block (as this project writes it) says a second rotor is carried along: without it
+        # the model has half the rotor inertia (rig-sim's speed-chirp run: motor-speed error 11.5 -> 1.8 rad/s
+        # rms with it)
+        return [f"run {run.name!r}: its JSON says rig.motors = 2 (a standby rotor carried along) but the model "
+                f"({', '.join(plant.effects) or 'level A'}) has one motor: the standby rotor's inertia and drag are "
+                "missing; add the effect standby_motor (--effects standby_motor)"]
     if not uses_standby or "standby_motor" in plant.effects:
         return []
     msg = (f"run {run.name!r} enables the standby channel (standby_enable) but the model "
@@ -501,11 +511,15 @@ def replay_closed_loop(run: RigRun, plant: Plant, params: ParameterSet, *, desig
 
 
 # ----------------------------------------------------------------- open loop
-def current_driven_map(plant: Plant, substeps: int = 1) -> ca.Function:
+def current_driven_map(plant: Plant, substeps: int = 1, quotients: Mapping[str, int] | None = None) -> ca.Function:
     """One sample period of the mechanics driven by a measured current.
 
     ``mech(x, v, p, h) -> (x_next, y)`` with ``v`` = :data:`MECH_INPUTS`,
-    ``h`` the sample period [s].  Before each of the ``substeps`` plant
+    ``h`` the sample period [s].  With ``quotients`` (speed-sensor channel of the plant's measurement map ->
+    number of plant steps ``m``, 1..substeps) a third output ``q`` holds, per channel in that order, the
+    sensor's reading at the period's *end* as a difference quotient: the angle travelled over the last ``m``
+    plant steps divided by their duration (the mean of the speeds the positions were integrated with: the
+    resolver's or RVDT's speed estimate, not the instantaneous speed).  Before each of the ``substeps`` plant
     steps the motor current state (the standby current when
     ``standby_active``) is overwritten with the current interpolated linearly
     between ``current_start`` and ``current_end``; the load force likewise.
@@ -534,6 +548,13 @@ def current_driven_map(plant: Plant, substeps: int = 1) -> ca.Function:
     hs = h / substeps
     y0 = None
     xk = x
+    quotients = dict(quotients or {})
+    for c, m in quotients.items():
+        if not (isinstance(m, int) and 1 <= m <= substeps):
+            raise ValueError(f"quotient steps of {c!r} = {m!r} must be an integer in 1..{substeps}")
+    speeds = {c: [] for c in quotients}
+    i_speed = {c: names.index(plant.sensor_state(c)) for c in quotients}
+    scale = {c: (plant.sensors[c].scale(p) if plant.sensors[c].scale is not None else 1.0) for c in quotients}
     for j in range(substeps):
         frac = j / substeps
         cur = V["current_start"] + frac * (V["current_end"] - V["current_start"])
@@ -553,6 +574,12 @@ def current_driven_map(plant: Plant, substeps: int = 1) -> ca.Function:
         xk, y = plant.step(xk, ca.vertcat(*u), p, hs)
         if j == 0:
             y0 = y
+        for c in quotients:
+            speeds[c].append(xk[i_speed[c]])
+    if quotients:
+        q = [scale[c] * sum(speeds[c][substeps - m:]) / m for c, m in quotients.items()]
+        return ca.Function("mech_q", [x, v, p, h], [xk, y0, ca.vertcat(*q)], ["x", "v", "p", "h"],
+                           ["x_next", "y", "q"])
     return ca.Function("mech", [x, v, p, h], [xk, y0], ["x", "v", "p", "h"], ["x_next", "y"])
 
 

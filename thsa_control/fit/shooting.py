@@ -22,6 +22,7 @@ import casadi as ca
 import numpy as np
 
 from ..data.rigdata import RigRun, motor_speed_from
+from ..data.rigformat import speed_sensor_intervals
 from ..errors import RigDataError, ThsaError
 from ..model.params import ParameterSet
 from ..model.plant import Plant
@@ -103,7 +104,8 @@ class RunProblem:
         self.train_weight = np.tile((~self.holdout_samples).astype(float), len(self.channels))
         # states: which are free per segment, initial guesses
         states = plant.states
-        self.free_states = [i for i, s in enumerate(states) if s.kind in FREE_STATE_KINDS
+        tied = set(plant.quasi_static_states) if settings.quasi_static_starts else set()
+        self.free_states = [i for i, s in enumerate(states) if s.kind in FREE_STATE_KINDS and s.name not in tied
                             and not (s.name == "nut_position" and "nut_position" not in run.source_columns)]
         self.x_guess = self._initial_states(params, L, M)
         self._track_custom_states(mech, params, V, H, L, M)
@@ -114,14 +116,42 @@ class RunProblem:
         v = ca.SX.sym("v", V.shape[0])
         p = ca.SX.sym("p", n_p)
         h = ca.SX.sym("h")
-        xn, y = mech(x, v, p, h)
-        step = ca.Function("step_sel", [x, v, p, h], [xn, y[y_idx]])
+        # speed sensors that read a difference quotient (the run's declaration): the reading at a sample is the
+        # angle over the interval before it, computed in the previous sample period (the segment's first
+        # sample keeps the instantaneous speed of its free start state)
+        self.speed_sensors = speed_sensor_intervals(run, settings.speed_sensors)
+        quot = {}
+        for c in self.channels:
+            iv = self.speed_sensors.get(c, {}).get("interval")
+            if iv is not None:
+                quot[c] = settings.substeps if iv == "sample" else int(min(settings.substeps, max(
+                    1, round(iv / (dt / settings.substeps)))))
+        self.quotient_steps = quot
+        if quot:
+            from .replay import current_driven_map
+
+            xn, y, q = current_driven_map(plant, settings.substeps, quot)(x, v, p, h)
+            rows = []
+            for c, i in zip(self.channels, y_idx):
+                rows.append(q[list(quot).index(c)] if c in quot else y[i])
+            step = ca.Function("step_sel", [x, v, p, h], [xn, y[y_idx], ca.vertcat(*rows)])
+        else:
+            xn, y = mech(x, v, p, h)
+            step = ca.Function("step_sel", [x, v, p, h], [xn, y[y_idx]])
         seg = step.mapaccum("segment", L)
         xs0 = ca.MX.sym("x0", len(states))
         Vs = ca.MX.sym("V", V.shape[0], L)
         ps = ca.MX.sym("p", n_p)
         Hs = ca.MX.sym("H", 1, L)
-        _, Yseg = seg(xs0, Vs, ps, Hs)
+        if quot:
+            _, Y0seg, Qseg = seg(xs0, Vs, ps, Hs)
+            qrow = np.array([c in quot for c in self.channels])
+            # reading at sample j of the segment: the quotient ending there (computed by step j - 1)
+            shifted = ca.horzcat(Y0seg[:, 0], Qseg[:, :L - 1])
+            sel = ca.DM(np.diag(qrow.astype(float)))
+            Yseg = sel @ shifted + (ca.DM.eye(len(self.channels)) - sel) @ Y0seg
+        else:
+            _, Yseg = seg(xs0, Vs, ps, Hs)
         segY = ca.Function("segY", [xs0, Vs, ps, Hs], [Yseg])
         allY = segY.map("segments", "serial", M, [2], [])
         self.V, self.H = V, H
@@ -156,6 +186,11 @@ class RunProblem:
             else:
                 rows.append(X0[i, :])
         X0full = ca.vertcat(*rows)
+        if tied and M > 0:  # fast internal modes start quasi-static, from the free states and the measured load
+            U0 = np.zeros((len(plant.inputs), M))
+            starts = np.minimum(np.arange(M) * L, n - 1)
+            U0[plant.index("input", "load_force")] = np.nan_to_num(np.asarray(run.signals["load_force"], float)[starts])
+            X0full = plant.quasi_static.map(M)(X0full, ca.DM(U0), pv)
         Y = allY(X0full, ca.DM(V), pv, ca.DM(H).T)  # (ny, L*M)
         W = ca.DM(np.where(self.mask, 1.0, 0.0))
         Ymeas0 = ca.DM(np.nan_to_num(Ymeas))
@@ -206,6 +241,8 @@ class RunProblem:
             w = motor_speed_from(lambda c: self._measured_at(c, k), run.gear_ratio)
             if w is not None:
                 X[plant.index("state", "motor_speed"), m] = w
+                if "surface_speed" in plant.state_names:  # the surface moves with the nut (the rest state has it still)
+                    X[plant.index("state", "surface_speed"), m] = w * plant.kinematic_ratio(params)
             if nut is not None:  # the LVDT reads the surface; the nut sits the load-path deflection ahead
                 i_nut = plant.index("state", "nut_position")
                 if "surface_position" in plant.state_names:

@@ -86,7 +86,7 @@ class CandidateSpec:
     ``free``: its parameters identified with the declared ones; ``seeds``:
     starting values where the parameter file has the effect off (0);
     ``window``: where it acts (``moving``, ``all``, ``loaded``, ``reversal``,
-    ``reversal_or_stop``, ``cold``, ``resolved_cogging``); ``channel``: the channel where it shows most; ``profile``:
+    ``reversal_or_stop``, ``cold``, ``resolved_cogging``, ``load_change``); ``channel``: the channel where it shows most; ``profile``:
     parameters that act through a switch (no gradient), searched over a range
     ``(lo, hi)`` by :func:`~thsa_control.fit.profile.profile_identify` (the
     first finely, the others where they matter) while ``free`` is fitted at
@@ -106,6 +106,9 @@ class CandidateSpec:
     #: free parameter -> plausibility rule of ``trace.candidates.PLAUSIBLE``: the largest magnitude a healthy rig
     #: can have (a base correction is bounded by it; a found periodic torque larger than it is implausible)
     plausible: Mapping[str, str] = field(default_factory=dict)
+    #: rule of ``trace.candidates.STARTS`` giving starting values read off the runs (a static screen), for
+    #: parameters whose right value a fit started at the file's cannot reach (a soft zone vs a preload)
+    start: str | None = None
 
 
 @dataclass(frozen=True)

@@ -122,7 +122,10 @@ def loadpath_force_law(p, deflection, deflection_rate):
 
     ``deflection = x_nut - x_surface`` [m] (positive: the nut pushes the
     surface), ``deflection_rate`` its derivative [m/s].  Returns
-    ``(force, conservative_part)``.
+    ``(force, conservative_part)``.  ``loadpath.backlash`` is signed (the
+    papers' ``x0``): positive, a soft zone of ``+-b`` where only the disk
+    springs carry the load; negative, both contacts preloaded (overlapping by
+    ``|b|``), stiffness ``ku + kl + 2 kds`` near zero load until one lifts off.
     """
     d, dd = deflection, deflection_rate
     b = p["loadpath.backlash"]
@@ -140,15 +143,21 @@ def loadpath_force_law(p, deflection, deflection_rate):
 
 
 def loadpath_static_deflection(p, force):
-    """Deflection [m] at which the load path carries ``force`` [N] at rest (inverse of the law)."""
+    """Deflection [m] at which the load path carries ``force`` [N] at rest (inverse of the law, either sign of
+    the backlash: the spring law is piecewise linear and increasing, with kinks at ``-|b|`` and ``+|b|``)."""
     b = p["loadpath.backlash"]
     k_ds = 2.0 * p["loadpath.disk_spring_stiffness"]
     ku, kl = p["loadpath.contact_stiffness_upper"], p["loadpath.contact_stiffness_lower"]
-    f_edge = k_ds * b
+    a = ca.fabs(b)
+
+    def spring(d):
+        return k_ds * d + ku * ca.fmax(d - b, 0.0) + kl * ca.fmin(d + b, 0.0)
+
+    f_hi, f_lo = spring(a), spring(-a)
+    k_mid = ca.if_else(b >= 0, k_ds, k_ds + ku + kl)  # free play: the disk springs; preload: all three
     return ca.if_else(
-        force > f_edge,
-        (force + ku * b) / (k_ds + ku),
-        ca.if_else(force < -f_edge, (force - kl * b) / (k_ds + kl), force / ca.fmax(k_ds, 1e-300)),
+        force > f_hi, a + (force - f_hi) / (k_ds + ku),
+        ca.if_else(force < f_lo, -a + (force - f_lo) / (k_ds + kl), -a + (force - f_lo) / ca.fmax(k_mid, 1e-300)),
     )
 
 

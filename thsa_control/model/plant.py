@@ -110,6 +110,10 @@ class Plant:
     ratio_fn: ca.Function = None  # p -> lead / (2 pi N) [m/rad]
     kt_fn: ca.Function = None  # p -> torque constant [N m/A]
     inertia_fn: ca.Function = None  # (x, p) -> (main body, body the motor current accelerates) [kg m^2]
+    #: states of fast internal modes a fit's segment starts at their quasi-static value (``quasi_static``)
+    quasi_static_states: tuple[str, ...] = ()
+    #: (x, u, p) -> x with the ``quasi_static_states`` replaced by their quasi-static values given the others
+    quasi_static: ca.Function = None
 
     @property
     def state_names(self) -> tuple[str, ...]:
@@ -366,7 +370,12 @@ def build_plant(level: str | None = "A", effects: Iterable[str] = (), *, remove:
     inertia_fn = ca.Function("inertia", [xsym, psym], [a.main_inertia, a.rotor_body_inertia], ["x", "p"],
                              ["j_main", "j_motor"])
 
+    qs_states = tuple(st.name for st in states if st.name in a.quasi_static)
+    qs_x = [a.quasi_static[st.name] if st.name in a.quasi_static else x[st.name] for st in states]
+    quasi_static = ca.Function("quasi_static", [xsym, usym, psym], [ca.vertcat(*qs_x)], ["x", "u", "p"], ["x_qs"])
+
     return Plant(
+        quasi_static_states=qs_states, quasi_static=quasi_static,
         effects=chosen, states=states, inputs=tuple(n for n, _, _ in INPUTS), outputs=tuple(out_names),
         output_units=out_units, parameters=names, f=f, step=step, init=init, sensors=sensors, measure=measure,
         ratio_fn=ratio_fn, kt_fn=kt_fn, inertia_fn=inertia_fn,

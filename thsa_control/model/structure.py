@@ -159,6 +159,10 @@ class Assembly:
     translating_mass: ca.SX | None = None  # [kg] moving rigidly with the nut
     pawl_engaged: dict = field(default_factory=dict)  # "comp"/"tens" -> expr (1 engaged)
     initial: dict = field(default_factory=dict)  # state -> fn(load_force) -> expr (static equilibrium)
+    # state -> expr in x, u, p: a fast internal mode's state at a shooting segment's start, tied to the slow
+    # states (the surface at the static load-path deflection of the load, moving with the nut); a fit does not
+    # free it (a free start rings the mode to absorb another channel's mismatch)
+    quasi_static: dict = field(default_factory=dict)
     # facts the plant exports (set by the structure): the screw-to-nut ratio [m/rad], the torque
     # constant [N m/A], the main body's inertia at the motor shaft and the rotors' [kg m^2]
     kinematic_ratio: object = None

@@ -14,12 +14,14 @@ Batched runs
 ------------
 :meth:`Simulator.run_batch` simulates many runs in one call: each of
 ``inputs`` (scenarios or input series), ``design``, ``params`` and ``x0`` is
-one value for all runs or a list with one per run.  Runs of the same loop
-and length go to the compiled library together, which loops over them in C
-and spreads them over the CPUs (``threads``); each result is bit-identical
-to :meth:`Simulator.run` of the same run.  :func:`stack_signals` turns the
-list into one array.  For the tracer's candidate fits, the tuning's
-validation runs and sweeps::
+one value for all runs or a list with one per run.  Every run is checked and
+laid out first (an error names the bad run's index); runs of the same loop
+and length then go to the compiled library in one call, which loops over
+them in C, spreads them over the CPUs (``threads``) and writes one
+(runs x signals x samples) block (``runs.blocks``) whose rows the results
+view; each result is bit-identical to :meth:`Simulator.run` of the same run.
+:func:`stack_signals` turns the list into one array.  For parameter studies,
+the validation runs of ``thsa check`` and sweeps::
 
     sim = Simulator(build_plant("D"))
     runs = sim.run_batch([sc.with_temperature(T) for T in (-55, -30, 25, 70)], design, params)
@@ -145,8 +147,7 @@ class InputSeries:
         breakpoints, temperature range) stand for the checks of the sampled signals.
         """
         n = int(round(scenario.duration / control_period))
-        t = np.arange(n) * control_period
-        t.setflags(write=False)
+        t = _time_grid(n, control_period)
         signals = scenario.sampled_inputs(t)
         signals.update({k: np.broadcast_to(0.0, (n,)) for k in OPTIONAL_INPUTS})
         for v in signals.values():
@@ -481,8 +482,7 @@ class Simulator:
                 batch: int | None = None) -> SimulationResult:
         """The result of a finite run: ``Y`` (signals x samples) becomes read-only views, no copies."""
         h, decimation, inputs = prep.h, prep.decimation, prep.inputs
-        t = np.arange(Y.shape[1]) * decimation * h  # this grouping: the bits of the times before
-        t.setflags(write=False)
+        t = _time_grid(Y.shape[1], h, decimation)
         info = {"wall_s": wall, "compile": cinfo, "control_period_s": h, "output_period_s": decimation * h,
                 "substeps": self.settings.substeps, "final_state": z}
         if batch is not None:
@@ -570,6 +570,23 @@ class BatchResults(list):
     def __init__(self, *args):
         super().__init__(*args)
         self.blocks: list = []
+
+
+_TIME_GRIDS: dict = {}
+
+
+def _time_grid(n: int, h: float, decimation: int = 1) -> np.ndarray:
+    """``np.arange(n) * decimation * h`` (that grouping: the same bits as ever), read-only and shared by the
+    runs of one length and period (a few recent grids are kept)."""
+    key = (n, h, decimation)
+    t = _TIME_GRIDS.get(key)
+    if t is None:
+        t = np.arange(n) * decimation * h if decimation != 1 else np.arange(n) * h
+        t.setflags(write=False)
+        if len(_TIME_GRIDS) >= 16:
+            _TIME_GRIDS.pop(next(iter(_TIME_GRIDS)))
+        _TIME_GRIDS[key] = t
+    return t
 
 
 def _first_non_finite(Y: np.ndarray) -> int:

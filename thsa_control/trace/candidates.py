@@ -118,6 +118,34 @@ PLAUSIBLE: dict[str, Callable] = {"drag": _rule_drag, "axial_force": _rule_axial
                                   "efficiency": _rule_efficiency}
 
 
+def _start_loadpath(params: ParameterSet, runs) -> dict[str, float]:
+    from ..fit.loadpath_screen import loadpath_static_screen
+
+    return loadpath_static_screen(runs, params)
+
+
+def _resolved_periods(params: ParameterSet, runs, lo: float, hi: float) -> tuple[float, float]:
+    """Cogging periods per motor revolution the record resolves: 4 samples or more per period at the median
+    moving motor speed (half the moving samples or more resolve it)."""
+    best = 0.0
+    for run in runs:
+        t = np.asarray(run.time, float)
+        w = np.abs(np.nan_to_num(measured_motor_speed(run)))
+        moving = w > 0.05 * max(float(np.max(w)), 1e-9)
+        if t.size < 2 or not moving.any():
+            continue
+        fs = 1.0 / float(np.median(np.diff(t)))
+        best = max(best, (fs / 4) / (float(np.median(w[moving])) / (2 * math.pi)))
+    return lo, max(lo, min(hi, math.floor(best)))
+
+
+#: Narrowing of a profiled parameter's range to what the runs resolve (name -> function(params, runs, lo, hi)).
+PROFILE_LIMITS: dict[str, Callable] = {"drive.cogging_periods": _resolved_periods}
+
+#: Starting values read off the runs (:attr:`CandidateSpec.start` -> function(params, runs) -> {name: value}).
+STARTS: dict[str, Callable] = {"loadpath_static": _start_loadpath}
+
+
 # ----------------------------------------------------------------------------- candidates
 def _generic_spec(name: str, params: ParameterSet) -> CandidateSpec | None:
     """An effect without a table entry: its non-zero, finitely bounded parameters (at most 3) are free."""
@@ -143,7 +171,7 @@ def candidate_specs(model_effects: Iterable[str], params: ParameterSet, names: S
 
 
 #: The windows a candidate may act in (:attr:`CandidateSpec.window`, :func:`_window`).
-WINDOWS = ("moving", "all", "loaded", "reversal", "reversal_or_stop", "cold", "resolved_cogging")
+WINDOWS = ("moving", "all", "loaded", "reversal", "reversal_or_stop", "cold", "resolved_cogging", "load_change")
 
 
 def _window(kind: str, run: RigRun, params: ParameterSet | None = None) -> np.ndarray:
@@ -170,6 +198,18 @@ def _window(kind: str, run: RigRun, params: ParameterSet | None = None) -> np.nd
         fs = 1.0 / float(np.median(np.diff(t))) if t.size > 1 else 0.0
         n = params.value("drive.cogging_periods") if params is not None and "drive.cogging_periods" in params else 6.0
         return moving & (n * np.abs(w) / (2 * math.pi) < fs / 4)
+    if kind == "load_change":  # within 0.3 s of a load change of 5 % of the run's range (500 N at least): where
+        # a compliant load path shows in the LVDT (the segments start at the static deflection of the load)
+        t = np.asarray(run.time, float)
+        dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+        k = max(int(round(0.3 / dt)), 1)
+        out = np.zeros(t.size, bool)
+        if t.size > k:
+            d = np.abs(load[k:] - load[:-k]) > max(0.05 * float(np.ptp(load)), 500.0)
+            idx = np.flatnonzero(d)
+            for i in idx:  # the change spans samples i .. i + k
+                out[i:i + k + 1] = True
+        return out
     if kind == "cold":
         temp = np.asarray(s["temperature"], float)
         return np.abs(temp - 25.0) > 5.0

@@ -47,7 +47,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -55,9 +55,12 @@ import numpy as np
 from ..data.rigdata import RigRun, measured_motor_speed
 from ..errors import ThsaError
 from ..fit.identify import IdentificationSettings, estimate_noise
+from ..data.rigformat import speed_sensor_intervals
+from ..fit.replay import check_run_model
 from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
 from ..model.params import ParameterSet, default_parameters
-from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, PLAUSIBLE, WINDOWS, _window,
+from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, PLAUSIBLE, PROFILE_LIMITS, STARTS, WINDOWS,
+                         _window,
                          candidate_specs, not_candidates)
 from .residual import _regime_errors, _signature
 from .scoring import (_base_correction, _channel_errors, _chi2_by_channel, _explainers_at_bound, _held_out,
@@ -73,7 +76,7 @@ __all__ = ["TraceSettings", "CandidateSpec", "CANDIDATES", "DEFAULT_UNCERTAIN", 
 TRACE_FORMAT = "thsa-trace/1"
 
 #: candidate windows at the transients themselves: scored on every sample (``score_outside_transients``)
-TRANSIENT_WINDOWS = ("reversal", "reversal_or_stop")
+TRANSIENT_WINDOWS = ("reversal", "reversal_or_stop", "load_change")
 
 
 @dataclass(frozen=True)
@@ -163,10 +166,24 @@ class TraceSettings:
     base_corrections: bool | None = None
     undetermined_relative_stderr: float = 1.0
     window_tolerance: float = 0.01
+    #: how the speed sensors read, over each run's declaration (IdentificationSettings.speed_sensors): channel
+    #: -> difference interval [s], "sample" or "instantaneous"; None: each run's own (its JSON's
+    #: ``speed_sensors``, else its ``sensors`` text as a reported fallback, else instantaneous)
+    speed_sensors: Mapping[str, object] | None = None
     score_outside_transients: bool = True
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad field."""
+        if self.speed_sensors is not None:
+            from ..data.rigformat import SPEED_SENSOR_COLUMNS, speed_interval_from
+
+            for k, v in dict(self.speed_sensors).items():
+                if k not in SPEED_SENSOR_COLUMNS and k not in SPEED_SENSOR_COLUMNS.values():
+                    raise ValueError(f"TraceSettings.speed_sensors: unknown channel {k!r}; channels are "
+                                     f"{', '.join(SPEED_SENSOR_COLUMNS.values())}")
+                speed_interval_from(v, f"TraceSettings.speed_sensors[{k!r}]")
+        if not (isinstance(self.substeps, int) and self.substeps >= 1):
+            raise ValueError(f"TraceSettings.substeps = {self.substeps!r} must be an integer >= 1")
         if not (isinstance(self.holdout_every, int) and self.holdout_every >= 2):
             raise ValueError(f"TraceSettings.holdout_every = {self.holdout_every!r} must be an integer >= 2")
         if not (isinstance(self.workers, int) and self.workers >= 1):
@@ -257,7 +274,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         return IdentificationSettings(no_prior=tuple(no_prior), segment_duration=st.segment_duration, substeps=st.substeps, channels=channels,
                                       noise=noise, max_nfev=st.max_nfev, tolerance=st.tolerance, time_budget=st.fit_time_budget,
                                       prior_relative_sd=st.prior_relative_sd if prior else None,
-                                      holdout_every=st.holdout_every, priors=dict(priors or {}) or None)
+                                      holdout_every=st.holdout_every, priors=dict(priors or {}) or None,
+                                      quasi_static_starts=True, speed_sensors=st.speed_sensors)
 
     plaus = {k: fn(params, runs) for k, fn in PLAUSIBLE.items()}
     base_priors: dict[str, tuple[float, float]] = {}  # the base corrections' priors (kept in every later fit)
@@ -276,8 +294,11 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         return {"label": label, "effects": tuple(effs), "free": tuple(free), "params_toml": pset.to_toml(),
                 "settings": id_settings(prior, [n for n in free if n not in uncertain and n not in pri], pri),
                 "runs": data, "profile": dict(profile or {}), "judge": judge,
-                "hold_at": {n: params.value(n) for n in judge}, "relative_stderr": st.undetermined_relative_stderr}
+                "hold_at": {n: (pset.value(n) if spec is not None and spec.start else params.value(n)) for n in judge}, "relative_stderr": st.undetermined_relative_stderr}
 
+    for r in runs:
+        for w in check_run_model(r, base_plant, mode="open_loop"):
+            say(f"warning: {w}")
     say(f"fitting the declared model ({', '.join(declared) or 'level A'}): {', '.join(uncertain)}")
     t0 = time.perf_counter()
     base = _run_jobs([job("base", declared, uncertain, params, fit_runs)], 1, None)[0]
@@ -360,7 +381,15 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             elif spec.name in hurt:
                 skipped.append({"name": spec.name, "reason": f"made the held-out error worse in round {len(rounds)}"})
             else:
-                scorable.append(spec)
+                # a profiled range narrowed to what the runs resolve (the cogging's period counts)
+                prof = {n: (PROFILE_LIMITS[n](cur_params, runs, *r) if n in PROFILE_LIMITS else r)
+                        for n, r in spec.profile.items()}
+                empty = [f"{n} {lo:g}..{hi:g}" for n, (lo, hi) in prof.items() if not hi > lo]
+                if empty:
+                    skipped.append({"name": spec.name, "reason": "the runs resolve too few values to profile: "
+                                                                 + ", ".join(empty)})
+                else:
+                    scorable.append(dataclasses.replace(spec, profile=prof) if prof != dict(spec.profile) else spec)
         if not scorable:
             break
         # the longest fits first, so that the workers finish together (profiled, then the structural effects)
@@ -378,6 +407,10 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             replaced = {x for e in req + [spec.name] for x in EFFECTS[e].supersedes}
             effs = resolve_effects(None, add=[e for e in cur_effects if e not in replaced] + req + [spec.name])
             pset = cur_params.replace({n: v for n, v in spec.seeds.items() if cur_params.value(n) == 0})
+            if spec.start:  # starting values read off the runs (a static screen), within the search bounds; a
+                # parameter the fit then finds undetermined is held there, not at the file's value
+                pset = pset.replace({n: min(max(v, pset[n].min), pset[n].max)
+                                     for n, v in STARTS[spec.start](pset, runs).items() if n in pset})
             if spec.profile:
                 # a switch the model lacks distorts the declared fit (a missing pawl clearance drives the
                 # retraction disk friction to 0): a profiled candidate restarts the declared parameters, and
@@ -552,7 +585,9 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     doc = {
         "format": TRACE_FORMAT,
         "datasets": [{"name": r.name, "csv": str(r.csv_path), "samples": int(len(r.time)),
-                      "duration_s": r.duration_s} for r in runs],
+                      "duration_s": r.duration_s, "speed_sensors": speed_sensor_intervals(r, st.speed_sensors),
+                      "model_warnings": check_run_model(r, base_plant, mode="open_loop")}
+                     for r in runs],
         "base_model": lvl if level is not None else None,
         "removed_effects": list(remove),
         "declared_effects": list(declared),

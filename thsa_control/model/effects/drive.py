@@ -134,10 +134,13 @@ register(Effect("cogging_torque", "motor cogging torque, periodic in the mechani
                 phase=Phase.DRIVE,
                 neutral={"drive.cogging_torque_cos": 0.0, "drive.cogging_torque_sin": 0.0},
                 # the cogging acts where the record resolves its period (4 samples or more): an aliased one fits
-                # noise (a 0.07 N m cogging was invented on a 15 mm/s trim run logged at 500 Hz)
+                # noise (a 0.07 N m cogging was invented on a 15 mm/s trim run logged at 500 Hz).  The period
+                # count is the motor's (slots and poles), not the parameter file's placeholder: it is profiled
+                # over the whole counts the record resolves (trace.candidates.PROFILE_LIMITS)
                 candidate=CandidateSpec("cogging_torque", ("drive.cogging_torque_cos", "drive.cogging_torque_sin"),
                                         {"drive.cogging_torque_cos": 0.005, "drive.cogging_torque_sin": 0.005},
                                         "resolved_cogging",
+                                        profile={"drive.cogging_periods": (2.0, 200.0)},
                                         plausible={"drive.cogging_torque_cos": "periodic",
                                                    "drive.cogging_torque_sin": "periodic"})))
 

@@ -1,0 +1,239 @@
+"""Candidate fits on data the workbench did not write (issue #21, item 4): rig-sim runs on the ``rig`` base.
+
+* ``loadpath_compliance``: the LVDT reads the surface (the nut on the compliant load path), a segment starts
+  with the surface at the static deflection of the measured load (its mode not a free state), and the soft
+  zone is signed (free play, or a preload when negative), started from the static deflection screen.  On the
+  load-sweep runs with rig-sim's ``loadpath_backlash`` (x0 = +0.67 mm) and ``loadpath_preload``
+  (x0 = -0.03 mm) the candidate's own channel, the LVDT, must get better, and the soft zone must be read
+  within 0.1 mm of the truth.  The contact stiffnesses of rig-sim are the papers' (5.32e7 and 6.65e7 N/m) in
+  series with its ball-screw contact (3e8 N/m): 4.5e7 and 5.5e7 N/m at the LVDT.
+* ``cogging_torque``: rig-sim's cogging has 18 periods per motor revolution; the count is profiled over the
+  whole counts the record resolves (4 samples or more per period at the median moving speed).
+
+The truth files are read by these tests only.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from thsa_control.data.rigdata import read_run
+from thsa_control.fit.kinematics import run_kinematics
+from thsa_control.fit.loadpath_screen import loadpath_static_screen
+from thsa_control.trace import TraceSettings, trace
+
+DATA = Path(__file__).resolve().parent / "data" / "rigsim"
+
+
+def _truth_params(name: str, effect: str) -> dict:
+    return {k: v["si"] for k, v in json.loads((DATA / f"{name}.truth.json").read_text())["effects"][effect]
+            ["params"].items()}
+
+
+def _run(name, params):
+    return run_kinematics(read_run(DATA / f"{name}.csv"), params)
+
+
+@pytest.mark.parametrize("name, effect", [("rig_loadpath_backlash", "loadpath_backlash"),
+                                          ("rig_loadpath_preload", "loadpath_preload")])
+def test_static_screen_reads_the_soft_zone_and_the_preload(params, name, effect):
+    """LVDT against the RVDT's kinematic nut position, against the measured load: the signed soft zone within
+    0.1 mm of rig-sim's x0, the contact stiffnesses within 25 % of the papers' values in series with the
+    ball-screw contact."""
+    truth = _truth_params(name, effect)
+    got = loadpath_static_screen([_run(name, params)], params)
+    assert got["loadpath.backlash"] == pytest.approx(truth["x0_mm"], abs=1e-4), got
+    k_bs = 3e8  # rig-sim's ball-screw contact, in series with the load path at the LVDT
+    for n, k in (("loadpath.contact_stiffness_upper", truth["k_upper_N_m"]),
+                 ("loadpath.contact_stiffness_lower", truth["k_lower_N_m"])):
+        assert got[n] == pytest.approx(1.0 / (1.0 / k + 1.0 / k_bs), rel=0.25), (n, got)
+
+
+def test_static_screen_claims_no_soft_zone_the_load_never_crosses(params):
+    """A run whose load never comes near zero says nothing about the soft zone nor the tensile contact."""
+    got = loadpath_static_screen([_run("null_rig_trim_s1", params)], params)
+    load = _run("null_rig_trim_s1", params).signals["load_force"]
+    if min(abs(load)) > 500.0:
+        assert "loadpath.backlash" not in got, got
+    assert "loadpath.contact_stiffness_lower" not in got, got
+
+
+@pytest.fixture(scope="module")
+def loadpath_traced(params):
+    cache = {}
+
+    def go(name):
+        if name not in cache:
+            st = TraceSettings(workers=2, candidates=("noback_quadrant_friction", "loadpath_compliance"),
+                               base_corrections=True, max_effects=2)
+            cache[name] = trace(_run(name, params), "A", params=params, settings=st).to_dict()
+        return cache[name]
+
+    return go
+
+
+def _last_scored(doc, name):
+    return [c for r in doc["rounds"] for c in r["candidates"] if c["name"] == name and "parameters" in c][-1]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name, effect", [("rig_loadpath_backlash", "loadpath_backlash"),
+                                          ("rig_loadpath_preload", "loadpath_preload")])
+def test_loadpath_candidate_improves_its_own_channel(loadpath_traced, name, effect):
+    """The candidate's own channel (the LVDT) gets better inside its window, and the soft zone is read within
+    0.1 mm of the truth (the candidate made it 84-246 % worse before)."""
+    doc = loadpath_traced(name)
+    c = _last_scored(doc, "loadpath_compliance")
+    assert c["window_reduction"]["nut_position"] > 0.0, c
+    assert c["parameters"]["loadpath.backlash"]["value"] == pytest.approx(_truth_params(name, effect)["x0_mm"],
+                                                                         abs=1e-4), c["parameters"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", [
+    "rig_loadpath_backlash",
+    pytest.param("rig_loadpath_preload", marks=pytest.mark.xfail(strict=False, reason=(
+        "measured: after the no-back the LVDT window error drops 40 % with x0 = -0.017 mm, but the motor-speed "
+        "chi2 (400 x the LVDT's) rises: held-out chi2 drop -3.2e3, not significant"))),
+])
+def test_loadpath_candidate_is_added_and_explains_half_of_the_lvdt_error(loadpath_traced, name):
+    """rig base + load-path backlash / preload on a load sweep: the load-path compliance is added and its own
+    channel's window error drops by 40 % or more."""
+    doc = loadpath_traced(name)
+    step = next((e for e in doc["effects_added"] if e["name"] == "loadpath_compliance"), None)
+    assert step is not None, [(c["name"], c.get("holdout_chi2_drop")) for r in doc["rounds"] for c in r["candidates"]]
+    assert step["window_reduction"]["nut_position"] >= 0.4, step["window_reduction"]
+
+
+@pytest.mark.slow
+def test_cogging_period_count_is_profiled(params):
+    """rig-sim's cogging (18 per motor revolution, the file's placeholder is 6) is found with its count."""
+    st = TraceSettings(workers=1, candidates=("cogging_torque",), base_corrections=True, max_effects=1)
+    doc = trace(_run("rig_cogging", params), "A", params=params, settings=st).to_dict()
+    step = next((e for e in doc["effects_added"] if e["name"] == "cogging_torque"), None)
+    assert step is not None, doc["rounds"]
+    assert step["parameters"]["drive.cogging_periods"]["value"] == 18, step["parameters"]
+
+
+@pytest.mark.slow
+def test_no_cogging_on_a_null_whose_record_resolves_no_count(params):
+    """The papers null (15 mm/s logged at 500 Hz): the record resolves no cogging count beyond 2 per
+    revolution, so no cogging is fitted to its start and stop transients (a 6/rev one was, before)."""
+    st = TraceSettings(workers=1, candidates=("cogging_torque",), base_corrections=True, max_effects=1)
+    doc = trace(_run("null_papers_trim_s1", params), "A", params=params, settings=st).to_dict()
+    assert not [e for e in doc["effects_added"] if e["name"] == "cogging_torque"], doc["effects_added"]
+
+
+# ----------------------------------------------------------------------------- speed sensors as difference quotients
+def test_speed_sensor_declaration_structured_field_text_fallback_and_option(params, tmp_path):
+    """The run JSON's structured ``speed_sensors`` wins over its free ``sensors`` text, which is read only as a
+    reported fallback; an explicit option wins over both; a malformed interval names the field."""
+    from thsa_control.data.rigformat import speed_sensor_intervals
+
+    run = _run("rig_drivetrain_compliance", params)
+    got = speed_sensor_intervals(run)
+    assert got["motor_speed"]["interval"] == pytest.approx(1e-3) and got["screw_speed"]["interval"] == "sample"
+    assert all(v["source"].startswith("fallback") for v in got.values()), got
+    import dataclasses
+
+    declared = dataclasses.replace(run, metadata={**run.metadata, "speed_sensors": {"motor_speed_rpm": 0.002,
+                                                                                    "screw_speed_rpm": "instantaneous"}})
+    got = speed_sensor_intervals(declared)
+    assert got["motor_speed"] == {"interval": 0.002, "source": "run JSON speed_sensors"}
+    assert got["screw_speed"]["interval"] is None
+    got = speed_sensor_intervals(declared, {"motor_speed": "instantaneous"})
+    assert got["motor_speed"] == {"interval": None, "source": "explicit option"}
+    bad = dataclasses.replace(run, metadata={**run.metadata, "speed_sensors": {"screw_speed_rpm": -1}})
+    with pytest.raises(ValueError, match="speed_sensors.screw_speed_rpm"):
+        speed_sensor_intervals(bad)
+    plain = dataclasses.replace(run, metadata={k: v for k, v in run.metadata.items() if k != "sensors"})
+    assert {v["interval"] for v in speed_sensor_intervals(plain).values()} == {None}
+    with pytest.raises(ValueError, match="speed_sensors"):
+        TraceSettings(speed_sensors={"lvdt": 0.001}).validate()
+
+
+def test_difference_quotient_reading_is_the_angle_over_the_interval(params):
+    """The screw sensor's quotient over one sample equals the nut travel over that sample divided by the lead
+    and the period (the RVDT angle differentiated over one sample); over half the period, the travel of the
+    last half; the instantaneous reading at the period's end differs from both while the drive accelerates."""
+    import math
+
+    import numpy as np
+
+    from thsa_control.fit.replay import MECH_INPUTS, current_driven_map
+    from thsa_control.model import build_plant
+
+    plant = build_plant("A", params=params)
+    S = 4
+    mech_q = current_driven_map(plant, S, {"screw_speed": S, "motor_speed": S // 2})
+    mech_fine = current_driven_map(plant, 1)
+    p = plant.p_vector(params)
+    x = plant.initial_state(params, load_force=5e3)
+    v = np.zeros(len(MECH_INPUTS))
+    for name, val in (("current_start", 6.0), ("current_end", 6.0), ("load_start", 5e3), ("load_end", 5e3),
+                      ("temperature", 25.0)):
+        v[MECH_INPUTS.index(name)] = val
+    h = 2e-3
+    i_nut = plant.index("state", "nut_position")
+    xs = [np.asarray(x, float).ravel()]
+    for _ in range(S):  # the same plant steps one by one
+        xs.append(np.asarray(mech_fine(xs[-1], v, p, h / S)[0]).ravel())
+    xn, _, q = mech_q(x, v, p, h)
+    q = np.asarray(q).ravel()
+    lead, ratio = params.value("screw.lead"), plant.kinematic_ratio(p)
+    travel = xs[-1][i_nut] - xs[0][i_nut]
+    assert travel > 0
+    assert q[0] == pytest.approx(travel / lead * 2 * math.pi / h, rel=1e-9)
+    half = xs[-1][i_nut] - xs[S // 2][i_nut]
+    assert q[1] == pytest.approx(half / ratio / (h / 2), rel=1e-9)
+    w_end = float(np.asarray(xn).ravel()[plant.index("state", "motor_speed")])
+    assert abs(w_end - q[1]) > 1e-3 * abs(w_end)
+
+
+@pytest.fixture(scope="module")
+def drivetrain_traced(params):
+    cache = {}
+
+    def go(speed_sensors):
+        key = json.dumps(speed_sensors)
+        if key not in cache:
+            st = TraceSettings(workers=2, candidates=("drivetrain_compliance",), base_corrections=True, max_effects=1,
+                               substeps=2, speed_sensors=speed_sensors)
+            # the rig carries two rotors (its JSON: rig.motors = 2): the declared model has the standby rotor
+            cache[key] = trace(_run("rig_drivetrain_compliance", params), "A", ("standby_motor",), params=params,
+                               settings=st).to_dict()
+        return cache[key]
+
+    return go
+
+
+@pytest.mark.slow
+def test_drivetrain_stiffness_and_the_quotient_reading_on_rigsim(drivetrain_traced):
+    """rig base + drive-train compliance (47 Hz) under a speed chirp, speeds read as rig-sim's sensors do (run
+    JSON sensors text: the motor's angle over 1 ms, the RVDT's over one sample): the series stiffness within
+    20 % of rig-sim's 8e3 N m/rad (it ran to 3.1e3 before), and the quotient reading fits the screw speed
+    better than the instantaneous one."""
+    doc = drivetrain_traced(None)
+    assert doc["datasets"][0]["speed_sensors"]["screw_speed"]["interval"] == "sample"
+    c = _last_scored(doc, "drivetrain_compliance")
+    k_gear = c["parameters"]["gear.torsional_stiffness"]["value"]
+    k_screw = 4.0e4  # the parameter file's screw torsional stiffness, in series (held)
+    assert 1.0 / (1.0 / k_gear + 1.0 / k_screw) == pytest.approx(8.0e3, rel=0.2), c["parameters"]
+    inst = drivetrain_traced({"motor_speed": "instantaneous", "screw_speed": "instantaneous"})
+    assert (doc["base_corrections"]["error_after"]["screw_speed"]["rms"]
+            < inst["base_corrections"]["error_after"]["screw_speed"]["rms"])
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=False, reason=(
+    "measured: with the damping held at the file's 20 N m s/rad (rig-sim's is 2) the 47 Hz mode cannot ring and "
+    "the screw-speed window error grows 12 % (freed, it dropped 13 %, but a free damping is refused: it stands "
+    "in for a lag on rigid data, tests/test_trace_drivetrain.py); the motor speed's grows 1-2 %: not added"))
+def test_drivetrain_compliance_is_added_and_its_screw_speed_error_drops(drivetrain_traced):
+    doc = drivetrain_traced(None)
+    c = _last_scored(doc, "drivetrain_compliance")
+    assert c["window_reduction"]["screw_speed"] > 0.0, c
+    assert [e["name"] for e in doc["effects_added"]] == ["drivetrain_compliance"], doc["rounds"]
