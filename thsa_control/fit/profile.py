@@ -189,6 +189,7 @@ class OneStepScreen:
     def __init__(self, runs: Sequence[RigRun], plant, params: ParameterSet, substeps: int = 1):
         self.plant = plant
         mech = current_driven_map(plant, substeps)
+        self._mech = mech
         self.loop = one_step_loop(plant, mech)
         self.parts = []
         for run in runs:
@@ -239,8 +240,13 @@ class OneStepScreen:
         out = [[] for _ in psets]
         for F, U, w_next, sigma in self.parts:
             if F is None:
-                Y = self.loop.batch(C0, [U] * len(psets), P, 1)[0]  # (outputs, final states, non-finite flags)
-                Ws = Y[:, -1, :]  # the predicted speed (the rows before: the custom states)
+                Y, _, bad = self.loop.batch(C0, [U] * len(psets), P, 1)
+                Ws = list(Y[:, -1, :])  # the predicted speed (the rows before: the custom states)
+                bad = np.flatnonzero(bad[:len(psets)] >= 0)
+                if bad.size:  # a non-finite prediction stops a compiled run: the interpreter carries on past it
+                    G = one_step_map(self.plant, self._mech, U.shape[1])
+                    for k in bad:
+                        Ws[k] = np.asarray(G(C0[k], U, P[k])[1]).ravel()
             else:
                 Ws = [np.asarray(F(c0, U, p)[1]).ravel() for c0, p in zip(C0, P)]
             for k, W in enumerate(Ws):

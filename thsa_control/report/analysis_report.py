@@ -64,7 +64,7 @@ from .display import (
     requirement_status,
     requirement_text,
 )
-from .figure import png_bytes
+from .figure import render_pngs
 
 __all__ = [
     "ANALYSIS_FORMAT",
@@ -107,10 +107,6 @@ nav a{margin-right:1.1em;color:#1a4f8b;text-decoration:none;white-space:nowrap}n
 .verdict.ok{background:#e3f4e5;border:1px solid #a5d6a7}.verdict.bad{background:#fde7e6;border:1px solid #ef9a9a}
 td.near{background:#fff3c4}h2{scroll-margin-top:2.6em}p.fold{font-size:13px;margin:0.3em 0}
 """
-
-
-def _png(fig) -> bytes:
-    return png_bytes(fig, dpi=100)
 
 
 _fmt = fmt
@@ -486,19 +482,20 @@ def write_analysis_report(result: DesignAnalysis, out_dir: str | Path, *, force:
     pathlib.Path
         The folder written.
     """
-    figures = {
-        "requirements_spare": _png(result.requirements.plot()),
-        "bode_current_loop": _png(plot_loop_bode(result.loops, "current_loop")),
-        "bode_velocity_loop": _png(plot_loop_bode(result.loops, "velocity_loop")),
-        "bode_position_loop": _png(plot_loop_bode(result.loops, "position_loop")),
-        "step_responses": _png(plot_steps(result.loops)),
-        "velocity_poles": _png(plot_velocity_poles(result.loops)),
-        "friction_slopes": _png(plot_friction_slopes(result.loops)),
+    jobs = {  # figure name -> (function, arguments); drawn in parallel processes (figure.render_pngs)
+        "requirements_spare": (result.requirements.plot, ()),
+        "bode_current_loop": (plot_loop_bode, (result.loops, "current_loop")),
+        "bode_velocity_loop": (plot_loop_bode, (result.loops, "velocity_loop")),
+        "bode_position_loop": (plot_loop_bode, (result.loops, "position_loop")),
+        "step_responses": (plot_steps, (result.loops,)),
+        "velocity_poles": (plot_velocity_poles, (result.loops,)),
+        "friction_slopes": (plot_friction_slopes, (result.loops,)),
     }
     if result.loops.grid is not None:
-        figures["margin_maps"] = _png(plot_margin_maps(result.loops))
+        jobs["margin_maps"] = (plot_margin_maps, (result.loops,))
     if result.switching is not None:
-        figures["switching_transient"] = _png(plot_switching(result.switching))
+        jobs["switching_transient"] = (plot_switching, (result.switching,))
+    figures = dict(zip(jobs, render_pngs(jobs.values(), dpi=100)))
     doc = analysis_to_dict(result)
     page = _html(result, figures, verdict)
     with atomic_folder(out_dir, force=force, inputs=inputs, command="thsa report") as tmp:

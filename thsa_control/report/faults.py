@@ -19,8 +19,7 @@ import numpy as np  # noqa: E402
 from ..model.laws import kinematic_ratio  # noqa: E402
 from ..data.units import display_unit, label, to_display
 from .build import atomic_folder, write_json  # noqa: E402
-from .figure import subplots
-from .identification import figure_png  # noqa: E402
+from .figure import render_pngs, subplots
 
 __all__ = ["plot_fault_run", "plot_fault_case", "plot_sweep", "fault_analysis_to_dict", "write_fault_report"]
 
@@ -248,20 +247,23 @@ def write_fault_report(analysis, params, out_dir, *, progress=None, **folder_opt
     ``progress`` (a :class:`thsa_control.progress.Progress` or None) gets a line per figure.
     """
     with atomic_folder(out_dir, **folder_options) as tmp:
-        figs = []
-        cases = analysis.cases + analysis.rigid_cases
-        for k, c in enumerate(cases, 1):
-            if progress is not None:
-                progress.step(k, len(cases) + bool(analysis.sweep), f"figure of {c.title}: {c.scenario}")
+        figs = []  # (file name, caption, (function, arguments), progress text): drawn in parallel (figure.render_pngs)
+        for c in analysis.cases + analysis.rigid_cases:
             name = f"case_{c.scenario}{'_rigid' if c in analysis.rigid_cases else ''}.png"
-            figs.append((name, figure_png(plot_fault_case(c, params)), f"{c.title}: {', '.join(c.faults)}"))
+            figs.append((name, f"{c.title}: {', '.join(c.faults)}", (plot_fault_case, (c, params)),
+                         f"figure of {c.title}: {c.scenario}"))
         if analysis.sweep:
+            figs.append(("sweep.png", "monitor sweep", (plot_sweep, (analysis,)), "figure of the monitor sweep"))
+
+        def done(i: int) -> None:
             if progress is not None:
-                progress.step(len(cases) + 1, len(cases) + 1, "figure of the monitor sweep")
-            figs.append(("sweep.png", figure_png(plot_sweep(analysis)), "monitor sweep"))
+                progress.step(i + 1, len(figs), figs[i][3])
+
+        pngs = render_pngs([f[2] for f in figs], dpi=100, done=done)
+        figs = [(name, png, caption) for (name, caption, _job, _text), png in zip(figs, pngs)]
         if progress is not None:
             progress.phase("faults.json and report.html (figures embedded)")
-        for name, png, _caption in figs:  # each figure rendered once: the same PNG is the file and the page's image
+        for name, png, _caption in figs:  # each figure drawn once: the same PNG is the file and the page's image
             (tmp / name).write_bytes(png)
         write_json(tmp / "faults.json", fault_analysis_to_dict(analysis))
         m = analysis.monitors
