@@ -81,7 +81,8 @@ def row(folder: Path) -> dict | None:
 def main(argv=None) -> int:
     dirs = [Path(a) for a in (argv or sys.argv[1:])]
     rows = [r for d in dirs for r in ([row(d)] if (d / "trace.json").exists() else
-                                      [row(x) for x in sorted(d.iterdir()) if x.is_dir()]) if r]
+                                      [row(x) for x in sorted(d.iterdir()) if x.is_dir() and not x.name.startswith(".")])
+            if r]
     print("| run | base | scenario | truth | base corrections (* at bound) | added in order [window drop] | "
           "held (not determined) | unexplained: structured | time [s] |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")

@@ -8,7 +8,9 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
     # One BLAS thread per pytest-xdist worker: the workers already fill every core (``-n auto``), and OpenBLAS's
     # own threads (one per core by default, spinning while they wait) would oversubscribe the machine, more so
     # with the tracer's fit processes.  Before numpy is imported; a value the user set is kept.
-    for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    # Likewise the report's figures are drawn in this process, not in forked ones (report.figure.render_pngs;
+    # tests/test_report_pages.py draws with two processes explicitly).
+    for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "THSA_FIGURE_PROCESSES"):
         os.environ.setdefault(_var, "1")
 
 from pathlib import Path

@@ -73,6 +73,30 @@ def test_report_figures_are_outside_pyplot_and_show_in_notebooks():
 
 # ---- verdict colours and gain-margin wording ----------------------------------------------------------------
 
+def _line_figure(n):
+    from thsa_control.report.figure import subplots
+
+    fig, ax = subplots(figsize=(3, 2))
+    ax.plot(np.arange(10), np.arange(10) ** n)
+    ax.set_title(f"power {n}")
+    return fig
+
+
+def test_figures_drawn_in_parallel_processes_are_the_same_pngs_in_order(monkeypatch):
+    """render_pngs: forked processes give byte for byte the PNGs drawn in-process, in the jobs' order, and say
+    each as it is ready; a bad THSA_FIGURE_PROCESSES is named."""
+    from thsa_control.report.figure import png_bytes, render_pngs
+
+    jobs = [(_line_figure, (n,)) for n in (1, 2, 3)]
+    seen = []
+    parallel = render_pngs(jobs, processes=2, done=seen.append)
+    assert parallel == render_pngs(jobs, processes=1) == [png_bytes(_line_figure(n)) for n in (1, 2, 3)]
+    assert seen == [0, 1, 2] and len(set(parallel)) == 3
+    monkeypatch.setenv("THSA_FIGURE_PROCESSES", "two")
+    with pytest.raises(ValueError, match="THSA_FIGURE_PROCESSES"):
+        render_pngs(jobs)
+
+
 def test_requirement_colours_are_relative_to_the_limit_not_to_the_data():
     # phase margin 68 deg against a 45 deg limit passes with room; 46 is close; 44 fails
     assert list(requirement_status([68.0, 46.0, 44.0], 45.0, ">=")) == [2, 1, 0]

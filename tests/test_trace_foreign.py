@@ -87,21 +87,34 @@ def _physical(doc: dict) -> list[dict]:
 #: Cases measured to fail on this branch (docs/trace_notes.md, "Still failing"): the assertion stays, the case is
 #: marked with what was measured so that a fix shows as XPASS.
 KNOWN_FAILING = {
-    "rig_screw_ripple": "found first among the physical effects with the right amplitude (0.054 N m at the motor, "
-                        "truth 0.050) but its window RMS drop is 5 %: the remaining base mismatch dominates",
-    "rig_temp_friction": "at one temperature the cold drag is a constant drag: the base corrections absorb it and "
-                         "temperature_friction makes the held-out error worse",
-    "rig_coulomb": "on one load the no-back's aiding friction takes the retraction half of the Coulomb friction; "
-                   "a direction drag is added for the extension half",
-    "rig_axial_offset": "the no-back's mismatch dominates the base correction, whose axial force goes to the "
-                        "opposite bound (-406 N); the 1500 N offset beyond it is not significant after the no-back",
-    "rig_direction_friction": "found first after the no-back (a direction drag) but its window RMS drop is 8 %: "
-                              "the no-back's aiding friction took most of it on this one load",
-    "rig_drivetrain_compliance": "refused: the screw-speed error grows (rig-sim's speeds are difference quotients "
-                                 "over 1-2 ms, the replay compares instantaneous speeds)",
-    "null_rig_reversals_s2": "a direction drag is added on one compressive load (the no-back's aiding friction)",
-    "null_rig_trim_s1": "on one compressive load the no-back's aiding friction is a direction drag: the direction "
-                        "drag's window drop is more than a point above the no-back's, so it is added",
+    "rig_screw_ripple": "found first among the physical effects after the base step (the detailed no-back), but its "
+                        "window RMS drop is 25 % outside the base's transients (5 % before the base step)",
+    "rig_temp_friction": "temperature_friction has the largest held-out drop (window drop 53 %) but is refused: its "
+                         "viscous coefficient's standard error (0.020 1/K) is not above its reference magnitude (file "
+                         "0.02), so it counts as determined and 'collapses to zero'; force_offset beyond its base "
+                         "correction (8.9 kN) is added instead, then drivetrain_compliance",
+    "rig_coulomb": "the Coulomb drag sits at its base-correction bound (0.057 N m: truth 0.064 N m at the motor on top "
+                   "of the rig's own drags of about 0.045); beyond it the fit is worse on 27 of 33 held-out segments; "
+                   "a direction drag is added (window drop 6 %)",
+    "rig_axial_offset": "the offset beyond its base correction (-1701 N) improves 49 of 67 held-out segments but its "
+                        "window RMS drop outside the base's transients is 1.9 % (< 5 %): nothing added beyond the base",
+    "rig_direction_friction": "after the base step every base correction is at its bound on this reversal scenario; "
+                              "direction_friction's window RMS drop is 3 % (< 5 %): nothing added",
+    "rig_drivetrain_compliance": "refused: the screw-speed error grows; level A has one rotor where the rig "
+                                 "carries two (JSON rig.motors = 2: half the inertia) and the damping is held at "
+                                 "the file's 20 N m s/rad (rig-sim's 2), so the 47 Hz mode cannot ring",
+    "rig_friction_bump": "not flagged: the nut-position test over passes (2 passes, outside the base's transients) "
+                         "is not significant (p 1.0 at the final fit; 0.22 with its peak bin at 3-5 mm after the base "
+                         "step alone); the held-out residual is 33 x noise, base-like",
+    "rig_loadcell_drift": "not flagged: the slow-drift regression of the missing torque on time is not significant "
+                          "(p 0.99; the load-cell drift biases the load the replay applies)",
+    "rig_kt_temperature": "not flagged: neither the torque-constant (p 0.54) nor the drift regression (p 0.98) is significant "
+                          "on a 10 s run",
+    "rig_worn_spot_stiction": "not flagged: the extra breakaway acts at starts and reversals, where the base itself "
+                              "leaves structure (time since reversal p 0.98 at the final fit); nothing invented",
+    "rig_loadpath_preload": "the load-path fit cuts the LVDT window error 40 % with x0 = -0.017 mm (truth -0.03) "
+                            "after the no-back, but the motor-speed chi2 (400 x the LVDT's) rises: held-out chi2 "
+                            "drop -3.2e3, not significant",
 }
 
 
@@ -209,7 +222,7 @@ FOREIGN = {
 
 @pytest.mark.campaign
 @pytest.mark.slow
-@pytest.mark.parametrize("name", sorted(FOREIGN))
+@pytest.mark.parametrize("name", _cases([(n,) for n in sorted(FOREIGN)]))
 def test_out_of_library_effect_is_unexplained_with_its_signature(traced, name):
     """Each out-of-library effect: ``unexplained: true`` with the signature that names it, also after explainers
     were added, and no physical effect invented."""

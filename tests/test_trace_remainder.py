@@ -11,8 +11,13 @@ import pytest
 
 from thsa_control.trace.engine import _holdout_iact
 from thsa_control.trace.scoring import _holdout_segment_changes
-from thsa_control.trace.signature import (SignatureSettings, base_transients, position_local_test, remainder_kind,
-                                          split_remainder)
+from thsa_control.trace.signature import (
+    SignatureSettings,
+    base_transients,
+    position_local_test,
+    remainder_kind,
+    split_remainder,
+)
 
 
 def _trim(n=5000, dt=2e-3):

@@ -139,18 +139,17 @@ def one_step_function(plant: Plant, mech: ca.Function) -> ca.Function:
 
 
 def one_step_loop(plant: Plant, mech: ca.Function):
-    """:func:`one_step_map`'s loop over the samples compiled to C, or None (no custom state, or no working C
-    compiler: use :func:`one_step_map` in casadi's interpreter).
+    """:func:`one_step_map`'s loop over the samples compiled to C, or None (no working C compiler: use
+    :func:`one_step_map` in casadi's interpreter).
 
     A :class:`~thsa_control.sim.codegen.RunLoop` (the simulator's verified build cache; the same operations in
     the same order as the interpreter, so the same bits): the carried state is the custom states, the inputs a
-    column of ``U``, the parameters ``p``; each step outputs the custom states after it and the predicted motor
-    speed (last row).  ``loop.batch`` runs many parameter vectors (a profile's grid) in one call.
+    column of ``U``, the parameters ``p``; each step outputs the custom states after it (none for a plant without
+    any: the cogging period's screen) and the predicted motor speed (last row).  ``loop.batch`` runs many
+    parameter vectors (a profile's grid) in one call.
     """
     from ..sim.codegen import compile_run_loop
 
-    if not custom_state_indices(plant):
-        return None
     f = one_step_function(plant, mech)
     c, u, p = f.sx_in()
     c_next, w_next = f(c, u, p)

@@ -74,12 +74,23 @@ def _render(job: tuple[int, int]) -> bytes:
     return _build_png(*_JOBS[i], dpi)
 
 
+def _default_processes() -> int:
+    """``$THSA_FIGURE_PROCESSES`` if set (1: draw in-process), else the cores this process may use."""
+    env = os.environ.get("THSA_FIGURE_PROCESSES", "").strip()
+    if env:
+        try:
+            return max(1, int(env))
+        except ValueError:
+            raise ValueError(f"THSA_FIGURE_PROCESSES = {env!r} must be a whole number >= 1") from None
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def render_pngs(jobs, *, dpi: int = 100, processes: int | None = None, done=None) -> list[bytes]:
     """PNG bytes of the figures that ``jobs`` build, in order; each job is ``(function, args)`` returning a figure.
 
     Building and drawing a report's figures is most of the time of writing it, and each figure is
-    independent: they are drawn in up to ``processes`` forked processes (default: the cores this process may
-    use), each figure once.  The PNGs are the same bytes as drawn in-process.  Without ``fork`` (Windows),
+    independent: they are drawn in up to ``processes`` forked processes (default: ``$THSA_FIGURE_PROCESSES``,
+    else the cores this process may use), each figure once.  The PNGs are the same bytes as drawn in-process.  Without ``fork`` (Windows),
     with one core or one figure, they are drawn here, one after the other.  ``done(i)`` (optional) is called
     in this process as figure ``i`` is ready, in order (progress lines).
     """
@@ -87,7 +98,7 @@ def render_pngs(jobs, *, dpi: int = 100, processes: int | None = None, done=None
 
     jobs = list(jobs)
     if processes is None:
-        processes = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        processes = _default_processes()
     processes = min(processes, len(jobs))
     out: list[bytes] = []
     if processes <= 1 or "fork" not in mp.get_all_start_methods():

@@ -49,7 +49,7 @@ STRUCTURED_VARIABLES = ("nut_position (repeated over passes)", "motor_angle", "s
                         "motor_current (torque constant)")
 
 
-def remainder_kind(test: dict, temperature_span: float, s: "SignatureSettings") -> str:
+def remainder_kind(test: dict, temperature_span: float, s: SignatureSettings) -> str:
     """``"structured"`` for a test of :data:`STRUCTURED_VARIABLES` (or a temperature dependence over more than
     ``s.temperature_span``), else ``"base"``: the regime dependences a declared model of another rig's base
     leaves (load quadrant, motor on/off, time since a reversal, direction, position bins not replicated)."""
@@ -83,7 +83,7 @@ def base_transients(time, speed, load, duration: float = 0.3) -> np.ndarray:
     state = np.where(w > dv, 1, np.where(w < -dv, -1, 0))
     ev = list(t[1:][state[1:] != state[:-1]])
     dt = float(np.median(np.diff(t)))
-    k = max(int(round(duration / dt)), 1)
+    k = max(round(duration / dt), 1)
     frange = max(float(np.ptp(f)), 1.0)
     if n > k:
         df = np.abs(f[k:] - f[:-k])
@@ -95,7 +95,7 @@ def base_transients(time, speed, load, duration: float = 0.3) -> np.ndarray:
         near = np.minimum(near, np.abs(t - ev[np.clip(i, 0, ev.size - 1)]))
         near = np.minimum(near, np.abs(t - ev[np.clip(i - 1, 0, ev.size - 1)]))
         out |= near <= duration
-    m = max(int(round(0.05 / dt)), 1)  # speed change rate over 50 ms
+    m = max(round(0.05 / dt), 1)  # speed change rate over 50 ms
     if n > m:
         acc = np.zeros(n)
         acc[m:] = np.abs(w[m:] - w[:-m]) / (m * dt)
