@@ -34,7 +34,7 @@ Functions and the simulator.  No file I/O (rigdata does it), no matplotlib.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
@@ -59,6 +59,7 @@ __all__ = [
     "COMPARED_OUTPUT",
     "standby_active",
     "check_run_model",
+    "rig_declared_effects",
     "compared_signals",
     "run_design",
     "run_inputs",
@@ -370,6 +371,29 @@ def standby_active(run: RigRun) -> np.ndarray:
     """1 where the standby channel carries the torque (standby enabled, primary off), else 0."""
     return ((np.asarray(run.signals["standby_enable"]) > 0.5)
             & (np.asarray(run.signals["primary_enable"]) < 0.5)).astype(float)
+
+
+def rig_declared_effects(runs: Sequence[RigRun]) -> dict[str, str]:
+    """Effects the runs' own rig description declares: ``{effect: why}``.
+
+    The run JSON's ``rig`` block describes the hardware, not physics to be
+    found: ``rig.motors = 2`` means a second rotor is carried along (torque
+    summed at the gearbox input), which is the ``standby_motor`` effect.  A
+    run that enables the standby channel needs it too.  Runs that disagree
+    (one says two motors, another one) give nothing: the caller keeps the
+    declared model and :func:`check_run_model` warns per run.
+    """
+    why = []
+    for run in runs:
+        rig = run.metadata.get("rig") if isinstance(run.metadata, dict) else None
+        motors = rig.get("motors") if isinstance(rig, dict) else None
+        if motors == 2:
+            why.append(f"run {run.name!r}: rig.motors = 2")
+        elif np.any(np.asarray(run.signals["standby_enable"]) > 0.5):
+            why.append(f"run {run.name!r}: standby_enable set")
+        else:
+            return {}
+    return {"standby_motor": "; ".join(why)} if why else {}
 
 
 def check_run_model(run: RigRun, plant: Plant, *, mode: str = "closed_loop") -> list[str]:

@@ -153,6 +153,8 @@ def format_trace_summary(doc: dict) -> str:
     """Console / report text: what was added, the ranking, the errors, the signature."""
     lines = [f"declared model: {doc['base_model']} ({', '.join(doc['declared_effects']) or 'functional'}), "
              f"uncertain set fitted: {', '.join(doc['uncertain_parameters'])}"]
+    for e, why in (doc.get("declared_from_runs") or {}).items():
+        lines.append(f"    declared from the runs' rig description: {e} ({why}); hardware, not a finding")
     bc = doc.get("base_corrections")
     if bc:
         lines.append(f"base corrections ({'applied' if bc.get('accepted') else 'not significant'}; held-out chi2 drop "

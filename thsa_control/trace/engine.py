@@ -55,6 +55,7 @@ import numpy as np
 from ..data.rigdata import RigRun, measured_motor_speed
 from ..errors import ThsaError
 from ..fit.identify import IdentificationSettings, estimate_noise
+from ..fit.replay import rig_declared_effects
 from ..data.rigformat import speed_sensor_intervals
 from ..fit.replay import check_run_model
 from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
@@ -144,6 +145,14 @@ class TraceSettings:
         ``reversal``, ``reversal_or_stop``): a declared model of another
         rig's base leaves its largest residual at those transients, and a
         few such held-out segments decided the sign of every drop.
+    rig_hardware : bool
+        Complete the declared model with what the runs' own rig description
+        declares (:func:`~thsa_control.fit.replay.rig_declared_effects`: a
+        JSON ``rig.motors = 2`` is a second rotor carried along, the
+        ``standby_motor`` effect), reported under ``declared_from_runs``.
+        It is hardware, not a finding: without it the model has half the
+        rotor inertia (rig-sim's speed-chirp run: motor-speed error 11.5 rad/s
+        rms instead of 1.7).
     """
 
     segment_duration: float = 0.05
@@ -171,6 +180,7 @@ class TraceSettings:
     #: ``speed_sensors``, else its ``sensors`` text as a reported fallback, else instantaneous)
     speed_sensors: Mapping[str, object] | None = None
     score_outside_transients: bool = True
+    rig_hardware: bool = True
     #: segments start the plant's fast internal modes quasi-static (IdentificationSettings.quasi_static_starts);
     #: None: with the base step (data the declared model may not describe), free otherwise
     quasi_static_starts: bool | None = None
@@ -257,6 +267,13 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     params = params or default_parameters()
     say = progress or (lambda msg: None)
     declared = resolve_effects(level, add=effects, remove=remove)
+    # the hardware the runs describe (a second rotor carried along) is part of the declared model, not a finding
+    from_runs = {e: why for e, why in rig_declared_effects(runs).items()
+                 if e not in declared and e not in remove and st.rig_hardware}
+    if from_runs:
+        declared = resolve_effects(level, add=[*effects, *from_runs], remove=remove)
+        say("declared model completed from the runs' rig description: "
+            + "; ".join(f"{e} ({why})" for e, why in from_runs.items()))
     lvl = (level or "A").upper()
     uncertain = tuple(st.uncertain) if st.uncertain is not None else DEFAULT_UNCERTAIN.get(lvl, DEFAULT_UNCERTAIN["A"])
     base_plant = build_plant(None, declared, params=params)
@@ -601,6 +618,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         "base_model": lvl if level is not None else None,
         "removed_effects": list(remove),
         "declared_effects": list(declared),
+        "declared_from_runs": from_runs,
         "final_effects": list(cur_effects),
         "uncertain_parameters": list(uncertain),
         "base_parameters": {n: v for n, v in first["estimates"].items()},
