@@ -291,3 +291,28 @@ def test_cli_identify_and_residual(record, params, tmp_path, capsys):
     assert "gear.magic" in capsys.readouterr().err and not bad.exists()
     assert main(["residual", str(tmp_path / "none.csv"), "--model", "A", "--out", str(bad)]) == 2
     assert not bad.exists()
+
+
+def test_state_only_jacobian_is_the_full_jacobians_state_columns(record, params):
+    """The Jacobian by the segment states alone (the "before" and held-out state fits) is the full Jacobian's
+    state columns, value for value, and the buffered residuals are casadi's."""
+    import numpy as np
+
+    from thsa_control.fit.replay import current_driven_map
+    from thsa_control.fit.shooting import RunProblem
+
+    run = record("A", params, 1, 2.0)
+    free = FREE["A"]
+    plant = build_plant("A", params=params)
+    s = IdentificationSettings(channels=("motor_speed", "nut_position"), holdout_every=3)
+    pb = RunProblem(run, plant, current_driven_map(plant), params, free, s)
+    nf = len(free)
+    rng = np.random.default_rng(0)
+    z = np.r_[0.05 * rng.standard_normal(nf), pb.initial_decision()]
+    p0, scale, sig = plant.p_vector(params), np.ones(nf), pb.sigma0
+    full = pb.jacobian(z, p0, scale, sig)
+    states = pb.jacobian(z, p0, scale, sig, states_only=True)
+    assert full.shape == (states.shape[0], nf + states.shape[1]) and states.nnz > 0
+    np.testing.assert_array_equal(states.toarray(), full[:, nf:].toarray())
+    np.testing.assert_array_equal(pb.residuals(z, p0, scale, sig), np.asarray(pb.f_res(z, p0, scale, sig)).ravel())
+    np.testing.assert_array_equal(full.toarray(), np.asarray(pb.f_jac(z, p0, scale, sig)[1].full()))

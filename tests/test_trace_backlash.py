@@ -148,3 +148,40 @@ def test_backlash_null_stays_null(stops_record, params, capsys):
     with capsys.disabled():
         print(f"\nbacklash null (level B, trim stops, 2 seeds): added {added}")
     assert all("noback_backlash" not in a for a in added), added
+
+
+def test_compiled_screen_and_track_equal_the_interpreter(stops_record, params):
+    """The screen's compiled one-step loop (a whole grid in one call) and the segments' custom-state track give
+    the interpreter's numbers to the last digit, also where a measured sample is missing (the compiled run
+    stops there and the interpreter, which carries on past it, takes over)."""
+    from thsa_control.fit.replay import current_driven_map, mech_inputs, sample_periods
+    from thsa_control.fit.segment_states import custom_state_track, measured_state_matrix, one_step_map
+
+    run = dataclasses.replace(stops_record("C"), controller=None)
+    plant = build_plant("C", params=params)
+    screen = OneStepScreen([run], plant, params)
+    if screen.loop is None:
+        pytest.skip("no working C compiler: the screen runs in casadi's interpreter only")
+    sets = [params.replace({PITCH: float(v), "noback.pawl_initial_clearance": c})
+            for v in (0.05, 0.1, 0.1496, 0.25) for c in (0.0, 0.5)]
+    _, U, w_next, sigma = screen.parts[0]
+    interpreted = OneStepScreen([run], plant, params)
+    interpreted.parts = [(one_step_map(plant, interpreted._mech, U.shape[1]), U, w_next, sigma)]
+    compiled = screen.chi2_many(sets)
+    assert np.all(np.isfinite(compiled)) and np.ptp(compiled) > 0  # the pitch matters on this record
+    np.testing.assert_array_equal(compiled, interpreted.chi2_many(sets))
+    gap = U.copy()
+    gap[0, U.shape[1] // 2] = np.nan  # a missing measured state: its prediction is not finite
+    screen.parts = [(None, gap, w_next, sigma)]
+    interpreted.parts = [(one_step_map(plant, interpreted._mech, U.shape[1]), gap, w_next, sigma)]
+    np.testing.assert_array_equal(screen.chi2_many(sets), interpreted.chi2_many(sets))
+    # the custom-state track through the compiled loop, against the interpreter's map
+    mech = current_driven_map(plant)
+    X = measured_state_matrix(run, plant, params)
+    V, H, p = mech_inputs(run), sample_periods(run), plant.p_vector(params)
+    track = custom_state_track(plant, mech, X, V, H, p)
+    idx = [i for i, s in enumerate(plant.states) if s.name.startswith("pawl_clearance")]
+    n = X.shape[1]
+    Ufull = np.vstack([X[:, :-1], V[:, :n - 1], np.asarray(H, float)[None, :n - 1]])
+    ref = np.asarray(one_step_map(plant, mech, n - 1)(X[idx, 0], Ufull, p)[0])
+    np.testing.assert_array_equal(track[:, 1:], ref)

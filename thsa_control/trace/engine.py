@@ -171,6 +171,9 @@ class TraceSettings:
     #: ``speed_sensors``, else its ``sensors`` text as a reported fallback, else instantaneous)
     speed_sensors: Mapping[str, object] | None = None
     score_outside_transients: bool = True
+    #: segments start the plant's fast internal modes quasi-static (IdentificationSettings.quasi_static_starts);
+    #: None: with the base step (data the declared model may not describe), free otherwise
+    quasi_static_starts: bool | None = None
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad field."""
@@ -270,12 +273,17 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     noise = {c: float(np.mean([estimate_noise(r.signals[c]) for r in runs if c in r.source_columns]))
              for c in channels}
 
+    # fast internal modes (the surface on a compliant load path) start each segment quasi-static on data the
+    # declared model may not describe (with the base step): free, they rang to absorb the motor-speed mismatch
+    quasi_static = (st.quasi_static_starts if st.quasi_static_starts is not None else
+                    st.base_corrections if st.base_corrections is not None else st.candidates is None)
+
     def id_settings(prior: bool = True, no_prior=(), priors=None) -> IdentificationSettings:
         return IdentificationSettings(no_prior=tuple(no_prior), segment_duration=st.segment_duration, substeps=st.substeps, channels=channels,
                                       noise=noise, max_nfev=st.max_nfev, tolerance=st.tolerance, time_budget=st.fit_time_budget,
                                       prior_relative_sd=st.prior_relative_sd if prior else None,
                                       holdout_every=st.holdout_every, priors=dict(priors or {}) or None,
-                                      quasi_static_starts=True, speed_sensors=st.speed_sensors)
+                                      quasi_static_starts=quasi_static, speed_sensors=st.speed_sensors)
 
     plaus = {k: fn(params, runs) for k, fn in PLAUSIBLE.items()}
     base_priors: dict[str, tuple[float, float]] = {}  # the base corrections' priors (kept in every later fit)
@@ -577,6 +585,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, noise))
     sig_before = _signature(first, runs, ParameterSet.from_toml(first["params_toml"]), base_plant, st.signature, noise)
     sig_after = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, noise)
+    if rounds and "signature_after" not in rounds[-1]:  # a round that added nothing leaves the model as it was
+        rounds[-1]["signature_after"] = _signature_brief(sig_after)
     # unexplained: structure an unmodelled-but-declared base does not leave; a residual above noise with only the
     # regime dependences of a base mismatch (starts, stops, reversals, quadrant) is reported as base-like
     structured, base_like = split_remainder(sig_after)
