@@ -5,7 +5,8 @@ truth files are read by these tests only.
 
 The must-show cases over the whole catalogue (marked ``campaign``: about 2 h on the 2-core machine, one
 trace per run) are not part of the default run; ``python -m pytest -m campaign tests/test_trace_foreign.py``
-runs them.  Cases measured to fail are marked xfail with what was measured.  Each run is traced as a user would (``thsa trace RUN.csv
+runs them (``THSA_TRACED_DIR=DIR`` reads the traces of ``tests/data/rigsim/trace_all.sh DIR`` instead of tracing
+again).  Cases measured to fail are marked xfail with what was measured.  Each run is traced as a user would (``thsa trace RUN.csv
 --model A``: the default candidate pool, so with the base-correction step) once per session and
 shared by the tests.  The base physics of rig-sim is never the declared level A: the base corrections
 (constant-torque explainers, screw efficiencies) and, since the level's ideal no-back differs from
@@ -68,8 +69,22 @@ def traced_result(params):
 
 @pytest.fixture(scope="session")
 def traced(traced_result):
-    """``traced(name)`` -> its trace.json document."""
-    return lambda name: traced_result(name).to_dict()
+    """``traced(name)`` -> its trace.json document.
+
+    With ``THSA_TRACED_DIR`` set, the document of ``thsa trace RUN.csv --model A --out $THSA_TRACED_DIR/RUN`` is
+    read when that folder exists (a campaign traced beforehand, runs in parallel, exactly as a user runs them:
+    ``tests/data/rigsim/trace_all.sh``); every other run is traced here.
+    """
+    import os
+
+    folder = os.environ.get("THSA_TRACED_DIR")
+
+    def _doc(name: str) -> dict:
+        if folder and (Path(folder) / name / "trace.json").is_file():
+            return json.loads((Path(folder) / name / "trace.json").read_text())
+        return traced_result(name).to_dict()
+
+    return _doc
 
 
 def _found(doc: dict) -> list[str]:
