@@ -37,9 +37,15 @@ LIBRARY = {
 }
 #: what the rig and papers bases themselves contain beyond level A (its ideal no-back is no real one)
 BASE_CONTENT = {"noback_quadrant_friction"}
-#: effects a null must never produce: periodic, compliance, backlash, temperature
-INVENTED = {"screw_friction_ripple", "cogging_torque", "drivetrain_compliance", "loadpath_compliance",
-            "noback_backlash", "temperature_friction"}
+#: a compliant load path is in both rig-sim bases too (its README, "Plant structure (common to both bases)": a linear
+#: load path of 1.2e8 N/m between nut and surface, LVDT on the nut), while level A is rigid: on a loaded run the
+#: load-path compliance is base content, found rightly (on the rig-base trim runs: contact stiffness about 7.7e7 N/m
+#: on the loaded side, LVDT window error -58..-74 %), never an invention; it is still a physical effect, so it
+#: must not come before a planted one
+BASE_COMPLIANCE = {"loadpath_compliance"}
+#: effects a null must never produce: periodic, compliance (beyond the bases' own load path), backlash, temperature
+INVENTED = {"screw_friction_ripple", "cogging_torque", "drivetrain_compliance", "noback_backlash",
+            "temperature_friction"}
 
 
 def _truth(name: str) -> dict:
@@ -102,45 +108,41 @@ def _physical(doc: dict) -> list[dict]:
 #: Cases measured to fail on this branch (docs/trace_notes.md, "Still failing"): the assertion stays, the case is
 #: marked with what was measured so that a fix shows as XPASS.
 KNOWN_FAILING = {
-    "rig_screw_ripple": "found first among the physical effects after the base step (the detailed no-back), but its "
-                        "window RMS drop is 25 % outside the base's transients (5 % before the base step)",
-    "rig_temp_friction": "temperature_friction has the largest held-out drop (window drop 53 %) but is refused: its "
-                         "viscous coefficient's standard error (0.020 1/K) is not above its reference magnitude (file "
-                         "0.02), so it counts as determined and 'collapses to zero'; force_offset beyond its base "
-                         "correction (8.9 kN) is added instead, then drivetrain_compliance",
-    "rig_coulomb": "the Coulomb drag sits at its base-correction bound (0.057 N m: truth 0.064 N m at the motor on top "
-                   "of the rig's own drags of about 0.045); beyond it the fit is worse on 27 of 33 held-out segments; "
-                   "a direction drag is added (window drop 6 %)",
-    "rig_axial_offset": "the offset beyond its base correction (-1701 N) improves 49 of 67 held-out segments but its "
-                        "window RMS drop outside the base's transients is 1.9 % (< 5 %): nothing added beyond the base",
-    "rig_direction_friction": "after the base step every base correction is at its bound on this reversal scenario; "
-                              "direction_friction's window RMS drop is 3 % (< 5 %): nothing added",
-    "rig_drivetrain_compliance": "refused: the screw-speed error grows; level A has one rotor where the rig "
-                                 "carries two (JSON rig.motors = 2: half the inertia) and the damping is held at "
-                                 "the file's 20 N m s/rad (rig-sim's 2), so the 47 Hz mode cannot ring",
-    "rig_friction_bump": "not flagged: the nut-position test over passes (2 passes, outside the base's transients) "
-                         "is not significant (p 1.0 at the final fit; 0.22 with its peak bin at 3-5 mm after the base "
-                         "step alone); the held-out residual is 33 x noise, base-like",
+    # measured on the committed runs with this tracer (the standby rotor declared from each run's rig.motors = 2),
+    # `tests/data/rigsim/trace_all.sh DIR` then THSA_TRACED_DIR=DIR; the table is in docs/trace_notes.md
+    "rig_screw_ripple": "screw_friction_ripple found first among the physical effects (after the detailed no-back), "
+                        "its window RMS drop 49 % (< 50 %)",
+    "rig_temp_friction": "nothing added: force_offset and coulomb_friction ambiguous (equal held-out drops); "
+                         "temperature_friction refused, its viscous temperature coefficient 0.00075 1/K (stderr "
+                         "0.0056) 'collapses to zero' although the one-temperature run cannot determine it",
+    "rig_coulomb": "nothing named: the Coulomb base correction takes 0.045 N m (inside its bound); force_offset, "
+                   "direction_friction and loadpath_compliance are ambiguous",
+    "rig_axial_offset": "force_offset is added beyond its base correction, but third (window drop 7 %), after the "
+                        "detailed no-back and the bases' load-path compliance",
+    "rig_direction_friction": "direction_friction is added (window drop 54 %) but second: force_offset beyond its base "
+                              "correction (window drop 6 %) comes first",
+    "rig_drivetrain_compliance": "refused: with the standby rotor declared from the run the compliance's held-out drop "
+                                 "is 509, but the screw-speed error grows by 41 % (the gear damping is held at the "
+                                 "file's 20 N m s/rad, rig-sim's is 2)",
+    "rig_friction_bump": "not flagged: the nut-position test over passes is not significant outside the base's "
+                         "transients; unexplained false (the load-path compliance is added, base content)",
     "rig_loadcell_drift": "not flagged: the slow-drift regression of the missing torque on time is not significant "
-                          "(p 0.99; the load-cell drift biases the load the replay applies)",
-    "rig_kt_temperature": "not flagged: neither the torque-constant (p 0.54) nor the drift regression (p 0.98) is significant "
-                          "on a 10 s run",
+                          "(the load-cell drift biases the load the replay applies)",
+    "rig_kt_temperature": "not flagged: neither the torque-constant nor the drift regression is significant on a "
+                          "10 s run",
     "rig_worn_spot_stiction": "not flagged: the extra breakaway acts at starts and reversals, where the base itself "
-                              "leaves structure (time since reversal p 0.98 at the final fit); nothing invented",
-    "null_papers_bipolar_s3": "force_offset beyond its base correction (8.4 kN on a bipolar tensile ramp, window drop "
-                              "6.5 %) is added after the detailed no-back: the axial force stands for the mismatch "
-                              "of the no-back's aiding-quadrant friction once the inverse efficiency is at its bound",
-    "null_rig_bipolar_s3": "force_offset beyond its base correction (6.7 kN, window drop 5.2 %) after the detailed "
-                           "no-back, as on the papers base",
-    "null_papers_reversals_s2": "force_offset beyond its base correction (-2.1 kN, window drop 19 %) after the "
-                                "detailed no-back",
-    "rig_ratchet_backlash": "found first among the physical effects after the base step (the detailed no-back), "
-                            "with the largest held-out drop of its round, but its window RMS drop is 18 % (LVDT)",
-    "rig_loadpath_backlash": "loadpath_compliance changes nothing on the triangular load sweep (held-out drop 0, "
-                             "window drop 0: the fit stays at its start); nothing added beyond the base step",
-    "rig_loadpath_preload": "the load-path fit cuts the LVDT window error 40 % with x0 = -0.017 mm (truth -0.03) "
-                            "after the no-back, but the motor-speed chi2 (400 x the LVDT's) rises: held-out chi2 "
-                            "drop -3.2e3, not significant",
+                              "leaves structure; nothing invented",
+    "null_papers_bipolar_s3": "force_offset beyond its base correction (window drop 34 %) after the detailed no-back: "
+                              "the papers base's power-flow-dependent efficiencies (gear 0.95/0.90, screw 0.90/0.85) "
+                              "with both screw efficiencies at their correction bounds",
+    "null_papers_reversals_s2": "force_offset (window drop 31 %) and coulomb_friction (43 %) beyond their base "
+                                "corrections after the detailed no-back (papers base, inverse efficiency at its bound)",
+    "null_papers_trim_s1": "force_offset (window drop 24 %) and coulomb_friction (37 %) beyond their base corrections "
+                           "after the detailed no-back (papers base, both screw efficiencies at their bounds)",
+    "rig_ratchet_backlash": "noback_backlash found first among the physical effects after the detailed no-back, its "
+                            "window RMS drop 17 % (LVDT)",
+    "rig_loadpath_preload": "loadpath_compliance found first among the physical effects after the detailed no-back, "
+                            "its window RMS drop 43 % (< 50 %)",
 }
 
 
@@ -210,7 +212,7 @@ def test_nulls_add_only_what_the_base_contains(traced, name):
     doc = traced(name)
     found = set(_found(doc))
     assert not found & INVENTED, doc["rounds"]
-    assert found <= BASE_CONTENT | {e for e in found if CANDIDATES[e].base_correction}, found
+    assert found <= BASE_CONTENT | BASE_COMPLIANCE | {e for e in found if CANDIDATES[e].base_correction}, found
     # a constant-torque effect named beyond its base correction would be a claim the base cannot make
     assert not [e for e in doc["effects_added"] if e.get("beyond_base_correction")], doc["effects_added"]
 
@@ -261,9 +263,10 @@ def test_out_of_library_effect_is_unexplained_with_its_signature(traced, name):
 
 @pytest.mark.campaign
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason="measured with the base step: after the detailed no-back, "
-                                        "screw_friction_ripple is added (window drop 24 %); the Coulomb part sits in "
-                                        "the base correction (0.041 N m, inside its bound) and is not named")
+@pytest.mark.xfail(strict=False, reason="measured: after the detailed no-back, screw_friction_ripple "
+                                        "is added (window drop 59 %), then the load-path compliance; the Coulomb "
+                                        "part is not named (the direct screw efficiency at its lower correction "
+                                        "bound, 0.831, takes the drag)")
 def test_pair_of_library_effects_found_in_the_order_of_what_they_explain(traced):
     """Coulomb friction and screw ripple planted together: both found, the one with the larger held-out drop
     first."""
