@@ -30,8 +30,10 @@ FOREIGN = {
     "kt_temperature": ("motor_current (torque constant)", "time (slow drift)"),
     "worn_spot_stiction": ("nut_position", "time_since_reversal"),
 }
-INVENTED = {"screw_friction_ripple", "cogging_torque", "drivetrain_compliance", "loadpath_compliance",
-            "noback_backlash", "temperature_friction"}
+#: the rig-sim bases' own load path is compliant (1.2e8 N/m) where level A is rigid: base content, as in the tests
+BASE_COMPLIANCE = {"loadpath_compliance"}
+INVENTED = {"screw_friction_ripple", "cogging_torque", "drivetrain_compliance", "noback_backlash",
+            "temperature_friction"}
 
 
 def _at_bound(c: dict) -> bool:
@@ -105,7 +107,7 @@ def main(argv=None) -> int:
                 right += r["windows"].get(want, 0.0) >= 0.5  # the must-show's bar: its window error halves
         if not r["truth"]:
             nulls += 1
-            ok = set(r["found"]) <= {"noback_quadrant_friction"} | EXPLAINERS and not r["beyond"]
+            ok = set(r["found"]) <= {"noback_quadrant_friction"} | BASE_COMPLIANCE | EXPLAINERS and not r["beyond"]
             null_clean += ok
             clean += [r["run"]] if ok else []
         if len(r["truth"]) == 1 and r["truth"][0] in FOREIGN:
