@@ -14,26 +14,16 @@ import json
 import sys
 from pathlib import Path
 
-LIBRARY = {
-    "noback_quadrant": "noback_quadrant_friction", "ratchet_backlash": "noback_backlash",
-    "loadpath_backlash": "loadpath_compliance", "loadpath_preload": "loadpath_compliance",
-    "temp_friction": "temperature_friction", "drivetrain_compliance": "drivetrain_compliance",
-    "coulomb": "coulomb_friction", "direction_friction": "direction_friction", "axial_offset": "force_offset",
-    "screw_ripple": "screw_friction_ripple", "cogging": "cogging_torque",
-}
-EXPLAINERS = {"coulomb_friction", "direction_friction", "force_offset"}
-#: out-of-library effect -> the signature that names it (as tests/test_trace_foreign.py FOREIGN)
-FOREIGN = {
-    "friction_bump": ("nut_position",), "sensor_lag": ("motor_speed vs gear_ratio x screw_speed",),
-    "sensor_gain": ("motor_speed vs gear_ratio x screw_speed",), "loadcell_drift": ("time (slow drift)",),
-    "current_offset": ("motor_current with the drive off",),
-    "kt_temperature": ("motor_current (torque constant)", "time (slow drift)"),
-    "worn_spot_stiction": ("nut_position", "time_since_reversal"),
-}
-#: the rig-sim bases' own load path is compliant (1.2e8 N/m) where level A is rigid: base content, as in the tests
-BASE_COMPLIANCE = {"loadpath_compliance"}
-INVENTED = {"screw_friction_ripple", "cogging_torque", "drivetrain_compliance", "noback_backlash",
-            "temperature_friction"}
+from thsa_control.trace.engine import CANDIDATES
+
+#: the judge's catalogue, shared with tests/test_trace_foreign.py
+CATALOGUE = json.loads((Path(__file__).resolve().parents[1] / "tests" / "data" / "rigsim" / "catalogue.json").read_text())
+LIBRARY = CATALOGUE["library"]
+EXPLAINERS = {n for n, s in CANDIDATES.items() if s.base_correction}
+FOREIGN = {k: tuple(v) for k, v in CATALOGUE["foreign"].items()}
+BASE_CONTENT = set(CATALOGUE["base_content"])
+BASE_COMPLIANCE = set(CATALOGUE["base_compliance"])
+INVENTED = set(CATALOGUE["invented"])
 
 
 def _at_bound(c: dict) -> bool:
@@ -99,15 +89,15 @@ def main(argv=None) -> int:
         if len(r["truth"]) == 1 and r["truth"][0] in LIBRARY:
             lib += 1
             want = LIBRARY[r["truth"][0]]
-            order = r["found"] if want in EXPLAINERS | {"noback_quadrant_friction"} else r["phys"]
+            order = r["found"] if want in EXPLAINERS | BASE_CONTENT else r["phys"]
             if want in EXPLAINERS:
-                order = [x for x in r["found"] if x != "noback_quadrant_friction"]
+                order = [x for x in r["found"] if x not in BASE_CONTENT]
             if order and order[0] == want:
                 first.append(r["run"])
                 right += r["windows"].get(want, 0.0) >= 0.5  # the must-show's bar: its window error halves
         if not r["truth"]:
             nulls += 1
-            ok = set(r["found"]) <= {"noback_quadrant_friction"} | BASE_COMPLIANCE | EXPLAINERS and not r["beyond"]
+            ok = set(r["found"]) <= BASE_CONTENT | BASE_COMPLIANCE | EXPLAINERS and not r["beyond"]
             null_clean += ok
             clean += [r["run"]] if ok else []
         if len(r["truth"]) == 1 and r["truth"][0] in FOREIGN:

@@ -27,25 +27,13 @@ from thsa_control.trace.engine import CANDIDATES
 
 DATA = Path(__file__).resolve().parent / "data" / "rigsim"
 
-#: rig-sim effect -> the library effect that should be named for it
-LIBRARY = {
-    "noback_quadrant": "noback_quadrant_friction", "ratchet_backlash": "noback_backlash",
-    "loadpath_backlash": "loadpath_compliance", "loadpath_preload": "loadpath_compliance",
-    "temp_friction": "temperature_friction", "drivetrain_compliance": "drivetrain_compliance",
-    "coulomb": "coulomb_friction", "direction_friction": "direction_friction", "axial_offset": "force_offset",
-    "screw_ripple": "screw_friction_ripple", "cogging": "cogging_torque",
-}
-#: what the rig and papers bases themselves contain beyond level A (its ideal no-back is no real one)
-BASE_CONTENT = {"noback_quadrant_friction"}
-#: a compliant load path is in both rig-sim bases too (its README, "Plant structure (common to both bases)": a linear
-#: load path of 1.2e8 N/m between nut and surface, LVDT on the nut), while level A is rigid: on a loaded run the
-#: load-path compliance is base content, found rightly (on the rig-base trim runs: contact stiffness about 7.7e7 N/m
-#: on the loaded side, LVDT window error -58..-74 %), never an invention; it is still a physical effect, so it
-#: must not come before a planted one
-BASE_COMPLIANCE = {"loadpath_compliance"}
-#: effects a null must never produce: periodic, compliance (beyond the bases' own load path), backlash, temperature
-INVENTED = {"screw_friction_ripple", "cogging_torque", "drivetrain_compliance", "noback_backlash",
-            "temperature_friction"}
+#: how the results are judged: rig-sim effect -> library effect, what the bases contain, what a null must never
+#: produce, the signatures of the out-of-library effects (one file, shared with bench/trace_rigsim_table.py)
+CATALOGUE = json.loads((DATA / "catalogue.json").read_text())
+LIBRARY = CATALOGUE["library"]
+BASE_CONTENT = set(CATALOGUE["base_content"])
+BASE_COMPLIANCE = set(CATALOGUE["base_compliance"])
+INVENTED = set(CATALOGUE["invented"])
 
 
 def _truth(name: str) -> dict:
@@ -237,15 +225,7 @@ def test_base_step_details_the_declared_no_back(traced, name):
         assert c["bound"][0] - 1e-9 <= c["value"] <= c["bound"][1] + 1e-9 and c["bound_source"], c
 
 
-FOREIGN = {
-    "rig_friction_bump": ("nut_position",),
-    "rig_sensor_lag": ("motor_speed vs gear_ratio x screw_speed",),
-    "rig_sensor_gain": ("motor_speed vs gear_ratio x screw_speed",),
-    "rig_loadcell_drift": ("time (slow drift)",),
-    "rig_current_offset": ("motor_current with the drive off",),
-    "rig_kt_temperature": ("motor_current (torque constant)", "time (slow drift)"),
-    "rig_worn_spot_stiction": ("nut_position", "time_since_reversal"),
-}
+FOREIGN = {f"rig_{k}": tuple(v) for k, v in CATALOGUE["foreign"].items()}
 
 
 @pytest.mark.campaign
