@@ -7,11 +7,10 @@ a linear loop) or the strings ``"inf"`` / ``"-inf"``.  Re-exported by
 
 from __future__ import annotations
 
-import math
-
 from typing import TYPE_CHECKING
 
 from ..loops.catalog import METRICS
+from .results import finite_or_none
 
 if TYPE_CHECKING:  # annotations only
     from ..loops.analysis import DesignAnalysis
@@ -27,14 +26,7 @@ ANALYSIS_FORMAT = "thsa-analysis/1"
 # ----------------------------------------------------------------------------------------------------------------
 def _num(x):
     """A JSON-safe number: finite float, None for nan, 'inf' / '-inf'."""
-    if x is None:
-        return None
-    x = float(x)
-    if math.isnan(x):
-        return None
-    if math.isinf(x):
-        return "inf" if x > 0 else "-inf"
-    return x
+    return None if x is None else finite_or_none(float(x))
 
 
 def _cond(c) -> dict:
