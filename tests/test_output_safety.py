@@ -243,3 +243,22 @@ def test_trace_refuses_before_fitting(own_run, tmp_path, capsys, monkeypatch):
     assert main(["trace", str(run), "--model", "A", "--quiet", "--out", str(own_run), "--force"]) == 2
     assert "holds the input file" in capsys.readouterr().err
     assert (d / "thesis.tex").read_text() == "two years of work" and run.is_file()
+
+
+def test_atomic_write_file_keeps_the_old_file_on_failure(tmp_path):
+    """A writer that fails leaves the target as it was and no temporary file beside it."""
+    from thsa_control.data.atomic import atomic_write_file
+
+    target = tmp_path / "table.csv"
+    atomic_write_file(target, lambda fh: fh.write("old\n"), text=True)
+
+    def broken(fh):
+        fh.write("half")
+        raise RuntimeError("writer failed")
+
+    with pytest.raises(RuntimeError, match="writer failed"):
+        atomic_write_file(target, broken, text=True)
+    assert target.read_text() == "old\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["table.csv"]
+    atomic_write_file(target, lambda fh: fh.write(b"\x00new"))
+    assert target.read_bytes() == b"\x00new"

@@ -25,11 +25,12 @@ from __future__ import annotations
 
 import os
 import re
-import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
+
+from .atomic import atomic_write_file
 
 __all__ = ["MAT_FORMAT", "plant_units", "linear_model_to_mat", "statespace_to_mat", "simulation_to_mat", "write_mat", "read_mat"]
 
@@ -133,16 +134,8 @@ def write_mat(path: str | os.PathLike, data: Mapping) -> Path:
     if target.suffix != ".mat":
         target = target.with_name(target.name + ".mat")
     target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            savemat(fh, dict(data), format="5", long_field_names=True, do_compression=True, oned_as="column")
-        os.replace(tmp, target)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return target
+    return atomic_write_file(target, lambda fh: savemat(fh, dict(data), format="5", long_field_names=True,
+                                                         do_compression=True, oned_as="column"))
 
 
 def read_mat(path: str | os.PathLike) -> dict:

@@ -35,7 +35,6 @@ import io
 import math
 import os
 import re
-import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,6 +46,7 @@ from numpy.typing import NDArray
 from thsa_control.errors import ModelError, ParameterError, RigDataError
 from thsa_control.model.laws import LAWS
 from thsa_control.model.params import ParameterSet, default_parameters
+from thsa_control.data.atomic import atomic_write_file
 from thsa_control.data.units import mm_to_m, rpm_to_rad_s
 
 __all__ = [
@@ -461,15 +461,7 @@ def write_component_table(path: str | os.PathLike, table: ComponentTable, *,
     cols = [table.columns[c] for c in names]
     for i in range(table.n_rows):
         w.writerow([f"{c[i]:.10g}" if c.dtype.kind == "f" else str(c[i]) for c in cols])
-    fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(buf.getvalue())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return atomic_write_file(path, lambda fh: fh.write(buf.getvalue()), text=True)
 
 
 def generate_component_table(kind: str, params: ParameterSet | None = None, *, noise: float,
