@@ -124,6 +124,9 @@ def plot_signature(sig: dict):
         c = curves["nut_position"]
         ax.errorbar(1e3 * np.asarray(c["centre"]), c["mean"], yerr=np.asarray(c["sd"]) / np.sqrt(np.maximum(c["count"], 1)),
                     fmt="o-", ms=3, lw=0.8)
+    else:  # trace.residual bins the nut position only over a travel of at least two bins
+        ax.text(0.5, 0.5, "not binned: the nut travel of these runs\nis shorter than two position bins",
+                ha="center", va="center", transform=ax.transAxes, fontsize=9, color="0.35")
     ax.axhline(0, color="0.5", lw=0.5)
     ax.set_xlabel("nut position [mm]")
     ax.set_ylabel("missing torque [N m]")
