@@ -373,6 +373,17 @@ def standby_active(run: RigRun) -> np.ndarray:
             & (np.asarray(run.signals["primary_enable"]) < 0.5)).astype(float)
 
 
+def _rig_motors(run: RigRun):
+    """The motor count the run JSON's ``rig`` block gives (None when it gives none)."""
+    rig = run.metadata.get("rig") if isinstance(run.metadata, dict) else None
+    return rig.get("motors") if isinstance(rig, dict) else None
+
+
+def _standby_enabled(run: RigRun) -> bool:
+    """Whether the run enables the standby channel at any sample."""
+    return bool(np.any(np.asarray(run.signals["standby_enable"]) > 0.5))
+
+
 def rig_declared_effects(runs: Sequence[RigRun]) -> dict[str, str]:
     """Effects the runs' own rig description declares: ``{effect: why}``.
 
@@ -385,11 +396,9 @@ def rig_declared_effects(runs: Sequence[RigRun]) -> dict[str, str]:
     """
     why = []
     for run in runs:
-        rig = run.metadata.get("rig") if isinstance(run.metadata, dict) else None
-        motors = rig.get("motors") if isinstance(rig, dict) else None
-        if motors == 2:
+        if _rig_motors(run) == 2:
             why.append(f"run {run.name!r}: rig.motors = 2")
-        elif np.any(np.asarray(run.signals["standby_enable"]) > 0.5):
+        elif _standby_enabled(run):
             why.append(f"run {run.name!r}: standby_enable set")
         else:
             return {}
@@ -412,10 +421,8 @@ def check_run_model(run: RigRun, plant: Plant, *, mode: str = "closed_loop") -> 
     """
     from ..errors import ModelError
 
-    uses_standby = bool(np.any(np.asarray(run.signals["standby_enable"]) > 0.5))
-    rig = run.metadata.get("rig") if isinstance(run.metadata, dict) else None
-    motors = rig.get("motors") if isinstance(rig, dict) else None
-    if not uses_standby and motors == 2 and "standby_motor" not in plant.effects:
+    uses_standby = _standby_enabled(run)
+    if not uses_standby and _rig_motors(run) == 2 and "standby_motor" not in plant.effects:
         # the run JSON's rig block (as this project writes it) says a second rotor is carried along: without it
         # the model has half the rotor inertia (rig-sim's speed-chirp run: motor-speed error 11.5 -> 1.8 rad/s
         # rms with it)

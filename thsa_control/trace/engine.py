@@ -269,7 +269,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     declared = resolve_effects(level, add=effects, remove=remove)
     # the hardware the runs describe (a second rotor carried along) is part of the declared model, not a finding
     from_runs = {e: why for e, why in rig_declared_effects(runs).items()
-                 if e not in declared and e not in remove and st.rig_hardware}
+                 if e not in declared and e not in remove} if st.rig_hardware else {}
     if from_runs:
         declared = resolve_effects(level, add=[*effects, *from_runs], remove=remove)
         say("declared model completed from the runs' rig description: "
