@@ -558,6 +558,17 @@ class Identifier:
         cov_d = cov_all[:nf, :nf] * (n_data / dof)
         cov = cov_d * np.outer(scale, scale)
         sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+        if prior_w is not None:
+            # what the runs alone say: the Fisher information without the priors' rows (the last nf rows);
+            # a parameter determined only through a prior on another (a product of two at one operating
+            # point) has no information of its own here
+            Jd = J[:J.shape[0] - nf]
+            JTJd = Jd.T @ Jd
+            cov_dd, unresolved_d = collinearity_safe_inverse(JTJd.toarray() if hasattr(JTJd, "toarray") else JTJd)
+            sd_data = np.sqrt(np.clip(np.diag(cov_dd[:nf, :nf]) * (n_data / dof), 0, None)) * scale
+            sd_data = np.where(unresolved_d[:nf], math.inf, sd_data)
+        else:
+            sd_data = np.where(unresolved[:nf], math.inf, sd)
         with np.errstate(invalid="ignore", divide="ignore"):
             corr = cov / np.outer(sd, sd)
         corr[~np.isfinite(corr)] = np.nan
@@ -571,7 +582,7 @@ class Identifier:
             stderr = float(sd[k]) if not unresolved[k] else math.inf
             at_init = bool(st.max_nfev > 0 and abs(values[k] - par.value) <= 1e-6 * scale[k])
             estimates[n] = ParameterEstimate(n, par.unit, float(values[k]), stderr, par.value, par.min, par.max,
-                                             at_bound, at_init)
+                                             at_bound, at_init, float(sd_data[k]))
         high = []
         for i in range(nf):
             for j in range(i + 1, nf):

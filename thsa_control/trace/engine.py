@@ -127,11 +127,17 @@ class TraceSettings:
         :data:`PLAUSIBLE`), reported as base corrections, not as found
         effects.  None: on when the candidates are the default pool (a named
         candidate list is scored as effects only, as before).
-    undetermined_relative_stderr : float
-        A candidate's parameter whose standard error exceeds this multiple of
-        its reference magnitude (file value, seed or plausible bound), or is
-        undetermined, is not determined by the run: it is held at its file
+    determination_z : float
+        One test decides both identifiability and "collapses to zero"
+        (:func:`~thsa_control.trace.scoring.determination`): with the
+        standard error the runs alone give (the priors on the declared and
+        base-correction parameters left out of the Fisher information), a
+        candidate's parameter whose estimate is within ``z`` standard errors
+        of zero *and* of its reference magnitude (file value, seed or
+        plausible bound) is not determined by the run: held at its file
         value, the candidate refitted and judged on what the others explain.
+        Within ``z`` of zero but not of its reference magnitude, it collapses
+        to zero (implausible).  2: the two-sided 95 % normal quantile (1.96).
     window_tolerance : float
         A significant physical effect whose window RMS drop is within this of
         the best constant-torque explainer's comes before it
@@ -173,7 +179,7 @@ class TraceSettings:
     seed: int = 0
     signature: SignatureSettings = field(default_factory=SignatureSettings)
     base_corrections: bool | None = None
-    undetermined_relative_stderr: float = 1.0
+    determination_z: float = 2.0
     window_tolerance: float = 0.01
     #: how the speed sensors read, over each run's declaration (IdentificationSettings.speed_sensors): channel
     #: -> difference interval [s], "sample" or "instantaneous"; None: each run's own (its JSON's
@@ -319,7 +325,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         return {"label": label, "effects": tuple(effs), "free": tuple(free), "params_toml": pset.to_toml(),
                 "settings": id_settings(prior, [n for n in free if n not in uncertain and n not in pri], pri),
                 "runs": data, "profile": dict(profile or {}), "judge": judge,
-                "hold_at": {n: (pset.value(n) if spec is not None and spec.start else params.value(n)) for n in judge}, "relative_stderr": st.undetermined_relative_stderr}
+                "hold_at": {n: (pset.value(n) if spec is not None and spec.start else params.value(n)) for n in judge}, "determination_z": st.determination_z}
 
     for r in runs:
         for w in check_run_model(r, base_plant, mode="open_loop"):

@@ -46,7 +46,7 @@ def _fit_job(job: dict) -> dict:
         else:
             ident = Identifier(None, params, job["free"], effects=job["effects"], settings=job["settings"])
             res = ident.fit(job["runs"])
-            held = _undetermined(res, job.get("judge") or {}, job.get("relative_stderr", 1.0))
+            held = _undetermined(res, job.get("judge") or {}, job.get("determination_z", 2.0))
             if held and len(held) < len(job.get("judge") or {}):
                 # identifiability before plausibility: hold what the run does not determine at its file
                 # value and judge the candidate on what the others explain
@@ -63,7 +63,8 @@ def _fit_job(job: dict) -> dict:
                     h["held_at"] = None  # nothing determined: the candidate is judged as such
     except (ThsaError, ValueError, RuntimeError) as exc:  # casadi raises RuntimeError
         return {"label": job["label"], "error": str(exc), "time_s": time.perf_counter() - t0}
-    est = {n: {"value": e.value, "stderr": e.stderr if math.isfinite(e.stderr) else None, "init": e.init,
+    est = {n: {"value": e.value, "stderr": e.stderr if math.isfinite(e.stderr) else None,
+               "stderr_data": _data_stderr(e), "init": e.init,
                "at_bound": e.at_bound, "min": e.min, "max": e.max, "unit": e.unit}
            for n, e in res.estimates.items()}
     if prof is not None:  # profiled: a value with an interval from the profile, no stderr
@@ -81,6 +82,10 @@ def _fit_job(job: dict) -> dict:
                           "max": e.max, "unit": e.unit, "held": True, "undetermined": h}
             elif n in est:
                 est[n]["undetermined"] = h
+        for n, ref in (job.get("judge") or {}).items():  # the one rule, on the final fit's free parameters
+            if n in est and not est[n].get("held") and "undetermined" not in est[n]:
+                est[n]["determination"] = determination(est[n]["value"], est[n]["stderr_data"], ref,
+                                                        job.get("determination_z", 2.0))
     return {"label": job["label"], "effects": list(res.effects), "free": list(job["free"]), "estimates": est,
             "held": {n: h for n, h in held.items() if h.get("held_at") is not None},
             "aic": res.aic, "bic": res.bic, "chisqr": res.chisqr, "nfev": res.nfev, "converged": res.converged,
@@ -89,28 +94,53 @@ def _fit_job(job: dict) -> dict:
             "params_toml": res.to_parameter_set().to_toml(), "profile": prof.to_dict() if prof is not None else None}
 
 
-def _undetermined(res, judge: Mapping[str, float], rel: float) -> dict:
-    """Parameters of ``judge`` (name -> reference magnitude) the fit does not determine.
+def _data_stderr(e) -> float | None:
+    """The standard error the runs alone give (priors left out); the posterior one where that was not
+    computed; None where infinite (no information of its own)."""
+    sd = e.stderr if math.isnan(e.stderr_data) else e.stderr_data
+    return float(sd) if math.isfinite(sd) else None
 
-    Not determined: an infinite standard error (a null direction of the
-    Fisher information: the run has no information on it, or only together
-    with another parameter), or one larger than ``rel`` times the parameter's
-    reference magnitude (the run cannot tell the value from zero nor from
-    twice its size).  A parameter so determined that it collapses to zero is
-    not here: that is a verdict on the effect (:func:`_plausibility`).
+
+def determination(value: float, sd: float | None, ref: float, z: float) -> str:
+    """What the run says of one parameter of a candidate: ``"not determined"``, ``"zero"`` or ``"determined"``.
+
+    One test at ``z`` standard errors (``sd``: from the runs alone, :func:`_data_stderr`) against the two values
+    that matter: zero (the effect absent) and the reference magnitude ``ref`` (the file value, seed or plausible
+    bound: the effect at its expected size).  Both within ``z`` sd (or no information, ``sd`` None): the run
+    cannot tell them apart, the parameter is not determined (held, not judged).  Zero within, the reference
+    not: the data determine it and it collapses to zero (a verdict on the effect).  Zero outside: determined.
+    """
+    if sd is None:
+        return "not determined"
+    near_zero = abs(value) < z * sd
+    if not near_zero:
+        return "determined"
+    return "not determined" if abs(abs(value) - ref) < z * sd else "zero"
+
+
+def _undetermined(res, judge: Mapping[str, float], z: float) -> dict:
+    """Parameters of ``judge`` (name -> reference magnitude) the fit does not determine (:func:`determination`).
+
+    The information is the runs' own: a prior on a declared parameter is no information on a candidate's, and
+    through a correlation it would lend one (at one temperature the viscous temperature coefficient is known
+    only as a product with the declared viscous friction, whose 10 % prior then "determined" it to 0.0056 1/K
+    and its estimate near zero read as "collapses to zero").  Not determined: a null direction of the runs'
+    Fisher information (infinite standard error), or an estimate the run cannot tell from zero nor from its
+    reference magnitude.
     """
     out = {}
     for n, ref in judge.items():
         e = res.estimates.get(n)
         if e is None:
             continue
-        sd = e.stderr
-        if not math.isfinite(sd):
+        sd = _data_stderr(e)
+        if sd is None:
             out[n] = {"reason": "undetermined standard error (no information in this run, or only together with "
                                 "another parameter)", "value_if_free": e.value, "stderr_if_free": None}
-        elif sd > rel * ref:
-            out[n] = {"reason": f"standard error {sd:.3g} {e.unit} exceeds {rel:g} x its reference magnitude "
-                                f"{ref:.3g} {e.unit}", "value_if_free": e.value, "stderr_if_free": sd}
+        elif determination(e.value, sd, ref, z) == "not determined":
+            out[n] = {"reason": f"{e.value:.3g} {e.unit} with a standard error of {sd:.3g} {e.unit} from the run alone: "
+                                f"within {z:g} of both zero and its reference magnitude {ref:.3g} {e.unit}",
+                      "value_if_free": e.value, "stderr_if_free": sd}
     return out
 
 
@@ -246,17 +276,20 @@ def _plausibility(fit: dict, spec: CandidateSpec, plaus: Mapping | None = None) 
     for n, e in est:
         if e["at_bound"]:
             why.append(f"{n} at its {e['at_bound']} bound")
-        sd = e["stderr"]
-        if sd is None:
+        # a candidate's own parameter: judged on the runs' own information (:func:`determination`); a lifted base
+        # correction (no reference magnitude of its own) on its posterior standard error, as before
+        verdict = e.get("determination")
+        sd = e.get("stderr_data") if verdict else e["stderr"]
+        if sd is None or verdict == "not determined":
             continue
         determined += 1
-        if not pairs and abs(e["value"]) < 2 * sd:
-            why.append(f"{n} = {e['value']:.3g} collapses to zero (stderr {sd:.2g})")
+        if not pairs and (verdict == "zero" if verdict else abs(e["value"]) < 2 * sd):
+            why.append(f"{n} = {e['value']:.3g} collapses to zero (stderr {sd:.2g} from the run alone)")
     if pairs and len(est) == 2:
         (_, a), (_, b) = est
         amp = math.hypot(a["value"], b["value"])
-        sd = math.hypot(a["stderr"] if a["stderr"] is not None else math.inf,
-                        b["stderr"] if b["stderr"] is not None else math.inf)
+        sa, sb = (x.get("stderr_data") if x.get("determination") else x["stderr"] for x in (a, b))
+        sd = math.hypot(sa if sa is not None else math.inf, sb if sb is not None else math.inf)
         if not amp > 2 * sd:
             why.append(f"amplitude {amp:.3g} collapses to zero (stderr {sd:.2g})")
     if (est or spec.profile) and determined == 0 and not any("determined" in w for w in why):
@@ -269,7 +302,8 @@ def _param_entry(e: dict) -> dict:
     ci = [e["value"] - 1.96 * sd, e["value"] + 1.96 * sd] if sd is not None else e.get("interval")
     return {"value": e["value"], "stderr": sd, "unit": e["unit"], "ci95": list(ci) if ci else None,
             "at_bound": e["at_bound"], **({"profiled": True} if e.get("profiled") else {}),
-            **({"held": True} if e.get("held") else {})}
+            **({"held": True} if e.get("held") else {}),
+            **({"stderr_data": e["stderr_data"]} if "stderr_data" in e and not e.get("held") else {})}
 
 
 def _held_out(fit: dict) -> list[dict]:
