@@ -558,11 +558,15 @@ class Identifier:
         cov_d = cov_all[:nf, :nf] * (n_data / dof)
         cov = cov_d * np.outer(scale, scale)
         sd = np.sqrt(np.clip(np.diag(cov), 0, None))
-        if prior_w is not None:
-            # what the runs alone say: the Fisher information without the priors' rows (the last nf rows);
-            # a parameter determined only through a prior on another (a product of two at one operating
-            # point) has no information of its own here
-            Jd = J[:J.shape[0] - nf]
+        regularising = [k for k, n in enumerate(self.free) if n in priors and n not in (st.priors or {})]
+        if regularising:
+            # what the runs say (with the explicit priors, external knowledge such as a catalogue spread): the
+            # Fisher information without the regularising priors' rows (prior_relative_sd around the initial
+            # values, which on a refit are this run's own estimates); a parameter determined only through
+            # such a prior on another (a product of two at one operating point) has no information here
+            keep = np.ones(J.shape[0], bool)
+            keep[J.shape[0] - nf + np.asarray(regularising)] = False
+            Jd = J[np.flatnonzero(keep)]
             JTJd = Jd.T @ Jd
             cov_dd, unresolved_d = collinearity_safe_inverse(JTJd.toarray() if hasattr(JTJd, "toarray") else JTJd)
             sd_data = np.sqrt(np.clip(np.diag(cov_dd[:nf, :nf]) * (n_data / dof), 0, None)) * scale

@@ -60,9 +60,11 @@ class ParameterEstimate:
     at_initial : bool
         The estimate did not move from its initial value.
     stderr_data : float
-        Standard error [SI] from the runs' information alone (the priors' rows left out of the
-        Fisher information): inf where only a prior determines the parameter, or only together with
-        another parameter.  ``stderr`` is the posterior one (with the priors); nan where not computed.
+        Standard error [SI] from the runs' information and the explicit priors (external knowledge,
+        ``IdentificationSettings.priors``), the regularising priors (``prior_relative_sd`` around the
+        initial values) left out of the Fisher information: inf where only such a prior determines the
+        parameter, or only together with another parameter.  ``stderr`` is the posterior one (with
+        every prior); nan where not computed.
     """
 
     name: str

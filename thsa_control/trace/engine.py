@@ -67,7 +67,7 @@ from .residual import _regime_errors, _signature
 from .scoring import (_base_correction, _channel_errors, _chi2_by_channel, _explainers_at_bound, _held_out,
                       _holdout_segment_changes,
                       _held_params, _null_runs, _param_entry, _plausibility, _rms_by_channel, _run_jobs,
-                      _signature_brief)
+                      _signature_brief, zero_is_absent)
 from .signature import SignatureSettings, base_transients, split_remainder
 from .threads import limit_blas_threads
 
@@ -130,14 +130,18 @@ class TraceSettings:
     determination_z : float
         One test decides both identifiability and "collapses to zero"
         (:func:`~thsa_control.trace.scoring.determination`): with the
-        standard error the runs alone give (the priors on the declared and
-        base-correction parameters left out of the Fisher information), a
+        standard error the runs give (with the base corrections' priors, plausible
+        magnitudes with a source, but without the regularising priors around the
+        declared parameters' current values: :attr:`ParameterEstimate.stderr_data`), a
         candidate's parameter whose estimate is within ``z`` standard errors
         of zero *and* of its reference magnitude (file value, seed or
         plausible bound) is not determined by the run: held at its file
         value, the candidate refitted and judged on what the others explain.
         Within ``z`` of zero but not of its reference magnitude, it collapses
         to zero (implausible).  2: the two-sided 95 % normal quantile (1.96).
+        Both tests only where zero is the effect's neutral value; a stiffness,
+        a damping or a signed free play is not determined when its standard
+        error exceeds its reference magnitude, and never "collapses".
     window_tolerance : float
         A significant physical effect whose window RMS drop is within this of
         the best constant-torque explainer's comes before it
@@ -325,7 +329,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         return {"label": label, "effects": tuple(effs), "free": tuple(free), "params_toml": pset.to_toml(),
                 "settings": id_settings(prior, [n for n in free if n not in uncertain and n not in pri], pri),
                 "runs": data, "profile": dict(profile or {}), "judge": judge,
-                "hold_at": {n: (pset.value(n) if spec is not None and spec.start else params.value(n)) for n in judge}, "determination_z": st.determination_z}
+                "hold_at": {n: (pset.value(n) if spec is not None and spec.start else params.value(n)) for n in judge}, "determination_z": st.determination_z,
+                "absent": {n: zero_is_absent(spec.name, n) for n in judge}}
 
     for r in runs:
         for w in check_run_model(r, base_plant, mode="open_loop"):

@@ -46,7 +46,7 @@ def _fit_job(job: dict) -> dict:
         else:
             ident = Identifier(None, params, job["free"], effects=job["effects"], settings=job["settings"])
             res = ident.fit(job["runs"])
-            held = _undetermined(res, job.get("judge") or {}, job.get("determination_z", 2.0))
+            held = _undetermined(res, job.get("judge") or {}, job.get("determination_z", 2.0), job.get("absent"))
             if held and len(held) < len(job.get("judge") or {}):
                 # identifiability before plausibility: hold what the run does not determine at its file
                 # value and judge the candidate on what the others explain
@@ -85,7 +85,8 @@ def _fit_job(job: dict) -> dict:
         for n, ref in (job.get("judge") or {}).items():  # the one rule, on the final fit's free parameters
             if n in est and not est[n].get("held") and "undetermined" not in est[n]:
                 est[n]["determination"] = determination(est[n]["value"], est[n]["stderr_data"], ref,
-                                                        job.get("determination_z", 2.0))
+                                                        job.get("determination_z", 2.0),
+                                                        (job.get("absent") or {}).get(n, True))
     return {"label": job["label"], "effects": list(res.effects), "free": list(job["free"]), "estimates": est,
             "held": {n: h for n, h in held.items() if h.get("held_at") is not None},
             "aic": res.aic, "bic": res.bic, "chisqr": res.chisqr, "nfev": res.nfev, "converged": res.converged,
@@ -95,36 +96,54 @@ def _fit_job(job: dict) -> dict:
 
 
 def _data_stderr(e) -> float | None:
-    """The standard error the runs alone give (priors left out); the posterior one where that was not
-    computed; None where infinite (no information of its own)."""
+    """The standard error the runs and the explicit priors give (the regularising priors left out,
+    :attr:`~thsa_control.fit.identify_result.ParameterEstimate.stderr_data`); the posterior one where that was
+    not computed; None where infinite (no information of its own)."""
     sd = e.stderr if math.isnan(e.stderr_data) else e.stderr_data
     return float(sd) if math.isfinite(sd) else None
 
 
-def determination(value: float, sd: float | None, ref: float, z: float) -> str:
+def determination(value: float, sd: float | None, ref: float, z: float, zero_is_absent: bool = True) -> str:
     """What the run says of one parameter of a candidate: ``"not determined"``, ``"zero"`` or ``"determined"``.
 
-    One test at ``z`` standard errors (``sd``: from the runs alone, :func:`_data_stderr`) against the two values
-    that matter: zero (the effect absent) and the reference magnitude ``ref`` (the file value, seed or plausible
-    bound: the effect at its expected size).  Both within ``z`` sd (or no information, ``sd`` None): the run
-    cannot tell them apart, the parameter is not determined (held, not judged).  Zero within, the reference
-    not: the data determine it and it collapses to zero (a verdict on the effect).  Zero outside: determined.
+    ``sd``: the standard error from the runs (:func:`_data_stderr`), None where infinite.  For a parameter
+    whose zero is the effect's neutral value (``zero_is_absent``: a friction torque, a coefficient), one test at
+    ``z`` standard errors against the two values that matter: zero (the effect absent) and the reference
+    magnitude ``ref`` (file value, seed or plausible bound: the effect at its expected size).  Both within ``z``
+    sd: the run cannot tell them apart, the parameter is not determined (held, not judged).  Zero within, the
+    reference not: the data determine it, and it collapses to zero (a verdict on the effect).  Zero outside:
+    determined.  For another parameter (a stiffness, whose absence is at infinity; a damping or a signed free
+    play, for which zero is a value like another) there is no absence to test: not determined when the
+    standard error exceeds the reference magnitude (the run cannot tell the value from zero nor from twice
+    its size), else determined.
     """
     if sd is None:
         return "not determined"
-    near_zero = abs(value) < z * sd
-    if not near_zero:
+    if not zero_is_absent:
+        return "not determined" if sd > ref else "determined"
+    if abs(value) >= z * sd:
         return "determined"
     return "not determined" if abs(abs(value) - ref) < z * sd else "zero"
 
 
-def _undetermined(res, judge: Mapping[str, float], z: float) -> dict:
+def zero_is_absent(effect: str, name: str) -> bool:
+    """Zero of ``name`` removes ``effect`` (its neutral value; a non-registered explainer: yes)."""
+    if effect not in EFFECTS:
+        return True
+    neutral = EFFECTS[effect].neutral
+    return isinstance(neutral, Mapping) and neutral.get(name) == 0.0
+
+
+def _undetermined(res, judge: Mapping[str, float], z: float, absent: Mapping[str, bool] | None = None) -> dict:
     """Parameters of ``judge`` (name -> reference magnitude) the fit does not determine (:func:`determination`).
 
-    The information is the runs' own: a prior on a declared parameter is no information on a candidate's, and
-    through a correlation it would lend one (at one temperature the viscous temperature coefficient is known
-    only as a product with the declared viscous friction, whose 10 % prior then "determined" it to 0.0056 1/K
-    and its estimate near zero read as "collapses to zero").  Not determined: a null direction of the runs'
+    The information is the runs' own plus the base corrections' explicit priors (plausible magnitudes with a
+    source: the no-back's loaded-disk coefficient and the inverse efficiency are the same torque at one load,
+    the catalogue spread of the efficiency splits them).  The regularising prior on a declared parameter
+    (10 % around its current value, this run's own estimate) is no information on a candidate's, and through a
+    correlation it would lend one: at one temperature the viscous temperature coefficient is known only as a
+    product with the declared viscous friction, whose prior then "determined" it to 0.0056 1/K, and its
+    estimate near zero read as "collapses to zero".  Not determined: a null direction of the runs'
     Fisher information (infinite standard error), or an estimate the run cannot tell from zero nor from its
     reference magnitude.
     """
@@ -137,10 +156,11 @@ def _undetermined(res, judge: Mapping[str, float], z: float) -> dict:
         if sd is None:
             out[n] = {"reason": "undetermined standard error (no information in this run, or only together with "
                                 "another parameter)", "value_if_free": e.value, "stderr_if_free": None}
-        elif determination(e.value, sd, ref, z) == "not determined":
-            out[n] = {"reason": f"{e.value:.3g} {e.unit} with a standard error of {sd:.3g} {e.unit} from the run alone: "
-                                f"within {z:g} of both zero and its reference magnitude {ref:.3g} {e.unit}",
-                      "value_if_free": e.value, "stderr_if_free": sd}
+        elif determination(e.value, sd, ref, z, (absent or {}).get(n, True)) == "not determined":
+            why = (f"within {z:g} standard errors of both zero and its reference magnitude {ref:.3g} {e.unit}"
+                   if (absent or {}).get(n, True) else f"larger than its reference magnitude {ref:.3g} {e.unit}")
+            out[n] = {"reason": f"{e.value:.3g} {e.unit} with a standard error of {sd:.3g} {e.unit} from the run "
+                                f"alone: {why}", "value_if_free": e.value, "stderr_if_free": sd}
     return out
 
 
@@ -273,7 +293,12 @@ def _plausibility(fit: dict, spec: CandidateSpec, plaus: Mapping | None = None) 
         elif e["interval"] is not None:
             determined += 1
     pairs = spec.name in ("screw_friction_ripple", "cogging_torque")
+    # "collapses to zero" says the effect is absent: only for a parameter whose zero is the effect's neutral value
+    # (a friction torque, a coefficient); a compliance's damping or a signed free play at zero still leaves the
+    # effect there (its neutral is none: NoNeutral), so there zero is a value like another
     for n, e in est:
+        if e.get("undetermined"):  # nothing determined: said once above ("no parameter determined by the run")
+            continue
         if e["at_bound"]:
             why.append(f"{n} at its {e['at_bound']} bound")
         # a candidate's own parameter: judged on the runs' own information (:func:`determination`); a lifted base
@@ -283,8 +308,8 @@ def _plausibility(fit: dict, spec: CandidateSpec, plaus: Mapping | None = None) 
         if sd is None or verdict == "not determined":
             continue
         determined += 1
-        if not pairs and (verdict == "zero" if verdict else abs(e["value"]) < 2 * sd):
-            why.append(f"{n} = {e['value']:.3g} collapses to zero (stderr {sd:.2g} from the run alone)")
+        if not pairs and zero_is_absent(spec.name, n) and (verdict == "zero" if verdict else abs(e["value"]) < 2 * sd):
+            why.append(f"{n} = {e['value']:.3g} collapses to zero (stderr {sd:.2g} from the run)")
     if pairs and len(est) == 2:
         (_, a), (_, b) = est
         amp = math.hypot(a["value"], b["value"])
