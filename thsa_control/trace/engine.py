@@ -320,16 +320,18 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         pri = {n: v for n, v in base_priors.items() if n in free and n not in lift}
         judge = {}
         if spec is not None and not profile:
-            for n in spec.free:
+            for n in spec.free + spec.second_stage:
                 if n in uncertain or n in base_priors:
                     continue
                 ref = max(abs(params.value(n)), abs(spec.seeds.get(n, 0.0)),
                           plaus[spec.plausible[n]][0] if n in spec.plausible else 0.0)
                 judge[n] = ref if ref > 0 else 0.01 * (params[n].max - params[n].min)
         return {"label": label, "effects": tuple(effs), "free": tuple(free), "params_toml": pset.to_toml(),
-                "settings": id_settings(prior, [n for n in free if n not in uncertain and n not in pri], pri),
+                "settings": id_settings(prior, [n for n in free + (spec.second_stage if spec is not None else ())
+                                                if n not in uncertain and n not in pri], pri),
                 "runs": data, "profile": dict(profile or {}), "judge": judge,
                 "hold_at": {n: (pset.value(n) if spec is not None and spec.start else params.value(n)) for n in judge}, "determination_z": st.determination_z,
+                "second_stage": tuple(spec.second_stage) if spec is not None and not profile else (),
                 "absent": {n: zero_is_absent(spec.name, n) for n in judge}}
 
     for r in runs:

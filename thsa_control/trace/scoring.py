@@ -46,8 +46,9 @@ def _fit_job(job: dict) -> dict:
         else:
             ident = Identifier(None, params, job["free"], effects=job["effects"], settings=job["settings"])
             res = ident.fit(job["runs"])
-            held = _undetermined(res, job.get("judge") or {}, job.get("determination_z", 2.0), job.get("absent"))
-            if held and len(held) < len(job.get("judge") or {}):
+            judged = {n: r for n, r in (job.get("judge") or {}).items() if n in job["free"]}
+            held = _undetermined(res, judged, job.get("determination_z", 2.0), job.get("absent"))
+            if held and len(held) < len(judged):
                 # identifiability before plausibility: hold what the run does not determine at its file
                 # value and judge the candidate on what the others explain
                 keep = tuple(n for n in job["free"] if n not in held)
@@ -61,6 +62,7 @@ def _fit_job(job: dict) -> dict:
             elif held:
                 for h in held.values():
                     h["held_at"] = None  # nothing determined: the candidate is judged as such
+            res, job, params, held = _second_stage(job, res, params, held)
     except (ThsaError, ValueError, RuntimeError) as exc:  # casadi raises RuntimeError
         return {"label": job["label"], "error": str(exc), "time_s": time.perf_counter() - t0}
     est = {n: {"value": e.value, "stderr": e.stderr if math.isfinite(e.stderr) else None,
@@ -93,6 +95,33 @@ def _fit_job(job: dict) -> dict:
             "status": res.status, "time_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
             "predictions": preds,
             "params_toml": res.to_parameter_set().to_toml(), "profile": prof.to_dict() if prof is not None else None}
+
+
+def _second_stage(job: dict, res, params: ParameterSet, held: dict):
+    """Free ``job["second_stage"]`` (:attr:`CandidateSpec.second_stage`) from the first fit's estimates when that
+    fit determines every other parameter it judges; keep the second fit unless it leaves one of them, or a
+    second-stage parameter, undetermined (then that is held at its file value, as the first fit had it)."""
+    second = tuple(n for n in job.get("second_stage", ()) if n in params and n not in job["free"])
+    judge = job.get("judge") or {}
+    first = [n for n in judge if n not in second]
+    if not second or held or not first:
+        return res, job, params, held
+    z, absent = job.get("determination_z", 2.0), job.get("absent") or {}
+    if any(determination(res.estimates[n].value, _data_stderr(res.estimates[n]), judge[n], z, absent.get(n, True))
+           != "determined" for n in first if n in res.estimates):
+        return res, job, params, held
+    free = tuple(job["free"]) + second
+    start = params.replace({n: e.value for n, e in res.estimates.items()})
+    res2 = Identifier(None, start, free, effects=job["effects"], settings=job["settings"]).fit(job["runs"])
+    und = _undetermined(res2, judge, z, absent)
+    if und:  # the first fit stands; the second-stage parameters stay at their file values, reported as held
+        lost = [n for n in und if n not in second]
+        for n in second:
+            und.setdefault(n, {"reason": "freed, it left " + ", ".join(lost) + " undetermined",
+                               "value_if_free": res2.estimates[n].value,
+                               "stderr_if_free": _data_stderr(res2.estimates[n])})
+        return res, job, params, {n: {**und[n], "held_at": params.value(n)} for n in second}
+    return res2, {**job, "free": free}, start, {}
 
 
 def _data_stderr(e) -> float | None:
@@ -159,8 +188,8 @@ def _undetermined(res, judge: Mapping[str, float], z: float, absent: Mapping[str
         elif determination(e.value, sd, ref, z, (absent or {}).get(n, True)) == "not determined":
             why = (f"within {z:g} standard errors of both zero and its reference magnitude {ref:.3g} {e.unit}"
                    if (absent or {}).get(n, True) else f"larger than its reference magnitude {ref:.3g} {e.unit}")
-            out[n] = {"reason": f"{e.value:.3g} {e.unit} with a standard error of {sd:.3g} {e.unit} from the run "
-                                f"alone: {why}", "value_if_free": e.value, "stderr_if_free": sd}
+            out[n] = {"reason": f"{e.value:.3g} {e.unit} with a standard error of {sd:.3g} {e.unit} from the run: "
+                                f"{why}", "value_if_free": e.value, "stderr_if_free": sd}
     return out
 
 
