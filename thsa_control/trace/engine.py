@@ -833,7 +833,8 @@ def _holdout_samples(fit: dict, mask: dict | None = None) -> int:
 
 
 def _params_out(f: dict, spec: CandidateSpec) -> dict:
-    return {n: _param_entry(f["estimates"][n]) for n in (*spec.free, *spec.profile) if n in f["estimates"]}
+    return {n: _param_entry(f["estimates"][n]) for n in (*spec.free, *spec.second_stage, *spec.profile)
+            if n in f["estimates"]}
 
 
 def _explained_regimes(before: dict, after: dict, runs) -> dict:

@@ -338,7 +338,7 @@ def _plausibility(fit: dict, spec: CandidateSpec, plaus: Mapping | None = None) 
             continue
         determined += 1
         if not pairs and zero_is_absent(spec.name, n) and (verdict == "zero" if verdict else abs(e["value"]) < 2 * sd):
-            why.append(f"{n} = {e['value']:.3g} collapses to zero (stderr {sd:.2g} from the run)")
+            why.append(f"{n} = {e['value']:.3g} collapses to zero (stderr {sd:.2g}{' from the run' if verdict else ''})")
     if pairs and len(est) == 2:
         (_, a), (_, b) = est
         amp = math.hypot(a["value"], b["value"])
