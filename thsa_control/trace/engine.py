@@ -64,7 +64,7 @@ from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, PL
                          _window,
                          candidate_specs, not_candidates)
 from .residual import _regime_errors, _signature
-from .scoring import (_base_correction, _channel_errors, _chi2_by_channel, _explainers_at_bound, _held_out,
+from .scoring import (_base_correction, _window_beyond_noise, _channel_errors, _chi2_by_channel, _explainers_at_bound, _held_out,
                       _holdout_segment_changes,
                       _held_params, _null_runs, _param_entry, _plausibility, _rms_by_channel, _run_jobs,
                       _signature_brief, zero_is_absent)
@@ -477,6 +477,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             wb = _chi2_by_channel(current, noise, "holdout", win)
             wc = _chi2_by_channel(f, noise, "holdout", win)
             win_red = {c: (1 - math.sqrt(wc[c] / wb[c])) if wb.get(c, 0) > 0 else 0.0 for c in wc}
+            win_sys = _window_beyond_noise(current, f, noise, win)
             rms_b, rms_c = _rms_by_channel(current), _rms_by_channel(f)
             err_red = {c: (1 - rms_c[c] / rms_b[c]) if rms_b[c] > 0 else 0.0 for c in rms_c}
             plausible, why = _plausibility(f, spec, plaus)
@@ -487,7 +488,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             scored.append({
                 "name": spec.name, "score": drop / max(sum(base_hold.values()), 1e-300), "holdout_chi2_drop": drop,
                 "chi2_threshold": thr, "error_reduction": err_red, "window": spec.window, "window_reduction": win_red,
-                "aic_drop": current["aic"] - f["aic"], "bic_drop": current["bic"] - f["bic"],
+                "window_reduction_beyond_noise": win_sys, "aic_drop": current["aic"] - f["aic"], "bic_drop": current["bic"] - f["bic"],
                 "plausible": plausible, "implausible_because": why, "parameters": _params_out(f, spec),
                 "fit_time_s": f["time_s"], "converged": f["converged"], "prelim": prelim, "_fit": f, "_job": jb,
                 "not_determined": _held_out(f),
@@ -581,6 +582,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         step = {"name": best["name"], "parameters": best["parameters"], "error_reduction": best["error_reduction"],
                 "aic_drop": best["aic_drop"], "bic_drop": best["bic_drop"], "score": best["score"],
                 "window": best["window"], "window_reduction": best["window_reduction"],
+                "window_reduction_beyond_noise": best.get("window_reduction_beyond_noise"),
                 "holdout_chi2_drop": best["holdout_chi2_drop"],
                 "error_before": _channel_errors(current), "error_after": _channel_errors(f),
                 "segments_explained": _explained_regimes(current, f, runs),

@@ -231,6 +231,31 @@ def _chi2_by_channel(fit: dict, noise: Mapping[str, float], select: str, windows
     return chi2_by_channel(fit["predictions"], noise, select, windows)
 
 
+def _window_beyond_noise(before: dict, after: dict, noise: Mapping[str, float], windows: dict | None) -> dict:
+    """Per channel, the drop of the held-out window error beyond the sensor noise: ``1 - sqrt((chi2_after - n) /
+    (chi2_before - n))``, ``n`` the window's held-out sample count (a noise-weighted chi2 of a perfect model is
+    ``n`` in expectation).  The RMS drop (``window_reduction``) counts the noise no model removes: an effect whose
+    window error is 1.8 x the noise can drop it by 44 % at most.  None where the error before is within
+    ``2 sqrt(2 n)`` (two standard deviations of a chi2(n)) of the noise level: nothing beyond noise to explain.
+    Reported, not used to select (the noise level is an estimate)."""
+    n: dict[str, int] = {}
+    for r, p in before["predictions"].items():
+        hold = np.asarray(p["holdout"], bool)
+        for c, y in p["measured"].items():
+            m = hold & np.isfinite(np.asarray(y, float))
+            if windows is not None:
+                m &= windows[r][:m.size]
+            n[c] = n.get(c, 0) + int(m.sum())
+    wb = _chi2_by_channel(before, noise, "holdout", windows)
+    wa = _chi2_by_channel(after, noise, "holdout", windows)
+    out = {}
+    for c in wa:
+        k = n.get(c, 0)
+        excess = wb.get(c, 0.0) - k
+        out[c] = (1 - math.sqrt(max(wa[c] - k, 0.0) / excess)) if k and excess > 2 * math.sqrt(2 * k) else None
+    return out
+
+
 def _holdout_segment_changes(before: dict, after: dict, noise: Mapping[str, float]) -> dict:
     """How a held-out chi2 drop is made: the drop of each held-out segment (noise-weighted squared error of
     ``before`` less ``after``), counted and concentrated.
