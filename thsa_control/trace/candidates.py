@@ -187,18 +187,11 @@ def _window(kind: str, run: RigRun, params: ParameterSet | None = None) -> np.nd
         return moving & (np.abs(load) > max(0.05 * float(np.max(np.abs(load))), 500.0))
     if kind == "reversal":
         return moving & (reversal_proximity(run.time, w, deadband=0.05 * float(np.max(np.abs(w)))) < 0.3)
-    if kind == "reversal_or_stop":  # 0.3 s around a reversal, or after the motion stops (moving -> still), or
-        # after a motion starts with the drive off: the load back-drives the screw (through the pawl clearance)
-        # from standstill, as when a load is applied to a stopped drive; the stop of that motion comes after it
+    if kind == "reversal_or_stop":  # 0.3 s around a reversal, or after the motion stops (moving -> still)
         t = np.asarray(run.time, float)
         near = reversal_proximity(t, w, deadband=0.05 * float(np.max(np.abs(w)))) < 0.3
         for ts in t[1:][moving[:-1] & ~moving[1:]]:
             near |= (t >= ts) & (t < ts + 0.3)
-        enables = [np.asarray(s[c], float) > 0.5 for c in ("primary_enable", "standby_enable") if c in s]
-        if enables:
-            off = ~np.logical_or.reduce(enables)
-            for i in np.flatnonzero(moving[1:] & ~moving[:-1] & off[1:]) + 1:
-                near |= (t >= t[i]) & (t < t[i] + 0.3)
         return near
     if kind == "resolved_cogging":  # moving slowly enough that the cogging's period spans 4 samples or more
         t = np.asarray(run.time, float)
