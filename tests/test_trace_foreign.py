@@ -133,9 +133,9 @@ KNOWN_FAILING = {
                            "after the detailed no-back (papers base, both screw efficiencies at their bounds)",
     "rig_ratchet_backlash": "noback_backlash found first among the physical effects after the detailed no-back, its "
                             "window RMS drop 17 % (LVDT; 19 % beyond the noise), though it explains 81 % of the "
-                            "motor-speed error with the drive off and 59 % of the whole record's: the back-drives "
-                            "are three short events inside the window, and the held-out third holds few of their "
-                            "segments (pitch 0.160 rad, rig-sim 0.1496)",
+                            "motor-speed error with the drive off and 59 % of the whole record's (all samples); the "
+                            "three back-drives are inside the window, which is scored on the held-out segments only "
+                            "(why those drop so little is not established; pitch 0.160 rad, rig-sim 0.1496)",
     "rig_loadpath_preload": "loadpath_compliance found first among the physical effects after the detailed no-back, "
                             "its window RMS drop 43 % (< 50 %): the fit is right (contact stiffnesses 4.59e7 / "
                             "5.59e7 N/m = rig-sim's 5.32e7 / 6.65e7 in series with its 3e8 N/m ball-nut contact, "
