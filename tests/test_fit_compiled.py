@@ -142,3 +142,31 @@ def test_no_compiler_fits_with_the_interpreter(tmp_path):
         assert ref["compiled"] is True
         assert _rel(np.array(out["r"]), np.array(ref["r"])) <= 1e-12
         assert _rel(np.array(out["J"]), np.array(ref["J"])) <= 1e-12
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not HAVE_CC, reason="no C compiler: nothing compiled to compare")
+def test_a_trace_names_the_same_effects_and_values_compiled_and_interpreted(monkeypatch):
+    """A trace of a committed rig-sim run (``rig`` base, a planted Coulomb drag) with the fits compiled and with
+    every fit in casadi's interpreter: the same effects, the same parameters and the same held-out drops to
+    the printed precision."""
+    from thsa_control.fit import shooting
+    from thsa_control.trace import TraceSettings, trace
+
+    params = default_parameters()
+    run = run_kinematics(read_run(RIGSIM / "rig_coulomb.csv"), params)
+    settings = TraceSettings(candidates=("coulomb_friction", "direction_friction", "force_offset"), workers=1,
+                             max_effects=1)
+
+    def summary(doc):
+        added = [(e["name"], {n: f"{p['value']:.4g}" for n, p in e["parameters"].items()})
+                 for e in doc["effects_added"]]
+        scored = [(c["name"], f"{c['holdout_chi2_drop']:.4g}" if c.get("holdout_chi2_drop") is not None else None)
+                  for r in doc["rounds"] for c in r["candidates"]]
+        return added, scored, doc["unexplained"]
+
+    compiled = trace(run, "A", params=params, settings=settings).to_dict()
+    monkeypatch.setattr(shooting._SegmentFunctions, "evaluators", lambda self, compiled: (self.functions, False))
+    interpreted = trace(run, "A", params=params, settings=settings).to_dict()
+    assert summary(compiled) == summary(interpreted)
+    assert summary(compiled)[0] and summary(compiled)[1]  # an effect was added, candidates were scored
