@@ -5,7 +5,17 @@ plant's current-driven map, :func:`thsa_control.fit.replay.current_driven_map`,
 as a casadi ``mapaccum`` over each segment, mapped over the segments, each
 segment starting from its own free initial speed and position), the guesses of
 the segments' initial states, :func:`estimate_noise` (the channel weights) and
-the fitted channels :data:`MECH_CHANNELS`.  :class:`thsa_control.fit.identify.Identifier`
+the fitted channels :data:`MECH_CHANNELS`.
+
+The residual of one segment and its Jacobians are casadi Functions of the
+segment's own data (measured current, load, channels, masks, start-state
+guess: inputs, not constants), so one C library, built through the
+simulator's verified cache (:func:`thsa_control.sim.codegen.compile_functions`),
+serves every run and every segment of one model structure; all segments are
+one call of that Function mapped over them.  Without a working C compiler (or
+with ``IdentificationSettings.compiled = False``) the same Functions run in
+casadi's interpreter: the same operations, so the same numbers to rounding
+(``tests/test_fit_compiled.py``; bit-identical in practice).  :class:`thsa_control.fit.identify.Identifier`
 builds one per run and solves them together; :mod:`thsa_control.fit.segmented`
 reuses its predictions.
 
