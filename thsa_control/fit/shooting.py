@@ -120,7 +120,7 @@ class RunProblem:
         self.x_guess = self._initial_states(params, L, M)
         self._track_custom_states(mech, params, V, H, L, M)
         # casadi: one segment = mapaccum of the map, a Function of the segment's own data (compiled to C once
-        # per model structure, :func:`segment_functions`); all segments = that Function mapped over the segments
+        # per model structure, :class:`_SegmentFunctions`); all segments = that Function mapped over the segments
         n_p = len(plant.parameters)
         nx = len(states)
         nc = len(self.channels)
