@@ -60,7 +60,8 @@ from ..data.rigformat import speed_sensor_intervals
 from ..fit.replay import check_run_model
 from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
 from ..model.params import ParameterSet, default_parameters
-from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, PLAUSIBLE, PROFILE_LIMITS, STARTS, WINDOWS,
+from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, PLAUSIBLE, PROFILE_LIMITS, RESOLVES,
+                         STARTS, WINDOWS,
                          _window,
                          candidate_specs, not_candidates)
 from .residual import _regime_errors, _signature
@@ -415,6 +416,10 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             elif spec.name in base_step_refused:
                 skipped.append({"name": spec.name, "reason": "the detailed model of a declared component, judged in "
                                                              "the base step (not significant there)"})
+            elif use_base and spec.name in RESOLVES and RESOLVES[spec.name](params, runs):
+                # with the base step only: a declared model of another rig's base leaves drags that vary along
+                # the stroke (Stribeck at the reversals of a short stroke), which a short record's ripple fits
+                skipped.append({"name": spec.name, "reason": RESOLVES[spec.name](params, runs)})
             elif spec.name in hurt:
                 skipped.append({"name": spec.name, "reason": f"made the held-out error worse in round {len(rounds)}"})
             else:
@@ -794,7 +799,8 @@ def _rivals(best: dict, scored: list[dict], alpha: float) -> list[dict]:
     gap = float(chi2.ppf(1 - alpha, 1)) * max(1.0, hold / max(n, 1)) * tau
     best["_indistinct_below"] = gap
     best["_holdout_iact"] = tau
-    return [s for s in scored if s is not best and "error" not in s and s["plausible"]
+    # a constant torque whose drop a few held-out segments carry (``not_robust``) is no measure of what it explains
+    return [s for s in scored if s is not best and "error" not in s and s["plausible"] and not s.get("not_robust")
             and best["holdout_chi2_drop"] - s["holdout_chi2_drop"] < gap]
 
 
