@@ -112,3 +112,28 @@ def test_holdout_segment_changes_count_and_concentrate():
     d = _holdout_segment_changes(before, _fit(sim, meas, hold, starts, t), {"motor_speed": 1.0})
     assert d["segments"] == 4 and d["improved"] == 3 and d["worse"] == 1
     assert d["top3_share"] > 0.95 and d["median_drop"] > 0
+    # the sign test: 3 improved of 4 is not beyond chance (P(X >= 3 | n 4, p 1/2) = 5/16)
+    assert d["sign_p"] == pytest.approx(5 / 16)
+
+
+def test_holdout_segment_changes_inside_a_window_and_the_sign_test():
+    """Only segments with samples in the window count; a change carried by a few segments does not pass the sign
+    test, one that improves every segment does."""
+    n, seg = 3000, 50
+    t = np.arange(n) * 1e-3
+    k = np.arange(n) // seg
+    hold = k % 3 == 2  # 20 held-out segments
+    starts = t[::seg]
+    meas = np.ones(n)
+    before = _fit(np.zeros(n), meas, hold, starts, t)
+    window = {"r": k < 30}  # the first 30 segments: 10 held out
+    few = np.zeros(n)
+    few[np.isin(k, (2, 5))] = 1.0  # two segments fixed, the others as before (no change: ties, left out)
+    few[np.isin(k, (8, 11, 14))] = -0.2  # three slightly worse
+    d = _holdout_segment_changes(before, _fit(few, meas, hold, starts, t), {"motor_speed": 1.0})
+    assert d["improved"] == 2 and d["worse"] == 3 and d["sign_p"] > 0.5
+    every = np.full(n, 0.5)
+    d = _holdout_segment_changes(before, _fit(every, meas, hold, starts, t), {"motor_speed": 1.0}, window)
+    assert d["segments"] == 10 and d["improved"] == 10 and d["sign_p"] == pytest.approx(0.5 ** 10)
+    d = _holdout_segment_changes(before, _fit(every, meas, hold, starts, t), {"motor_speed": 1.0})
+    assert d["segments"] == 20 and d["sign_p"] < 1e-5

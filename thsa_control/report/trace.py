@@ -207,7 +207,9 @@ def format_trace_summary(doc: dict) -> str:
                 lines.append(f"    {c['name']:<26} fit failed: {c['error']}")
                 continue
             flag = "SIGNIFICANT" if c["significant"] else ("implausible: " + "; ".join(c["implausible_because"])
-                                                           if not c["plausible"] else "not significant")
+                                                           if not c["plausible"] else
+                                                           "not significant" + (f": {c['not_robust']}"
+                                                                                if c.get("not_robust") else ""))
             lines.append(f"    {c['name']:<26} held-out chi2 drop {_num(c['holdout_chi2_drop'], '.4g'):>10} "
                          f"(threshold {_num(c['chi2_threshold'], '.3g')}, null {_num(c.get('null_chi2_drop'), '.3g')}), "
                          f"score {_num(c['score'], '.3f')}  {flag}")

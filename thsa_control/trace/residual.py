@@ -29,6 +29,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     inertia = plant.inertia(params)[1]  # the signature's missing torque at the motor shaft (what the current drives)
     torque: list = []
     vars_: dict = {}
+    spans: dict[str, float] = {}  # the largest motor and screw angle travelled in one run [rad]
     local_in: dict[str, list] = {"e": [], "x": [], "d": []}
     for run in runs:
         pr = fit["predictions"][run.name]
@@ -65,6 +66,9 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             "motor_current (torque constant)": ("linear", np.asarray(run.signals["motor_current"], float)),
         }
         del dt
+        for name in ("motor_angle", "screw_angle"):
+            a = cols[name][1]
+            spans[name] = max(spans.get(name, 0.0), float(np.ptp(a)) if a.size else 0.0)
         for name, (kind, v) in cols.items():
             vars_.setdefault(name, (kind, []))[1].append(np.asarray(v, float))
         # the pass-replicated position test (runs separated by a gap that ends every pass), on the residual
@@ -106,6 +110,12 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         if np.isfinite(variables["temperature"][1]).any() else 0.0
     for d in tests:
         d["remainder"] = remainder_kind(d, t_span, s)
+        # periodic in an angle only where the same angle recurs at another position: a travel of less than two
+        # revolutions bins the residual by position (the base's drags at the ends of a short stroke)
+        if d["variable"] in spans and spans[d["variable"]] < 4 * math.pi and d["remainder"] == "structured":
+            d["remainder"] = "base"
+            d["why_base"] = (f"{d['variable']} spans {spans[d['variable']] / (2 * math.pi):.2g} revolutions (< 2): "
+                             "not told from a dependence on position")
     for d in sensors:
         d["remainder"] = "structured"
     ok = np.isfinite(e_all)
