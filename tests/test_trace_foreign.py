@@ -100,9 +100,11 @@ KNOWN_FAILING = {
     # `tests/data/rigsim/trace_all.sh DIR` then THSA_TRACED_DIR=DIR; the table is in docs/trace_notes.md
     "rig_screw_ripple": "screw_friction_ripple found first among the physical effects (after the detailed no-back), "
                         "its window RMS drop 49 % (< 50 %)",
-    "rig_temp_friction": "nothing added: force_offset and coulomb_friction ambiguous (equal held-out drops); "
-                         "temperature_friction refused, its viscous temperature coefficient 0.00075 1/K (stderr "
-                         "0.0056) 'collapses to zero' although the one-temperature run cannot determine it",
+    "rig_temp_friction": "temperature_friction is added first (its viscous temperature coefficient not determined at "
+                         "one temperature: held at 0.02 1/K), but its window drop is 17 % of the motor-speed error "
+                         "left by the base corrections (Coulomb drag, axial force and direct efficiency at their "
+                         "bounds: at one speed and one load every constant torque is the same); the residual left "
+                         "is at the stops (drive off: 2.0 rad/s against 0.76 with the motor on)",
     # trace-drags (no-back static coefficients freed, sign test of constant torques); one-load reversal and trim runs:
     # the constant torques per direction are two numbers shared by the Coulomb drag, the axial force, both
     # efficiencies and the loaded disk's coefficient (docs/trace_notes.md, "Base drags against planted constant
@@ -139,9 +141,13 @@ KNOWN_FAILING = {
 }
 
 
-def _cases(pairs):
+#: runs whose KNOWN_FAILING entry is about the window drop only: the not-determined test passes on them
+HELD_PASSES = {"rig_temp_friction"}
+
+
+def _cases(pairs, passes=frozenset()):
     return [pytest.param(*c, id=c[0], marks=pytest.mark.xfail(reason=KNOWN_FAILING[c[0]], strict=False))
-            if c[0] in KNOWN_FAILING else pytest.param(*c, id=c[0]) for c in pairs]
+            if c[0] in KNOWN_FAILING and c[0] not in passes else pytest.param(*c, id=c[0]) for c in pairs]
 
 
 LIB_RUNS = [(f"rig_{k}", v) for k, v in LIBRARY.items()]
@@ -177,7 +183,7 @@ def test_library_effect_on_the_rig_base_is_found_first(traced, name, expected):
 @pytest.mark.parametrize("name, effect, parameter", _cases([
     ("rig_noback_quadrant", "noback_quadrant_friction", "noback.mu_coulomb_neg"),  # the light disk never loaded
     ("rig_temp_friction", "temperature_friction", "friction.viscous_temperature_coefficient"),  # one temperature
-]))
+], HELD_PASSES))
 def test_undetermined_parameter_is_held_and_reported(traced, params, name, effect, parameter):
     """A candidate with a parameter the run cannot determine is added with that parameter held at its file value,
     and trace.json says so."""

@@ -65,10 +65,10 @@ from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, PL
                          _window,
                          candidate_specs, not_candidates)
 from .residual import _regime_errors, _signature
-from .scoring import (_base_correction, _channel_errors, _chi2_by_channel, _explainers_at_bound, _held_out,
+from .scoring import (_base_correction, _window_beyond_noise, _channel_errors, _chi2_by_channel, _explainers_at_bound, _held_out,
                       _holdout_segment_changes,
                       _held_params, _null_runs, _param_entry, _plausibility, _rms_by_channel, _run_jobs,
-                      _signature_brief)
+                      _signature_brief, zero_is_absent)
 from .signature import SignatureSettings, base_transients, split_remainder
 from .threads import limit_blas_threads
 
@@ -128,11 +128,21 @@ class TraceSettings:
         :data:`PLAUSIBLE`), reported as base corrections, not as found
         effects.  None: on when the candidates are the default pool (a named
         candidate list is scored as effects only, as before).
-    undetermined_relative_stderr : float
-        A candidate's parameter whose standard error exceeds this multiple of
-        its reference magnitude (file value, seed or plausible bound), or is
-        undetermined, is not determined by the run: it is held at its file
+    determination_z : float
+        One test decides both identifiability and "collapses to zero"
+        (:func:`~thsa_control.trace.scoring.determination`): with the
+        standard error the runs give (with the base corrections' priors, plausible
+        magnitudes with a source, but without the regularising priors around the
+        declared parameters' current values: :attr:`ParameterEstimate.stderr_data`), a
+        candidate's parameter whose estimate is within ``z`` standard errors
+        of zero *and* of its reference magnitude (file value, seed or
+        plausible bound) is not determined by the run: held at its file
         value, the candidate refitted and judged on what the others explain.
+        Within ``z`` of zero but not of its reference magnitude, it collapses
+        to zero (implausible).  2: the two-sided 95 % normal quantile (1.96).
+        Both tests only where zero is the effect's neutral value; a stiffness,
+        a damping or a signed free play is not determined when its standard
+        error exceeds its reference magnitude, and never "collapses".
     window_tolerance : float
         A significant physical effect whose window RMS drop is within this of
         the best constant-torque explainer's comes before it
@@ -185,7 +195,7 @@ class TraceSettings:
     seed: int = 0
     signature: SignatureSettings = field(default_factory=SignatureSettings)
     base_corrections: bool | None = None
-    undetermined_relative_stderr: float = 1.0
+    determination_z: float = 2.0
     window_tolerance: float = 0.01
     #: how the speed sensors read, over each run's declaration (IdentificationSettings.speed_sensors): channel
     #: -> difference interval [s], "sample" or "instantaneous"; None: each run's own (its JSON's
@@ -323,16 +333,19 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         pri = {n: v for n, v in base_priors.items() if n in free and n not in lift}
         judge = {}
         if spec is not None and not profile:
-            for n in spec.free:
+            for n in spec.free + spec.second_stage:
                 if n in uncertain or n in base_priors:
                     continue
                 ref = max(abs(params.value(n)), abs(spec.seeds.get(n, 0.0)),
                           plaus[spec.plausible[n]][0] if n in spec.plausible else 0.0)
                 judge[n] = ref if ref > 0 else 0.01 * (params[n].max - params[n].min)
         return {"label": label, "effects": tuple(effs), "free": tuple(free), "params_toml": pset.to_toml(),
-                "settings": id_settings(prior, [n for n in free if n not in uncertain and n not in pri], pri),
+                "settings": id_settings(prior, [n for n in free + (spec.second_stage if spec is not None else ())
+                                                if n not in uncertain and n not in pri], pri),
                 "runs": data, "profile": dict(profile or {}), "judge": judge,
-                "hold_at": {n: (pset.value(n) if spec is not None and spec.start else params.value(n)) for n in judge}, "relative_stderr": st.undetermined_relative_stderr}
+                "hold_at": {n: (pset.value(n) if spec is not None and spec.start else params.value(n)) for n in judge}, "determination_z": st.determination_z,
+                "second_stage": tuple(spec.second_stage) if spec is not None and not profile else (),
+                "absent": {n: zero_is_absent(spec.name, n) for n in judge}}
 
     for r in runs:
         for w in check_run_model(r, base_plant, mode="open_loop"):
@@ -481,6 +494,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             wb = _chi2_by_channel(current, noise, "holdout", win)
             wc = _chi2_by_channel(f, noise, "holdout", win)
             win_red = {c: (1 - math.sqrt(wc[c] / wb[c])) if wb.get(c, 0) > 0 else 0.0 for c in wc}
+            win_sys = _window_beyond_noise(current, f, noise, win)
             rms_b, rms_c = _rms_by_channel(current), _rms_by_channel(f)
             err_red = {c: (1 - rms_c[c] / rms_b[c]) if rms_b[c] > 0 else 0.0 for c in rms_c}
             plausible, why = _plausibility(f, spec, plaus)
@@ -495,7 +509,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             scored.append({
                 "name": spec.name, "score": drop / max(sum(base_hold.values()), 1e-300), "holdout_chi2_drop": drop,
                 "chi2_threshold": thr, "error_reduction": err_red, "window": spec.window, "window_reduction": win_red,
-                "aic_drop": current["aic"] - f["aic"], "bic_drop": current["bic"] - f["bic"],
+                "window_reduction_beyond_noise": win_sys, "aic_drop": current["aic"] - f["aic"], "bic_drop": current["bic"] - f["bic"],
                 "plausible": plausible, "implausible_because": why, "parameters": _params_out(f, spec),
                 "fit_time_s": f["time_s"], "converged": f["converged"], "prelim": prelim, "_fit": f, "_job": jb,
                 "not_determined": _held_out(f),
@@ -593,6 +607,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         step = {"name": best["name"], "parameters": best["parameters"], "error_reduction": best["error_reduction"],
                 "aic_drop": best["aic_drop"], "bic_drop": best["bic_drop"], "score": best["score"],
                 "window": best["window"], "window_reduction": best["window_reduction"],
+                "window_reduction_beyond_noise": best.get("window_reduction_beyond_noise"),
                 "holdout_chi2_drop": best["holdout_chi2_drop"],
                 "error_before": _channel_errors(current), "error_after": _channel_errors(f),
                 "segments_explained": _explained_regimes(current, f, runs),
@@ -846,7 +861,8 @@ def _holdout_samples(fit: dict, mask: dict | None = None) -> int:
 
 
 def _params_out(f: dict, spec: CandidateSpec) -> dict:
-    return {n: _param_entry(f["estimates"][n]) for n in (*spec.free, *spec.profile) if n in f["estimates"]}
+    return {n: _param_entry(f["estimates"][n]) for n in (*spec.free, *spec.second_stage, *spec.profile)
+            if n in f["estimates"]}
 
 
 def _explained_regimes(before: dict, after: dict, runs) -> dict:
