@@ -423,20 +423,43 @@ def cross_correlation(a, b, dt: float, max_lag: int = 40) -> dict:
     return {"lag_s": lags, "correlation": cc}
 
 
+def _nested_f(y: np.ndarray, x0: np.ndarray, x1: np.ndarray) -> tuple[float, float, int, int, np.ndarray]:
+    """F test of the columns ``x1`` added to the nuisance columns ``x0`` (least squares, ranks by SVD):
+    (F, p, numerator dof, denominator dof, the full model's coefficients)."""
+    from scipy.stats import f as f_dist
+
+    full = np.column_stack([x0, x1])
+    c0, *_ = np.linalg.lstsq(x0, y, rcond=None)
+    c1, _res, r1, _sv = np.linalg.lstsq(full, y, rcond=None)
+    r0 = np.linalg.matrix_rank(x0)
+    rss0 = float(np.sum((y - x0 @ c0) ** 2))
+    rss1 = float(np.sum((y - full @ c1) ** 2))
+    df_n, df_d = int(r1 - r0), int(y.size - r1)
+    if df_n < 1 or df_d < 1:
+        return 0.0, 1.0, df_n, df_d, c1
+    F = ((rss0 - rss1) / df_n) / max(rss1 / df_d, 1e-300)
+    return float(F), float(f_dist.sf(F, df_n, df_d)), df_n, df_d, c1
+
+
 def position_local_test(residual, position, direction, *, bin_width: float = 2e-3, min_samples: int = 5,
                         alpha: float = 1e-4) -> dict | None:
     """A residual tied to the nut position, replicated over passes (a friction bump, a worn spot).
 
     The record is cut into passes (stretches of one direction of motion, ``direction`` +-1, 0 when still);
-    each pass's residual, less its own mean (a direction or load dependence is not a position one), is
-    averaged in position bins.  A one-way analysis of variance with the bins as groups and the passes as
-    replicates: the between-bin variance of the bin means against the pass-to-pass variance inside the
-    bins.  A residual structured in time only (a start, a transient) is not repeated at the same position
-    by another pass, so it lands in the replicate variance; the test needs no model of the residual's
-    autocorrelation.  None when fewer than three bins are visited by two passes.
-    """
-    from scipy.stats import f as f_dist
+    each pass's residual is averaged in position bins.  The bin means are tested by a nested linear model:
+    the nuisance part is, for each pass, an intercept and a slope in position (a direction, load or speed
+    dependence of the pass, and a slow drift in time, which is a trend in position within a pass, are not a
+    position feature), the tested part one effect per bin shared by every pass.  F test of the bin effects
+    against the pass-to-pass scatter of the bin means: a residual structured in time only (a start, a
+    transient) is not repeated at the same position by another pass, so it lands in the scatter; the test
+    needs no model of the residual's autocorrelation as long as it dies within a bin.
 
+    Two laws of a position feature are tested, each at ``alpha / 2`` (Bonferroni): a *dissipative* one that
+    opposes the motion (a friction bump, a worn spot: the missing torque changes sign with the direction,
+    so the residual times the direction is tested) and a *conservative* one that does not (a position-
+    dependent force: the residual itself).  Averaged as it is, a friction bump crossed once each way cancels.
+    None when fewer than three bins are visited by two passes.
+    """
     e = np.asarray(residual, float)
     x = np.asarray(position, float)
     d = np.asarray(direction, float)
@@ -448,30 +471,46 @@ def position_local_test(residual, position, direction, *, bin_width: float = 2e-
     brk = np.flatnonzero((np.diff(idx) > 50) | (np.diff(d[idx]) != 0)) + 1
     passes = np.split(idx, brk)
     x0 = float(np.nanmin(x[ok]))
-    table: dict[int, list[float]] = {}
-    for p in passes:
+    rows = []  # (pass, bin, bin centre, mean residual, direction)
+    for j, p in enumerate(passes):
         if p.size < 3 * min_samples:
             continue
-        ep = e[p] - e[p].mean()
         b = np.floor((x[p] - x0) / bin_width).astype(int)
         for k in np.unique(b):
             m = b == k
             if m.sum() >= min_samples:
-                table.setdefault(int(k), []).append(float(ep[m].mean()))
-    rep = {k: v for k, v in table.items() if len(v) >= 2}
-    if len(rep) < 3:
+                rows.append((j, int(k), x0 + (k + 0.5) * bin_width, float(e[p][m].mean()), float(d[p[0]])))
+    bins, counts = np.unique([r[1] for r in rows], return_counts=True) if rows else (np.array([]), np.array([]))
+    rep = set(int(k) for k, c in zip(bins, counts) if c >= 2)
+    rows = [r for r in rows if r[1] in rep]
+    used = sorted(set(r[0] for r in rows))
+    if len(rep) < 3 or len(used) < 2:
         return None
-    means = {k: float(np.mean(v)) for k, v in rep.items()}
-    grand = float(np.mean([m for k, v in rep.items() for m in v]))
-    ss_b = sum(len(v) * (means[k] - grand) ** 2 for k, v in rep.items())
-    ss_w = sum(sum((m - means[k]) ** 2 for m in v) for k, v in rep.items())
-    df_b = len(rep) - 1
-    df_w = sum(len(v) - 1 for v in rep.values())
-    F = (ss_b / df_b) / max(ss_w / df_w, 1e-300)
-    p = float(f_dist.sf(F, df_b, df_w))
-    kpk = max(means, key=lambda k: abs(means[k] - grand))
+    pj = {j: i for i, j in enumerate(used)}
+    bk = {k: i for i, k in enumerate(sorted(rep))}
+    n = len(rows)
+    xc = np.array([r[2] for r in rows])
+    xs = (xc - xc.mean()) / max(float(np.ptp(xc)), 1e-12)
+    nuis = np.zeros((n, 2 * len(used)))
+    eff = np.zeros((n, len(bk)))
+    for i, r in enumerate(rows):
+        nuis[i, 2 * pj[r[0]]] = 1.0
+        nuis[i, 2 * pj[r[0]] + 1] = xs[i]
+        eff[i, bk[r[1]]] = 1.0
+    y = np.array([r[3] for r in rows])
+    sgn = np.array([r[4] for r in rows])
+    best = None
+    for law, yy in (("dissipative (opposes the motion)", y * sgn), ("conservative (same sign both ways)", y)):
+        F, p, df_n, df_d, coef = _nested_f(yy, nuis, eff)
+        c = coef[nuis.shape[1]:]
+        c = c - c.mean()
+        if best is None or p < best["p"]:
+            best = {"law": law, "F": F, "p": p, "df": (df_n, df_d), "effects": c}
+    p = min(1.0, 2.0 * best["p"])  # the smaller of two p-values, Bonferroni
+    c = best["effects"]
+    kpk = sorted(rep)[int(np.argmax(np.abs(c)))]
     lo = x0 + kpk * bin_width
-    size = math.sqrt(ss_b / sum(len(v) for v in rep.values()))
-    return {"variable": "nut_position (repeated over passes)", "kind": "local", "size": size, "r2": None,
-            "p_value": p, "significant": bool(p < alpha), "peak_bin": [lo, lo + bin_width],
-            "peak_mean": means[kpk] - grand, "bins": len(rep), "passes": len(passes), "F": F}
+    return {"variable": "nut_position (repeated over passes)", "kind": "local", "size": float(np.sqrt(np.mean(c ** 2))),
+            "r2": None, "p_value": p, "significant": bool(p < alpha), "peak_bin": [lo, lo + bin_width],
+            "peak_mean": float(np.max(np.abs(c)) * np.sign(c[int(np.argmax(np.abs(c)))])), "law": best["law"],
+            "bins": len(rep), "passes": len(used), "F": best["F"], "dof": list(best["df"])}
