@@ -122,8 +122,21 @@ def plot_signature(sig: dict):
     ax = axes[0, 0]
     if "nut_position" in curves:
         c = curves["nut_position"]
+        by_dir = c.get("by_direction") or {}
         ax.errorbar(1e3 * np.asarray(c["centre"]), c["mean"], yerr=np.asarray(c["sd"]) / np.sqrt(np.maximum(c["count"], 1)),
-                    fmt="o-", ms=3, lw=0.8)
+                    fmt="o-", ms=2, lw=0.6, color="0.7", label="all samples")
+        for (label, cd), col in zip(by_dir.items(), ("C0", "C1")):
+            ax.errorbar(1e3 * np.asarray(cd["centre"]), cd["mean"],
+                        yerr=np.asarray(cd["sd"]) / np.sqrt(np.maximum(cd["count"], 1)), fmt="o-", ms=3, lw=0.8,
+                        color=col, label=f"{label}, outside the base's transients")
+        loc = next((t for t in sig.get("tests", []) if t.get("variable") == "nut_position (repeated over passes)"), None)
+        if loc is not None:  # the pass-replicated test's peak bin, its law and p-value
+            ax.axvspan(1e3 * loc["peak_bin"][0], 1e3 * loc["peak_bin"][1], color="C3" if loc["significant"] else "0.85",
+                       alpha=0.25, lw=0)
+            ax.text(0.02, 0.97, f"repeated over passes: p {_num(loc['p_value'], '.2g')}"
+                    + (f", {loc['law'].split(' ')[0]}" if loc.get("law") else "")
+                    + (" (STRUCTURED)" if loc["significant"] else ""), transform=ax.transAxes, va="top", fontsize=7)
+        ax.legend(fontsize=7, loc="lower right")
     else:  # trace.residual bins the nut position only over a travel of at least two bins
         ax.text(0.5, 0.5, "not binned: the nut travel of these runs\nis shorter than two position bins",
                 ha="center", va="center", transform=ax.transAxes, fontsize=9, color="0.35")
@@ -231,7 +244,8 @@ def format_trace_summary(doc: dict) -> str:
         if t["kind"] == "periodic":
             extra = f", dominant harmonic {t['dominant_harmonic']} per revolution"
         elif t["kind"] == "local":
-            extra = f", peak in {1e3 * t['peak_bin'][0]:.1f}..{1e3 * t['peak_bin'][1]:.1f} mm"
+            extra = f", peak in {1e3 * t['peak_bin'][0]:.1f}..{1e3 * t['peak_bin'][1]:.1f} mm" + (
+                f", {t['law']}" if t.get("law") else "")
         elif t["kind"] == "redundant_sensors":
             extra = f", gain {t['gain']:.4f}, lag {1e3 * t['lag_s']:.1f} ms"
         elif t["kind"] == "sensor_offset":

@@ -30,6 +30,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     torque: list = []
     vars_: dict = {}
     local_in: dict[str, list] = {"e": [], "x": [], "d": []}
+    steady: list = []  # outside the base's transients, per run
     for run in runs:
         pr = fit["predictions"][run.name]
         n = len(run.time)
@@ -71,7 +72,8 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         # outside the base's transients: a declared model whose base differs from the rig's leaves structure at
         # starts, stops, reversals and load changes, and a trim run starts and stops at the same positions
         gap = np.full(100, np.nan)
-        local_in["e"] += [np.where(base_transients(t, w, load, s.transient_time), np.nan, torque[-1]), gap]
+        steady.append(~base_transients(t, w, load, s.transient_time))
+        local_in["e"] += [np.where(steady[-1], torque[-1], np.nan), gap]
         local_in["x"] += [cols["nut_position"][1], gap]
         local_in["d"] += [cols["speed_sign"][1], np.zeros(100)]
     if not torque:
@@ -113,7 +115,8 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     return {"residual": "missing torque at the motor shaft, J d(speed residual)/dt", "unit": "N m",
             "reflected_inertia": inertia, "missing_torque_rms": float(np.sqrt(np.mean(e_all[ok] ** 2))),
             "residual_to_noise": ratio, "max_noise_ratio": s.max_noise_ratio,
-            "tests": tests, "sensors": sensors, "curves": _signature_curves(e_all, variables, runs, s)}
+            "tests": tests, "sensors": sensors,
+            "curves": _signature_curves(e_all, variables, runs, s, np.concatenate(steady))}
 
 
 def _holdout_chi2_and_count(fit: dict, noise: Mapping[str, float]) -> dict:
@@ -131,14 +134,24 @@ def _holdout_chi2_and_count(fit: dict, noise: Mapping[str, float]) -> dict:
     return out
 
 
-def _signature_curves(e: np.ndarray, variables: dict, runs, s: SignatureSettings) -> dict:
+def _signature_curves(e: np.ndarray, variables: dict, runs, s: SignatureSettings, steady: np.ndarray | None = None) -> dict:
     """Binned residual against nut position and motor / screw angle, and the redundant sensors'
-    cross-correlation: the data of the report's signature plots."""
+    cross-correlation: the data of the report's signature plots.
+
+    The nut-position curve is also given per direction of motion on the samples outside the base's transients
+    (``by_direction``: what the pass-replicated position test uses): a friction feature changes sign with the
+    direction and cancels in the mean over both."""
     out: dict = {}
     x = variables["nut_position"][1]
     if np.isfinite(x).sum() > 50 and np.nanmax(x) - np.nanmin(x) >= 2 * s.position_bin:
         lo, hi = float(np.nanmin(x)), float(np.nanmax(x))
-        out["nut_position"] = binned_mean(e, x, np.arange(lo, hi + s.position_bin, s.position_bin))
+        edges = np.arange(lo, hi + s.position_bin, s.position_bin)
+        out["nut_position"] = binned_mean(e, x, edges)
+        d = variables["speed_sign"][1]
+        keep = np.ones(e.size, bool) if steady is None else np.asarray(steady, bool)
+        out["nut_position"]["by_direction"] = {
+            label: binned_mean(np.where(keep & (d == sgn), e, np.nan), x, edges)
+            for label, sgn in (("extending", 1.0), ("retracting", -1.0)) if np.any(keep & (d == sgn))}
     for name in ("motor_angle", "screw_angle"):
         out[name] = binned_mean(e, np.mod(variables[name][1], 2 * math.pi), np.linspace(0, 2 * math.pi, 37))
     cc = {}
