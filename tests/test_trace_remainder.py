@@ -168,3 +168,61 @@ def test_position_test_false_alarm_rate_is_its_level():
         hits += bool(r["significant"])
     lo, hi = binom.ppf(0.0005, n, alpha), binom.ppf(0.9995, n, alpha)
     assert lo <= hits <= hi, (hits, lo, hi)
+
+
+def _segments(rng, level=(0.02, 0.0), slope=(0.0, 0.0), sd=0.003, seg=0.05):
+    """Per-segment missing torques of a trim run's two steady passes (extend 1.4..4.1 s, retract 5.9..8.6 s)."""
+    from thsa_control.trace.signature import drift_test  # noqa: F401  (imported by the tests)
+
+    tm, y, d = [], [], []
+    for (a, b), lv, sl, sgn in zip(((1.4, 4.1), (5.9, 8.6)), level, slope, (1.0, -1.0)):
+        mid = np.arange(a + seg / 2, b, seg)
+        tm += list(mid)
+        y += list(lv + sl * (mid - mid.mean()) + sd * rng.standard_normal(mid.size))
+        d += [sgn] * mid.size
+    return np.array(tm), np.array(y), np.array(d)
+
+
+def test_drift_test_takes_levels_per_pass_as_nuisance_and_finds_a_drift_of_either_sign():
+    """An extension followed by a retraction with different constant remainders (a base's direction dependence)
+    is no drift (a regression on time over the record would call it one); a drift whose sign differs between
+    the passes (a load-cell zero seen through the load torque driving, through the no-back's drag back-driven)
+    is found, with its slopes."""
+    from thsa_control.trace.signature import drift_test
+
+    rng = np.random.default_rng(5)
+    r = drift_test(*_segments(rng, level=(0.03, -0.01)))
+    assert not r["significant"] and r["passes"] == 2, r
+    r = drift_test(*_segments(rng, slope=(0.01, -0.008)))
+    assert r["significant"], r
+    assert r["slopes"][0] == pytest.approx(0.01, abs=4 * r["slope_stderr"][0])
+    assert r["slopes"][1] == pytest.approx(-0.008, abs=4 * r["slope_stderr"][1])
+
+
+def test_drift_test_false_alarm_rate_is_its_level():
+    """Calibration over 400 seeds of per-pass levels and white segment noise: the rejection rate at alpha = 0.05
+    lies inside the binomial 99.9 % band."""
+    from scipy.stats import binom
+
+    from thsa_control.trace.signature import drift_test
+
+    n, alpha = 400, 0.05
+    hits = sum(drift_test(*_segments(np.random.default_rng(1000 + k), level=(0.02, -0.01)), alpha=alpha,
+                          min_r2=0.0)["significant"] for k in range(n))
+    assert binom.ppf(0.0005, n, alpha) <= hits <= binom.ppf(0.9995, n, alpha), hits
+
+
+def test_segment_torques_recover_the_missing_torque_from_each_segments_speed_slope():
+    """A constant missing torque T makes the speed residual of every segment grow at T / J from the segment's own
+    (free) offset; each segment's estimate is J times that slope."""
+    from thsa_control.trace.signature import segment_torques
+
+    dt, J, T = 2e-3, 4e-4, 0.05
+    t = np.arange(1000) * dt
+    starts = np.arange(0, 1000, 25)
+    e = np.zeros_like(t)
+    for k, a in enumerate(starts):
+        e[a:a + 25] = (k % 3 - 1) * 0.2 + T / J * (t[a:a + 25] - t[a])
+    got = segment_torques(t, e, starts, J)
+    assert len(got) == starts.size
+    assert np.allclose([g[3] for g in got], T)

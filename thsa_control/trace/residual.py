@@ -20,7 +20,8 @@ from ..model.laws import kinematic_ratio
 from ..model.params import ParameterSet
 from .scoring import _rms_by_channel
 from .signature import (SignatureSettings, base_transients, binned_mean, cross_correlation, current_offset_test,
-                        missing_torque, position_local_test, remainder_kind, sensor_consistency, signature_tests)
+                        drift_test, missing_torque, position_local_test, remainder_kind, segment_torques,
+                        sensor_consistency, signature_tests)
 
 
 # ----------------------------------------------------------------------------- signature
@@ -31,6 +32,8 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     vars_: dict = {}
     local_in: dict[str, list] = {"e": [], "x": [], "d": []}
     steady: list = []  # outside the base's transients, per run
+    drift_in: list = []  # (time, segment torque, direction)
+    t_offset = 0.0
     for run in runs:
         pr = fit["predictions"][run.name]
         n = len(run.time)
@@ -61,8 +64,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             "motor_angle": ("angle", angle),
             "screw_angle": ("angle", angle / run.gear_ratio),
             "speed_sign": ("category", np.sign(np.where(np.abs(w) > dv, w, 0.0))),
-            # a slow drift (a load cell zero, a warming motor) and a torque-constant error (torque against current)
-            "time (slow drift)": ("linear", t),
+            # a torque-constant error (torque against current); a slow drift is tested per pass below
             "motor_current (torque constant)": ("linear", np.asarray(run.signals["motor_current"], float)),
         }
         del dt
@@ -75,6 +77,12 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         steady.append(~base_transients(t, w, load, s.transient_time))
         local_in["e"] += [np.where(steady[-1], torque[-1], np.nan), gap]
         local_in["x"] += [cols["nut_position"][1], gap]
+        # a slow drift: one torque per segment outside the base's transients while moving, passes per direction
+        sgn = cols["speed_sign"][1]
+        for a, b, tm, tq in segment_torques(t, e, starts, inertia):
+            if steady[-1][a:b].all() and np.all(sgn[a:b] == sgn[a]):
+                drift_in.append((t_offset + tm, tq, float(sgn[a])))
+        t_offset += float(t[-1] - t[0]) + 1.0  # runs one after another, separated by more than a pass gap
         local_in["d"] += [cols["speed_sign"][1], np.zeros(100)]
     if not torque:
         return {"missing_torque_rms": None, "tests": [], "sensors": []}
@@ -86,6 +94,10 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     if loc is not None:
         loc["unit"] = "N m"
         tests.insert(0, loc) if loc["significant"] else tests.append(loc)
+    if drift_in:
+        dr = drift_test(*(np.asarray(v) for v in zip(*drift_in)), alpha=s.alpha, min_r2=s.min_r2)
+        if dr is not None:
+            tests.insert(0, dr) if dr["significant"] else tests.append(dr)
     sensors = []
     for run in runs:
         for d in sensor_consistency(run.time, {c: run.signals[c] for c in ("motor_speed", "screw_speed", "nut_position")

@@ -41,7 +41,7 @@ from ..model.laws import kinematic_ratio
 
 __all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missing_torque", "current_offset_test",
            "binned_mean", "cross_correlation", "position_local_test", "base_transients", "remainder_kind",
-           "STRUCTURED_VARIABLES", "split_remainder"]
+           "STRUCTURED_VARIABLES", "split_remainder", "segment_torques", "drift_test"]
 
 #: signature variables whose structure an unmodelled-but-declared base does not leave: a feature repeated at a nut
 #: position over passes, periodic in motor or screw angle, a slow drift, a torque proportional to the current
@@ -514,3 +514,90 @@ def position_local_test(residual, position, direction, *, bin_width: float = 2e-
             "r2": None, "p_value": p, "significant": bool(p < alpha), "peak_bin": [lo, lo + bin_width],
             "peak_mean": float(np.max(np.abs(c)) * np.sign(c[int(np.argmax(np.abs(c)))])), "law": best["law"],
             "bins": len(rep), "passes": len(used), "F": best["F"], "dof": list(best["df"])}
+
+
+def segment_torques(time, e_speed, segment_starts, inertia: float, min_samples: int = 5) -> list[tuple[int, int, float, float]]:
+    """One missing-torque estimate per multiple-shooting segment: ``J`` times the least-squares slope of the
+    speed residual over the segment's samples, ``(first, end, mid time, torque)``.
+
+    Each segment starts from its own fitted state, so the speed residual inside it is the integral of the
+    missing torque from a free offset; its slope uses every sample of the segment (the Savitzky-Golay derivative
+    of :func:`missing_torque` loses a window at each segment edge) and the estimates of different segments are
+    nearly independent, which a test over seconds needs.
+    """
+    t = np.asarray(time, float)
+    e = np.asarray(e_speed, float)
+    bounds = sorted(set(int(x) for x in segment_starts) | {0}) + [e.size]
+    out = []
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        if b - a < min_samples or not np.all(np.isfinite(e[a:b])):
+            continue
+        tt = t[a:b] - t[a:b].mean()
+        den = float(tt @ tt)
+        if den > 0:
+            out.append((a, b, float(t[a:b].mean()), inertia * float(tt @ e[a:b]) / den))
+    return out
+
+
+def drift_test(mid_time, torque, direction, *, max_gap: float = 0.2, min_segments: int = 4,
+               alpha: float = 1e-6, min_r2: float = 0.01) -> dict | None:
+    """A slow drift of the missing torque in time under unchanged conditions (a load-cell zero drifting, a warming
+    motor's torque constant): per-segment torques (:func:`segment_torques`, segments outside the base's
+    transients, in motion) cut into passes (runs of segments of one direction without a gap above ``max_gap``
+    [s]); nested F test of one slope in time per pass against one level per pass.
+
+    The levels are nuisance: a declared model of another rig's base leaves a different constant remainder per
+    direction, speed and load, and a regression on time over the whole record would take an extension followed
+    by a retraction for a drift.  The slopes are free per pass because a drifting sensor biases the missing torque
+    by the model's sensitivity to that channel, whose sign differs between quadrants (a load-cell offset adds to
+    the load torque while driving and to the no-back's drag while back-driven).  The sample count is the
+    effective one of the full model's residual (its integrated autocorrelation time).  Within one pass a drift
+    and a trend along the stroke look the same; the name says time because passes in both directions share it.
+    """
+    from scipy.stats import f as f_dist
+
+    tm = np.asarray(mid_time, float)
+    y = np.asarray(torque, float)
+    d = np.asarray(direction, float)
+    ok = np.isfinite(tm) & np.isfinite(y) & (d != 0)
+    tm, y, d = tm[ok], y[ok], d[ok]
+    if y.size < 2 * min_segments:
+        return None
+    brk = np.flatnonzero((np.diff(tm) > max_gap) | (np.diff(d) != 0)) + 1
+    passes = [q for q in np.split(np.arange(y.size), brk) if q.size >= min_segments]
+    if not passes:
+        return None
+    idx = np.concatenate(passes)
+    yy = y[idx]
+    n, k = yy.size, len(passes)
+    x0 = np.zeros((n, k))
+    x1 = np.zeros((n, k))
+    row = 0
+    for j, q in enumerate(passes):
+        x0[row:row + q.size, j] = 1.0
+        x1[row:row + q.size, j] = tm[q] - tm[q].mean()
+        row += q.size
+    c0, *_ = np.linalg.lstsq(x0, yy, rcond=None)
+    full = np.column_stack([x0, x1])
+    c1, *_ = np.linalg.lstsq(full, yy, rcond=None)
+    r0, r1 = yy - x0 @ c0, yy - full @ c1
+    rss0, rss1 = float(r0 @ r0), float(r1 @ r1)
+    tau = max(n / _effective_n_iact(r1), 1.0)
+    df_d = n / tau - 2 * k
+    if df_d < 1 or rss1 <= 0:
+        return None
+    F = ((rss0 - rss1) / k) / (rss1 / (n - 2 * k)) / tau
+    p = float(f_dist.sf(F, k, df_d))
+    r2 = (rss0 - rss1) / rss0 if rss0 > 0 else 0.0
+    slopes = c1[k:]
+    return {"variable": "time (slow drift)", "kind": "drift", "size": float(math.sqrt(max(rss0 - rss1, 0.0) / n)),
+            "unit": "N m", "r2": float(r2), "p_value": p, "significant": bool(p < alpha and r2 >= min_r2),
+            "slopes": [float(v) for v in slopes], "slope_stderr": [float(v) for v in _slope_se(x1, rss1, n, k, tau)],
+            "passes": k, "segments": int(n), "iact": float(tau), "F": float(F)}
+
+
+def _slope_se(x1: np.ndarray, rss1: float, n: int, k: int, tau: float) -> list[float]:
+    """Standard error of each pass's slope (the passes' columns are orthogonal, centred within each pass)."""
+    s2 = rss1 / max(n - 2 * k, 1) * tau
+    return [math.sqrt(s2 / float(x1[:, j] @ x1[:, j])) if float(x1[:, j] @ x1[:, j]) > 0 else math.inf
+            for j in range(k)]
