@@ -95,7 +95,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         loc["unit"] = "N m"
         tests.insert(0, loc) if loc["significant"] else tests.append(loc)
     if drift_in:
-        dr = drift_test(*(np.asarray(v) for v in zip(*drift_in)), alpha=s.alpha, min_r2=s.min_r2)
+        dr = drift_test(*(np.asarray(v) for v in zip(*drift_in)), alpha=s.local_alpha, min_r2=s.min_r2)
         if dr is not None:
             tests.insert(0, dr) if dr["significant"] else tests.append(dr)
     sensors = []
