@@ -128,7 +128,10 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             "reflected_inertia": inertia, "missing_torque_rms": float(np.sqrt(np.mean(e_all[ok] ** 2))),
             "residual_to_noise": ratio, "max_noise_ratio": s.max_noise_ratio,
             "tests": tests, "sensors": sensors,
-            "curves": _signature_curves(e_all, variables, runs, s, np.concatenate(steady))}
+            "curves": {**_signature_curves(e_all, variables, runs, s, np.concatenate(steady)),
+                       # the drift test's data: one torque per steady segment (runs one after another in time)
+                       "segment_torque": {"time": [d[0] for d in drift_in], "torque": [d[1] for d in drift_in],
+                                          "direction": [d[2] for d in drift_in]}}}
 
 
 def _holdout_chi2_and_count(fit: dict, noise: Mapping[str, float]) -> dict:
@@ -180,6 +183,9 @@ def _signature_curves(e: np.ndarray, variables: dict, runs, s: SignatureSettings
                 np.r_[0.0, np.diff(x_)] / dt, kinematic_ratio({"screw.lead": run.screw_lead, "gear.ratio": run.gear_ratio})
                 * np.asarray(sig["motor_speed"], float), dt)
     out["cross_correlation"] = cc
+    i = variables["motor_current (torque constant)"][1]
+    if np.isfinite(i).sum() > 50 and np.nanmax(i) > np.nanmin(i):  # a torque-constant error: torque against current
+        out["motor_current"] = binned_mean(e, i, np.unique(np.nanquantile(i, np.linspace(0, 1, 2 * s.quantile_bins + 1))))
     return out
 
 
