@@ -345,7 +345,10 @@ class _AsCasadi:
 
     def __call__(self, dec, P, scale, sigma):
         r, J = self.problem._evaluate(self.kind, dec, P, scale, sigma)
-        return ca.DM(r) if J is None else (ca.DM(r), ca.DM(J))
+        if J is None:
+            return ca.DM(r)
+        sp = ca.Sparsity(J.shape[0], J.shape[1], J.indptr.tolist(), J.indices.tolist())
+        return ca.DM(r), ca.DM(sp, J.data)
 
 
 class _Prediction:
