@@ -175,7 +175,8 @@ def plot_signature(sig: dict):
         if dt_ is not None:
             ax.text(0.02, 0.97, f"drift per pass: p {_num(dt_['p_value'], '.2g')}"
                     + (" (STRUCTURED)" if dt_["significant"] else ""), transform=ax.transAxes, va="top", fontsize=7)
-        ax.legend(fontsize=7, loc="best")
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7, loc="best")
     else:
         ax.text(0.5, 0.5, "no steady segment in motion", ha="center", va="center", transform=ax.transAxes,
                 fontsize=9, color="0.35")

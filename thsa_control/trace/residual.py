@@ -80,7 +80,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         # a slow drift: one torque per segment outside the base's transients while moving, passes per direction
         sgn = cols["speed_sign"][1]
         for a, b, tm, tq in segment_torques(t, e, starts, inertia):
-            if steady[-1][a:b].all() and np.all(sgn[a:b] == sgn[a]):
+            if sgn[a] != 0 and steady[-1][a:b].all() and np.all(sgn[a:b] == sgn[a]):
                 drift_in.append((t_offset + tm, tq, float(sgn[a])))
         t_offset += float(t[-1] - t[0]) + 1.0  # runs one after another, separated by more than a pass gap
         local_in["d"] += [cols["speed_sign"][1], np.zeros(100)]
