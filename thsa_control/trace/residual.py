@@ -89,8 +89,10 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     e_all = np.concatenate(torque)
     variables = {n: (k, np.concatenate(v)) for n, (k, v) in vars_.items()}
     tests = signature_tests(e_all, variables, unit="N m", settings=s)
+    xs = variables["nut_position"][1]
     loc = position_local_test(np.concatenate(local_in["e"]), np.concatenate(local_in["x"]),
-                              np.concatenate(local_in["d"]), bin_width=s.position_bin, alpha=s.local_alpha)
+                              np.concatenate(local_in["d"]), bin_width=s.position_bin, alpha=s.local_alpha,
+                              origin=float(np.nanmin(xs)) if np.isfinite(xs).any() else None)  # the curves' bins
     if loc is not None:
         loc["unit"] = "N m"
         tests.insert(0, loc) if loc["significant"] else tests.append(loc)
