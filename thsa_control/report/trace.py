@@ -150,7 +150,8 @@ def plot_signature(sig: dict):
         else:
             ax.text(0.02, 0.97, "repeated over passes: not tested (fewer than three bins crossed by two passes)",
                     transform=ax.transAxes, va="top", fontsize=7, color="0.35")
-        ax.legend(fontsize=7, loc="best")
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7, loc="best")
     else:  # trace.residual bins the nut position only over a travel of at least two bins
         ax.text(0.5, 0.5, "not binned: the nut travel of these runs\nis shorter than two position bins",
                 ha="center", va="center", transform=ax.transAxes, fontsize=9, color="0.35")
