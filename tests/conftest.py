@@ -92,5 +92,36 @@ def _close_figures():
 def rng(request):
     return np.random.default_rng(abs(hash(request.node.name)) % (2**32))
 
+def _rusage_cpu():
+    import resource
+
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """Opt-in per-test processor time: ``THSA_TEST_CPU=FILE python -m pytest ...``.
+
+    Appends ``nodeid<TAB>cpu_s<TAB>wall_s<TAB>worker`` per test to ``FILE`` (one line per test, written with one
+    ``write`` so the xdist workers' lines do not interleave).  The processor time is this process's user + system
+    time plus that of the children it waited for (fit processes, CLI subprocesses, notebook kernels) over the
+    test's setup, call and teardown; a session fixture's cost lands on the first test that uses it.
+    ``python bench/suite_cpu.py FILE`` prints the table.
+    """
+    out = os.environ.get("THSA_TEST_CPU")
+    if not out:
+        yield
+        return
+    import time
+
+    c0, w0 = _rusage_cpu(), time.perf_counter()
+    yield
+    cpu, wall = _rusage_cpu() - c0, time.perf_counter() - w0
+    line = f"{item.nodeid}\t{cpu:.3f}\t{wall:.3f}\t{os.environ.get('PYTEST_XDIST_WORKER', 'main')}\n"
+    with open(out, "a") as f:
+        f.write(line)
+
+
 #: The scripts beside the committed test data (they regenerate it from rig-sim) are not test modules.
 collect_ignore = ["data"]

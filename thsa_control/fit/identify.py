@@ -140,6 +140,10 @@ class IdentificationSettings:
         the parameter fit; its initial state is fitted afterwards at the
         identified parameters and its error reported separately (validation on
         data the parameter fit did not see).
+    compiled : bool
+        Evaluate the residuals and their Jacobian with the segment Functions compiled to C (through the
+        simulator's verified build cache, one library per model structure, the data as inputs); False, or no
+        working C compiler: casadi's interpreter.  The same operations either way (agreement to rounding).
     """
 
     method: str = "multiple_shooting"
@@ -162,6 +166,7 @@ class IdentificationSettings:
     quasi_static_starts: bool = False
     speed_sensors: Mapping[str, object] | None = None
     priors: Mapping[str, tuple[float, float]] | None = None
+    compiled: bool = True
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad field."""

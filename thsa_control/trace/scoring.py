@@ -256,7 +256,7 @@ def _window_beyond_noise(before: dict, after: dict, noise: Mapping[str, float], 
     return out
 
 
-def _holdout_segment_changes(before: dict, after: dict, noise: Mapping[str, float]) -> dict:
+def _holdout_segment_changes(before: dict, after: dict, noise: Mapping[str, float], mask: dict | None = None) -> dict:
     """How a held-out chi2 drop is made: the drop of each held-out segment (noise-weighted squared error of
     ``before`` less ``after``), counted and concentrated.
 
@@ -264,6 +264,10 @@ def _holdout_segment_changes(before: dict, after: dict, noise: Mapping[str, floa
     starts, stops and reversals; a candidate's total drop may then be decided by two or three of them (measured:
     a cold drag that improved the training error by 37 % lost on two held-out segments of one stop).
     ``top3_share``: the three largest absolute segment changes over the sum of all absolute changes.
+    ``mask`` (run -> bool per sample): count only those samples (a candidate's window outside the base's
+    transients); a segment with none of them is left out.  ``sign_p``: one-sided sign test of "the candidate
+    improves no more held-out segments than it worsens" (binomial, p = 1/2, ties left out), the probability
+    of at least ``improved`` improvements out of ``improved + worse`` under it.
     """
     changes = []
     for r, pb in before["predictions"].items():
@@ -276,23 +280,32 @@ def _holdout_segment_changes(before: dict, after: dict, noise: Mapping[str, floa
         st = np.searchsorted(t, st) if st.dtype.kind == "f" else st.astype(int)
         seg = np.searchsorted(st, np.arange(hold.size), side="right") - 1
         d = np.zeros(len(st))
+        n_in = np.zeros(len(st), int)
+        sel = np.ones(hold.size, bool) if mask is None else np.asarray(mask[r], bool)[:hold.size]
         for c, y in pb["measured"].items():
             if c not in pa["simulated"] or not noise.get(c):
                 continue
             y = np.asarray(y, float)[:hold.size]
             eb = ((y - np.asarray(pb["simulated"][c], float)[:hold.size]) / noise[c]) ** 2
             ea = ((y - np.asarray(pa["simulated"][c], float)[:hold.size]) / noise[c]) ** 2
-            m = hold & np.isfinite(eb) & np.isfinite(ea) & (seg >= 0)
+            m = hold & sel[:hold.size] & np.isfinite(eb) & np.isfinite(ea) & (seg >= 0)
             np.add.at(d, seg[m], (eb - ea)[m])
+            np.add.at(n_in, seg[m], 1)
         held = np.array([bool(hold[i]) for i in st[st < hold.size]] + [False] * int(np.sum(st >= hold.size)))
+        if mask is not None:
+            held &= n_in > 0
         changes += list(d[held])
     x = np.asarray(changes, float)
     if not x.size:
         return {}
+    from scipy.stats import binom
+
     a = np.sort(np.abs(x))[::-1]
-    return {"segments": int(x.size), "improved": int(np.sum(x > 0)), "worse": int(np.sum(x < 0)),
+    up, down = int(np.sum(x > 0)), int(np.sum(x < 0))
+    return {"segments": int(x.size), "improved": up, "worse": down,
             "top3_share": float(a[:3].sum() / a.sum()) if a.sum() > 0 else 0.0,
-            "median_drop": float(np.median(x))}
+            "median_drop": float(np.median(x)),
+            "sign_p": float(binom.sf(up - 1, up + down, 0.5)) if up + down else 1.0}
 
 
 def _rms_by_channel(fit: dict, mask_fn=None) -> dict:

@@ -373,7 +373,12 @@ register(Effect(
              Output("noback_normal_force_tens", "N"), Output("noback_disk_comp_slipping", "-"),
              Output("noback_disk_tens_slipping", "-"), Output("pawl_comp_engaged", "-"),
              Output("pawl_tens_engaged", "-"), Output("pawl_engaged", "-")),
-    candidate=CandidateSpec("noback_quadrant_friction", ("noback.mu_coulomb_pos", "noback.mu_coulomb_neg"), {},
+    # the static coefficients (the Stribeck hump's height) are free with the Coulomb ones: Table 2's are one
+    # specimen's, and a no-back without the hump (a plain Coulomb disk, sticking only at rest) left a hump of
+    # (mu_s - mu_c) N at every start under an aiding load that the base corrections then stood in for
+    # (docs/trace_notes.md, "Base drags"); what a run does not determine is held at the file's value
+    candidate=CandidateSpec("noback_quadrant_friction", ("noback.mu_coulomb_pos", "noback.mu_coulomb_neg",
+                                                         "noback.mu_static_pos", "noback.mu_static_neg"), {},
                             "loaded"),
     linear=LinearHints(kinks={"noback_normal_force": "load reversal in the load path (zero load-path force: the "
                                                      "no-back's loaded side switches)"}),
