@@ -114,6 +114,19 @@ def plot_candidate_drops(doc: dict):
     return fig
 
 
+def _binned(ax, c: dict, scale: float = 1.0, gap_bins: float = 1.5, **kw):
+    """A binned curve with its standard errors; the line breaks where bins are empty (more than ``gap_bins``
+    bin widths between centres) instead of drawing across data that do not exist."""
+    x = scale * np.asarray(c["centre"], float)
+    y = np.asarray(c["mean"], float)
+    se = np.asarray(c["sd"], float) / np.sqrt(np.maximum(np.asarray(c["count"], float), 1.0))
+    if x.size > 2:
+        step = float(np.min(np.diff(x)))
+        cut = np.flatnonzero(np.diff(x) > gap_bins * step) + 1
+        x, y, se = (np.insert(a, cut, np.nan) for a in (x, y, se))
+    return ax.errorbar(x, y, yerr=se, **kw)
+
+
 def plot_signature(sig: dict):
     """The remaining residual's signature: binned by nut position, by motor and screw angle, the redundant
     sensors' cross-correlation, the per-segment torque against time (the drift test's data) and the residual
@@ -124,12 +137,9 @@ def plot_signature(sig: dict):
     if "nut_position" in curves:
         c = curves["nut_position"]
         by_dir = c.get("by_direction") or {}
-        ax.errorbar(1e3 * np.asarray(c["centre"]), c["mean"], yerr=np.asarray(c["sd"]) / np.sqrt(np.maximum(c["count"], 1)),
-                    fmt="o-", ms=2, lw=0.6, color="0.7", label="all samples")
+        _binned(ax, c, 1e3, fmt="o-", ms=2, lw=0.6, color="0.7", label="all samples")
         for (label, cd), col in zip(by_dir.items(), ("C0", "C1")):
-            ax.errorbar(1e3 * np.asarray(cd["centre"]), cd["mean"],
-                        yerr=np.asarray(cd["sd"]) / np.sqrt(np.maximum(cd["count"], 1)), fmt="o-", ms=3, lw=0.8,
-                        color=col, label=f"{label}, outside the base's transients")
+            _binned(ax, cd, 1e3, fmt="o-", ms=3, lw=0.8, color=col, label=f"{label}, outside the base's transients")
         loc = next((t for t in sig.get("tests", []) if t.get("variable") == "nut_position (repeated over passes)"), None)
         if loc is not None:  # the pass-replicated test's peak bin, its law and p-value
             ax.axvspan(1e3 * loc["peak_bin"][0], 1e3 * loc["peak_bin"][1], color="C3" if loc["significant"] else "0.85",
@@ -137,7 +147,11 @@ def plot_signature(sig: dict):
             ax.text(0.02, 0.97, f"repeated over passes: p {_num(loc['p_value'], '.2g')}"
                     + (f", {loc['law'].split(' ')[0]}" if loc.get("law") else "")
                     + (" (STRUCTURED)" if loc["significant"] else ""), transform=ax.transAxes, va="top", fontsize=7)
-        ax.legend(fontsize=7, loc="best")
+        else:
+            ax.text(0.02, 0.97, "repeated over passes: not tested (fewer than three bins crossed by two passes)",
+                    transform=ax.transAxes, va="top", fontsize=7, color="0.35")
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7, loc="best")
     else:  # trace.residual bins the nut position only over a travel of at least two bins
         ax.text(0.5, 0.5, "not binned: the nut travel of these runs\nis shorter than two position bins",
                 ha="center", va="center", transform=ax.transAxes, fontsize=9, color="0.35")
@@ -148,8 +162,7 @@ def plot_signature(sig: dict):
     for ax, name in ((axes[0, 1], "motor_angle"), (axes[1, 0], "screw_angle")):
         c = curves.get(name)
         if c:
-            ax.errorbar(np.degrees(c["centre"]), c["mean"], yerr=np.asarray(c["sd"]) / np.sqrt(np.maximum(c["count"], 1)),
-                        fmt="o-", ms=3, lw=0.8)
+            _binned(ax, c, 180.0 / np.pi, fmt="o-", ms=3, lw=0.8)
         ax.axhline(0, color="0.5", lw=0.5)
         ax.set_xlabel(f"{name.replace('_', ' ')} modulo one revolution [deg]")
         ax.set_ylabel("missing torque [N m]")
@@ -175,7 +188,8 @@ def plot_signature(sig: dict):
         if dt_ is not None:
             ax.text(0.02, 0.97, f"drift per pass: p {_num(dt_['p_value'], '.2g')}"
                     + (" (STRUCTURED)" if dt_["significant"] else ""), transform=ax.transAxes, va="top", fontsize=7)
-        ax.legend(fontsize=7, loc="best")
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7, loc="best")
     else:
         ax.text(0.5, 0.5, "no steady segment in motion", ha="center", va="center", transform=ax.transAxes,
                 fontsize=9, color="0.35")
@@ -185,8 +199,7 @@ def plot_signature(sig: dict):
     ax = axes[2, 1]
     c = curves.get("motor_current")
     if c:
-        ax.errorbar(c["centre"], c["mean"], yerr=np.asarray(c["sd"]) / np.sqrt(np.maximum(c["count"], 1)), fmt="o-",
-                    ms=3, lw=0.8)
+        _binned(ax, c, fmt="o-", ms=3, lw=0.8, gap_bins=np.inf)  # quantile bins: unequal widths
     ax.axhline(0, color="0.5", lw=0.5)
     ax.set_xlabel("motor current [A]")
     ax.set_ylabel("missing torque [N m]")

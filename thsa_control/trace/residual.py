@@ -84,7 +84,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         # a slow drift: one torque per segment outside the base's transients while moving, passes per direction
         sgn = cols["speed_sign"][1]
         for a, b, tm, tq in segment_torques(t, e, starts, inertia):
-            if steady[-1][a:b].all() and np.all(sgn[a:b] == sgn[a]):
+            if sgn[a] != 0 and steady[-1][a:b].all() and np.all(sgn[a:b] == sgn[a]):
                 drift_in.append((t_offset + tm, tq, float(sgn[a])))
         t_offset += float(t[-1] - t[0]) + 1.0  # runs one after another, separated by more than a pass gap
         local_in["d"] += [cols["speed_sign"][1], np.zeros(100)]
@@ -93,8 +93,10 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     e_all = np.concatenate(torque)
     variables = {n: (k, np.concatenate(v)) for n, (k, v) in vars_.items()}
     tests = signature_tests(e_all, variables, unit="N m", settings=s)
+    xs = variables["nut_position"][1]
     loc = position_local_test(np.concatenate(local_in["e"]), np.concatenate(local_in["x"]),
-                              np.concatenate(local_in["d"]), bin_width=s.position_bin, alpha=s.local_alpha)
+                              np.concatenate(local_in["d"]), bin_width=s.position_bin, alpha=s.local_alpha,
+                              origin=float(np.nanmin(xs)) if np.isfinite(xs).any() else None)  # the curves' bins
     if loc is not None:
         loc["unit"] = "N m"
         tests.insert(0, loc) if loc["significant"] else tests.append(loc)

@@ -445,7 +445,7 @@ def _nested_f(y: np.ndarray, x0: np.ndarray, x1: np.ndarray) -> tuple[float, flo
 
 
 def position_local_test(residual, position, direction, *, bin_width: float = 2e-3, min_samples: int = 5,
-                        alpha: float = 1e-4) -> dict | None:
+                        alpha: float = 1e-4, origin: float | None = None) -> dict | None:
     """A residual tied to the nut position, replicated over passes (a friction bump, a worn spot).
 
     The record is cut into passes (stretches of one direction of motion, ``direction`` +-1, 0 when still);
@@ -461,7 +461,8 @@ def position_local_test(residual, position, direction, *, bin_width: float = 2e-
     opposes the motion (a friction bump, a worn spot: the missing torque changes sign with the direction,
     so the residual times the direction is tested) and a *conservative* one that does not (a position-
     dependent force: the residual itself).  Averaged as it is, a friction bump crossed once each way cancels.
-    None when fewer than three bins are visited by two passes.
+    None when fewer than three bins are visited by two passes.  ``origin``: the first bin's lower edge (default the
+    smallest position tested), so that the report's binned curves share the bins.
     """
     e = np.asarray(residual, float)
     x = np.asarray(position, float)
@@ -473,7 +474,7 @@ def position_local_test(residual, position, direction, *, bin_width: float = 2e-
     idx = np.flatnonzero(ok)
     brk = np.flatnonzero((np.diff(idx) > 50) | (np.diff(d[idx]) != 0)) + 1
     passes = np.split(idx, brk)
-    x0 = float(np.nanmin(x[ok]))
+    x0 = float(np.nanmin(x[ok])) if origin is None else float(origin)
     rows = []  # (pass, bin, bin centre, mean residual, direction)
     for j, p in enumerate(passes):
         if p.size < 3 * min_samples:
