@@ -98,8 +98,6 @@ def _physical(doc: dict) -> list[dict]:
 KNOWN_FAILING = {
     # measured on the committed runs with this tracer (the standby rotor declared from each run's rig.motors = 2),
     # `tests/data/rigsim/trace_all.sh DIR` then THSA_TRACED_DIR=DIR; the table is in docs/trace_notes.md
-    "rig_screw_ripple": "screw_friction_ripple found first among the physical effects (after the detailed no-back), "
-                        "its window RMS drop 49 % (< 50 %)",
     "rig_temp_friction": "nothing added: force_offset and coulomb_friction ambiguous (equal held-out drops); "
                          "temperature_friction refused, its viscous temperature coefficient 0.00075 1/K (stderr "
                          "0.0056) 'collapses to zero' although the one-temperature run cannot determine it",
