@@ -98,8 +98,6 @@ def _physical(doc: dict) -> list[dict]:
 KNOWN_FAILING = {
     # measured on the committed runs with this tracer (the standby rotor declared from each run's rig.motors = 2),
     # `tests/data/rigsim/trace_all.sh DIR` then THSA_TRACED_DIR=DIR; the table is in docs/trace_notes.md
-    "rig_screw_ripple": "screw_friction_ripple found first among the physical effects (after the detailed no-back), "
-                        "its window RMS drop 49 % (< 50 %)",
     "rig_temp_friction": "temperature_friction is added first (its viscous temperature coefficient not determined at "
                          "one temperature: held at 0.02 1/K), but its window drop is 17 % of the motor-speed error "
                          "left by the base corrections (Coulomb drag, axial force and direct efficiency at their "

@@ -163,8 +163,8 @@ class TraceSettings:
         chi2 drops at ``alpha`` (``window_segments.sign_p``).  A constant torque acts on every moving sample
         alike, so a real one lowers the error of most segments; the pooled held-out drop of a declared model of
         another rig's base is carried by a few segments (measured: an axial force beyond its bound, the first
-        effect named on rig_direction_friction, improved 13 of 33 held-out segments, three of them carrying
-        91 % of the change, and made the median segment worse).  The held-out segments are separate shooting
+        effect named on rig_direction_friction, improved 6 of the 15 held-out segments of its window outside the
+        transients; over all 33 held-out segments 13, three of them carrying 91 % of the change).  The held-out segments are separate shooting
         segments, each started from its own fitted state, and 2 segment lengths apart: their drops are taken
         as independent.
     rig_hardware : bool
