@@ -10,18 +10,20 @@ Prints the longest tests by processor time (wall in brackets), the sum per worke
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections import defaultdict
 from pathlib import Path
 
 
-def read(path: Path) -> dict[str, tuple[float, float, str]]:
+def read(path: Path) -> dict[str, tuple[float, float, str, float]]:
+    """nodeid -> (cpu_s, wall_s, worker, end); ``end`` is NaN in files of the first, four-field form."""
     rows = {}
     for n, line in enumerate(path.read_text().splitlines(), 1):
         parts = line.split("\t")
-        if len(parts) != 4:
-            sys.exit(f"{path}, line {n}: expected 4 tab-separated fields, got {len(parts)}")
-        rows[parts[0]] = (float(parts[1]), float(parts[2]), parts[3])
+        if len(parts) not in (4, 5):
+            sys.exit(f"{path}, line {n}: expected 4 or 5 tab-separated fields, got {len(parts)}")
+        rows[parts[0]] = (float(parts[1]), float(parts[2]), parts[3], float(parts[4]) if len(parts) == 5 else math.nan)
     return rows
 
 
@@ -35,13 +37,18 @@ def main(argv=None) -> int:
     rows = {k: v for k, v in read(a.file).items() if a.match in k}
     old = read(a.compare) if a.compare else {}
     ranked = sorted(rows.items(), key=lambda kv: -kv[1][0])
-    for nodeid, (cpu, wall, _) in ranked[: a.top]:
+    for nodeid, (cpu, wall, *_) in ranked[: a.top]:
         before = f"{old[nodeid][0]:7.1f} -> " if nodeid in old else ""
         print(f"{before}{cpu:7.1f} s CPU ({wall:6.1f} s wall)  {nodeid}")
-    per_worker = defaultdict(float)
-    for cpu, _, worker in rows.values():
+    per_worker, last = defaultdict(float), defaultdict(lambda: -math.inf)
+    for cpu, _, worker, end in rows.values():
         per_worker[worker] += cpu
+        last[worker] = max(last[worker], end)
     print("per worker: " + ", ".join(f"{w} {t:.1f} s" for w, t in sorted(per_worker.items())))
+    ends = {w: t for w, t in last.items() if math.isfinite(t)}
+    if len(ends) > 1:  # the tail: how long the other workers idled while the last one finished its tests
+        t_end = max(ends.values())
+        print("idle at the end: " + ", ".join(f"{w} {t_end - t:.1f} s" for w, t in sorted(ends.items())))
     total = sum(v[0] for v in rows.values())
     line = f"sum over {len(rows)} tests: {total:.1f} s CPU"
     if old:

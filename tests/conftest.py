@@ -103,8 +103,9 @@ def _rusage_cpu():
 def pytest_runtest_protocol(item, nextitem):
     """Opt-in per-test processor time: ``THSA_TEST_CPU=FILE python -m pytest ...``.
 
-    Appends ``nodeid<TAB>cpu_s<TAB>wall_s<TAB>worker`` per test to ``FILE`` (one line per test, written with one
-    ``write`` so the xdist workers' lines do not interleave).  The processor time is this process's user + system
+    Appends ``nodeid<TAB>cpu_s<TAB>wall_s<TAB>worker<TAB>end`` per test to ``FILE`` (one line per test, written
+    with one ``write`` so the xdist workers' lines do not interleave; ``end``: the wall clock [s since the epoch]
+    when the test ended, to see how long a worker idled at the end).  The processor time is this process's user + system
     time plus that of the children it waited for (fit processes, CLI subprocesses, notebook kernels) over the
     test's setup, call and teardown; a session fixture's cost lands on the first test that uses it.
     ``python bench/suite_cpu.py FILE`` prints the table.
@@ -118,7 +119,7 @@ def pytest_runtest_protocol(item, nextitem):
     c0, w0 = _rusage_cpu(), time.perf_counter()
     yield
     cpu, wall = _rusage_cpu() - c0, time.perf_counter() - w0
-    line = f"{item.nodeid}\t{cpu:.3f}\t{wall:.3f}\t{os.environ.get('PYTEST_XDIST_WORKER', 'main')}\n"
+    line = f"{item.nodeid}\t{cpu:.3f}\t{wall:.3f}\t{os.environ.get('PYTEST_XDIST_WORKER', 'main')}\t{time.time():.3f}\n"
     with open(out, "a") as f:
         f.write(line)
 

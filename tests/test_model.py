@@ -142,3 +142,31 @@ def test_discrete_step_is_consistent_with_the_rhs(params):
     fd = (np.asarray(plant.step(x, u, p, h)[0]).ravel() - x) / h
     # both forms come from the same terms: first-order agreement at h = 1e-8
     np.testing.assert_allclose(fd, xdot, rtol=1e-5, atol=1e-6)
+
+
+def test_a_plant_is_built_once_per_effect_set_and_again_for_a_new_definition(params):
+    """build_plant memoises per process (the same effect set and parameter names: the same Plant object, as the
+    plant depends on nothing else); an effect registered again under its name (a new definition) and another
+    parameter set's names give their own plant."""
+    import dataclasses
+
+    from thsa_control.model import register
+
+    a = build_plant("B", ["temperature_friction"], params=params)
+    assert build_plant("b", ("temperature_friction",), params=params) is a
+    assert build_plant("B", params=params) is not a
+    assert build_plant("A", params=params) is not build_plant("A", remove=["noback_ideal"], params=params)
+    assert build_plant("A", params=params) is build_plant(None, ["noback_ideal"], params=params)  # the same set
+    old = EFFECTS["temperature_friction"]
+    register(dataclasses.replace(old, summary=old.summary + " (again)"), replace=True)
+    try:
+        b = build_plant("B", ["temperature_friction"], params=params)
+        assert b is not a and b.state_names == a.state_names
+        p = a.p_vector(params)
+        x0 = np.asarray(a.init(0.0, 1e3, p), float).ravel() + 0.1  # moving, off equilibrium
+        u = np.linspace(-1.0, 2.0, len(a.inputs))
+        ya, yb = (np.asarray(pl.f(x0, u, p)[1], float) for pl in (a, b))
+        np.testing.assert_array_equal(ya, yb)  # the same definition again: the same equations
+    finally:
+        register(old, replace=True)
+    assert build_plant("B", ["temperature_friction"], params=params) is a

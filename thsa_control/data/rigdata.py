@@ -446,11 +446,17 @@ def _check_columns(columns: Mapping[str, Any], problems: list) -> dict[str, np.n
 
 
 def _format(array: np.ndarray, fmt: str) -> list[str]:
+    """The cells of one column: ``fmt % value`` (Python's formatting of the float), NaN as an empty cell.
+
+    The same text as ``np.char.mod(fmt, array)`` (which applies ``%`` to each numpy scalar), in well under half
+    the time: the CSV formatting was most of writing a run.
+    """
     if array.dtype.kind in "US":
         return array.tolist()
-    text = np.char.mod(fmt, array)
-    text[np.isnan(array)] = ""
-    return text.tolist()
+    text = [fmt % v for v in array.tolist()]
+    for i in np.flatnonzero(np.isnan(array)).tolist():
+        text[i] = ""
+    return text
 
 
 def write_run(stem: str | os.PathLike, columns: Mapping[str, Any], metadata: Mapping[str, Any],

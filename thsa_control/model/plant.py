@@ -27,6 +27,7 @@ shaft (the main body's and the one the motor current accelerates).
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Iterable
 from dataclasses import dataclass
 
@@ -230,6 +231,28 @@ def build_plant(level: str | None = "A", effects: Iterable[str] = (), *, remove:
     """
     chosen = resolve_effects(level, add=effects, remove=remove)
     names = (params or default_parameters()).names
+    # The plant is a function of the chosen effects' definitions and the parameter names only: built once per
+    # process.  The key holds the identity of each chosen Effect (kept alive by the entry, so an id is not
+    # reused): an effect registered again under the same name gets a new plant.
+    objs = tuple(EFFECTS[e] for e in chosen)
+    key = (chosen, tuple(names), tuple(map(id, objs)))
+    hit = _PLANTS.get(key)
+    if hit is not None:
+        _PLANTS.move_to_end(key)
+        return hit[1]
+    plant = _build(chosen, names)
+    _PLANTS[key] = (objs, plant)
+    if len(_PLANTS) > _PLANTS_KEPT:
+        _PLANTS.popitem(last=False)
+    return plant
+
+
+#: build_plant's memo: key -> (the chosen Effect objects, Plant), least recently used first.
+_PLANTS: OrderedDict = OrderedDict()
+_PLANTS_KEPT = 64
+
+
+def _build(chosen: tuple[str, ...], names) -> Plant:
     psym = ca.SX.sym("p", len(names))
     p = {n: psym[i] for i, n in enumerate(names)}
     for eff in chosen:

@@ -142,6 +142,7 @@ def _resolved_periods(params: ParameterSet, runs, lo: float, hi: float) -> tuple
 #: Narrowing of a profiled parameter's range to what the runs resolve (name -> function(params, runs, lo, hi)).
 PROFILE_LIMITS: dict[str, Callable] = {"drive.cogging_periods": _resolved_periods}
 
+
 def _screw_revolutions(params: ParameterSet, runs) -> str | None:
     """A ripple once per screw revolution is told from a drag that depends on the nut position (a bump, a worn
     spot, a trend of the base's own drags along the stroke) only where the same screw angle recurs at another
