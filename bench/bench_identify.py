@@ -66,15 +66,16 @@ def main() -> None:
             out.append(time.perf_counter() - t)
         return min(out)
 
-    t_sim = best(lambda: pb.f_res(z, p0, scale, pb.sigma0))
-    t_grad = best(lambda: pb.f_jac(z, p0, scale, pb.sigma0)[1].sparse())
+    t_sim = best(lambda: pb.residuals(z, p0, scale, pb.sigma0))
+    t_grad = best(lambda: pb.jacobian(z, p0, scale, pb.sigma0))  # scipy CSC, as the fit uses it
 
     res = Identifier("B", start, FREE, settings=settings).fit(run)
     print(f"run: 10 s at {args.rate:g} Hz ({len(run.time)} samples), recorded in {t_record:.2f} s")
     print(f"problem: {pb.M} segments of {pb.L} samples, {len(FREE)} parameters + {pb.n_dec_states} segment states, "
           f"{pb.Ymeas.size} residuals, substeps {args.substeps}")
     print(f"one simulation (all segment residuals): {t_sim * 1e3:.1f} ms")
-    print(f"one gradient (exact casadi Jacobian {pb.Ymeas.size} x {len(FREE) + pb.n_dec_states}): {t_grad * 1e3:.1f} ms")
+    print(f"one gradient (exact casadi Jacobian {pb.Ymeas.size} x {len(FREE) + pb.n_dec_states}, "
+          f"{'compiled' if pb.compiled else 'interpreted'}): {t_grad * 1e3:.1f} ms")
     print(f"identification of {len(FREE)} parameters: {res.time_s:.1f} s ({res.nfev} evaluations, {res.njev} "
           f"Jacobians; target < 60 s) - {res.status}")
     for n, e in res.estimates.items():

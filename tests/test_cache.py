@@ -163,3 +163,27 @@ def test_inline_min_max_return_libm_bits():
         for y in values:
             assert bits(libm.fmax(x, y)) == bits(x if x > y else (y if y == y else x)), (x, y)
             assert bits(libm.fmin(x, y)) == bits(x if x < y else (y if y == y else x)), (x, y)
+
+
+def test_two_processes_needing_the_same_library_build_it_once(tmp_path, reference):
+    """On a fresh machine two processes (pytest-xdist workers, fit processes) that need the same library at the
+    same time: one compiles, the other waits for it and loads the published file (verified like any cached
+    one); both give the clean run's numbers.  The compiler here is a wrapper that logs each call and takes
+    a few seconds, so that the second process asks while the first one builds."""
+    real = shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
+    log = tmp_path / "cc.log"
+    slow = tmp_path / "bin" / "slowcc"
+    slow.parent.mkdir()
+    slow.write_text(f'#!/bin/sh\necho build >> "{log}"\nsleep 4\nexec "{real}" "$@"\n')
+    slow.chmod(0o755)
+    cache = tmp_path / "c"
+    e = {**os.environ, "THSA_CACHE_DIR": str(cache), "CC": str(slow),
+         "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
+    procs = [subprocess.Popen([sys.executable, "-c", _PROBE, "A"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True, env=e) for _ in range(2)]
+    outs = [p.communicate(timeout=300) for p in procs]
+    assert all(p.returncode == 0 for p in procs), [o[1][-2000:] for o in outs]
+    res = [json.loads(o[0].strip().splitlines()[-1]) for o in outs]
+    assert log.read_text().count("build") == 1, log.read_text()
+    assert sorted(r["cached"] for r in res) == [False, True] and all(r["compiled"] for r in res)
+    assert all(_same(r, reference["A"]) for r in res)

@@ -144,6 +144,24 @@ def test_inseparable_parameters_are_flagged(record, params):
     assert "NOT IDENTIFIABLE" in res.fit_report()
 
 
+def test_data_stderr_leaves_out_the_regularising_priors(record, params):
+    """Motor-bearing and gear viscous friction act on (almost) the same speed: only their sum is seen well.  A
+    regularising prior (prior_relative_sd) on the gear's lends the bearing's a small posterior stderr; the runs'
+    own information (``stderr_data``) cannot tell it from zero.  An explicit prior (external knowledge,
+    ``priors``) counts as information."""
+    pair = ("motor.bearing_viscous_friction", "gear.viscous_friction")
+    run = record("A", params, 1, 2.0)
+    s = IdentificationSettings(channels=("motor_speed", "nut_position"), prior_relative_sd=0.05,
+                               no_prior=pair[:1])
+    e = Identifier("A", params, pair, settings=s).fit(run).estimates[pair[0]]
+    assert e.stderr < 0.5 * abs(e.value), e  # "determined" through the other's prior
+    assert e.stderr_data > 2 * abs(e.value) and e.stderr_data > 4 * e.stderr, e  # not by the run
+    g = params.value(pair[1])
+    s = IdentificationSettings(channels=("motor_speed", "nut_position"), priors={pair[1]: (g, 0.1 * g)})
+    e = Identifier("A", params, pair, settings=s).fit(run).estimates[pair[0]]
+    assert math.isfinite(e.stderr) and e.stderr_data == pytest.approx(e.stderr, rel=1e-9), e
+
+
 def test_saved_parameters_load_into_the_models(record, params, tmp_path):
     free = ("gear.viscous_friction", "screw.efficiency_direct")
     res = Identifier("A", _start(params, free), free, settings=SETTINGS).fit(record("A", params, 1, 2.0))

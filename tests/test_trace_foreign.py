@@ -98,45 +98,65 @@ def _physical(doc: dict) -> list[dict]:
 KNOWN_FAILING = {
     # measured on the committed runs with this tracer (the standby rotor declared from each run's rig.motors = 2),
     # `tests/data/rigsim/trace_all.sh DIR` then THSA_TRACED_DIR=DIR; the table is in docs/trace_notes.md
-    "rig_screw_ripple": "screw_friction_ripple found first among the physical effects (after the detailed no-back), "
-                        "its window RMS drop 49 % (< 50 %)",
-    "rig_temp_friction": "nothing added: force_offset and coulomb_friction ambiguous (equal held-out drops); "
-                         "temperature_friction refused, its viscous temperature coefficient 0.00075 1/K (stderr "
-                         "0.0056) 'collapses to zero' although the one-temperature run cannot determine it",
-    "rig_coulomb": "nothing named: the Coulomb base correction takes 0.045 N m (inside its bound); force_offset, "
-                   "direction_friction and loadpath_compliance are ambiguous",
-    "rig_axial_offset": "force_offset is added beyond its base correction, but third (window drop 7 %), after the "
-                        "detailed no-back and the bases' load-path compliance",
-    "rig_direction_friction": "direction_friction is added (window drop 54 %) but second: force_offset beyond its base "
-                              "correction (window drop 6 %) comes first",
-    "rig_drivetrain_compliance": "refused: with the standby rotor declared from the run the compliance's held-out drop "
-                                 "is 509, but the screw-speed error grows by 41 % (the gear damping is held at the "
-                                 "file's 20 N m s/rad, rig-sim's is 2)",
-    "rig_friction_bump": "not flagged: the nut-position test over passes is not significant outside the base's "
-                         "transients; unexplained false (the load-path compliance is added, base content)",
-    "rig_loadcell_drift": "not flagged: the slow-drift regression of the missing torque on time is not significant "
-                          "(the load-cell drift biases the load the replay applies)",
-    "rig_kt_temperature": "not flagged: neither the torque-constant nor the drift regression is significant on a "
-                          "10 s run",
-    "rig_worn_spot_stiction": "not flagged: the extra breakaway acts at starts and reversals, where the base itself "
-                              "leaves structure; nothing invented",
-    "null_papers_bipolar_s3": "force_offset beyond its base correction (window drop 34 %) after the detailed no-back: "
-                              "the papers base's power-flow-dependent efficiencies (gear 0.95/0.90, screw 0.90/0.85) "
-                              "with both screw efficiencies at their correction bounds",
-    "null_papers_reversals_s2": "force_offset (window drop 31 %) and coulomb_friction (43 %) beyond their base "
-                                "corrections after the detailed no-back (papers base, inverse efficiency at its bound)",
-    "null_papers_trim_s1": "force_offset (window drop 24 %) and coulomb_friction (37 %) beyond their base corrections "
-                           "after the detailed no-back (papers base, both screw efficiencies at their bounds)",
-    "rig_ratchet_backlash": "noback_backlash found first among the physical effects after the detailed no-back, its "
-                            "window RMS drop 17 % (LVDT)",
+    "rig_temp_friction": "temperature_friction is added first (its viscous temperature coefficient not determined at "
+                         "one temperature: held at 0.02 1/K), but its window drop is 17 % of the motor-speed error "
+                         "left by the base corrections (Coulomb drag, axial force and direct efficiency at their "
+                         "bounds: at one speed and one load every constant torque is the same); the residual left "
+                         "is at the stops (drive off: 2.0 rad/s against 0.76 with the motor on)",
+    # trace-drags (no-back static coefficients freed, sign test of constant torques); one-load reversal and trim runs:
+    # the constant torques per direction are two numbers shared by the Coulomb drag, the axial force, both
+    # efficiencies and the loaded disk's coefficient (docs/trace_notes.md, "Base drags against planted constant
+    # torques")
+    "rig_coulomb": "nothing named: the Coulomb base correction runs to its bound (0.057 N m; 0.041 on the same "
+                   "scenario's null) with the axial force and the direct efficiency; beyond them a Coulomb drag, an "
+                   "axial force and a direction drag explain the same 4 % of the window (held-out drops 51 / 47 / 50; "
+                   "12 of 15 steady held-out segments improved, sign test p 0.018 > 1e-3): the planted 4 N m at the "
+                   "screw (0.066 N m at the motor) is the size of the rig base's own plausible drag on one load",
+    "rig_axial_offset": "nothing beyond the base corrections: the axial force correction at its bound (+406 N, the "
+                        "planted 1500 N's sign) with the Coulomb drag and the direct efficiency at theirs; beyond "
+                        "them an axial force, a Coulomb or a direction drag explain 1 % of the window: 1.5 kN on the "
+                        "30 kN trim load is a 5 % load-proportional torque, inside the efficiencies' spread",
+    "rig_direction_friction": "the bases' load-path compliance comes first, then coulomb_friction beyond its base "
+                              "correction (0.104 N m, window 12 %) over direction_friction (window 12 %, its torque "
+                              "0.047 +- 0.048 N m 'collapses to zero'): on one load the rig base's no-back drag while "
+                              "driving (0.5 N m + 0.15 N m/kN x 25 kN at the screw, extension only) has the shape and "
+                              "size of the planted direction part (5 - 1 = 4 N m)",
+    "rig_drivetrain_compliance": "refused: the compliance's held-out drop is 509 and, the stiffness determined "
+                                 "(gear 8.49e3 N m/rad, series 7.0e3; rig-sim 8e3), the damping is freed in a "
+                                 "second fit (7.2 N m s/rad, rig-sim 2, file 20), but the screw-speed window error "
+                                 "still grows by 24 % (41 % with the damping held): the damping is not the cause",
+    # the out-of-library effects (docs/trace_notes.md, "Out-of-library effects: what the remainder shows")
+    "rig_loadcell_drift": "not flagged, the run carries too little: per-pass drift test p 0.017 (slopes +1.6e-3 "
+                          "extending / -1.4e-3 N m/s retracting, standard error 7.3e-4 each, as the 40 N/s offset "
+                          "predicts through the load torque and the no-back's drag); the level needs about 80 N/s",
+    "rig_kt_temperature": "not flagged, the run cannot tell it: housing temperature spans 0.7 K, the rotor's is not "
+                          "measured; its 13 K cooling raises Kt 1.6 % in 10 s: per-pass drift p 0.019 (2.8 standard "
+                          "errors while extending); a constant Kt error at one load is what the efficiency corrections "
+                          "absorb",
+    "rig_worn_spot_stiction": "not flagged, not separable on this run: the spot adds 0.25-0.47 A at the two events near "
+                              "it where the declared model leaves up to 0.54 N m at every reversal, and each kind of "
+                              "event (start, reversal to extension, to retraction) happens at one position only; "
+                              "nothing invented",
+    "rig_ratchet_backlash": "noback_backlash found first among the physical effects after the detailed no-back "
+                            "(pitch 0.153 rad, rig-sim 0.1496), its window RMS drop 43 % (motor speed; 43 % beyond "
+                            "the noise), LVDT 14 % (measured on this branch merged with main 8e186e7; 6 % / 17 % "
+                            "before main's no-back static coefficients were freed)",
     "rig_loadpath_preload": "loadpath_compliance found first among the physical effects after the detailed no-back, "
-                            "its window RMS drop 43 % (< 50 %)",
+                            "its window RMS drop 43 % (< 50 %): the fit is right (contact stiffnesses 4.59e7 / "
+                            "5.59e7 N/m = rig-sim's 5.32e7 / 6.65e7 in series with its 3e8 N/m ball-nut contact, "
+                            "soft zone -0.02 mm against -0.03) and leaves the LVDT at its noise (2.18 um RMS, noise "
+                            "2.12 um): from 3.77 um no model drops the RMS by more than 44 %; beyond the noise the "
+                            "drop is 93-100 % (window_reduction_beyond_noise)",
 }
 
 
-def _cases(pairs):
+#: runs whose KNOWN_FAILING entry is about the window drop only: the not-determined test passes on them
+HELD_PASSES = {"rig_temp_friction"}
+
+
+def _cases(pairs, passes=frozenset()):
     return [pytest.param(*c, id=c[0], marks=pytest.mark.xfail(reason=KNOWN_FAILING[c[0]], strict=False))
-            if c[0] in KNOWN_FAILING else pytest.param(*c, id=c[0]) for c in pairs]
+            if c[0] in KNOWN_FAILING and c[0] not in passes else pytest.param(*c, id=c[0]) for c in pairs]
 
 
 LIB_RUNS = [(f"rig_{k}", v) for k, v in LIBRARY.items()]
@@ -172,7 +192,7 @@ def test_library_effect_on_the_rig_base_is_found_first(traced, name, expected):
 @pytest.mark.parametrize("name, effect, parameter", _cases([
     ("rig_noback_quadrant", "noback_quadrant_friction", "noback.mu_coulomb_neg"),  # the light disk never loaded
     ("rig_temp_friction", "temperature_friction", "friction.viscous_temperature_coefficient"),  # one temperature
-]))
+], HELD_PASSES))
 def test_undetermined_parameter_is_held_and_reported(traced, params, name, effect, parameter):
     """A candidate with a parameter the run cannot determine is added with that parameter held at its file value,
     and trace.json says so."""
@@ -243,10 +263,14 @@ def test_out_of_library_effect_is_unexplained_with_its_signature(traced, name):
 
 @pytest.mark.campaign
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason="measured: after the detailed no-back, screw_friction_ripple "
-                                        "is added (window drop 59 %), then the load-path compliance; the Coulomb "
-                                        "part is not named (the direct screw efficiency at its lower correction "
-                                        "bound, 0.831, takes the drag)")
+@pytest.mark.xfail(strict=False, reason="measured (trace-drags): after the detailed no-back, screw_friction_ripple "
+                                        "is added first (window drop 76 %), then the load-path compliance; the "
+                                        "Coulomb part stays in the base correction at its bound (0.057 N m, with the "
+                                        "axial force and the direct efficiency at theirs): beyond them a Coulomb "
+                                        "drag, an axial force and a direction drag explain the same 10 % of the "
+                                        "window (held-out drops 288 / 290 / 291; 24 of 34 steady held-out segments "
+                                        "improved, sign test p 0.012): on one trim load the planted 4 N m at the "
+                                        "screw is the size of the rig base's plausible drag")
 def test_pair_of_library_effects_found_in_the_order_of_what_they_explain(traced):
     """Coulomb friction and screw ripple planted together: both found, the one with the larger held-out drop
     first."""

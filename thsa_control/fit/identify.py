@@ -140,6 +140,10 @@ class IdentificationSettings:
         the parameter fit; its initial state is fitted afterwards at the
         identified parameters and its error reported separately (validation on
         data the parameter fit did not see).
+    compiled : bool
+        Evaluate the residuals and their Jacobian with the segment Functions compiled to C (through the
+        simulator's verified build cache, one library per model structure, the data as inputs); False, or no
+        working C compiler: casadi's interpreter.  The same operations either way (agreement to rounding).
     """
 
     method: str = "multiple_shooting"
@@ -162,6 +166,7 @@ class IdentificationSettings:
     quasi_static_starts: bool = False
     speed_sensors: Mapping[str, object] | None = None
     priors: Mapping[str, tuple[float, float]] | None = None
+    compiled: bool = True
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad field."""
@@ -558,6 +563,21 @@ class Identifier:
         cov_d = cov_all[:nf, :nf] * (n_data / dof)
         cov = cov_d * np.outer(scale, scale)
         sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+        regularising = [k for k, n in enumerate(self.free) if n in priors and n not in (st.priors or {})]
+        if regularising:
+            # what the runs say (with the explicit priors, external knowledge such as a catalogue spread): the
+            # Fisher information without the regularising priors' rows (prior_relative_sd around the initial
+            # values, which on a refit are this run's own estimates); a parameter determined only through
+            # such a prior on another (a product of two at one operating point) has no information here
+            keep = np.ones(J.shape[0], bool)
+            keep[J.shape[0] - nf + np.asarray(regularising)] = False
+            Jd = J[np.flatnonzero(keep)]
+            JTJd = Jd.T @ Jd
+            cov_dd, unresolved_d = collinearity_safe_inverse(JTJd.toarray() if hasattr(JTJd, "toarray") else JTJd)
+            sd_data = np.sqrt(np.clip(np.diag(cov_dd[:nf, :nf]) * (n_data / dof), 0, None)) * scale
+            sd_data = np.where(unresolved_d[:nf], math.inf, sd_data)
+        else:
+            sd_data = np.where(unresolved[:nf], math.inf, sd)
         with np.errstate(invalid="ignore", divide="ignore"):
             corr = cov / np.outer(sd, sd)
         corr[~np.isfinite(corr)] = np.nan
@@ -571,7 +591,7 @@ class Identifier:
             stderr = float(sd[k]) if not unresolved[k] else math.inf
             at_init = bool(st.max_nfev > 0 and abs(values[k] - par.value) <= 1e-6 * scale[k])
             estimates[n] = ParameterEstimate(n, par.unit, float(values[k]), stderr, par.value, par.min, par.max,
-                                             at_bound, at_init)
+                                             at_bound, at_init, float(sd_data[k]))
         high = []
         for i in range(nf):
             for j in range(i + 1, nf):

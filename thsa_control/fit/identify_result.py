@@ -59,6 +59,12 @@ class ParameterEstimate:
         ``"min"`` / ``"max"`` when the estimate sits on a bound.
     at_initial : bool
         The estimate did not move from its initial value.
+    stderr_data : float
+        Standard error [SI] from the runs' information and the explicit priors (external knowledge,
+        ``IdentificationSettings.priors``), the regularising priors (``prior_relative_sd`` around the
+        initial values) left out of the Fisher information: inf where only such a prior determines the
+        parameter, or only together with another parameter.  ``stderr`` is the posterior one (with
+        every prior); nan where not computed.
     """
 
     name: str
@@ -70,6 +76,7 @@ class ParameterEstimate:
     max: float
     at_bound: str | None
     at_initial: bool
+    stderr_data: float = math.nan
 
     @property
     def relative_stderr(self) -> float:
@@ -87,6 +94,7 @@ class ParameterEstimate:
         """JSON-ready dict."""
         d = dict(self.__dict__)
         d["stderr"] = self.stderr if math.isfinite(self.stderr) else None
+        d["stderr_data"] = self.stderr_data if math.isfinite(self.stderr_data) else None
         d["min"] = self.min if math.isfinite(self.min) else None
         d["max"] = self.max if math.isfinite(self.max) else None
         return d

@@ -5,7 +5,17 @@ plant's current-driven map, :func:`thsa_control.fit.replay.current_driven_map`,
 as a casadi ``mapaccum`` over each segment, mapped over the segments, each
 segment starting from its own free initial speed and position), the guesses of
 the segments' initial states, :func:`estimate_noise` (the channel weights) and
-the fitted channels :data:`MECH_CHANNELS`.  :class:`thsa_control.fit.identify.Identifier`
+the fitted channels :data:`MECH_CHANNELS`.
+
+The residual of one segment and its Jacobians are casadi Functions of the
+segment's own data (measured current, load, channels, masks, start-state
+guess: inputs, not constants), so one C library, built through the
+simulator's verified cache (:func:`thsa_control.sim.codegen.compile_functions`),
+serves every run and every segment of one model structure; all segments are
+one call of that Function mapped over them.  Without a working C compiler (or
+with ``IdentificationSettings.compiled = False``) the same Functions run in
+casadi's interpreter: the same operations, so the same numbers to rounding
+(``tests/test_fit_compiled.py``; bit-identical in practice).  :class:`thsa_control.fit.identify.Identifier`
 builds one per run and solves them together; :mod:`thsa_control.fit.segmented`
 reuses its predictions.
 
@@ -109,10 +119,13 @@ class RunProblem:
                             and not (s.name == "nut_position" and "nut_position" not in run.source_columns)]
         self.x_guess = self._initial_states(params, L, M)
         self._track_custom_states(mech, params, V, H, L, M)
-        # casadi: one segment = mapaccum of the map; all segments = map
+        # casadi: one segment = mapaccum of the map, a Function of the segment's own data (compiled to C once
+        # per model structure, :class:`_SegmentFunctions`); all segments = that Function mapped over the segments
         n_p = len(plant.parameters)
+        nx = len(states)
+        nc = len(self.channels)
         y_idx = [plant.index("output", COMPARED_OUTPUT[c]) for c in self.channels]
-        x = ca.SX.sym("x", len(states))
+        x = ca.SX.sym("x", nx)
         v = ca.SX.sym("v", V.shape[0])
         p = ca.SX.sym("p", n_p)
         h = ca.SX.sym("h")
@@ -138,83 +151,109 @@ class RunProblem:
         else:
             xn, y = mech(x, v, p, h)
             step = ca.Function("step_sel", [x, v, p, h], [xn, y[y_idx]])
-        seg = step.mapaccum("segment", L)
-        xs0 = ca.MX.sym("x0", len(states))
-        Vs = ca.MX.sym("V", V.shape[0], L)
-        ps = ca.MX.sym("p", n_p)
-        Hs = ca.MX.sym("H", 1, L)
-        if quot:
-            _, Y0seg, Qseg = seg(xs0, Vs, ps, Hs)
-            qrow = np.array([c in quot for c in self.channels])
-            # reading at sample j of the segment: the quotient ending there (computed by step j - 1)
-            shifted = ca.horzcat(Y0seg[:, 0], Qseg[:, :L - 1])
-            sel = ca.DM(np.diag(qrow.astype(float)))
-            Yseg = sel @ shifted + (ca.DM.eye(len(self.channels)) - sel) @ Y0seg
-        else:
-            _, Yseg = seg(xs0, Vs, ps, Hs)
-        segY = ca.Function("segY", [xs0, Vs, ps, Hs], [Yseg])
-        allY = segY.map("segments", "serial", M, [2], [])
         self.V, self.H = V, H
         self.n_p = n_p
         # decision variables: free parameters (scaled deltas) and free segment states
         self.free_idx = [plant.parameters.index(nm) for nm in free]
-        d_theta = ca.MX.sym("dtheta", len(free))
-        S = ca.MX.sym("S", len(self.free_states), M)
         self.p0 = plant.p_vector(params)
         self.scale = None  # set by the Identifier
-        P = ca.MX.sym("pbase", n_p)
-        scale = ca.MX.sym("scale", len(free))
-        pv = P
-        for k, j in enumerate(self.free_idx):
-            pv = pv + ca.DM.eye(n_p)[:, j] * (d_theta[k] * scale[k])
-        X0 = ca.MX(ca.DM(self.x_guess))
-        rows = []
-        k_free = 0
-        pawl = {"pawl_clearance_comp", "pawl_clearance_tens"}
-        for i in range(len(states)):
-            if i in self.free_states:
-                rows.append(S[k_free, :])
-                k_free += 1
-            elif states[i].name in pawl and M > 0:
-                # the run starts with the ratchets where they stopped: the clearance of the first segment is a
-                # parameter (noback.pawl_initial_clearance, a fraction of the pitch); later segments take it
-                # from the model's map driven by the measured speed at the initial parameters (no gradient:
-                # a pitch is profiled, thsa_control.fit.profile, each value with its own segment clearances)
-                ip, ic = plant.parameters.index("noback.pawl_pitch"), plant.parameters.index("noback.pawl_initial_clearance")
-                first = pv[ic] * pv[ip]
-                rows.append(ca.horzcat(first, X0[i, 1:]) if M > 1 else first)
-            else:
-                rows.append(X0[i, :])
-        X0full = ca.vertcat(*rows)
-        if tied and M > 0:  # fast internal modes start quasi-static, from the free states and the measured load
-            U0 = np.zeros((len(plant.inputs), M))
-            starts = np.minimum(np.arange(M) * L, n - 1)
-            U0[plant.index("input", "load_force")] = np.nan_to_num(np.asarray(run.signals["load_force"], float)[starts])
-            X0full = plant.quasi_static.map(M)(X0full, ca.DM(U0), pv)
-        Y = allY(X0full, ca.DM(V), pv, ca.DM(H).T)  # (ny, L*M)
-        W = ca.DM(np.where(self.mask, 1.0, 0.0))
-        Ymeas0 = ca.DM(np.nan_to_num(Ymeas))
-        sig = ca.MX.sym("sigma", len(self.channels))
-        r = (Ymeas0 - Y) * W / ca.repmat(sig, 1, L * M)
-        r = ca.vec(r.T)  # channel-major: all samples of channel 0, then 1 ...
-        dec = ca.vertcat(d_theta, ca.vec(S))
         self.n_dec_states = len(self.free_states) * M
-        self.f_res = ca.Function("res", [dec, P, scale, sig], [r])
-        self.f_jac = ca.Function("res_jac", [dec, P, scale, sig], [r, ca.jacobian(r, dec)])
-        # the segment states alone (parameters held: the "before" fit and the held-out segments): casadi colours
-        # the block-diagonal columns with one direction per free state instead of one more per parameter
-        self.f_jac_states = ca.Function("res_jac_states", [dec, P, scale, sig], [r, ca.jacobian(r, ca.vec(S))])
-        self._res = BufferedFunction(self.f_res)
-        self._jac = BufferedFunction(self.f_jac)
-        self._jac_states = BufferedFunction(self.f_jac_states)
-        self.f_pred = ca.Function("pred", [dec, P, scale], [Y])
+        nf, nfs = len(free), len(self.free_states)
+        # the segments' data, each segment a column block (the inputs of the mapped segment Functions)
+        starts = np.minimum(np.arange(M) * L, n - 1)
+        U0 = np.zeros((len(plant.inputs), M))
+        if tied:  # fast internal modes start quasi-static, from the free states and the measured load
+            U0[plant.index("input", "load_force")] = np.nan_to_num(np.asarray(run.signals["load_force"], float)[starts])
+        first = np.zeros(M)
+        first[:1] = 1.0
+        self._seg_data = {"xg": np.array(self.x_guess, float), "first": first, "u0": U0, "V": V, "H": H[None, :],
+                          "Y": np.nan_to_num(Ymeas), "W": np.where(self.mask, 1.0, 0.0)}
+        seg = step.mapaccum("segment", L)
+        step_all = ca.Function("step_all", [x, v, p, h], [xn, y])
+        self._segment = _SegmentFunctions(plant, self.free_states, tied, seg, step_all.mapaccum("segment_all", L),
+                                          quot, self.channels, L, nf, nx, V.shape[0])
+        self._M, self._nc, self._nf, self._nfs = M, nc, nf, nfs
+        self._compiled_request = bool(getattr(settings, "compiled", True))
+        self._evaluators = None  # (res, jac, jac_states): made on first use (compiled, or the interpreter)
+        self._layout = {}
+        self.f_res = _AsCasadi(self, "res")
+        self.f_jac = _AsCasadi(self, "jac")
+        self.f_jac_states = _AsCasadi(self, "jac_states")
+        self.f_pred = _Prediction(self, all_states=False)
         # every state (at each sample's start) and every output of the same segment predictions, for the
         # segmented open-loop residual (thsa_control.fit.segmented); not differentiated
-        step_all = ca.Function("step_all", [x, v, p, h], [xn, y])
-        Xs, Ys = step_all.mapaccum("segment_all", L)(xs0, Vs, ps, Hs)
-        seg_all = ca.Function("seg_all", [xs0, Vs, ps, Hs], [ca.horzcat(xs0, Xs[:, :L - 1]), Ys])
-        Xall, Yall = seg_all.map("segments_all", "serial", M, [2], [])(X0full, ca.DM(V), pv, ca.DM(H).T)
-        self.f_pred_all = ca.Function("pred_all", [dec, P, scale], [Xall, Yall])
+        self.f_pred_all = _Prediction(self, all_states=True)
+
+    # ------------------------------------------------------------------ evaluation of the segment Functions
+    @property
+    def compiled(self) -> bool:
+        """True when the residual and its Jacobian are evaluated by the compiled library (else casadi's
+        interpreter: no working C compiler, or ``IdentificationSettings.compiled = False``)."""
+        return self._functions()[3]
+
+    def _functions(self):
+        if self._evaluators is None:
+            fns, compiled = self._segment.evaluators(self._compiled_request)
+            M = self._M
+            mapped = [BufferedFunction(f.map(f"{f.name()}_segments", "serial", M, [4, 5, 6, 11], [])) for f in fns]
+            self._evaluators = (*mapped, compiled)
+        return self._evaluators
+
+    def _directions(self, scale) -> np.ndarray:
+        """``D`` (parameters x free parameters): the parameter vector is ``P + D dtheta``."""
+        D = np.zeros((self.n_p, self._nf))
+        scale = np.asarray(scale, float).ravel()
+        for k, j in enumerate(self.free_idx):
+            D[j, k] = scale[k]
+        return D
+
+    def _segment_args(self, dec, p0, scale, sigma=None):
+        dec = np.asarray(dec, float).ravel()
+        nf, d = self._nf, self._seg_data
+        args = [dec[nf:], d["xg"], d["first"], d["u0"], np.asarray(p0, float), self._directions(scale), dec[:nf],
+                d["V"], d["H"]]
+        if sigma is not None:
+            args += [d["Y"], d["W"], np.asarray(sigma, float)]
+        return args
+
+    def _jac_structure(self, states_only: bool):
+        """Where each value of the mapped Jacobian blocks goes in the run's Jacobian (CSC): the blocks'
+        buffer order (segment, column, row within the segment) mapped to the channel-major residual rows and
+        the decision columns ``[dtheta; vec(S)]``, sorted once."""
+        if states_only not in self._layout:
+            nc, L, M, nf, nfs = self._nc, self.L, self._M, self._nf, self._nfs
+            N = L * M
+            q = np.arange(nc * L)
+            row_q = (q % nc) * N + q // nc  # residual row of a segment row (channel-major over the run)
+            rows, cols = [], []
+            if not states_only:
+                m, k = np.divmod(np.arange(M * nf), nf) if nf else (np.zeros(0, int), np.zeros(0, int))
+                rows.append((row_q[None, :] + (m * L)[:, None]).ravel())
+                cols.append(np.repeat(k, nc * L))
+            m, j = np.divmod(np.arange(M * nfs), nfs) if nfs else (np.zeros(0, int), np.zeros(0, int))
+            rows.append((row_q[None, :] + (m * L)[:, None]).ravel())
+            cols.append(np.repeat((0 if states_only else nf) + m * nfs + j, nc * L))
+            rows, cols = np.concatenate(rows), np.concatenate(cols)
+            n_cols = (0 if states_only else nf) + M * nfs
+            order = np.lexsort((rows, cols))
+            indptr = np.r_[0, np.cumsum(np.bincount(cols, minlength=n_cols))].astype(np.int32)
+            self._layout[states_only] = (order, rows[order].astype(np.int32), indptr, (nc * N, n_cols))
+        return self._layout[states_only]
+
+    def _evaluate(self, kind: str, dec, p0, scale, sigma):
+        import scipy.sparse as sps
+
+        f_res, f_jac, f_jst, _ = self._functions()
+        args = self._segment_args(dec, p0, scale, sigma)
+        if kind == "res":
+            (R,) = f_res(*args)
+            return R.ravel(order="C"), None
+        out = (f_jst if kind == "jac_states" else f_jac)(*args)
+        R = out[0]
+        blocks = [b.ravel(order="F") for b in out[1:]]  # the dtheta block (full Jacobian), then the states block
+        order, indices, indptr, shape = self._jac_structure(kind == "jac_states")
+        data = np.concatenate(blocks)[order] if len(blocks) > 1 else blocks[0][order]
+        return R.ravel(order="C"), sps.csc_matrix((data, indices, indptr), shape=shape)
 
     def _initial_states(self, params: ParameterSet, L: int, M: int) -> np.ndarray:
         """Segment initial states: measured where measured, else from a closed-loop replay or rest."""
@@ -286,14 +325,155 @@ class RunProblem:
         return self.x_guess[self.free_states, :].ravel(order="F")
 
     def residuals(self, dec, p0, scale, sigma) -> np.ndarray:
-        """``f_res`` as a flat array (the channel-major residual rows)."""
-        r = self._res(dec, p0, scale, sigma)[0]
-        return r if isinstance(r, np.ndarray) else r.toarray().ravel(order="F")
+        """The channel-major residual rows (the measured channels minus the segment predictions, each divided by
+        ``sigma`` of its channel; zero where a sample is not measured) as a flat array."""
+        return self._evaluate("res", dec, p0, scale, sigma)[0]
 
     def jacobian(self, dec, p0, scale, sigma, states_only: bool = False):
         """Residual rows' exact Jacobian (scipy CSC) with respect to every decision variable, or to the segment
         states alone (``states_only``: the columns after the free parameters)."""
-        return (self._jac_states if states_only else self._jac)(dec, p0, scale, sigma)[1]
+        return self._evaluate("jac_states" if states_only else "jac", dec, p0, scale, sigma)[1]
+
+
+class _AsCasadi:
+    """``f_res(dec, P, scale, sigma) -> r``, ``f_jac(...) -> (r, J)``, ``f_jac_states(...) -> (r, J_S)`` as casadi
+    DMs: the problem's evaluation (compiled or interpreted, the same as :meth:`RunProblem.residuals` /
+    :meth:`RunProblem.jacobian`) in the call form of a casadi Function."""
+
+    def __init__(self, problem: "RunProblem", kind: str):
+        self.problem, self.kind = problem, kind
+
+    def __call__(self, dec, P, scale, sigma):
+        r, J = self.problem._evaluate(self.kind, dec, P, scale, sigma)
+        if J is None:
+            return ca.DM(r)
+        sp = ca.Sparsity(J.shape[0], J.shape[1], J.indptr.tolist(), J.indices.tolist())
+        return ca.DM(r), ca.DM(sp, J.data)
+
+
+class _Prediction:
+    """``f_pred(dec, P, scale) -> Y`` (the fitted channels' predictions, channels x padded samples) and
+    ``f_pred_all(dec, P, scale) -> (X, Y)`` (every state at each sample's start, every output) of the segments,
+    evaluated by casadi's interpreter (a few calls per fit)."""
+
+    def __init__(self, problem: "RunProblem", all_states: bool):
+        self.problem, self.all_states = problem, all_states
+        self._f = None
+
+    def __call__(self, dec, P, scale):
+        pb = self.problem
+        if self._f is None:
+            f = pb._segment.prediction(self.all_states)
+            self._f = f.map(f"{f.name()}_segments", "serial", pb._M, [4, 5, 6], [])
+        args = pb._segment_args(dec, P, scale)
+        args[0] = args[0].reshape((pb._nfs, pb._M), order="F")
+        args[2] = args[2][None, :]
+        out = self._f(*args)
+        return tuple(np.asarray(o) for o in out) if self.all_states else np.asarray(out)
+
+
+#: Segment Functions compiled in this process, by the hash of their serialised form (a library is loaded once).
+_COMPILED: dict[str, tuple] = {}
+
+
+class _SegmentFunctions:
+    """The casadi Functions of one segment, of the segment's own data: the same Functions serve every run and
+    every segment of one model structure (plant, fitted channels, segment length, free states, number of free
+    parameters), so one compiled library serves them all.
+
+    Inputs (in this order): ``s`` the segment's free start states; ``xg`` the guess of every start state (the
+    states not freed keep it); ``first`` 1 for a run's first segment (its pawl clearances come from the
+    parameters); ``u0`` the plant inputs at the segment start (the quasi-static start of the fast modes);
+    ``P`` the parameter vector; ``D`` the free parameters' directions (the parameters are ``P + D dtheta``);
+    ``dtheta``; ``V`` (MECH_INPUTS x L) and ``H`` (1 x L) the measured current and load and the sample periods;
+    ``Y`` and ``W`` (channels x L) the measured channels (0 where missing) and their masks; ``sigma`` the
+    channels' weights.
+    """
+
+    def __init__(self, plant: Plant, free_states, tied, seg: ca.Function, seg_all: ca.Function, quot, channels,
+                 L: int, nf: int, nx: int, nv: int):
+        self.plant, self.seg, self.seg_all = plant, seg, seg_all
+        n_p, nc = len(plant.parameters), len(channels)
+        self.s = ca.MX.sym("s", len(free_states))
+        self.xg = ca.MX.sym("xg", nx)
+        self.first = ca.MX.sym("first")
+        self.u0 = ca.MX.sym("u0", len(plant.inputs))
+        self.P = ca.MX.sym("pbase", n_p)
+        self.D = ca.MX.sym("D", n_p, nf)
+        self.dth = ca.MX.sym("dtheta", nf)
+        self.V = ca.MX.sym("V", nv, L)
+        self.H = ca.MX.sym("H", 1, L)
+        self.Y = ca.MX.sym("Y", nc, L)
+        self.W = ca.MX.sym("W", nc, L)
+        self.sig = ca.MX.sym("sigma", nc)
+        self.pv = self.P + ca.mtimes(self.D, self.dth)
+        # the segment's start state
+        states = plant.states
+        pawl = {"pawl_clearance_comp", "pawl_clearance_tens"}
+        rows, k_free = [], 0
+        for i in range(nx):
+            if i in free_states:
+                rows.append(self.s[k_free])
+                k_free += 1
+            elif states[i].name in pawl:
+                # the run starts with the ratchets where they stopped: the clearance of the first segment is a
+                # parameter (noback.pawl_initial_clearance, a fraction of the pitch); later segments take it
+                # from the model's map driven by the measured speed at the initial parameters (no gradient:
+                # a pitch is profiled, thsa_control.fit.profile, each value with its own segment clearances)
+                ip = plant.parameters.index("noback.pawl_pitch")
+                ic = plant.parameters.index("noback.pawl_initial_clearance")
+                rows.append(ca.if_else(self.first, self.pv[ic] * self.pv[ip], self.xg[i]))
+            else:
+                rows.append(self.xg[i])
+        x0 = ca.vertcat(*rows)
+        if tied:
+            x0 = plant.quasi_static(x0, self.u0, self.pv)
+        self.x0 = x0
+        if quot:
+            _, Y0seg, Qseg = seg(x0, self.V, self.pv, self.H)
+            qrow = np.array([c in quot for c in channels])
+            # reading at sample j of the segment: the quotient ending there (computed by step j - 1)
+            shifted = ca.horzcat(Y0seg[:, 0], Qseg[:, :L - 1])
+            sel = ca.DM(np.diag(qrow.astype(float)))
+            Yseg = sel @ shifted + (ca.DM.eye(nc) - sel) @ Y0seg
+        else:
+            _, Yseg = seg(x0, self.V, self.pv, self.H)
+        self.Yseg = Yseg
+        self.ins = [self.s, self.xg, self.first, self.u0, self.P, self.D, self.dth, self.V, self.H, self.Y, self.W,
+                    self.sig]
+        R = (self.Y - Yseg) * self.W / ca.repmat(self.sig, 1, L)
+        r = ca.vec(R)  # sample-major inside the segment: the run's rows are put channel-major when assembled
+        self.functions = [
+            ca.Function("thsa_fit_res", self.ins, [R]),
+            ca.Function("thsa_fit_jac", self.ins, [R, ca.densify(ca.jacobian(r, self.dth)),
+                                                   ca.densify(ca.jacobian(r, self.s))]),
+            # the segment states alone (parameters held: the "before" fit and the held-out segments)
+            ca.Function("thsa_fit_jac_states", self.ins, [R, ca.densify(ca.jacobian(r, self.s))]),
+        ]
+
+    def evaluators(self, compiled: bool):
+        """``((res, jac, jac_states), compiled)``: the library's Functions, or the interpreted ones (no C
+        compiler, a failed build, or ``compiled`` False)."""
+        if not compiled:
+            return self.functions, False
+        import hashlib
+
+        from ..sim.codegen import FLAGS, compile_functions
+
+        key = hashlib.sha256("".join(f.serialize() for f in self.functions).encode()).hexdigest()
+        if key not in _COMPILED:
+            # -O1: the build takes a third of -O3's processor time (0.8 s against 2.3 s for level A) for a
+            # Jacobian 1.4x slower; a fit evaluates a few dozen, and a trace builds one library per candidate
+            fns, _info = compile_functions(self.functions, "thsa_fit", flags=("-O1",) + FLAGS[1:])
+            _COMPILED[key] = (tuple(fns), True) if fns is not None else (tuple(self.functions), False)
+        return _COMPILED[key]
+
+    def prediction(self, all_states: bool) -> ca.Function:
+        ins = self.ins[:9]
+        if not all_states:
+            return ca.Function("pred", ins, [self.Yseg])
+        Xs, Ys = self.seg_all(self.x0, self.V, self.pv, self.H)
+        return ca.Function("pred_all", ins, [ca.horzcat(self.x0, Xs[:, :-1]), Ys])
 
 
 class BufferedFunction:

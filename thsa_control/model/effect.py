@@ -109,6 +109,11 @@ class CandidateSpec:
     #: rule of ``trace.candidates.STARTS`` giving starting values read off the runs (a static screen), for
     #: parameters whose right value a fit started at the file's cannot reach (a soft zone vs a preload)
     start: str | None = None
+    #: parameters freed in a second fit only when the first fit determines every parameter of ``free`` (a mode's
+    #: damping once the run resolves its stiffness): freed from the start, a damping stands in for any lag of
+    #: the current-to-speed response on a drive train the run shows rigid.  Judged by the same rule (held at the
+    #: file value where the second fit does not determine it)
+    second_stage: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -140,7 +140,7 @@ class Html(str):
 
 _PAGE_CSS = ("body{font-family:system-ui,Segoe UI,Helvetica,Arial,sans-serif;max-width:1150px;margin:1.2em auto;"
              "color:#222}h1{font-size:1.45em}h2{font-size:1.15em;border-bottom:1px solid #ccc;margin-top:1.6em;"
-             "scroll-margin-top:2.6em}pre{background:#f6f6f6;padding:1em;overflow-x:auto;font-size:12px}"
+             "scroll-margin-top:2.6em}pre{background:#f6f6f6;padding:1em;overflow-x:auto;font-size:12px;white-space:pre-wrap;overflow-wrap:anywhere}"
              "img{max-width:100%;border:1px solid #ddd}table{border-collapse:collapse;font-size:13px;margin:0.4em 0}"
              "td,th{border:1px solid #ccc;padding:2px 7px;text-align:right;vertical-align:top}th{background:#f0f0f0}"
              "td.l,th.l{text-align:left}td.bad{background:#fde7e6}td.ok{background:#e3f4e5}td.warn{background:#fff3c4}"

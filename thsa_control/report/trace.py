@@ -114,16 +114,44 @@ def plot_candidate_drops(doc: dict):
     return fig
 
 
+def _binned(ax, c: dict, scale: float = 1.0, gap_bins: float = 1.5, **kw):
+    """A binned curve with its standard errors; the line breaks where bins are empty (more than ``gap_bins``
+    bin widths between centres) instead of drawing across data that do not exist."""
+    x = scale * np.asarray(c["centre"], float)
+    y = np.asarray(c["mean"], float)
+    se = np.asarray(c["sd"], float) / np.sqrt(np.maximum(np.asarray(c["count"], float), 1.0))
+    if x.size > 2:
+        step = float(np.min(np.diff(x)))
+        cut = np.flatnonzero(np.diff(x) > gap_bins * step) + 1
+        x, y, se = (np.insert(a, cut, np.nan) for a in (x, y, se))
+    return ax.errorbar(x, y, yerr=se, **kw)
+
+
 def plot_signature(sig: dict):
-    """The remaining residual's signature: binned by nut position, by motor and screw angle, and the redundant
-    sensors' cross-correlation."""
+    """The remaining residual's signature: binned by nut position, by motor and screw angle, the redundant
+    sensors' cross-correlation, the per-segment torque against time (the drift test's data) and the residual
+    binned by the motor current (a torque-constant error)."""
     curves = sig.get("curves") or {}
-    fig, axes = subplots(2, 2, figsize=(11, 6.5))
+    fig, axes = subplots(3, 2, figsize=(11, 9.8))
     ax = axes[0, 0]
     if "nut_position" in curves:
         c = curves["nut_position"]
-        ax.errorbar(1e3 * np.asarray(c["centre"]), c["mean"], yerr=np.asarray(c["sd"]) / np.sqrt(np.maximum(c["count"], 1)),
-                    fmt="o-", ms=3, lw=0.8)
+        by_dir = c.get("by_direction") or {}
+        _binned(ax, c, 1e3, fmt="o-", ms=2, lw=0.6, color="0.7", label="all samples")
+        for (label, cd), col in zip(by_dir.items(), ("C0", "C1")):
+            _binned(ax, cd, 1e3, fmt="o-", ms=3, lw=0.8, color=col, label=f"{label}, outside the base's transients")
+        loc = next((t for t in sig.get("tests", []) if t.get("variable") == "nut_position (repeated over passes)"), None)
+        if loc is not None:  # the pass-replicated test's peak bin, its law and p-value
+            ax.axvspan(1e3 * loc["peak_bin"][0], 1e3 * loc["peak_bin"][1], color="C3" if loc["significant"] else "0.85",
+                       alpha=0.25, lw=0)
+            ax.text(0.02, 0.97, f"repeated over passes: p {_num(loc['p_value'], '.2g')}"
+                    + (f", {loc['law'].split(' ')[0]}" if loc.get("law") else "")
+                    + (" (STRUCTURED)" if loc["significant"] else ""), transform=ax.transAxes, va="top", fontsize=7)
+        else:
+            ax.text(0.02, 0.97, "repeated over passes: not tested (fewer than three bins crossed by two passes)",
+                    transform=ax.transAxes, va="top", fontsize=7, color="0.35")
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7, loc="best")
     else:  # trace.residual bins the nut position only over a travel of at least two bins
         ax.text(0.5, 0.5, "not binned: the nut travel of these runs\nis shorter than two position bins",
                 ha="center", va="center", transform=ax.transAxes, fontsize=9, color="0.35")
@@ -134,8 +162,7 @@ def plot_signature(sig: dict):
     for ax, name in ((axes[0, 1], "motor_angle"), (axes[1, 0], "screw_angle")):
         c = curves.get(name)
         if c:
-            ax.errorbar(np.degrees(c["centre"]), c["mean"], yerr=np.asarray(c["sd"]) / np.sqrt(np.maximum(c["count"], 1)),
-                        fmt="o-", ms=3, lw=0.8)
+            _binned(ax, c, 180.0 / np.pi, fmt="o-", ms=3, lw=0.8)
         ax.axhline(0, color="0.5", lw=0.5)
         ax.set_xlabel(f"{name.replace('_', ' ')} modulo one revolution [deg]")
         ax.set_ylabel("missing torque [N m]")
@@ -149,6 +176,34 @@ def plot_signature(sig: dict):
     ax.set_title("redundant sensors: cross-correlation", fontsize=9)
     if ax.get_legend_handles_labels()[0]:
         ax.legend(fontsize=7, loc="lower left")
+    ax = axes[2, 0]
+    st = curves.get("segment_torque") or {}
+    if st.get("time"):
+        tm, tq, dr = (np.asarray(st[k], float) for k in ("time", "torque", "direction"))
+        for sgn, label, col in ((1.0, "extending", "C0"), (-1.0, "retracting", "C1")):
+            m = dr == sgn
+            if m.any():
+                ax.plot(tm[m], tq[m], "o", ms=2.5, color=col, label=label)
+        dt_ = next((t for t in sig.get("tests", []) if t.get("variable") == "time (slow drift)"), None)
+        if dt_ is not None:
+            ax.text(0.02, 0.97, f"drift per pass: p {_num(dt_['p_value'], '.2g')}"
+                    + (" (STRUCTURED)" if dt_["significant"] else ""), transform=ax.transAxes, va="top", fontsize=7)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7, loc="best")
+    else:
+        ax.text(0.5, 0.5, "no steady segment in motion", ha="center", va="center", transform=ax.transAxes,
+                fontsize=9, color="0.35")
+    ax.set_xlabel("time [s] (runs one after another)")
+    ax.set_ylabel("missing torque per segment [N m]")
+    ax.set_title("steady segments against time (slow drift)", fontsize=9)
+    ax = axes[2, 1]
+    c = curves.get("motor_current")
+    if c:
+        _binned(ax, c, fmt="o-", ms=3, lw=0.8, gap_bins=np.inf)  # quantile bins: unequal widths
+    ax.axhline(0, color="0.5", lw=0.5)
+    ax.set_xlabel("motor current [A]")
+    ax.set_ylabel("missing torque [N m]")
+    ax.set_title("residual binned by motor current (torque constant)", fontsize=9)
     return fig
 
 
@@ -207,7 +262,9 @@ def format_trace_summary(doc: dict) -> str:
                 lines.append(f"    {c['name']:<26} fit failed: {c['error']}")
                 continue
             flag = "SIGNIFICANT" if c["significant"] else ("implausible: " + "; ".join(c["implausible_because"])
-                                                           if not c["plausible"] else "not significant")
+                                                           if not c["plausible"] else
+                                                           "not significant" + (f": {c['not_robust']}"
+                                                                                if c.get("not_robust") else ""))
             lines.append(f"    {c['name']:<26} held-out chi2 drop {_num(c['holdout_chi2_drop'], '.4g'):>10} "
                          f"(threshold {_num(c['chi2_threshold'], '.3g')}, null {_num(c.get('null_chi2_drop'), '.3g')}), "
                          f"score {_num(c['score'], '.3f')}  {flag}")
@@ -231,7 +288,11 @@ def format_trace_summary(doc: dict) -> str:
         if t["kind"] == "periodic":
             extra = f", dominant harmonic {t['dominant_harmonic']} per revolution"
         elif t["kind"] == "local":
-            extra = f", peak in {1e3 * t['peak_bin'][0]:.1f}..{1e3 * t['peak_bin'][1]:.1f} mm"
+            extra = f", peak in {1e3 * t['peak_bin'][0]:.1f}..{1e3 * t['peak_bin'][1]:.1f} mm" + (
+                f", {t['law']}" if t.get("law") else "")
+        elif t["kind"] == "drift":
+            extra = ", slope per pass " + ", ".join(f"{v:.2g}+-{e:.1g}" for v, e in zip(t["slopes"], t["slope_stderr"])) \
+                + f" N m/s over {t['segments']} segments"
         elif t["kind"] == "redundant_sensors":
             extra = f", gain {t['gain']:.4f}, lag {1e3 * t['lag_s']:.1f} ms"
         elif t["kind"] == "sensor_offset":

@@ -28,6 +28,9 @@ The cache is never trusted blindly (issue #7, item 2):
   from its private build folder before it is published, so a compiler that
   writes an empty or broken file never poisons the cache;
 * files are published atomically (temporary name + ``os.replace``);
+* a library is built by one process at a time (``flock`` on ``.<name>.lock`` in the cache): a second
+  process that needs it meanwhile (two pytest-xdist workers, two fit processes on a fresh machine)
+  waits and loads the published file, verified as any cached one, instead of compiling it again;
 * an unwritable cache falls back to a per-process temporary folder, and a
   missing or broken C compiler to casadi's interpreter (about 20x slower);
   each fallback is said once per process on stderr.
@@ -418,6 +421,44 @@ class NonFiniteOutput(ArithmeticError):
         self.run, self.sample = run, sample
 
 
+def _build_lock(folder: Path | None, stem: str):
+    """An exclusive lock on building ``stem`` in the shared cache ``folder`` (``fcntl.flock`` on ``.stem.lock``).
+
+    Yields True when another process held it (it was building the same library: look in the cache again),
+    False otherwise.  Two pytest-xdist workers, or two of the tracer's fit processes, that need the same
+    library on a fresh machine then build it once; the other waits and loads the published file (verified
+    like any cached one).  Without a usable lock (no ``fcntl``, an unwritable folder) each builds, as before:
+    the publishing is atomic either way, so this saves processor time and decides nothing.
+    """
+    import contextlib
+
+    @contextlib.contextmanager
+    def held():
+        fd = None
+        waited = False
+        try:
+            import fcntl
+
+            if folder is not None:
+                fd = os.open(folder / f".{stem}.lock", os.O_RDWR | os.O_CREAT, 0o644)
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except BlockingIOError:
+                    waited = True
+                    fcntl.flock(fd, fcntl.LOCK_EX)
+        except (ImportError, OSError):
+            if fd is not None:
+                os.close(fd)
+            fd, waited = None, False
+        try:
+            yield waited
+        finally:
+            if fd is not None:
+                os.close(fd)  # releases the lock
+
+    return held()
+
+
 def _find_or_build(functions, stem_tag: str, driver: str, flags: tuple[str, ...], load, edit=None):
     """Generate the C code of ``functions`` (+ ``driver``), find it in the cache (verified) or build it, load it.
 
@@ -449,62 +490,80 @@ def _find_or_build(functions, stem_tag: str, driver: str, flags: tuple[str, ...]
             shared = None
             _note_once("cache-unwritable", f"compiled-simulator cache folder cannot be created ({exc}): "
                                            "using a temporary folder for this run")
-        for where in ("shared", "private"):
-            folder = shared if where == "shared" else _private_dir()
-            if folder is None:
-                continue
-            lib, manifest = folder / f"{stem}.so", folder / f"{stem}.json"
-            if lib.exists() and _verified(lib, manifest, source_sha):
-                obj = load(lib, source_sha)
-                if obj is not None:
-                    info.update(compiled=True, cached=True, path=str(lib), cache=where)
-                    return obj, info
-        if cc is None:
-            info["error"] = "no C compiler found (set CC)"
-            _note_once("no-cc", "no C compiler found (set CC): simulating with casadi's interpreter, "
-                                "about 20x slower")
-            return None, info
-        t1 = time.perf_counter()
-        built = Path(tmp) / f"{stem}.so"
+
+        def cached():
+            for where in ("shared", "private"):
+                folder = shared if where == "shared" else _private_dir()
+                if folder is None:
+                    continue
+                lib, manifest = folder / f"{stem}.so", folder / f"{stem}.json"
+                if lib.exists() and _verified(lib, manifest, source_sha):
+                    obj = load(lib, source_sha)
+                    if obj is not None:
+                        info.update(compiled=True, cached=True, path=str(lib), cache=where)
+                        return obj
+            return None
+
+        obj = cached()
+        if obj is not None:
+            return obj, info
+        with _build_lock(shared, stem) as waited:
+            # another process (a pytest-xdist worker, a tracer's fit process) was building the same library:
+            # it is in the cache now, loaded and verified as any cached file (else built here as before)
+            obj = cached() if waited else None
+            if obj is not None:
+                return obj, info
+            return _build(cc, flags, tmp, src_path, source_sha, stem, shared, load, info)
+
+
+def _build(cc, flags, tmp, src_path, source_sha, stem, shared, load, info):
+    """Compile the generated source, check the build, publish it to the cache and load it (see _find_or_build)."""
+    if cc is None:
+        info["error"] = "no C compiler found (set CC)"
+        _note_once("no-cc", "no C compiler found (set CC): simulating with casadi's interpreter, "
+                            "about 20x slower")
+        return None, info
+    t1 = time.perf_counter()
+    built = Path(tmp) / f"{stem}.so"
+    try:
+        proc = subprocess.run([cc, *flags, "-fPIC", "-shared", str(src_path), "-o", str(built), "-lm"],
+                              capture_output=True, text=True)
+        failed = proc.returncode != 0
+        error = proc.stderr[-2000:]
+    except OSError as exc:
+        failed, error = True, str(exc)
+    obj = None if failed or not built.is_file() else load(built, source_sha)
+    if obj is None:
+        info["error"] = error or f"{cc} wrote no loadable library"
+        _note_once(f"bad-cc-{cc}", f"the C compiler {cc} did not build a loadable simulator "
+                                   f"({(error.strip().splitlines() or ['empty or broken output'])[-1][:200]}): "
+                                   "simulating with casadi's interpreter, about 20x slower")
+        return None, info
+    info["compile_s"] = time.perf_counter() - t1
+    lib_sha = _sha256_file(built)
+    meta = json.dumps({"source_sha256": source_sha, "library_sha256": lib_sha,
+                       "library_size": built.stat().st_size, "casadi": ca.__version__,
+                       "compiler": cc, "flags": list(flags)}, indent=1)
+    (Path(tmp) / f"{stem}.json").write_text(meta, encoding="utf-8")
+    for where in ("shared", "private"):
+        folder = shared if where == "shared" else _private_dir()
+        if folder is None:
+            continue
+        lib, manifest = folder / f"{stem}.so", folder / f"{stem}.json"
         try:
-            proc = subprocess.run([cc, *flags, "-fPIC", "-shared", str(src_path), "-o", str(built), "-lm"],
-                                  capture_output=True, text=True)
-            failed = proc.returncode != 0
-            error = proc.stderr[-2000:]
+            _publish(built, lib)  # library first: a manifest never names a missing library
+            _publish(Path(tmp) / f"{stem}.json", manifest)
         except OSError as exc:
-            failed, error = True, str(exc)
-        obj = None if failed or not built.is_file() else load(built, source_sha)
-        if obj is None:
-            info["error"] = error or f"{cc} wrote no loadable library"
-            _note_once(f"bad-cc-{cc}", f"the C compiler {cc} did not build a loadable simulator "
-                                       f"({(error.strip().splitlines() or ['empty or broken output'])[-1][:200]}): "
-                                       "simulating with casadi's interpreter, about 20x slower")
-            return None, info
-        info["compile_s"] = time.perf_counter() - t1
-        lib_sha = _sha256_file(built)
-        meta = json.dumps({"source_sha256": source_sha, "library_sha256": lib_sha,
-                           "library_size": built.stat().st_size, "casadi": ca.__version__,
-                           "compiler": cc, "flags": list(flags)}, indent=1)
-        (Path(tmp) / f"{stem}.json").write_text(meta, encoding="utf-8")
-        for where in ("shared", "private"):
-            folder = shared if where == "shared" else _private_dir()
-            if folder is None:
-                continue
-            lib, manifest = folder / f"{stem}.so", folder / f"{stem}.json"
-            try:
-                _publish(built, lib)  # library first: a manifest never names a missing library
-                _publish(Path(tmp) / f"{stem}.json", manifest)
-            except OSError as exc:
-                if where == "shared":
-                    _note_once("cache-unwritable", f"compiled-simulator cache {folder} is not writable "
-                                                   f"({exc.strerror}): using a temporary folder for this run")
-                continue
-            loaded = load(lib, source_sha)
-            if loaded is not None:
-                info.update(compiled=True, path=str(lib), cache=where)
-                return loaded, info
-        info.update(compiled=True, path=str(built), cache="")
-        return obj, info  # loaded from the build folder; the file stays mapped after the folder goes
+            if where == "shared":
+                _note_once("cache-unwritable", f"compiled-simulator cache {folder} is not writable "
+                                               f"({exc.strerror}): using a temporary folder for this run")
+            continue
+        loaded = load(lib, source_sha)
+        if loaded is not None:
+            info.update(compiled=True, path=str(lib), cache=where)
+            return loaded, info
+    info.update(compiled=True, path=str(built), cache="")
+    return obj, info  # loaded from the build folder; the file stays mapped after the folder goes
 
 
 def compile_run_loop(sample: ca.Function, sample_x: ca.Function, *, flags: tuple[str, ...] = FLAGS):

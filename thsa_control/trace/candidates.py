@@ -142,6 +142,30 @@ def _resolved_periods(params: ParameterSet, runs, lo: float, hi: float) -> tuple
 #: Narrowing of a profiled parameter's range to what the runs resolve (name -> function(params, runs, lo, hi)).
 PROFILE_LIMITS: dict[str, Callable] = {"drive.cogging_periods": _resolved_periods}
 
+
+def _screw_revolutions(params: ParameterSet, runs) -> str | None:
+    """A ripple once per screw revolution is told from a drag that depends on the nut position (a bump, a worn
+    spot, a trend of the base's own drags along the stroke) only where the same screw angle recurs at another
+    nut position: the nut's travel in one run must span two leads.  Reason to skip, or None."""
+    lead = params.value("screw.lead")
+    r_kin = lead / (2 * math.pi * params.value("gear.ratio"))
+    span = 0.0
+    for r in runs:
+        x = np.asarray(r.signals["nut_position"], float) if r.has("nut_position") else np.array([np.nan])
+        if not np.isfinite(x).any():  # no LVDT: the nut travel from the measured motor speed
+            t = np.asarray(r.time, float)
+            w = np.nan_to_num(measured_motor_speed(r))
+            x = np.concatenate([[0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t))]) * r_kin
+        span = max(span, float(np.nanmax(x) - np.nanmin(x)))
+    if span >= 2 * lead:
+        return None
+    return (f"the nut travels {span * 1e3:.3g} mm, less than two screw leads ({2 * lead * 1e3:.3g} mm): a ripple "
+            "once per revolution cannot be told from a position-dependent drag")
+
+
+#: Candidates a record cannot resolve (name -> function(params, runs) -> reason to skip, or None).
+RESOLVES: dict[str, Callable] = {"screw_friction_ripple": _screw_revolutions}
+
 #: Starting values read off the runs (:attr:`CandidateSpec.start` -> function(params, runs) -> {name: value}).
 STARTS: dict[str, Callable] = {"loadpath_static": _start_loadpath}
 

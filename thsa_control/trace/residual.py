@@ -20,7 +20,8 @@ from ..model.laws import kinematic_ratio
 from ..model.params import ParameterSet
 from .scoring import _rms_by_channel
 from .signature import (SignatureSettings, base_transients, binned_mean, cross_correlation, current_offset_test,
-                        missing_torque, position_local_test, remainder_kind, sensor_consistency, signature_tests)
+                        drift_test, missing_torque, position_local_test, remainder_kind, segment_torques,
+                        sensor_consistency, signature_tests)
 
 
 # ----------------------------------------------------------------------------- signature
@@ -29,7 +30,11 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     inertia = plant.inertia(params)[1]  # the signature's missing torque at the motor shaft (what the current drives)
     torque: list = []
     vars_: dict = {}
+    spans: dict[str, float] = {}  # the largest motor and screw angle travelled in one run [rad]
     local_in: dict[str, list] = {"e": [], "x": [], "d": []}
+    steady: list = []  # outside the base's transients, per run
+    drift_in: list = []  # (time, segment torque, direction)
+    t_offset = 0.0
     for run in runs:
         pr = fit["predictions"][run.name]
         n = len(run.time)
@@ -60,30 +65,45 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             "motor_angle": ("angle", angle),
             "screw_angle": ("angle", angle / run.gear_ratio),
             "speed_sign": ("category", np.sign(np.where(np.abs(w) > dv, w, 0.0))),
-            # a slow drift (a load cell zero, a warming motor) and a torque-constant error (torque against current)
-            "time (slow drift)": ("linear", t),
+            # a torque-constant error (torque against current); a slow drift is tested per pass below
             "motor_current (torque constant)": ("linear", np.asarray(run.signals["motor_current"], float)),
         }
         del dt
+        for name in ("motor_angle", "screw_angle"):
+            a = cols[name][1]
+            spans[name] = max(spans.get(name, 0.0), float(np.ptp(a)) if a.size else 0.0)
         for name, (kind, v) in cols.items():
             vars_.setdefault(name, (kind, []))[1].append(np.asarray(v, float))
         # the pass-replicated position test (runs separated by a gap that ends every pass), on the residual
         # outside the base's transients: a declared model whose base differs from the rig's leaves structure at
         # starts, stops, reversals and load changes, and a trim run starts and stops at the same positions
         gap = np.full(100, np.nan)
-        local_in["e"] += [np.where(base_transients(t, w, load, s.transient_time), np.nan, torque[-1]), gap]
+        steady.append(~base_transients(t, w, load, s.transient_time))
+        local_in["e"] += [np.where(steady[-1], torque[-1], np.nan), gap]
         local_in["x"] += [cols["nut_position"][1], gap]
+        # a slow drift: one torque per segment outside the base's transients while moving, passes per direction
+        sgn = cols["speed_sign"][1]
+        for a, b, tm, tq in segment_torques(t, e, starts, inertia):
+            if sgn[a] != 0 and steady[-1][a:b].all() and np.all(sgn[a:b] == sgn[a]):
+                drift_in.append((t_offset + tm, tq, float(sgn[a])))
+        t_offset += float(t[-1] - t[0]) + 1.0  # runs one after another, separated by more than a pass gap
         local_in["d"] += [cols["speed_sign"][1], np.zeros(100)]
     if not torque:
         return {"missing_torque_rms": None, "tests": [], "sensors": []}
     e_all = np.concatenate(torque)
     variables = {n: (k, np.concatenate(v)) for n, (k, v) in vars_.items()}
     tests = signature_tests(e_all, variables, unit="N m", settings=s)
+    xs = variables["nut_position"][1]
     loc = position_local_test(np.concatenate(local_in["e"]), np.concatenate(local_in["x"]),
-                              np.concatenate(local_in["d"]), bin_width=s.position_bin, alpha=s.local_alpha)
+                              np.concatenate(local_in["d"]), bin_width=s.position_bin, alpha=s.local_alpha,
+                              origin=float(np.nanmin(xs)) if np.isfinite(xs).any() else None)  # the curves' bins
     if loc is not None:
         loc["unit"] = "N m"
         tests.insert(0, loc) if loc["significant"] else tests.append(loc)
+    if drift_in:
+        dr = drift_test(*(np.asarray(v) for v in zip(*drift_in)), alpha=s.local_alpha, min_r2=s.min_r2)
+        if dr is not None:
+            tests.insert(0, dr) if dr["significant"] else tests.append(dr)
     sensors = []
     for run in runs:
         for d in sensor_consistency(run.time, {c: run.signals[c] for c in ("motor_speed", "screw_speed", "nut_position")
@@ -106,6 +126,12 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         if np.isfinite(variables["temperature"][1]).any() else 0.0
     for d in tests:
         d["remainder"] = remainder_kind(d, t_span, s)
+        # periodic in an angle only where the same angle recurs at another position: a travel of less than two
+        # revolutions bins the residual by position (the base's drags at the ends of a short stroke)
+        if d["variable"] in spans and spans[d["variable"]] < 4 * math.pi and d["remainder"] == "structured":
+            d["remainder"] = "base"
+            d["why_base"] = (f"{d['variable']} spans {spans[d['variable']] / (2 * math.pi):.2g} revolutions (< 2): "
+                             "not told from a dependence on position")
     for d in sensors:
         d["remainder"] = "structured"
     ok = np.isfinite(e_all)
@@ -113,7 +139,11 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     return {"residual": "missing torque at the motor shaft, J d(speed residual)/dt", "unit": "N m",
             "reflected_inertia": inertia, "missing_torque_rms": float(np.sqrt(np.mean(e_all[ok] ** 2))),
             "residual_to_noise": ratio, "max_noise_ratio": s.max_noise_ratio,
-            "tests": tests, "sensors": sensors, "curves": _signature_curves(e_all, variables, runs, s)}
+            "tests": tests, "sensors": sensors,
+            "curves": {**_signature_curves(e_all, variables, runs, s, np.concatenate(steady)),
+                       # the drift test's data: one torque per steady segment (runs one after another in time)
+                       "segment_torque": {"time": [d[0] for d in drift_in], "torque": [d[1] for d in drift_in],
+                                          "direction": [d[2] for d in drift_in]}}}
 
 
 def _holdout_chi2_and_count(fit: dict, noise: Mapping[str, float]) -> dict:
@@ -131,14 +161,24 @@ def _holdout_chi2_and_count(fit: dict, noise: Mapping[str, float]) -> dict:
     return out
 
 
-def _signature_curves(e: np.ndarray, variables: dict, runs, s: SignatureSettings) -> dict:
+def _signature_curves(e: np.ndarray, variables: dict, runs, s: SignatureSettings, steady: np.ndarray | None = None) -> dict:
     """Binned residual against nut position and motor / screw angle, and the redundant sensors'
-    cross-correlation: the data of the report's signature plots."""
+    cross-correlation: the data of the report's signature plots.
+
+    The nut-position curve is also given per direction of motion on the samples outside the base's transients
+    (``by_direction``: what the pass-replicated position test uses): a friction feature changes sign with the
+    direction and cancels in the mean over both."""
     out: dict = {}
     x = variables["nut_position"][1]
     if np.isfinite(x).sum() > 50 and np.nanmax(x) - np.nanmin(x) >= 2 * s.position_bin:
         lo, hi = float(np.nanmin(x)), float(np.nanmax(x))
-        out["nut_position"] = binned_mean(e, x, np.arange(lo, hi + s.position_bin, s.position_bin))
+        edges = np.arange(lo, hi + s.position_bin, s.position_bin)
+        out["nut_position"] = binned_mean(e, x, edges)
+        d = variables["speed_sign"][1]
+        keep = np.ones(e.size, bool) if steady is None else np.asarray(steady, bool)
+        out["nut_position"]["by_direction"] = {
+            label: binned_mean(np.where(keep & (d == sgn), e, np.nan), x, edges)
+            for label, sgn in (("extending", 1.0), ("retracting", -1.0)) if np.any(keep & (d == sgn))}
     for name in ("motor_angle", "screw_angle"):
         out[name] = binned_mean(e, np.mod(variables[name][1], 2 * math.pi), np.linspace(0, 2 * math.pi, 37))
     cc = {}
@@ -155,6 +195,9 @@ def _signature_curves(e: np.ndarray, variables: dict, runs, s: SignatureSettings
                 np.r_[0.0, np.diff(x_)] / dt, kinematic_ratio({"screw.lead": run.screw_lead, "gear.ratio": run.gear_ratio})
                 * np.asarray(sig["motor_speed"], float), dt)
     out["cross_correlation"] = cc
+    i = variables["motor_current (torque constant)"][1]
+    if np.isfinite(i).sum() > 50 and np.nanmax(i) > np.nanmin(i):  # a torque-constant error: torque against current
+        out["motor_current"] = binned_mean(e, i, np.unique(np.nanquantile(i, np.linspace(0, 1, 2 * s.quantile_bins + 1))))
     return out
 
 

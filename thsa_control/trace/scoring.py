@@ -46,8 +46,9 @@ def _fit_job(job: dict) -> dict:
         else:
             ident = Identifier(None, params, job["free"], effects=job["effects"], settings=job["settings"])
             res = ident.fit(job["runs"])
-            held = _undetermined(res, job.get("judge") or {}, job.get("relative_stderr", 1.0))
-            if held and len(held) < len(job.get("judge") or {}):
+            judged = {n: r for n, r in (job.get("judge") or {}).items() if n in job["free"]}
+            held = _undetermined(res, judged, job.get("determination_z", 2.0), job.get("absent"))
+            if held and len(held) < len(judged):
                 # identifiability before plausibility: hold what the run does not determine at its file
                 # value and judge the candidate on what the others explain
                 keep = tuple(n for n in job["free"] if n not in held)
@@ -61,9 +62,11 @@ def _fit_job(job: dict) -> dict:
             elif held:
                 for h in held.values():
                     h["held_at"] = None  # nothing determined: the candidate is judged as such
+            res, job, params, held = _second_stage(job, res, params, held)
     except (ThsaError, ValueError, RuntimeError) as exc:  # casadi raises RuntimeError
         return {"label": job["label"], "error": str(exc), "time_s": time.perf_counter() - t0}
-    est = {n: {"value": e.value, "stderr": e.stderr if math.isfinite(e.stderr) else None, "init": e.init,
+    est = {n: {"value": e.value, "stderr": e.stderr if math.isfinite(e.stderr) else None,
+               "stderr_data": _data_stderr(e), "init": e.init,
                "at_bound": e.at_bound, "min": e.min, "max": e.max, "unit": e.unit}
            for n, e in res.estimates.items()}
     if prof is not None:  # profiled: a value with an interval from the profile, no stderr
@@ -81,6 +84,11 @@ def _fit_job(job: dict) -> dict:
                           "max": e.max, "unit": e.unit, "held": True, "undetermined": h}
             elif n in est:
                 est[n]["undetermined"] = h
+        for n, ref in (job.get("judge") or {}).items():  # the one rule, on the final fit's free parameters
+            if n in est and not est[n].get("held") and "undetermined" not in est[n]:
+                est[n]["determination"] = determination(est[n]["value"], est[n]["stderr_data"], ref,
+                                                        job.get("determination_z", 2.0),
+                                                        (job.get("absent") or {}).get(n, True))
     return {"label": job["label"], "effects": list(res.effects), "free": list(job["free"]), "estimates": est,
             "held": {n: h for n, h in held.items() if h.get("held_at") is not None},
             "aic": res.aic, "bic": res.bic, "chisqr": res.chisqr, "nfev": res.nfev, "converged": res.converged,
@@ -89,28 +97,99 @@ def _fit_job(job: dict) -> dict:
             "params_toml": res.to_parameter_set().to_toml(), "profile": prof.to_dict() if prof is not None else None}
 
 
-def _undetermined(res, judge: Mapping[str, float], rel: float) -> dict:
-    """Parameters of ``judge`` (name -> reference magnitude) the fit does not determine.
+def _second_stage(job: dict, res, params: ParameterSet, held: dict):
+    """Free ``job["second_stage"]`` (:attr:`CandidateSpec.second_stage`) from the first fit's estimates when that
+    fit determines every other parameter it judges; keep the second fit unless it leaves one of them, or a
+    second-stage parameter, undetermined (then that is held at its file value, as the first fit had it)."""
+    second = tuple(n for n in job.get("second_stage", ()) if n in params and n not in job["free"])
+    judge = job.get("judge") or {}
+    first = [n for n in judge if n not in second]
+    if not second or held or not first:
+        return res, job, params, held
+    z, absent = job.get("determination_z", 2.0), job.get("absent") or {}
+    if any(determination(res.estimates[n].value, _data_stderr(res.estimates[n]), judge[n], z, absent.get(n, True))
+           != "determined" for n in first if n in res.estimates):
+        return res, job, params, held
+    free = tuple(job["free"]) + second
+    start = params.replace({n: e.value for n, e in res.estimates.items()})
+    res2 = Identifier(None, start, free, effects=job["effects"], settings=job["settings"]).fit(job["runs"])
+    und = _undetermined(res2, judge, z, absent)
+    if und:  # the first fit stands; the second-stage parameters stay at their file values, reported as held
+        lost = [n for n in und if n not in second]
+        for n in second:
+            und.setdefault(n, {"reason": "freed, it left " + ", ".join(lost) + " undetermined",
+                               "value_if_free": res2.estimates[n].value,
+                               "stderr_if_free": _data_stderr(res2.estimates[n])})
+        return res, job, params, {n: {**und[n], "held_at": params.value(n)} for n in second}
+    return res2, {**job, "free": free}, start, {}
 
-    Not determined: an infinite standard error (a null direction of the
-    Fisher information: the run has no information on it, or only together
-    with another parameter), or one larger than ``rel`` times the parameter's
-    reference magnitude (the run cannot tell the value from zero nor from
-    twice its size).  A parameter so determined that it collapses to zero is
-    not here: that is a verdict on the effect (:func:`_plausibility`).
+
+def _data_stderr(e) -> float | None:
+    """The standard error the runs and the explicit priors give (the regularising priors left out,
+    :attr:`~thsa_control.fit.identify_result.ParameterEstimate.stderr_data`); the posterior one where that was
+    not computed; None where infinite (no information of its own)."""
+    sd = e.stderr if math.isnan(e.stderr_data) else e.stderr_data
+    return float(sd) if math.isfinite(sd) else None
+
+
+def determination(value: float, sd: float | None, ref: float, z: float, zero_is_absent: bool = True) -> str:
+    """What the run says of one parameter of a candidate: ``"not determined"``, ``"zero"`` or ``"determined"``.
+
+    ``sd``: the standard error from the runs (:func:`_data_stderr`), None where infinite.  For a parameter
+    whose zero is the effect's neutral value (``zero_is_absent``: a friction torque, a coefficient), one test at
+    ``z`` standard errors against the two values that matter: zero (the effect absent) and the reference
+    magnitude ``ref`` (file value, seed or plausible bound: the effect at its expected size).  Both within ``z``
+    sd: the run cannot tell them apart, the parameter is not determined (held, not judged).  Zero within, the
+    reference not: the data determine it, and it collapses to zero (a verdict on the effect).  Zero outside:
+    determined.  For another parameter (a stiffness, whose absence is at infinity; a damping or a signed free
+    play, for which zero is a value like another) there is no absence to test: not determined when the
+    standard error exceeds the reference magnitude (the run cannot tell the value from zero nor from twice
+    its size), else determined.
+    """
+    if sd is None:
+        return "not determined"
+    if not zero_is_absent:
+        return "not determined" if sd > ref else "determined"
+    if abs(value) >= z * sd:
+        return "determined"
+    return "not determined" if abs(abs(value) - ref) < z * sd else "zero"
+
+
+def zero_is_absent(effect: str, name: str) -> bool:
+    """Zero of ``name`` removes ``effect`` (its neutral value; a non-registered explainer: yes)."""
+    if effect not in EFFECTS:
+        return True
+    neutral = EFFECTS[effect].neutral
+    return isinstance(neutral, Mapping) and neutral.get(name) == 0.0
+
+
+def _undetermined(res, judge: Mapping[str, float], z: float, absent: Mapping[str, bool] | None = None) -> dict:
+    """Parameters of ``judge`` (name -> reference magnitude) the fit does not determine (:func:`determination`).
+
+    The information is the runs' own plus the base corrections' explicit priors (plausible magnitudes with a
+    source: the no-back's loaded-disk coefficient and the inverse efficiency are the same torque at one load,
+    the catalogue spread of the efficiency splits them).  The regularising prior on a declared parameter
+    (10 % around its current value, this run's own estimate) is no information on a candidate's, and through a
+    correlation it would lend one: at one temperature the viscous temperature coefficient is known only as a
+    product with the declared viscous friction, whose prior then "determined" it to 0.0056 1/K, and its
+    estimate near zero read as "collapses to zero".  Not determined: a null direction of the runs'
+    Fisher information (infinite standard error), or an estimate the run cannot tell from zero nor from its
+    reference magnitude.
     """
     out = {}
     for n, ref in judge.items():
         e = res.estimates.get(n)
         if e is None:
             continue
-        sd = e.stderr
-        if not math.isfinite(sd):
+        sd = _data_stderr(e)
+        if sd is None:
             out[n] = {"reason": "undetermined standard error (no information in this run, or only together with "
                                 "another parameter)", "value_if_free": e.value, "stderr_if_free": None}
-        elif sd > rel * ref:
-            out[n] = {"reason": f"standard error {sd:.3g} {e.unit} exceeds {rel:g} x its reference magnitude "
-                                f"{ref:.3g} {e.unit}", "value_if_free": e.value, "stderr_if_free": sd}
+        elif determination(e.value, sd, ref, z, (absent or {}).get(n, True)) == "not determined":
+            why = (f"within {z:g} standard errors of both zero and its reference magnitude {ref:.3g} {e.unit}"
+                   if (absent or {}).get(n, True) else f"larger than its reference magnitude {ref:.3g} {e.unit}")
+            out[n] = {"reason": f"{e.value:.3g} {e.unit} with a standard error of {sd:.3g} {e.unit} from the run: "
+                                f"{why}", "value_if_free": e.value, "stderr_if_free": sd}
     return out
 
 
@@ -152,7 +231,32 @@ def _chi2_by_channel(fit: dict, noise: Mapping[str, float], select: str, windows
     return chi2_by_channel(fit["predictions"], noise, select, windows)
 
 
-def _holdout_segment_changes(before: dict, after: dict, noise: Mapping[str, float]) -> dict:
+def _window_beyond_noise(before: dict, after: dict, noise: Mapping[str, float], windows: dict | None) -> dict:
+    """Per channel, the drop of the held-out window error beyond the sensor noise: ``1 - sqrt((chi2_after - n) /
+    (chi2_before - n))``, ``n`` the window's held-out sample count (a noise-weighted chi2 of a perfect model is
+    ``n`` in expectation).  The RMS drop (``window_reduction``) counts the noise no model removes: an effect whose
+    window error is 1.8 x the noise can drop it by 44 % at most.  None where the error before is within
+    ``2 sqrt(2 n)`` (two standard deviations of a chi2(n)) of the noise level: nothing beyond noise to explain.
+    Reported, not used to select (the noise level is an estimate)."""
+    n: dict[str, int] = {}
+    for r, p in before["predictions"].items():
+        hold = np.asarray(p["holdout"], bool)
+        for c, y in p["measured"].items():
+            m = hold & np.isfinite(np.asarray(y, float))
+            if windows is not None:
+                m &= windows[r][:m.size]
+            n[c] = n.get(c, 0) + int(m.sum())
+    wb = _chi2_by_channel(before, noise, "holdout", windows)
+    wa = _chi2_by_channel(after, noise, "holdout", windows)
+    out = {}
+    for c in wa:
+        k = n.get(c, 0)
+        excess = wb.get(c, 0.0) - k
+        out[c] = (1 - math.sqrt(max(wa[c] - k, 0.0) / excess)) if k and excess > 2 * math.sqrt(2 * k) else None
+    return out
+
+
+def _holdout_segment_changes(before: dict, after: dict, noise: Mapping[str, float], mask: dict | None = None) -> dict:
     """How a held-out chi2 drop is made: the drop of each held-out segment (noise-weighted squared error of
     ``before`` less ``after``), counted and concentrated.
 
@@ -160,6 +264,10 @@ def _holdout_segment_changes(before: dict, after: dict, noise: Mapping[str, floa
     starts, stops and reversals; a candidate's total drop may then be decided by two or three of them (measured:
     a cold drag that improved the training error by 37 % lost on two held-out segments of one stop).
     ``top3_share``: the three largest absolute segment changes over the sum of all absolute changes.
+    ``mask`` (run -> bool per sample): count only those samples (a candidate's window outside the base's
+    transients); a segment with none of them is left out.  ``sign_p``: one-sided sign test of "the candidate
+    improves no more held-out segments than it worsens" (binomial, p = 1/2, ties left out), the probability
+    of at least ``improved`` improvements out of ``improved + worse`` under it.
     """
     changes = []
     for r, pb in before["predictions"].items():
@@ -172,23 +280,32 @@ def _holdout_segment_changes(before: dict, after: dict, noise: Mapping[str, floa
         st = np.searchsorted(t, st) if st.dtype.kind == "f" else st.astype(int)
         seg = np.searchsorted(st, np.arange(hold.size), side="right") - 1
         d = np.zeros(len(st))
+        n_in = np.zeros(len(st), int)
+        sel = np.ones(hold.size, bool) if mask is None else np.asarray(mask[r], bool)[:hold.size]
         for c, y in pb["measured"].items():
             if c not in pa["simulated"] or not noise.get(c):
                 continue
             y = np.asarray(y, float)[:hold.size]
             eb = ((y - np.asarray(pb["simulated"][c], float)[:hold.size]) / noise[c]) ** 2
             ea = ((y - np.asarray(pa["simulated"][c], float)[:hold.size]) / noise[c]) ** 2
-            m = hold & np.isfinite(eb) & np.isfinite(ea) & (seg >= 0)
+            m = hold & sel[:hold.size] & np.isfinite(eb) & np.isfinite(ea) & (seg >= 0)
             np.add.at(d, seg[m], (eb - ea)[m])
+            np.add.at(n_in, seg[m], 1)
         held = np.array([bool(hold[i]) for i in st[st < hold.size]] + [False] * int(np.sum(st >= hold.size)))
+        if mask is not None:
+            held &= n_in > 0
         changes += list(d[held])
     x = np.asarray(changes, float)
     if not x.size:
         return {}
+    from scipy.stats import binom
+
     a = np.sort(np.abs(x))[::-1]
-    return {"segments": int(x.size), "improved": int(np.sum(x > 0)), "worse": int(np.sum(x < 0)),
+    up, down = int(np.sum(x > 0)), int(np.sum(x < 0))
+    return {"segments": int(x.size), "improved": up, "worse": down,
             "top3_share": float(a[:3].sum() / a.sum()) if a.sum() > 0 else 0.0,
-            "median_drop": float(np.median(x))}
+            "median_drop": float(np.median(x)),
+            "sign_p": float(binom.sf(up - 1, up + down, 0.5)) if up + down else 1.0}
 
 
 def _rms_by_channel(fit: dict, mask_fn=None) -> dict:
@@ -243,20 +360,28 @@ def _plausibility(fit: dict, spec: CandidateSpec, plaus: Mapping | None = None) 
         elif e["interval"] is not None:
             determined += 1
     pairs = spec.name in ("screw_friction_ripple", "cogging_torque")
+    # "collapses to zero" says the effect is absent: only for a parameter whose zero is the effect's neutral value
+    # (a friction torque, a coefficient); a compliance's damping or a signed free play at zero still leaves the
+    # effect there (its neutral is none: NoNeutral), so there zero is a value like another
     for n, e in est:
+        if e.get("undetermined"):  # nothing determined: said once above ("no parameter determined by the run")
+            continue
         if e["at_bound"]:
             why.append(f"{n} at its {e['at_bound']} bound")
-        sd = e["stderr"]
-        if sd is None:
+        # a candidate's own parameter: judged on the runs' own information (:func:`determination`); a lifted base
+        # correction (no reference magnitude of its own) on its posterior standard error, as before
+        verdict = e.get("determination")
+        sd = e.get("stderr_data") if verdict else e["stderr"]
+        if sd is None or verdict == "not determined":
             continue
         determined += 1
-        if not pairs and abs(e["value"]) < 2 * sd:
-            why.append(f"{n} = {e['value']:.3g} collapses to zero (stderr {sd:.2g})")
+        if not pairs and zero_is_absent(spec.name, n) and (verdict == "zero" if verdict else abs(e["value"]) < 2 * sd):
+            why.append(f"{n} = {e['value']:.3g} collapses to zero (stderr {sd:.2g}{' from the run' if verdict else ''})")
     if pairs and len(est) == 2:
         (_, a), (_, b) = est
         amp = math.hypot(a["value"], b["value"])
-        sd = math.hypot(a["stderr"] if a["stderr"] is not None else math.inf,
-                        b["stderr"] if b["stderr"] is not None else math.inf)
+        sa, sb = (x.get("stderr_data") if x.get("determination") else x["stderr"] for x in (a, b))
+        sd = math.hypot(sa if sa is not None else math.inf, sb if sb is not None else math.inf)
         if not amp > 2 * sd:
             why.append(f"amplitude {amp:.3g} collapses to zero (stderr {sd:.2g})")
     if (est or spec.profile) and determined == 0 and not any("determined" in w for w in why):
@@ -269,7 +394,8 @@ def _param_entry(e: dict) -> dict:
     ci = [e["value"] - 1.96 * sd, e["value"] + 1.96 * sd] if sd is not None else e.get("interval")
     return {"value": e["value"], "stderr": sd, "unit": e["unit"], "ci95": list(ci) if ci else None,
             "at_bound": e["at_bound"], **({"profiled": True} if e.get("profiled") else {}),
-            **({"held": True} if e.get("held") else {})}
+            **({"held": True} if e.get("held") else {}),
+            **({"stderr_data": e["stderr_data"]} if "stderr_data" in e and not e.get("held") else {})}
 
 
 def _held_out(fit: dict) -> list[dict]:

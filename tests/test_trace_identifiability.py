@@ -1,0 +1,56 @@
+"""Identifiability before plausibility (issue #21, item 1): one rule decides whether a candidate's parameter is
+not determined by the run (held at its file value, reported) or collapses to zero (the effect refused)."""
+
+from __future__ import annotations
+
+import pytest
+
+from thsa_control.trace import CANDIDATES
+from thsa_control.trace.scoring import determination, zero_is_absent
+
+Z = 2.0
+
+
+@pytest.mark.parametrize("value, sd, ref, expected", [
+    # one-temperature cold run: the viscous temperature coefficient, file value 0.02 1/K
+    (0.00075, 0.0056, 0.02, "zero"),  # the data tell zero from 0.02 (3.6 sd apart) and say zero
+    (0.00075, 0.05, 0.02, "not determined"),  # within 2 sd of zero and of 0.02: the run cannot tell
+    (None, None, 0.02, "not determined"),  # a null direction of the Fisher information
+    (0.05, 0.01, 0.02, "determined"),  # 5 sd from zero: present (larger than the file says)
+    (0.5, 0.2, 0.02, "determined"),  # poorly known, but not zero
+    (-0.03, 0.01, 0.02, "determined"),  # the sign is the data's
+])
+def test_one_rule_for_not_determined_and_collapses_to_zero(value, sd, ref, expected):
+    assert determination(value if value is not None else 0.0, sd, ref, Z) == expected
+
+
+def test_the_verdict_is_consistent_at_the_boundary():
+    """Between the two verdicts nothing is left undecided: moving the estimate from zero to the reference
+    magnitude goes zero -> not determined -> determined, never back."""
+    ref, sd = 1.0, 0.3  # zero and ref 3.3 sd apart
+    order = {"zero": 0, "not determined": 1, "determined": 2}
+    seen = [order[determination(v, sd, ref, Z)] for v in [i / 100 for i in range(0, 150)]]
+    assert seen == sorted(seen) and set(seen) == {0, 1, 2}
+    ref, sd = 1.0, 0.6  # less than 2 x 2 sd apart: never "zero"
+    assert {determination(v / 100, sd, ref, Z) for v in range(0, 150)} == {"not determined", "determined"}
+
+
+def test_zero_collapses_only_what_zero_removes():
+    """A friction coefficient at zero removes its effect; a compliance's stiffness, damping or a signed free play
+    does not (its effect has no neutral value): there the rule is the standard error against the reference
+    magnitude, and "collapses to zero" is never the verdict."""
+    assert zero_is_absent("temperature_friction", "friction.viscous_temperature_coefficient")
+    assert zero_is_absent("noback_quadrant_friction", "noback.mu_coulomb_neg")
+    assert zero_is_absent("coulomb_friction", "drive.coulomb_torque")
+    assert not zero_is_absent("drivetrain_compliance", "gear.torsional_damping")
+    assert not zero_is_absent("loadpath_compliance", "loadpath.backlash")
+    assert determination(0.1, 1.0, 20.0, Z, zero_is_absent=False) == "determined"
+    assert determination(2.0, 25.0, 20.0, Z, zero_is_absent=False) == "not determined"
+
+
+def test_drivetrain_damping_is_a_second_stage_parameter():
+    """The damping of the drive-train mode is freed only once the stiffness is determined (freed from the
+    start it stands in for a lag on rigid data)."""
+    spec = CANDIDATES["drivetrain_compliance"]
+    assert spec.free == ("gear.torsional_stiffness",)
+    assert spec.second_stage == ("gear.torsional_damping",)

@@ -1,0 +1,62 @@
+"""The trace report's conclusion and signature figure (issue #21, item 5), on a hand-made trace document: fast."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from thsa_control.report.trace import conclusion_table_html, plot_signature
+
+
+def _param(v, unit="N m/N", held=False):
+    return {"value": v, "unit": unit, "ci95": None if held else [0.9 * v, 1.1 * v], "held": held}
+
+
+def _doc():
+    err = {"motor_speed": {"rms": 10.0, "unit": "rad/s"}}
+    err2 = {"motor_speed": {"rms": 2.0, "unit": "rad/s"}}
+    added = [
+        {"name": "noback_backlash", "parameters": {"noback.pawl_pitch": _param(0.1, "rad")}, "not_determined": [],
+         "window_reduction": {"motor_speed": 0.8}, "error_before": err, "error_after": err2},
+        {"name": "noback_quadrant_friction", "implied_by": "noback_backlash",
+         "parameters": {"noback.mu_coulomb_pos": _param(0.0048, held=True)},
+         "not_determined": [{"parameter": "noback.mu_coulomb_pos", "held_at": 0.0048, "unit": "N m/N",
+                             "reason": "the light disk is never loaded"}],
+         "window_reduction": {"motor_speed": 0.8}, "error_before": err, "error_after": err2},
+    ]
+    x = np.linspace(0, 0.04, 21)
+    curve = {"centre": list(x), "mean": list(0.01 * np.sin(100 * x)), "sd": [0.01] * 21, "count": [50] * 21}
+    return {"base_corrections": None, "effects_added": added, "unexplained": True,
+            "residual_signature": {
+                "structured": ["nut_position (repeated over passes)"], "base_like": [],
+                "tests": [{"variable": "nut_position (repeated over passes)", "kind": "local", "p_value": 1e-9,
+                           "significant": True, "peak_bin": [0.004, 0.006], "law": "dissipative (opposes the motion)"},
+                          {"variable": "time (slow drift)", "kind": "drift", "p_value": 0.3, "significant": False}],
+                "curves": {"nut_position": {**curve, "by_direction": {"extending": curve, "retracting": curve}},
+                           "motor_angle": curve, "screw_angle": curve, "cross_correlation": {},
+                           "segment_torque": {"time": [1.0, 1.1, 6.0, 6.1], "torque": [0.01, 0.012, -0.01, -0.008],
+                                              "direction": [1.0, 1.0, -1.0, -1.0]},
+                           "motor_current": curve}}}
+
+
+def test_conclusion_table_names_the_implied_effect_and_what_was_held():
+    """An effect pulled in by another one is a row of its own, named as implied, with the parameter the run did
+    not determine and the value it was held at."""
+    html = conclusion_table_html(_doc())
+    assert "implied by noback_backlash" in html and "noback_quadrant_friction" in html
+    assert "noback.mu_coulomb_pos held at 0.0048" in html
+    assert "unexplained: <b>True</b>" in html and "nut_position (repeated over passes)" in html
+
+
+def test_signature_figure_has_the_six_panels_and_marks_the_position_test():
+    """Binned by nut position per direction (with the position test's peak bin), by motor and screw angle, the
+    redundant sensors, the per-segment torques against time and the residual against the current."""
+    fig = plot_signature(_doc()["residual_signature"])
+    axes = fig.get_axes()
+    assert len(axes) == 6
+    titles = [a.get_title() for a in axes]
+    assert any("nut position" in t for t in titles) and any("slow drift" in t for t in titles)
+    assert any("motor current" in t for t in titles)
+    pos = axes[titles.index(next(t for t in titles if "nut position" in t))]
+    labels = pos.get_legend_handles_labels()[1]
+    assert any(lb.startswith("extending") for lb in labels) and any(lb.startswith("retracting") for lb in labels)
+    assert any("p 1e-09" in t.get_text() and "dissipative" in t.get_text() for t in pos.texts)
