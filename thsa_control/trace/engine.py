@@ -119,7 +119,7 @@ class TraceSettings:
         not see where a compliance or a clearance acts most, at starts and
         stops (measured on a cold rig-sim null: a drive-train compliance
         with a 7 % window drop made the screw-speed error 30 % larger, a
-        no-back backlash with a 25 % window drop 62 %).  Other channels may trade: a
+        no-back backlash with a 13 % window drop the motor-speed error 29 %).  Other channels may trade: a
         cogging fit aligns its angle through the segments' nut positions and
         doubles the LVDT's small error.
     max_effects : int
