@@ -49,6 +49,9 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     "null_rig_reversals_s2": ("reversals_under_load", "rig", "", 2, 5.0, "null"),
     "null_rig_bipolar_s3": ("bipolar_ramp_tensile", "rig", "", 3, 9.0, "null"),
     "null_rig_excitation_s4": ("speed_excitation", "rig", "", 4, 5.5, "null"),
+    # cold (-30 C) ramps against 55 kN, drive off in the stops: the null of rig_temp_friction (a drive-train
+    # compliance and a no-back backlash were once named on it)
+    "null_rig_cold_s52": ("cold_ramp", "rig", "", 52, 5.0, "null"),
     "null_papers_trim_s1": ("trim_ramp_compressive", "papers", "", 1, None, "null"),
     "null_papers_reversals_s2": ("reversals_under_load", "papers", "", 2, 5.0, "null"),
     "null_papers_bipolar_s3": ("bipolar_ramp_tensile", "papers", "", 3, 9.0, "null"),
