@@ -125,7 +125,8 @@ KNOWN_FAILING = {
                                  "damping 7.2 (rig-sim 2), screw-speed window error +24 %. rig-sim's own values "
                                  "improve the screw speed (-16 %); the fit is pulled by the motor-speed channel, "
                                  "which carries 6-8 x its noise of base error; at 2 plant steps per sample the "
-                                 "growth is +6 % but the candidate is not significant (20/37 held-out segments)",
+                                 "growth is +6 % but the candidate is not significant (20/37 held-out segments). "
+                                 "Found with --channel-weights base-residual (opt-in, test_trace_drivetrain.py)",
     # the out-of-library effects (docs/trace_notes.md, "Out-of-library effects: what the remainder shows")
     "rig_loadcell_drift": "not flagged, the run carries too little: per-pass drift test p 0.017 (slopes +1.6e-3 "
                           "extending / -1.4e-3 N m/s retracting, standard error 7.3e-4 each, as the 40 N/s offset "
