@@ -198,3 +198,9 @@ def test_rigsim_compliance_found_with_channel_weights_from_the_base():
     for null in ("null_rig_excitation_s4", "rig_sensor_lag"):
         nd = trace(read_run(data / f"{null}.csv"), "A", settings=st).to_dict()
         assert nd["effects_added"] == [], (null, nd["rounds"])
+
+
+def test_channel_weights_setting_is_checked():
+    with pytest.raises(ValueError, match="channel_weights"):
+        TraceSettings(channel_weights="residual").validate()
+    TraceSettings(channel_weights="base_residual").validate()
