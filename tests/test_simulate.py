@@ -227,3 +227,22 @@ def test_batch_runs_are_bit_identical_to_single_runs(design, params):
     assert batch[0]["motor_current"].tobytes() != batch[1]["motor_current"].tobytes()
     assert batch[0]["motor_current"].tobytes() != batch[2]["motor_current"].tobytes()
     assert batch[3]["standby_active"].argmax() < batch[4]["standby_active"].argmax()
+
+
+def test_simulators_of_one_plant_share_its_closed_loop(params, design, tmp_path, monkeypatch):
+    """A new Simulator of an effect set already simulated reuses its closed loop (Functions and loaded run loop)
+    and gives the same run to the bit; another substep count, or another cache folder, has its own."""
+    from thsa_control.model import build_plant
+    from thsa_control.sim.scenarios import get_scenario
+    from thsa_control.sim.simulate import SimulationSettings, Simulator
+
+    plant = build_plant("A", params=params)
+    a, b = Simulator(plant), Simulator(build_plant("A", params=params))
+    assert a.closed_loop() is b.closed_loop()
+    assert Simulator(plant, SimulationSettings(substeps=2)).closed_loop() is not a.closed_loop()
+    sc = get_scenario("cold_ramp")
+    ra, rb = a.run(sc, design, params), b.run(sc, design, params)
+    for name in ("nut_speed", "motor_current"):
+        np.testing.assert_array_equal(ra[name], rb[name])
+    monkeypatch.setenv("THSA_CACHE_DIR", str(tmp_path / "elsewhere"))
+    assert Simulator(plant).closed_loop() is not a.closed_loop()

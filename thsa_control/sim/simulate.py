@@ -48,6 +48,7 @@ from __future__ import annotations
 import math
 import os
 import time
+from collections import OrderedDict
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -236,6 +237,29 @@ class SimulationResult:
         return plot_run(self, axes=ax)
 
 
+#: Closed loops shared by every Simulator of the process: (id(plant), substeps, extension keys, cache folder)
+#: -> (plant, loop), least recently used first.  A ClosedLoop is its Functions and its loaded run loop, nothing of a run; the
+#: entry keeps its plant alive, so the id is not reused.  build_plant returns one Plant per effect set, so
+#: a new Simulator of an effect set already simulated does not generate and load its run loop again.
+_LOOPS: OrderedDict = OrderedDict()
+_LOOPS_KEPT = 32
+
+
+def _shared_loop(plant: Plant, substeps: int, extensions: tuple, key: tuple) -> ClosedLoop:
+    # the cache folder is part of the key: a process that points THSA_CACHE_DIR elsewhere (a sweep's worker)
+    # loads its run loop from there
+    k = (id(plant), int(substeps), key, os.environ.get("THSA_CACHE_DIR"), os.environ.get("XDG_CACHE_HOME"))
+    hit = _LOOPS.get(k)
+    if hit is not None and hit[0] is plant:
+        _LOOPS.move_to_end(k)
+        return hit[1]
+    loop = ClosedLoop(plant, substeps, extensions)
+    _LOOPS[k] = (plant, loop)
+    if len(_LOOPS) > _LOOPS_KEPT:
+        _LOOPS.popitem(last=False)
+    return loop
+
+
 class Simulator:
     """Closed-loop simulator of one plant (effect set).
 
@@ -262,7 +286,7 @@ class Simulator:
         key = tuple(e.key() for e in extensions)
         loop = self._loops.get(key)
         if loop is None:
-            loop = self._loops[key] = ClosedLoop(self.plant, self.settings.substeps, tuple(extensions))
+            loop = self._loops[key] = _shared_loop(self.plant, self.settings.substeps, tuple(extensions), key)
         return loop
 
     def sample_function(self, extensions: tuple[LoopExtension, ...] = ()) -> ca.Function:
