@@ -34,6 +34,10 @@ def add_parser(subparsers) -> None:
                    "interval in seconds, 'sample' (one logged sample) or 'instantaneous' (e.g. "
                    "motor_speed=0.001,screw_speed=sample); default: each run JSON's speed_sensors, else its "
                    "sensors text (reported as a fallback), else instantaneous")
+    p.add_argument("--channel-weights", choices=("sensor-noise", "base-residual"), default="sensor-noise",
+                   help="what each channel is weighted by in the fits and scores: its sensor noise (default) or the "
+                        "larger of that and the declared model's residual RMS on it (a channel the base leaves "
+                        "far above its noise then does not pull the candidates' parameters)")
     p.add_argument("--no-rig-hardware", action="store_true",
                    help="do not complete the declared model from the runs' rig description (by default a JSON "
                         "rig.motors = 2 adds standby_motor: the second rotor carried along)")
@@ -82,6 +86,7 @@ def run(args) -> int:
                 sensors[k.strip()] = v.strip()
         settings = TraceSettings(segment_duration=args.segment, max_effects=args.max_effects, max_nfev=args.max_nfev,
                                  workers=args.workers, substeps=args.substeps, speed_sensors=sensors,
+                                 channel_weights=args.channel_weights.replace("-", "_"),
                                  base_corrections={"auto": None, "on": True, "off": False}[args.base_corrections], rig_hardware=not args.no_rig_hardware, uncertain=split(args.free), candidates=split(args.candidates))
         settings.validate()
     except ValueError as exc:

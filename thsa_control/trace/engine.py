@@ -214,9 +214,19 @@ class TraceSettings:
     #: segments start the plant's fast internal modes quasi-static (IdentificationSettings.quasi_static_starts);
     #: None: with the base step (data the declared model may not describe), free otherwise
     quasi_static_starts: bool | None = None
+    #: what the channels are weighted by in the fits and the chi2 scores: "sensor_noise" (each channel's sensor
+    #: noise) or "base_residual" (the larger of the sensor noise and the declared model's residual RMS on that
+    #: channel: the maximum-likelihood scale of a channel whose error the base leaves is that error, not the
+    #: sensor noise; with sensor-noise weights a channel carrying several times its noise of base error outweighs
+    #: the others and a candidate's parameters absorb that error, docs/trace_notes.md, rig_drivetrain_compliance).
+    #: The residual-to-noise flags of the signature keep the sensor noise.
+    channel_weights: str = "sensor_noise"
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad field."""
+        if self.channel_weights not in ("sensor_noise", "base_residual"):
+            raise ValueError(f"TraceSettings.channel_weights = {self.channel_weights!r}: expected 'sensor_noise' or "
+                             "'base_residual'")
         if self.speed_sensors is not None:
             from ..data.rigformat import SPEED_SENSOR_COLUMNS, speed_interval_from
 
@@ -319,6 +329,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                      if any(c in r.source_columns for r in runs))
     noise = {c: float(np.mean([estimate_noise(r.signals[c]) for r in runs if c in r.source_columns]))
              for c in channels}
+    sensor_noise = dict(noise)  # the sensors' own; ``noise`` becomes the channel weights (channel_weights)
 
     # fast internal modes (the surface on a compliant load path) start each segment quasi-static on data the
     # declared model may not describe (with the base step): free, they rang to absorb the motor-speed mismatch
@@ -362,6 +373,16 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     base = _run_jobs([job("base", declared, uncertain, params, fit_runs)], 1, None)[0]
     if "error" in base:
         raise ThsaError(f"trace: the declared model cannot be fitted: {base['error']}")
+    if st.channel_weights == "base_residual":
+        # each channel weighted by what the declared model leaves on it (never below its sensor noise); refit
+        left = _residual_rms(base, runs)
+        for c in noise:
+            noise[c] = max(noise[c], left.get(c, 0.0))
+        say("channel weights from the declared model's residual: "
+            + ", ".join(f"{c} {noise[c]:.3g} (sensor {sensor_noise[c]:.3g})" for c in noise))
+        base = _run_jobs([job("base", declared, uncertain, params, fit_runs)], 1, None)[0]
+        if "error" in base:
+            raise ThsaError(f"trace: the declared model cannot be fitted: {base['error']}")
     base_fit_time = time.perf_counter() - t0
     say(f"base fit: {base_fit_time:.1f} s")
     first = base
@@ -409,7 +430,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 cur_free = tuple(f["free"])
             at_plausible_bound = _explainers_at_bound(current, base_bounds)
             base_doc["signature_after"] = _signature_brief(
-                _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, noise))
+                _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, sensor_noise))
     windows_cache = {spec: {r.name: _window(spec, r, params) for r in runs} for spec in WINDOWS}
     # where the candidates are scored: outside the base's transients on data the declared model may not describe
     steady = ({r.name: ~base_transients(r.time, measured_motor_speed(r), r.signals["load_force"],
@@ -658,9 +679,9 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         base_bounds = {n: b for n, b in base_bounds.items() if n not in lifted}
         at_plausible_bound = _explainers_at_bound(f, base_bounds)
         rounds[-1]["signature_after"] = _signature_brief(
-            _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, noise))
-    sig_before = _signature(first, runs, ParameterSet.from_toml(first["params_toml"]), base_plant, st.signature, noise)
-    sig_after = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, noise)
+            _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, sensor_noise))
+    sig_before = _signature(first, runs, ParameterSet.from_toml(first["params_toml"]), base_plant, st.signature, sensor_noise)
+    sig_after = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, sensor_noise)
     if rounds and "signature_after" not in rounds[-1]:  # a round that added nothing leaves the model as it was
         rounds[-1]["signature_after"] = _signature_brief(sig_after)
     # unexplained: structure an unmodelled-but-declared base does not leave; a residual above noise with only the
@@ -695,12 +716,23 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         "residual_signature_before": sig_before,
         "candidates": rounds[0]["candidates"] if rounds else [],
         "rounds": rounds,
-        "noise_rms": noise,
+        "noise_rms": sensor_noise, "channel_weights": {"rule": st.channel_weights, "rms": dict(noise)},
         "settings": _settings_dict(st),
         "timing": {"base_fit_s": base_fit_time, "candidate_fit_s": (float(np.median(cand_times)) if cand_times else None),
                    "total_s": time.perf_counter() - t_start},
     }
     return TraceResult(doc, {"before": first, "after": current})
+
+
+def _residual_rms(fit: dict, runs) -> dict[str, float]:
+    """RMS of a fit's residual per compared channel over all runs' samples (SI)."""
+    acc: dict[str, list] = {}
+    for r in runs:
+        pr = fit["predictions"][r.name]
+        for c, y in pr["measured"].items():
+            e = np.asarray(y, float) - np.asarray(pr["simulated"][c], float)[:len(y)]
+            acc.setdefault(c, []).append(e[np.isfinite(e)])
+    return {c: float(np.sqrt(np.mean(np.concatenate(v) ** 2))) for c, v in acc.items() if sum(map(len, v))}
 
 
 def _detail_declared(refinements, current: dict, cur_effects, cur_free, fit_runs, noise, st, job, say, plaus,
