@@ -39,6 +39,7 @@ The cache is never trusted blindly (issue #7, item 2):
 from __future__ import annotations
 
 import atexit
+import contextlib
 import ctypes
 import hashlib
 import json
@@ -421,6 +422,7 @@ class NonFiniteOutput(ArithmeticError):
         self.run, self.sample = run, sample
 
 
+@contextlib.contextmanager
 def _build_lock(folder: Path | None, stem: str):
     """An exclusive lock on building ``stem`` in the shared cache ``folder`` (``fcntl.flock`` on ``.stem.lock``).
 
@@ -430,33 +432,27 @@ def _build_lock(folder: Path | None, stem: str):
     like any cached one).  Without a usable lock (no ``fcntl``, an unwritable folder) each builds, as before:
     the publishing is atomic either way, so this saves processor time and decides nothing.
     """
-    import contextlib
+    fd = None
+    waited = False
+    try:
+        import fcntl
 
-    @contextlib.contextmanager
-    def held():
-        fd = None
-        waited = False
-        try:
-            import fcntl
-
-            if folder is not None:
-                fd = os.open(folder / f".{stem}.lock", os.O_RDWR | os.O_CREAT, 0o644)
-                try:
-                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                except BlockingIOError:
-                    waited = True
-                    fcntl.flock(fd, fcntl.LOCK_EX)
-        except (ImportError, OSError):
-            if fd is not None:
-                os.close(fd)
-            fd, waited = None, False
-        try:
-            yield waited
-        finally:
-            if fd is not None:
-                os.close(fd)  # releases the lock
-
-    return held()
+        if folder is not None:
+            fd = os.open(folder / f".{stem}.lock", os.O_RDWR | os.O_CREAT, 0o644)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                waited = True
+                fcntl.flock(fd, fcntl.LOCK_EX)
+    except (ImportError, OSError):
+        if fd is not None:
+            os.close(fd)
+        fd, waited = None, False
+    try:
+        yield waited
+    finally:
+        if fd is not None:
+            os.close(fd)  # releases the lock
 
 
 def _find_or_build(functions, stem_tag: str, driver: str, flags: tuple[str, ...], load, edit=None):
