@@ -23,7 +23,12 @@ from ..fit.profile import chi2_by_channel
 from ..fit.replay import channel_fit
 from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
 from ..model.params import ParameterSet
-from .candidates import CANDIDATES, EFFICIENCY_EXPLAINER
+from .candidates import (
+    CANDIDATES,
+    EFFICIENCY_EXPLAINER,
+    INERTIA_DATASHEET_TOLERANCE,
+    INERTIA_EXPLAINER,
+)
 from .signature import split_remainder
 from .threads import limit_blas_threads
 
@@ -429,9 +434,10 @@ def _base_correction(first: dict, declared, uncertain, params: ParameterSet, pla
     """The base-correction step: what every real drive has and the declared level may lack.
 
     The constant-torque explainers (a Coulomb drag, an axial force the load cell does not see) and the ball
-    screw's efficiencies are fitted together with the declared uncertain set,
+    screw's efficiencies and the motor-side inertia (a coupling and the gearbox's input stage, which level A's
+    motor shaft lacks) are fitted together with the declared uncertain set,
     each inside its plausible magnitude (:data:`PLAUSIBLE`, the bound's source reported) and with a prior at
-    0 (the file's efficiency) of half that size, so that explainers that stand for the same torque share it
+    0 (the file's efficiency, inertia) of half that size, so that explainers that stand for the same torque share it
     instead of drifting along their common direction.  Accepted when the held-out chi2 drop passes the
     ``chi2(k)`` test.  An explainer at its bound is offered later as a found-effect candidate (the same
     effect beyond what a rig's base can be).
@@ -441,7 +447,7 @@ def _base_correction(first: dict, declared, uncertain, params: ParameterSet, pla
     # a drag is symmetric: the direction-dependent part of a rig's base is what the efficiencies (load
     # proportional) and an axial force give; a direction drag on top would double the plausible drag one way
     explainers = [CANDIDATES[n] for n in ("coulomb_friction", "force_offset")
-                  if n in CANDIDATES and n not in declared] + [EFFICIENCY_EXPLAINER]
+                  if n in CANDIDATES and n not in declared] + [EFFICIENCY_EXPLAINER, INERTIA_EXPLAINER]
     bounds, priors, sources, owner = {}, {}, {}, {}
     for e in explainers:
         for n in e.free:
@@ -451,6 +457,11 @@ def _base_correction(first: dict, declared, uncertain, params: ParameterSet, pla
             if e.plausible[n] == "efficiency":
                 v = params.value(n)
                 lo, hi, centre = max(v - b, params[n].min), min(v + b, params[n].max), v
+            elif e.plausible[n] == "inertia":  # relative: below by the datasheet tolerance, above by the drive train
+                v = params.value(n)
+                lo, hi, centre = max(v * (1 - INERTIA_DATASHEET_TOLERANCE), params[n].min), min(v * (1 + b),
+                                                                                                 params[n].max), v
+                b = b * v  # the prior's standard deviation below: half the addition, in kg m^2
             elif params[n].min >= 0:
                 lo, hi, centre = 0.0, b, 0.0
             else:
