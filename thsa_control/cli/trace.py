@@ -24,7 +24,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--max-nfev", type=int, default=40, help="evaluation limit of each fit")
     p.add_argument("--base-corrections", choices=("auto", "on", "off"), default="auto",
                    help="fit the base-correction step first (Coulomb drag, direction drag, axial force, screw "
-                        "efficiencies within plausible magnitudes; reported as base corrections, not effects). "
+                        "efficiencies, motor-side inertia within plausible magnitudes; reported as base corrections, not effects). "
                         "auto: on with the default candidates, off with --candidates")
     p.add_argument("--workers", type=int, default=2, help="parallel candidate fits (default 2)")
     p.add_argument("--substeps", type=int, default=1, help="plant steps per sample period of the fits (default 1; "

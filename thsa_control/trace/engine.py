@@ -130,8 +130,8 @@ class TraceSettings:
         Noise of the null runs.
     signature : SignatureSettings
     base_corrections : bool or None
-        Fit the base-correction step first (the constant-torque explainers
-        and the screw efficiencies within their plausible magnitudes,
+        Fit the base-correction step first (the constant-torque explainers,
+        the screw efficiencies and the motor-side inertia within their plausible magnitudes,
         :data:`PLAUSIBLE`), reported as base corrections, not as found
         effects.  None: on when the candidates are the default pool (a named
         candidate list is scored as effects only, as before).
@@ -394,7 +394,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     base_bounds: dict[str, tuple[float, float, str]] = {}  # explainer parameter -> (lo, hi, effect) while bounded
     base_step_refused: set[str] = set()  # declared components detailed (or tried) in the base step
     if use_base:
-        say("base-correction step: constant-torque explainers and screw efficiencies within plausible magnitudes")
+        say("base-correction step: constant-torque explainers, screw efficiencies and motor-side inertia within "
+            "plausible magnitudes")
         windows_cache = {spec: {r.name: _window(spec, r, params) for r in runs} for spec in WINDOWS}
         refinements = [sp for sp in candidate_specs(declared, params, st.candidates)
                        if set(EFFECTS[sp.name].supersedes) & set(declared) and not sp.profile
