@@ -547,10 +547,15 @@ def current_driven_map(plant: Plant, substeps: int = 1, quotients: Mapping[str, 
 
     ``mech(x, v, p, h) -> (x_next, y)`` with ``v`` = :data:`MECH_INPUTS`,
     ``h`` the sample period [s].  With ``quotients`` (speed-sensor channel of the plant's measurement map ->
-    number of plant steps ``m``, 1..substeps) a third output ``q`` holds, per channel in that order, the
+    number of plant steps ``m``, 0 < m <= substeps) a third output ``q`` holds, per channel in that order, the
     sensor's reading at the period's *end* as a difference quotient: the angle travelled over the last ``m``
     plant steps divided by their duration (the mean of the speeds the positions were integrated with: the
-    resolver's or RVDT's speed estimate, not the instantaneous speed).  Before each of the ``substeps`` plant
+    resolver's or RVDT's speed estimate, not the instantaneous speed).  A fractional ``m`` (a difference
+    interval that is not a whole number of plant steps: a resolver differenced over 1 ms, logged at 500 Hz, fitted
+    at one step per sample) takes the whole steps and, of the step before them, the mean speed over its last
+    fraction: each step's speed is the mean over that step (the semi-implicit Euler integrates the angle with
+    it), so it stands at the step's middle, and between the middles of that step and the one before it the speed
+    is interpolated linearly (exact for a constant acceleration).  Before each of the ``substeps`` plant
     steps the motor current state (the standby current when
     ``standby_active``) is overwritten with the current interpolated linearly
     between ``current_start`` and ``current_end``; the load force likewise.
@@ -581,8 +586,8 @@ def current_driven_map(plant: Plant, substeps: int = 1, quotients: Mapping[str, 
     xk = x
     quotients = dict(quotients or {})
     for c, m in quotients.items():
-        if not (isinstance(m, int) and 1 <= m <= substeps):
-            raise ValueError(f"quotient steps of {c!r} = {m!r} must be an integer in 1..{substeps}")
+        if not (isinstance(m, (int, float)) and 0 < m <= substeps):
+            raise ValueError(f"quotient steps of {c!r} = {m!r} must be a number in (0, {substeps}]")
     speeds = {c: [] for c in quotients}
     i_speed = {c: names.index(plant.sensor_state(c)) for c in quotients}
     scale = {c: (plant.sensors[c].scale(p) if plant.sensors[c].scale is not None else 1.0) for c in quotients}
@@ -608,7 +613,18 @@ def current_driven_map(plant: Plant, substeps: int = 1, quotients: Mapping[str, 
         for c in quotients:
             speeds[c].append(xk[i_speed[c]])
     if quotients:
-        q = [scale[c] * sum(speeds[c][substeps - m:]) / m for c, m in quotients.items()]
+        q = []
+        for c, m in quotients.items():
+            whole = math.floor(m + 1e-9)
+            frac = m - whole if m - whole > 1e-9 else 0.0
+            total = sum(speeds[c][substeps - whole:]) if whole else ca.SX(0.0)
+            if frac:
+                # the step before the whole ones (index j; its predecessor the period's start speed when j = 0)
+                j = substeps - whole - 1
+                s_j = speeds[c][j]
+                s_prev = speeds[c][j - 1] if j >= 1 else x[i_speed[c]]
+                total = total + frac * (s_j + 0.5 * (1.0 - frac) * (s_j - s_prev))
+            q.append(scale[c] * total / m)
         return ca.Function("mech_q", [x, v, p, h], [xk, y0, ca.vertcat(*q)], ["x", "v", "p", "h"],
                            ["x_next", "y", "q"])
     return ca.Function("mech", [x, v, p, h], [xk, y0], ["x", "v", "p", "h"], ["x_next", "y"])
