@@ -61,10 +61,11 @@ from ..data.rigformat import speed_sensor_intervals
 from ..fit.replay import check_run_model
 from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
 from ..model.params import ParameterSet, default_parameters
-from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, PLAUSIBLE, PROFILE_LIMITS, RESOLVES,
-                         STARTS, WINDOWS,
+from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, PERIODS, PLAUSIBLE, PROFILE_LIMITS,
+                         RESOLVES, STARTS, WINDOWS,
                          _window,
-                         candidate_specs, not_candidates)
+                         candidate_specs, not_candidates, nut_travel)
+from . import periodicity
 from .residual import _regime_errors, _signature
 from .scoring import (_base_correction, _window_beyond_noise, _channel_errors, _chi2_by_channel, _explainers_at_bound, _held_out,
                       _holdout_segment_changes,
@@ -198,6 +199,10 @@ class TraceSettings:
     min_window_reduction: float = 0.05
     max_channel_increase: float = 0.1
     max_effects: int = 3
+    #: an angle-periodic candidate (screw ripple, cogging) must gain outside the one period of nut travel that
+    #: carries most of its held-out drop (:mod:`thsa_control.trace.periodicity`): a ripple is the same in every
+    #: revolution, a friction bump at one place is not
+    periodic_repeat: bool = True
     workers: int = 2
     seed: int = 0
     signature: SignatureSettings = field(default_factory=SignatureSettings)
@@ -539,6 +544,10 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             constant = CANDIDATES.get(spec.name) is not None and CANDIDATES[spec.name].base_correction
             robust = not (use_base and st.robust_constant_torque and constant) or seg_win.get("sign_p", 1.0) < st.alpha
             prelim = prelim and robust
+            period_test = (_repetition(current, f, spec, k, runs, noise, score_mask(spec.window), st.alpha)
+                           if spec.name in PERIODS and st.periodic_repeat else None)
+            repeats = period_test is None or period_test["repeats"]
+            prelim = prelim and repeats
             scored.append({
                 "name": spec.name, "score": drop / max(sum(base_hold.values()), 1e-300), "holdout_chi2_drop": drop,
                 "chi2_threshold": thr, "error_reduction": err_red, "window": spec.window, "window_reduction": win_red,
@@ -551,6 +560,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 **({} if robust else {"not_robust": f"a constant torque that improves {seg_win.get('improved', 0)} "
                                                     f"of {seg_win.get('segments', 0)} held-out segments of its window "
                                                     f"(sign test p = {seg_win.get('sign_p', 1.0):.2g} >= {st.alpha:g})"}),
+                **({"periodicity": period_test} if period_test is not None else {}),
+                **({} if repeats else {"not_periodic": periodicity.describe(period_test)}),
                 **({"scored_outside_transients": True} if score_mask(spec.window) is not None else {}),
                 "_mask": score_mask(spec.window),
                 **({"beyond_base_correction": True} if any(n in at_plausible_bound for n in spec.free) else {}),
@@ -866,8 +877,28 @@ def _rivals(best: dict, scored: list[dict], alpha: float) -> list[dict]:
     best["_indistinct_below"] = gap
     best["_holdout_iact"] = tau
     # a constant torque whose drop a few held-out segments carry (``not_robust``) is no measure of what it explains
+    # a periodic one whose gain comes from one place of the travel (``not_periodic``) explains a local structure
     return [s for s in scored if s is not best and "error" not in s and s["plausible"] and not s.get("not_robust")
-            and best["holdout_chi2_drop"] - s["holdout_chi2_drop"] < gap]
+            and not s.get("not_periodic") and best["holdout_chi2_drop"] - s["holdout_chi2_drop"] < gap]
+
+
+def _repetition(current: dict, fit: dict, spec: CandidateSpec, k: int, runs, noise, mask, alpha: float) -> dict:
+    """The repetition test of an angle-periodic candidate (:func:`~thsa_control.trace.periodicity.repetition_test`):
+    its held-out drop outside the one period of nut travel that carries most of it must pass the ``chi2(k)``
+    quantile at ``alpha``, scaled as the ambiguity gap (:func:`_rivals`: the fit's reduced held-out chi2 and the
+    held-out residual's IACT, a quasi-likelihood scaling of a structured remainder)."""
+    from scipy.stats import chi2
+
+    params = ParameterSet.from_toml(fit["params_toml"])
+    period = PERIODS[spec.name](params)
+    hold = sum(_chi2_by_channel(fit, noise, "holdout", mask).values())
+    n = _holdout_samples(fit, mask)
+    tau = _holdout_iact(fit, noise, mask)
+    thr = float(chi2.ppf(1 - alpha, k)) * max(1.0, hold / max(n, 1)) * tau
+    segs = periodicity.segment_drops(current, fit, noise, {r.name: nut_travel(r, params) for r in runs}, mask)
+    out = periodicity.repetition_test(segs, period, thr)
+    out.update(reduced_chi2=hold / max(n, 1), iact=tau)
+    return out
 
 
 def _holdout_iact(fit: dict, noise, mask: dict | None = None) -> float:
