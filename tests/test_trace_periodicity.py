@@ -1,0 +1,109 @@
+"""The repetition test of angle-periodic candidates (thsa_control.trace.periodicity; issue #21, rig-sim's
+friction bump).
+
+A ripple once per screw revolution is the same torque in every revolution: its held-out gain is spread over the
+nut travel.  A fit of it to a friction bump at one nut position gains in the one lead that holds the bump and
+loses elsewhere.  The statistic is exercised here on held-out segments built from a model of each (a
+per-segment chi2 drop proportional to the torque the candidate explains there, plus the scatter of a chi2
+difference); the traces of rig-sim's runs are judged in test_trace_foreign.py and below (slow).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from thsa_control.trace import periodicity
+
+LEAD = 0.012
+
+
+def _segments(gain_of_x, seed=0, travel=0.045, seg=0.00075, scatter=3.0):
+    """Held-out segments of one extension and one retraction over ``travel`` (every third 0.75 mm segment),
+    each with the drop ``gain_of_x(mid) + scatter * N(0, 1)``."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for run in ("out", "back"):
+        starts = np.arange(0.0, travel - seg, 3 * seg) + (seg if run == "back" else 0.0)
+        for a in starts:
+            mid = a + seg / 2
+            out.append({"run": run, "drop": float(gain_of_x(mid) + scatter * rng.standard_normal()),
+                        "x_min": float(a), "x_max": float(a + seg)})
+    return out
+
+
+def _ripple_gain(x):
+    """A ripple explained everywhere: the gain follows the ripple's square, the same in every revolution."""
+    return 40.0 * (1 + math.sin(2 * math.pi * x / LEAD + 0.7)) ** 2
+
+
+def _bump_gain(centre, width=0.0015):
+    """A ripple fitted to a bump: a gain where the bump is, the fitted ripple's cost everywhere else."""
+    def g(x):
+        return 400.0 * math.exp(-0.5 * ((x - centre) / width) ** 2) - 8.0 * (1 + math.sin(2 * math.pi * x / LEAD)) ** 2
+    return g
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_ripple_gains_in_every_revolution(seed):
+    segs = _segments(_ripple_gain, seed)
+    t = periodicity.repetition_test(segs, LEAD, threshold=14.0)
+    assert t["repeats"], t
+    assert t["periods_gaining"] == t["periods_covered"] == 4
+    assert t["left_out_share"] < 0.5  # one revolution of four carries about a quarter
+    assert t["total_drop"] == pytest.approx(sum(s["drop"] for s in segs))
+
+
+@pytest.mark.parametrize("centre", [0.005, 0.012, 0.0245, 0.040])
+def test_a_gain_at_one_place_is_not_periodic(centre):
+    """Wherever the bump is, also across the boundary of two leads counted from the start (12 mm, 24.5 mm): the
+    period left out is placed where the gain is, not on a fixed grid."""
+    segs = _segments(_bump_gain(centre), 4)
+    t = periodicity.repetition_test(segs, LEAD, threshold=14.0)
+    assert not t["repeats"], t
+    assert t["left_out"][0] <= centre <= t["left_out"][1]
+    assert t["rest_drop"] < 0 < t["total_drop"]
+    assert periodicity.describe(t).startswith("not periodic over the travel")
+
+
+def test_the_rest_must_pass_the_threshold_not_only_be_positive():
+    """A bump with a small chance gain elsewhere: positive rest, below the held-out test's threshold."""
+    def g(x):
+        return 400.0 * math.exp(-0.5 * ((x - 0.02) / 0.0015) ** 2) + 0.5
+    segs = _segments(g, 5, scatter=0.1)
+    t = periodicity.repetition_test(segs, LEAD, threshold=60.0)
+    assert 0 < t["rest_drop"] < 60.0 and not t["repeats"], t
+    assert "does not pass the held-out test" in periodicity.describe(t)
+
+
+def test_less_than_two_periods_of_travel_is_not_testable():
+    segs = _segments(_bump_gain(0.005), 6, travel=0.02)
+    t = periodicity.repetition_test(segs, LEAD, threshold=14.0)
+    assert t["repeats"] and "not testable" in t["reason"], t
+
+
+def test_segment_drops_split_the_held_out_chi2_drop_by_nut_position():
+    """Per held-out segment the noise-weighted drop of the masked held-out samples, with the segment's span of
+    nut position; training segments and masked samples do not count."""
+    n, seg = 300, 50
+    t = np.arange(n) * 0.002
+    starts = np.arange(0, n, seg)
+    hold = np.zeros(n, bool)
+    for s in starts[::3]:
+        hold[s:s + seg] = True
+    rng = np.random.default_rng(0)
+    y = rng.standard_normal(n)
+    before = {"predictions": {"r": {"time": t, "holdout": hold, "segment_starts": starts,
+                                    "measured": {"motor_speed": y}, "simulated": {"motor_speed": y + 1.0}}}}
+    after = {"predictions": {"r": {"time": t, "holdout": hold, "segment_starts": starts,
+                                   "measured": {"motor_speed": y}, "simulated": {"motor_speed": y + 0.5}}}}
+    x = np.linspace(0.0, 0.03, n)
+    mask = {"r": np.ones(n, bool)}
+    mask["r"][:10] = False
+    segs = periodicity.segment_drops(before, after, {"motor_speed": 0.5}, {"r": x}, mask)
+    assert len(segs) == 2  # held-out segments 0 and 3
+    assert segs[0]["drop"] == pytest.approx((seg - 10) * (4.0 - 1.0))
+    assert segs[1]["drop"] == pytest.approx(seg * 3.0)
+    assert segs[0]["x_min"] == pytest.approx(x[10]) and segs[1]["x_max"] == pytest.approx(x[3 * seg + seg - 1])
