@@ -11,6 +11,7 @@ difference); the traces of rig-sim's runs are judged in test_trace_foreign.py an
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,6 +19,7 @@ import pytest
 from thsa_control.trace import periodicity
 
 LEAD = 0.012
+DATA = Path(__file__).resolve().parent / "data" / "rigsim"
 
 
 def _segments(gain_of_x, seed=0, travel=0.045, seg=0.00075, scatter=3.0):
@@ -107,3 +109,45 @@ def test_segment_drops_split_the_held_out_chi2_drop_by_nut_position():
     assert segs[0]["drop"] == pytest.approx((seg - 10) * (4.0 - 1.0))
     assert segs[1]["drop"] == pytest.approx(seg * 3.0)
     assert segs[0]["x_min"] == pytest.approx(x[10]) and segs[1]["x_max"] == pytest.approx(x[3 * seg + seg - 1])
+
+
+# ----------------------------------------------------------------------------- on rig-sim's runs (slow)
+def _traced(name, params):
+    from thsa_control.data.rigdata import read_run
+    from thsa_control.fit.kinematics import run_kinematics
+    from thsa_control.trace import TraceSettings, trace
+
+    run = run_kinematics(read_run(DATA / f"{name}.csv"), params)
+    st = TraceSettings(workers=2, candidates=("noback_quadrant_friction", "screw_friction_ripple"),
+                       base_corrections=True, max_effects=2)
+    return trace(run, "A", params=params, settings=st).to_dict()
+
+
+def _ripple(doc):
+    return [c for r in doc["rounds"] for c in r["candidates"] if c["name"] == "screw_friction_ripple"]
+
+
+@pytest.mark.slow
+def test_ripple_fitted_to_a_friction_bump_is_refused_as_not_periodic(params):
+    """rig-sim's friction bump (8 N m at the screw, Gaussian at 5 mm, 1.5 mm wide) on the 45 mm trim: the ripple
+    fitted to it gains in the lead of travel that holds the bump and loses over the others: not added, the
+    reason in trace.json, and the bump still flagged by the nut-position test."""
+    doc = _traced("rig_friction_bump", params)
+    assert "screw_friction_ripple" not in [e["name"] for e in doc["effects_added"]], doc["rounds"]
+    fits = _ripple(doc)
+    assert fits and all(not c["significant"] and c["not_periodic"].startswith("not periodic over the travel")
+                        for c in fits), fits
+    t = fits[0]["periodicity"]
+    assert t["left_out"][0] <= 0.005 <= t["left_out"][1] and t["rest_drop"] < t["threshold"], t
+    assert doc["unexplained"] and any("nut_position" in s for s in doc["residual_signature"]["structured"])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["rig_screw_ripple", "rig_pair_coulomb_ripple"])
+def test_a_planted_ripple_repeats_over_the_travel(params, name):
+    """rig-sim's ripple (3 N m (1 + sin(theta_s + 40 deg)) at the screw): the gain repeats in every lead of
+    travel, the ripple is added."""
+    doc = _traced(name, params)
+    assert "screw_friction_ripple" in [e["name"] for e in doc["effects_added"]], doc["rounds"]
+    t = _ripple(doc)[0]["periodicity"]
+    assert t["repeats"] and t["periods_gaining"] == t["periods_covered"] >= 3, t
