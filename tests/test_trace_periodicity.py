@@ -151,3 +151,20 @@ def test_a_planted_ripple_repeats_over_the_travel(params, name):
     assert "screw_friction_ripple" in [e["name"] for e in doc["effects_added"]], doc["rounds"]
     t = _ripple(doc)[0]["periodicity"]
     assert t["repeats"] and t["periods_gaining"] == t["periods_covered"] >= 3, t
+
+
+def test_a_period_shorter_than_two_position_bins_is_not_tested(params):
+    """The cogging's period in nut travel (lead / (ratio x count): 0.03 mm at the file's 6 per revolution) is far
+    shorter than two bins of the nut-position test: a drag local at the scale the tracer resolves has no
+    component there, and one period left out would be one held-out segment.  The screw ripple's lead is tested."""
+    from thsa_control.trace.candidates import CANDIDATES, PERIODS
+    from thsa_control.trace.engine import _repetition
+    from thsa_control.trace.signature import SignatureSettings
+
+    fit = {"params_toml": params.to_toml(), "predictions": {}}
+    two_bins = 2 * SignatureSettings().position_bin
+    assert PERIODS["cogging_torque"](params) < two_bins <= PERIODS["screw_friction_ripple"](params)
+    cog = _repetition(fit, fit, CANDIDATES["cogging_torque"], 3, [], {}, None, 1e-3, two_bins)
+    assert cog["repeats"] and "not tested" in cog["reason"], cog
+    rip = _repetition(fit, fit, CANDIDATES["screw_friction_ripple"], 2, [], {}, None, 1e-3, two_bins)
+    assert "not tested" not in rip.get("reason", ""), rip
