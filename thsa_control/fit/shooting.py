@@ -139,7 +139,8 @@ class RunProblem:
             if iv is not None:
                 # plant steps the interval spans; a fraction of a step is read by interpolating the speed
                 # (current_driven_map), not rounded to a whole step (1 ms at 500 Hz was read as 2 ms)
-                m = settings.substeps if iv == "sample" else min(float(settings.substeps), iv / (dt / settings.substeps))
+                m = (settings.substeps if iv == "sample"
+                     else min(float(settings.substeps), iv / (dt / settings.substeps)))
                 quot[c] = round(m) if abs(m - round(m)) < 1e-6 and round(m) >= 1 else m
         self.quotient_steps = quot
         if quot:

@@ -102,7 +102,8 @@ def _rule_inertia(params: ParameterSet, runs) -> tuple[float, str]:
         f"-{INERTIA_DATASHEET_TOLERANCE:.0%} .. +{INERTIA_DRIVE_TRAIN_ADDITION:.0%} of the parameter file's rotor "
         f"inertia ({j:.3g} kg m^2 per motor): a servo-motor datasheet's +-10 % tolerance below, and above it what a "
         "coupling and a two-stage gearbox's input stage add at the motor shaft (assumed from typical catalogue values: "
-        "0.15-0.5 kg cm^2 for a 2 N m motor's drive train, against a 1.8 kg cm^2 rotor); level A's motor shaft carries the rotors only")
+        "0.15-0.5 kg cm^2 for a 2 N m motor's drive train, against a 1.8 kg cm^2 rotor); level A's motor shaft carries "
+        "the rotors only")
 
 
 def _rule_drag(params: ParameterSet, runs) -> tuple[float, str]:
