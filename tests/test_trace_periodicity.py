@@ -168,3 +168,18 @@ def test_a_period_shorter_than_two_position_bins_is_not_tested(params):
     assert cog["repeats"] and "not tested" in cog["reason"], cog
     rip = _repetition(fit, fit, CANDIDATES["screw_friction_ripple"], 2, [], {}, None, 1e-3, two_bins)
     assert "not tested" not in rip.get("reason", ""), rip
+
+
+def test_report_draws_the_drop_per_period_and_says_why():
+    """The report's figure: one panel per tested candidate, a bar per period of travel, the verdict in the title;
+    the summary line carries the refusal reason."""
+    from thsa_control.report.trace import _periodic_tests, plot_periodicity
+
+    t = periodicity.repetition_test(_segments(_bump_gain(0.005), 4), LEAD, threshold=14.0)
+    cand = {"name": "screw_friction_ripple", "periodicity": t, "not_periodic": periodicity.describe(t)}
+    doc = {"rounds": [{"round": 1, "candidates": [cand, {"name": "coulomb_friction"}]}]}
+    assert [c["name"] for _, c in _periodic_tests(doc)] == ["screw_friction_ripple"]
+    fig = plot_periodicity(doc)
+    ax = fig.axes[0]
+    assert len(ax.patches) == t["periods_covered"] == 4 and "NOT periodic" in ax.get_title()
+    assert ax.get_xticklabels()[0].get_text() == "0..12 mm"

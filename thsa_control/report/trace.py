@@ -13,7 +13,7 @@ from .figure import subplots  # noqa: E402
 from .identification import Html, figure_png, write_html_report  # noqa: E402
 
 __all__ = ["write_trace_folder", "format_trace_summary", "plot_residual_before_after", "conclusion_table_html",
-           "plot_candidate_drops", "plot_signature"]
+           "plot_candidate_drops", "plot_signature", "plot_periodicity"]
 
 
 def _num(x, fmt=".4g"):
@@ -111,6 +111,37 @@ def plot_candidate_drops(doc: dict):
         ax.axvline(0, color="0.3", lw=0.6)
         ax.set_xlabel("held-out chi2 drop, symmetric log (green: significant, red: implausible, grey: not significant)")
         ax.set_title(f"round {r['round']}: model {', '.join(r['model']) or 'functional'}", fontsize=9, wrap=True)
+    return fig
+
+
+def _periodic_tests(doc: dict) -> list[tuple[int, dict]]:
+    """(round, candidate) of the angle-periodic candidates whose repetition over the travel was tested."""
+    return [(r["round"], c) for r in doc["rounds"] for c in r["candidates"]
+            if (c.get("periodicity") or {}).get("drop_per_period")]
+
+
+def plot_periodicity(doc: dict):
+    """The repetition test of each angle-periodic candidate: its held-out chi2 drop per period of nut travel (a
+    ripple gains in every lead, a fit to a local drag in one), the period left out and the rest against its
+    threshold."""
+    tests = _periodic_tests(doc)
+    fig, axes = subplots(len(tests), 1, figsize=(9, 0.6 + 2.4 * len(tests)), squeeze=False)
+    for ax, (rnd, c) in zip(axes[:, 0], tests):
+        t = c["periodicity"]
+        d = np.asarray(t["drop_per_period"], float)
+        ax.bar(np.arange(d.size), d, color=["C2" if v > 0 else "C3" for v in d])
+        ax.axhline(0, color="0.3", lw=0.6)
+        starts = t.get("period_starts") or [math.nan] * d.size
+        ax.set_xticks(np.arange(d.size), [f"{x * 1e3:.3g}..{(x + t['period']) * 1e3:.3g} mm" for x in starts],
+                      fontsize=8)
+        ax.set_xlabel("nut travel, one period each (from the lowest held-out position)", fontsize=8)
+        ax.set_yscale("symlog", linthresh=10.0)
+        ax.set_ylabel("held-out chi2 drop", fontsize=8)
+        a, b = t["left_out"]
+        verdict = "repeats" if t["repeats"] else "NOT periodic"
+        ax.set_title(f"round {rnd}: {c['name']} ({t['period'] * 1e3:.3g} mm of travel per period): left out "
+                     f"{a * 1e3:.3g}..{b * 1e3:.3g} mm ({_num(t['left_out_drop'], '.4g')}), rest "
+                     f"{_num(t['rest_drop'], '.4g')} vs {_num(t['threshold'], '.3g')}: {verdict}", fontsize=9, wrap=True)
     return fig
 
 
@@ -318,6 +349,9 @@ def write_trace_folder(folder: str | Path, result) -> dict:
                     plot_residual_before_after(before, after, run["name"], ch))
     if doc["rounds"]:
         figs = {"candidates' held-out chi2 drops, per round": figure_png(plot_candidate_drops(doc)), **figs}
+    if _periodic_tests(doc):
+        figs["periodic candidates: held-out drop per period of nut travel (repetition test)"] = figure_png(
+            plot_periodicity(doc))
     figs["signature of the remaining residual (missing torque at the motor shaft)"] = figure_png(
         plot_signature(doc["residual_signature"]))
     write_html_report(folder / "report.html", title=f"Residual trace: {', '.join(d['name'] for d in doc['datasets'])}",

@@ -103,7 +103,8 @@ def repetition_test(segments: list[dict], period: float, threshold: float) -> di
             "left_out_share": best / total if total > 0 else None, "rest_drop": rest, "threshold": float(threshold),
             "segments": int(d.size), "periods_covered": len(per),
             "periods_gaining": int(sum(1 for v in per.values() if v > 0)),
-            "drop_per_period": [per[i] for i in sorted(per)]}
+            "drop_per_period": [per[i] for i in sorted(per)],
+            "period_starts": [x0 + i * float(period) for i in sorted(per)]}
 
 
 def describe(test: dict) -> str:
