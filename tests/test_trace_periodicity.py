@@ -139,6 +139,9 @@ def test_ripple_fitted_to_a_friction_bump_is_refused_as_not_periodic(params):
                         for c in fits), fits
     t = fits[0]["periodicity"]
     assert t["left_out"][0] <= 0.005 <= t["left_out"][1] and t["rest_drop"] < t["threshold"], t
+    # the refusal names the local residual the ripple was fitted to: the nut-position test's peak, near 5 mm
+    lo, hi = t["local_structure"]["peak_bin"]
+    assert lo - 0.002 <= 0.005 <= hi + 0.002, t
     assert doc["unexplained"] and any("nut_position" in s for s in doc["residual_signature"]["structured"])
 
 

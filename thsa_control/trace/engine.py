@@ -409,6 +409,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     at_plausible_bound: dict[str, str] = {}  # explainer parameter -> its effect, where the base correction hit the bound
     base_bounds: dict[str, tuple[float, float, str]] = {}  # explainer parameter -> (lo, hi, effect) while bounded
     base_step_refused: set[str] = set()  # declared components detailed (or tried) in the base step
+    cur_sig: dict | None = None  # the signature of the current model's residual, where computed
     if use_base:
         say("base-correction step: constant-torque explainers and screw efficiencies within plausible magnitudes")
         windows_cache = {spec: {r.name: _window(spec, r, params) for r in runs} for spec in WINDOWS}
@@ -445,8 +446,9 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 cur_params = ParameterSet.from_toml(f["params_toml"])
                 cur_free = tuple(f["free"])
             at_plausible_bound = _explainers_at_bound(current, base_bounds)
-            base_doc["signature_after"] = _signature_brief(
-                _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, sensor_noise))
+            cur_sig = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature,
+                                 sensor_noise)
+            base_doc["signature_after"] = _signature_brief(cur_sig)
     windows_cache = {spec: {r.name: _window(spec, r, params) for r in runs} for spec in WINDOWS}
     # where the candidates are scored: outside the base's transients on data the declared model may not describe
     steady = ({r.name: ~base_transients(r.time, measured_motor_speed(r), r.signals["load_force"],
@@ -558,6 +560,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             period_test = (_repetition(current, f, spec, k, runs, noise, score_mask(spec.window), st.alpha,
                                        2 * st.signature.position_bin)
                            if spec.name in PERIODS and st.periodic_repeat else None)
+            if period_test is not None and not period_test["repeats"]:
+                _local_structure(period_test, cur_sig)
             # judged (and a refusal reported) only where it decides: on a candidate that passes the other tests
             repeats = period_test is None or period_test["repeats"] or not prelim
             prelim = prelim and repeats
@@ -702,8 +706,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         lifted = set(best["_spec"].free) if best.get("beyond_base_correction") else set()
         base_bounds = {n: b for n, b in base_bounds.items() if n not in lifted}
         at_plausible_bound = _explainers_at_bound(f, base_bounds)
-        rounds[-1]["signature_after"] = _signature_brief(
-            _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, sensor_noise))
+        cur_sig = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, sensor_noise)
+        rounds[-1]["signature_after"] = _signature_brief(cur_sig)
     sig_before = _signature(first, runs, ParameterSet.from_toml(first["params_toml"]), base_plant, st.signature, sensor_noise)
     sig_after = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, sensor_noise)
     if rounds and "signature_after" not in rounds[-1]:  # a round that added nothing leaves the model as it was
@@ -893,6 +897,18 @@ def _rivals(best: dict, scored: list[dict], alpha: float) -> list[dict]:
     # a periodic one whose gain comes from one place of the travel (``periodicity``) explains a local structure
     return [s for s in scored if s is not best and "error" not in s and s["plausible"] and not s.get("not_robust")
             and (s.get("periodicity") or {}).get("repeats", True) and best["holdout_chi2_drop"] - s["holdout_chi2_drop"] < gap]
+
+
+def _local_structure(test: dict, sig: dict | None) -> None:
+    """Name, in a failed repetition test, the nut-position test's local structure of the current model's residual
+    (:mod:`~thsa_control.trace.signature`) that lies in the period left out: what the candidate was fitted to."""
+    a, b = test["left_out"]
+    for t in (sig or {}).get("tests", []):
+        pk = t.get("peak_bin")
+        if t.get("kind") == "local" and t.get("significant") and pk and pk[1] >= a and pk[0] <= b:
+            test["local_structure"] = {"variable": t["variable"], "peak_bin": list(pk), "p_value": t.get("p_value"),
+                                       **({"law": t["law"]} if t.get("law") else {})}
+            return
 
 
 def _repetition(current: dict, fit: dict, spec: CandidateSpec, k: int, runs, noise, mask, alpha: float,
