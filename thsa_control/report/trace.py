@@ -87,6 +87,32 @@ def conclusion_table_html(doc: dict) -> str:
     return head + body + "</table>" + tail
 
 
+def separability_table_html(doc: dict) -> str:
+    """The constant-torque explainers: how much of each one's torque the model's other explainers reproduce on this
+    record (variance inflation), with whom, and the inflation on a record completed by each kind of operating
+    point; then the plain sentences."""
+    import html as _h
+
+    sep = doc.get("separability") or {}
+    kinds = sep.get("record_kinds", {})
+    lim = sep.get("vif_limit", 10.0)
+    singles = [k for k in kinds]
+    head = "".join(f"<th>+ {_h.escape(kinds[k])}</th>" for k in singles)
+    rows = []
+    for t, e in sep.get("explainers", {}).items():
+        cells = "".join(
+            f"<td>{'<b>' if e['separated_by'].get(k, math.inf) <= lim else ''}{_num(e['separated_by'].get(k), '.3g')}"
+            f"{'</b>' if e['separated_by'].get(k, math.inf) <= lim else ''}</td>" for k in singles)
+        rows.append(f"<tr><td>{_h.escape(e['effect'])}: {_h.escape(t)}</td><td>{_num(100 * e['r2'], '.1f')} %</td>"
+                    f"<td>{_num(e['vif'], '.3g')}</td><td>{_h.escape(', '.join(e['same_part_as']) or '-')}</td>{cells}</tr>")
+    text = "".join(f"<p>{_h.escape(x)}</p>" for x in sep.get("sentences", []))
+    return (f"<p>Variance inflation of each constant-torque explainer against the model's others over the record's "
+            f"{sep.get('points', 0)} moving operating points (above {lim:g}: the record cannot tell them apart; bold: "
+            f"a record completed with that kind of operating point would).</p>"
+            f"<table><tr><th>explainer</th><th>reproduced by the others</th><th>inflation</th><th>same part as</th>"
+            f"{head}</tr>{''.join(rows)}</table>{text}")
+
+
 def _errors_cell(before: dict, after: dict) -> str:
     return "<br>".join(f"{html.escape(c)}: {_num(b.get('rms'))} &rarr; {_num(after.get(c, {}).get('rms'))} "
                        f"{html.escape(b.get('unit', ''))}" for c, b in before.items())
@@ -255,6 +281,11 @@ def format_trace_summary(doc: dict) -> str:
                      f"The data cannot tell them apart (another speed, load or direction would).")
     if not doc["effects_added"] and not doc.get("ambiguous"):
         lines.append("no candidate effect is significant")
+    sep = doc.get("separability") or {}
+    if sep.get("sentences"):
+        lines.append("what this record cannot tell apart (constant-torque explainers, from their torque "
+                     "sensitivities over its moving samples):")
+        lines += [f"    {x}" for x in sep["sentences"]]
     for r in doc["rounds"]:
         lines.append(f"round {r['round']} (model: {', '.join(r['model']) or 'functional'}): candidates")
         for c in r["candidates"]:
@@ -320,5 +351,7 @@ def write_trace_folder(folder: str | Path, result) -> dict:
         plot_signature(doc["residual_signature"]))
     write_html_report(folder / "report.html", title=f"Residual trace: {', '.join(d['name'] for d in doc['datasets'])}",
                       sections=[("Conclusion", Html(conclusion_table_html(doc))),
+                                *([("What this record cannot tell apart", Html(separability_table_html(doc)))]
+                                  if (doc.get("separability") or {}).get("explainers") else []),
                                 ("Summary", format_trace_summary(doc))], figures=figs)
     return doc

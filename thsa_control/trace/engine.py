@@ -689,6 +689,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     structured, base_like = split_remainder(sig_after)
     base_like += [{"variable": f"held-out residual above noise ({c}: {r:.2g} x)"}
                   for c, r in sig_after.get("residual_to_noise", {}).items() if r > st.signature.max_noise_ratio]
+    separ = _separability_doc(runs, cur_effects, cur_params, base_doc, added, rounds, uncertain, plaus, say) \
+        if use_base and base_doc is not None and base_doc.get("accepted") else None
     doc = {
         "format": TRACE_FORMAT,
         "datasets": [{"name": r.name, "csv": str(r.csv_path), "samples": int(len(r.time)),
@@ -711,6 +713,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         "error_by_regime_after": _regime_errors(current, runs),
         "unexplained": bool(structured),
         "ambiguous": ambiguous,
+        "separability": separ,
         "residual_signature": {**sig_after, "structured": [t["variable"] for t in structured],
                                "base_like": [t["variable"] for t in base_like]},
         "residual_signature_before": sig_before,
@@ -722,6 +725,43 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                    "total_s": time.perf_counter() - t_start},
     }
     return TraceResult(doc, {"before": first, "after": current})
+
+
+def _separability_doc(runs, cur_effects, cur_params: ParameterSet, base_doc: dict, added: list, rounds: list,
+                      uncertain, plaus: dict, say) -> dict | None:
+    """What the record can tell apart among the constant-torque explainers (:mod:`~thsa_control.trace.separability`):
+    the final model's base corrections, the detailed component's parameters and the declared uncertain set as what
+    the model carries, the constant-torque candidates as what is asked about; reported, not used to select."""
+    from .separability import explainer_steps, separability, separability_sentences
+
+    base = {c["parameter"]: c["effect"] for c in base_doc.get("corrections", [])}
+    for e in added:
+        if e.get("refines_declared"):
+            base.update({n: e["name"] for n in e.get("parameters", {})})
+            base.update({h["parameter"]: e["name"] for h in e.get("not_determined", [])})
+    base.update({n: "declared" for n in uncertain if n in cur_params})
+    targets = {n: name for name, spec in CANDIDATES.items() if spec.base_correction and name in EFFECTS
+               for n in spec.free if n in cur_params}
+    # steps signed as the last fits found them (a direction drag acts one way only)
+    fitted = {n: p["value"] for r in rounds for c in r["candidates"] for n, p in (c.get("parameters") or {}).items()
+              if n in targets}
+    mags = {}
+    for name, spec in CANDIDATES.items():
+        for n, rule in spec.plausible.items():
+            if rule in plaus:
+                mags[n] = plaus[rule][0]
+    for n, rule in EFFICIENCY_EXPLAINER.plausible.items():
+        mags[n] = plaus[rule][0]
+    try:
+        doc = separability(runs, cur_effects, cur_params, base, targets,
+                           explainer_steps(cur_params, list(base) + list(targets), fitted, mags))
+    except (ThsaError, ValueError, RuntimeError) as exc:  # a diagnostic: a failure is reported, not fatal
+        say(f"separability of the constant-torque explainers not computed: {exc}")
+        return {"error": str(exc)}
+    doc["sentences"] = separability_sentences(doc)
+    for line in doc["sentences"]:
+        say(line)
+    return doc
 
 
 def _residual_rms(fit: dict, runs) -> dict[str, float]:
