@@ -247,7 +247,8 @@ def separability_sentences(doc: dict) -> list[str]:
         bad = [k for k, v in e["separated_by"].items() if v > lim and "+" not in k]
         s = (f"{t} ({e['effect']}) explains the same part of the residual as {', '.join(e['same_part_as'])}: "
              f"they reproduce {100 * e['r2']:.1f} % of its torque over this record's moving samples (variance "
-             f"inflation {e['vif']:.3g} > {lim:g}); this record cannot tell them apart.")
+             f"inflation {e['vif']:.3g} > {lim:g}): this record's torques alone cannot tell them apart (where one is named, "
+             f"the base corrections' plausible bounds decided).")
         if good:
             s += " A record with " + " or ".join(f"{say(k)} (inflation {v:.3g})" for v, k in good) \
                  + " would separate them"
