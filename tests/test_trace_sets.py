@@ -14,6 +14,7 @@ analytic cases: a constant torque against load-proportional ones.
 
 from __future__ import annotations
 
+import html
 import json
 import os
 from pathlib import Path
@@ -25,8 +26,14 @@ from thsa_control.data.rigdata import read_run
 from thsa_control.fit.kinematics import run_kinematics
 from thsa_control.trace import TraceSettings, trace
 from thsa_control.trace.engine import CANDIDATES
-from thsa_control.trace.separability import (VIF_LIMIT, collinearity, explainer_steps, separability,
-                                             separability_sentences, torque_sensitivities)
+from thsa_control.trace.separability import (
+    VIF_LIMIT,
+    collinearity,
+    explainer_steps,
+    separability,
+    separability_sentences,
+    torque_sensitivities,
+)
 
 DATA = Path(__file__).resolve().parent / "data" / "rigsim"
 SETS = DATA / "sets"
@@ -196,3 +203,9 @@ def test_separability_of_a_one_load_record_names_the_record_that_separates(param
     assert doc["record_kinds"]["second_load_level"] in text
     assert set(doc["explainers"]) <= set(targets) and all(e["effect"] in CANDIDATES or e["effect"] == "efficiency"
                                                           for e in doc["explainers"].values())
+    # the report's section: one row per explainer, the inflation on the record and with each kind of record
+    from thsa_control.report.trace import separability_table_html
+
+    page = separability_table_html({"separability": {**doc, "sentences": separability_sentences(doc)}})
+    assert page.count("<tr>") == 1 + len(doc["explainers"]) and "force_offset: drive.axial_force_offset" in page
+    assert all(html.escape(k) in page for k in doc["record_kinds"].values()) and "<b>" in page

@@ -234,14 +234,15 @@ def separability_sentences(doc: dict) -> list[str]:
     if not doc:
         return []
     lim = doc["vif_limit"]
+    kinds = doc["record_kinds"]
+
+    def say(k):
+        return " together with ".join(kinds[x] for x in k.split("+"))
+
     lines = []
     for t, e in doc["explainers"].items():
         if e["vif"] <= lim:
             continue
-        kinds = doc["record_kinds"]
-
-        def say(k):
-            return " together with ".join(kinds[x] for x in k.split("+"))
 
         good = sorted(((v, k) for k, v in e["separated_by"].items() if v <= lim))
         bad = [k for k, v in e["separated_by"].items() if v > lim and "+" not in k]
