@@ -911,12 +911,23 @@ def _rivals(best: dict, scored: list[dict], alpha: float) -> list[dict]:
     # explanation, only less sure: naming the best would be a claim the data do not make (measured: on a run set
     # with an axial force planted, force_offset and direction_friction dropped 20557 / 20555, the force improving
     # 38 of 56 segments, sign test p 0.005 > alpha, and direction_friction was named)
+    # Likewise a constant torque refused only because its own parameter is not determined or "collapses to zero":
+    # with the same pooled drop as the best, its standard error is large because its torque is collinear with the
+    # base corrections' (trace.json ``separability``), not because the data say it is absent (measured on
+    # rig_direction_friction, round 2: coulomb_friction named with drop 168.4 while force_offset dropped 168.6,
+    # "2.14e3 N collapses to zero (stderr 1.4e3)", and direction_friction 164.4, "not determined")
+    def collinear_only(s):
+        return bool(s["implausible_because"]) and all(
+            w.startswith("no parameter determined") or "collapses to zero" in w for w in s["implausible_because"])
+
     def measured(s):
+        if not s["plausible"] and not (_is_explainer(best) and _is_explainer(s) and collinear_only(s)):
+            return False
         if not s.get("not_robust"):
             return True
         return _is_explainer(best) and (s.get("window_segments") or {}).get("median_drop", 0.0) > 0
 
-    return [s for s in scored if s is not best and "error" not in s and s["plausible"] and measured(s)
+    return [s for s in scored if s is not best and "error" not in s and measured(s)
             and best["holdout_chi2_drop"] - s["holdout_chi2_drop"] < gap]
 
 
