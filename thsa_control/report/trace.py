@@ -233,6 +233,26 @@ def plot_signature(sig: dict):
     return fig
 
 
+def _ambiguity_hint(doc: dict, names) -> str:
+    """What would tell ambiguous candidates apart, read off the trace's separability (the kinds of record that bring
+    each one's variance inflation against the base's explainers below the limit); generic without it."""
+    sep = doc.get("separability") or {}
+    kinds, lim = sep.get("record_kinds", {}), sep.get("vif_limit", 10.0)
+    parts = []
+    for t, e in (sep.get("explainers") or {}).items():
+        if e["effect"] not in names:
+            continue
+        good = sorted((v, k) for k, v in e["separated_by"].items() if v <= lim)
+        if good:
+            k = good[0][1]
+            parts.append(f"{e['effect']} by {' together with '.join(kinds[x] for x in k.split('+'))}")
+        else:
+            parts.append(f"{e['effect']} by none of the kinds of record tried")
+    if not parts:
+        return " (another speed, load or direction would)."
+    return "; from the torque sensitivities, a record would separate " + "; ".join(parts) + "."
+
+
 def format_trace_summary(doc: dict) -> str:
     """Console / report text: what was added, the ranking, the errors, the signature."""
     lines = [f"declared model: {doc['base_model']} ({', '.join(doc['declared_effects']) or 'functional'}), "
@@ -278,7 +298,8 @@ def format_trace_summary(doc: dict) -> str:
         drops = ", ".join(f"{n} {_num(v, '.4g')}" for n, v in a["holdout_chi2_drop"].items())
         lines.append(f"not named (round {a['round']}): {', '.join(a['candidates'])} explain the same part of the "
                      f"residual; held-out chi2 drops {drops} differ by less than {_num(a['indistinct_below'], '.3g')}. "
-                     f"The data cannot tell them apart (another speed, load or direction would).")
+                     "The data cannot tell them apart"
+                     + _ambiguity_hint(doc, a["candidates"]))
     if not doc["effects_added"] and not doc.get("ambiguous"):
         lines.append("no candidate effect is significant")
     sep = doc.get("separability") or {}
