@@ -239,7 +239,7 @@ def _ambiguity_hint(doc: dict, names) -> str:
     sep = doc.get("separability") or {}
     kinds, lim = sep.get("record_kinds", {}), sep.get("vif_limit", 10.0)
     parts = []
-    for t, e in (sep.get("explainers") or {}).items():
+    for e in (sep.get("explainers") or {}).values():
         if e["effect"] not in names:
             continue
         good = sorted((v, k) for k, v in e["separated_by"].items() if v <= lim)
