@@ -197,6 +197,9 @@ def separability(runs: Sequence[RigRun], effects: Sequence[str], params: Paramet
     owner = {**{n: base[n] for n in base}, **{n: targets[n] for n in targets}}
     eff = steady_effects(effects) + tuple(e for e in dict.fromkeys(owner.values()) if e in EFFECTS)
     eff = tuple(resolve_effects(None, add=list(steady_effects(list(dict.fromkeys(eff))))))
+    # a parameter of an effect left out (one with dynamic states) changes no steady torque: not an explainer here
+    have = set(build_plant(None, list(eff), params=params).parameters)
+    names = [n for n in names if n in have]
     pts = _operating_points(runs)
     S = torque_sensitivities(eff, params, names, pts, steps)
     extra = {k: torque_sensitivities(eff, params, names, fn(pts), steps) for k, (_, fn) in RECORD_KINDS.items()}
@@ -264,11 +267,14 @@ def separability_sentences(doc: dict) -> list[str]:
 
 def explainer_steps(params: ParameterSet, names: Sequence[str], fitted: Mapping[str, float],
                     magnitude: Mapping[str, float]) -> dict[str, float]:
-    """A finite step per parameter: 1e-3 of its reference magnitude (``magnitude``: plausible bound or file
-    value), with the sign of its fitted value where that is not zero (a direction drag acts one way only)."""
+    """A finite step per parameter: 1e-3 of its reference magnitude (``magnitude``: plausible bound, else the file
+    value, else a thousandth of its range), with the sign of its fitted value where that is not zero (a direction drag acts one way only)."""
     out = {}
     for n in names:
-        ref = max(abs(magnitude.get(n, 0.0)), abs(params.value(n)), 1e-9)
+        ref = max(abs(magnitude.get(n, 0.0)), abs(params.value(n)))
+        if not ref > 0:  # neither a plausible magnitude nor a file value: a thousandth of its range
+            span = params[n].max - params[n].min
+            ref = 1e-3 * span if math.isfinite(span) and span > 0 else 1.0
         v = fitted.get(n, params.value(n))
         out[n] = math.copysign(1e-3 * ref, v if v != 0 else 1.0)
     return out
