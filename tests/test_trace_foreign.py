@@ -124,11 +124,11 @@ KNOWN_FAILING = {
                         "(variance inflation 1.8e8), and the loads of the other sign would separate it (with the other "
                         "direction: 4.3); on a set with both (tests/test_trace_sets.py) it is left ambiguous with "
                         "direction_friction",
-    "rig_direction_friction": "the bases' load-path compliance comes first, then coulomb_friction beyond its base "
+    "rig_direction_friction": "before trace-drags2: the bases' load-path compliance came first, then coulomb_friction beyond its base "
                               "correction (0.104 N m, window 12 %) over direction_friction (window 12 %, its torque "
                               "0.047 +- 0.048 N m 'collapses to zero'): on one load the rig base's no-back drag while "
                               "driving (0.5 N m + 0.15 N m/kN x 25 kN at the screw, extension only) has the shape and "
-                              "size of the planted direction part (5 - 1 = 4 N m). trace-drags2: now nothing named: "
+                              "size of the planted direction part (5 - 1 = 4 N m). trace-drags2: nothing named now (load path first): "
                               "coulomb_friction, force_offset and direction_friction ambiguous in round 2 (held-out "
                               "drops 168.4 / 168.6 / 164.4, the force 'collapsing to zero' and the direction drag "
                               "'not determined' only through their collinearity with the base corrections; the run's "
