@@ -71,7 +71,8 @@ def traced_set(params):
 
 #: sets measured to fail (docs/trace_notes.md, "Constant torques on run sets"); the assertion stays
 KNOWN_FAILING = {
-    "set_coulomb": "nothing named beyond the base corrections: the Coulomb correction at its bound (0.057 N m) with the "
+    "set_coulomb": "nothing named beyond the base corrections: the Coulomb correction at its bound (0.057 N m) with "
+                   "the "
                    "direct efficiency at its; beyond it coulomb_friction drops the held-out chi2 by 203 but improves "
                    "36 of 51 held-out segments of its window (sign test p 0.0023 > 1e-3).  On a fresh set (seeds "
                    "981/475) it is named first beyond its base correction (0.105 N m at the motor: planted 4 N m at "

@@ -251,8 +251,8 @@ def separability_sentences(doc: dict) -> list[str]:
         bad = [k for k, v in e["separated_by"].items() if v > lim and "+" not in k]
         s = (f"{t} ({e['effect']}) explains the same part of the residual as {', '.join(e['same_part_as'])}: "
              f"they reproduce {100 * e['r2']:.1f} % of its torque over this record's moving samples (variance "
-             f"inflation {e['vif']:.3g} > {lim:g}): this record's torques alone cannot tell them apart (where one is named, "
-             f"the base corrections' plausible bounds decided).")
+             f"inflation {e['vif']:.3g} > {lim:g}): this record's torques alone cannot tell them apart (where one is "
+             "named, the base corrections' plausible bounds decided).")
         if good:
             s += " A record with " + " or ".join(f"{say(k)} (inflation {v:.3g})" for v, k in good) \
                  + " would separate them"
@@ -268,7 +268,8 @@ def separability_sentences(doc: dict) -> list[str]:
 def explainer_steps(params: ParameterSet, names: Sequence[str], fitted: Mapping[str, float],
                     magnitude: Mapping[str, float]) -> dict[str, float]:
     """A finite step per parameter: 1e-3 of its reference magnitude (``magnitude``: plausible bound, else the file
-    value, else a thousandth of its range), with the sign of its fitted value where that is not zero (a direction drag acts one way only)."""
+    value, else a thousandth of its range), with the sign of its fitted value where that is not zero (a direction
+    drag acts one way only)."""
     out = {}
     for n in names:
         ref = max(abs(magnitude.get(n, 0.0)), abs(params.value(n)))
