@@ -61,8 +61,8 @@ from ..data.rigformat import speed_sensor_intervals
 from ..fit.replay import check_run_model
 from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
 from ..model.params import ParameterSet, default_parameters
-from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, PLAUSIBLE, PROFILE_LIMITS, RESOLVES,
-                         STARTS, WINDOWS,
+from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, MIN_WINDOW_SAMPLES, PLAUSIBLE,
+                         PROFILE_LIMITS, RESOLVES, STARTS, WINDOWS, reference_not_determined,
                          _window,
                          candidate_specs, not_candidates)
 from .residual import _regime_errors, _signature
@@ -323,6 +323,16 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         return base_plant if tuple(effects) == tuple(declared) else build_plant(None, effects, params=p)
 
     uncertain = tuple(n for n in uncertain if n in base_plant.parameters)
+    # identifiability of the declared set itself: a parameter defined at a reference condition the runs never
+    # reach while moving (the 25 degC drag on a cold-only record) is held at its file value, reported; a parameter
+    # the user names (``uncertain``) is fitted as asked
+    ref_held = reference_not_determined(runs, params, uncertain) if st.uncertain is None else {}
+    declared_held = [{"parameter": n, "held_at": params.value(n), "unit": params[n].unit, "reason": why}
+                     for n, why in ref_held.items()]
+    if ref_held:
+        uncertain = tuple(n for n in uncertain if n not in ref_held)
+        say("not determined by these runs: " + "; ".join(f"{h['parameter']} held at {h['held_at']:g} {h['unit']} "
+                                                         f"({h['reason']})" for h in declared_held))
     # the replay is current-driven: the rig's controller plays no part (and need not be one we model)
     fit_runs = [dataclasses.replace(r, controller=None) for r in runs]
     channels = tuple(c for c in ("motor_speed", "nut_position", "screw_speed")
@@ -368,7 +378,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     for r in runs:
         for w in check_run_model(r, base_plant, mode="open_loop"):
             say(f"warning: {w}")
-    say(f"fitting the declared model ({', '.join(declared) or 'level A'}): {', '.join(uncertain)}")
+    say(f"fitting the declared model ({', '.join(declared) or 'level A'}): "
+        f"{', '.join(uncertain) or 'no parameter free (the segment states only)'}")
     t0 = time.perf_counter()
     base = _run_jobs([job("base", declared, uncertain, params, fit_runs)], 1, None)[0]
     if "error" in base:
@@ -398,7 +409,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         windows_cache = {spec: {r.name: _window(spec, r, params) for r in runs} for spec in WINDOWS}
         refinements = [sp for sp in candidate_specs(declared, params, st.candidates)
                        if set(EFFECTS[sp.name].supersedes) & set(declared) and not sp.profile
-                       and sum(int(w.sum()) for w in windows_cache[sp.window].values()) >= 50]
+                       and sum(int(w.sum()) for w in windows_cache[sp.window].values()) >= MIN_WINDOW_SAMPLES]
         if refinements:
             say("base step: the corrections fitted with and without the detailed "
                 f"{', '.join(sp.name for sp in refinements)} (declared {', '.join(sorted({x for sp in refinements for x in EFFECTS[sp.name].supersedes}))})")
@@ -452,7 +463,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         scorable, skipped = [], []
         for spec in specs:
             win = windows_cache[spec.window]
-            if sum(int(w.sum()) for w in win.values()) < 50:
+            if sum(int(w.sum()) for w in win.values()) < MIN_WINDOW_SAMPLES:
                 skipped.append({"name": spec.name, "reason": f"does not act on these runs (window '{spec.window}' empty)"})
             elif spec.name in base_step_refused:
                 skipped.append({"name": spec.name, "reason": "the detailed model of a declared component, judged in "
@@ -701,6 +712,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         "declared_from_runs": from_runs,
         "final_effects": list(cur_effects),
         "uncertain_parameters": list(uncertain),
+        "declared_not_determined": declared_held,
         "base_parameters": {n: v for n, v in first["estimates"].items()},
         "effects_added": added,
         "found_effects": [e["name"] for e in added],
