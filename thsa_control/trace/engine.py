@@ -354,6 +354,13 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                                       quasi_static_starts=quasi_static, speed_sensors=st.speed_sensors)
 
     plaus = {k: fn(params, runs) for k, fn in PLAUSIBLE.items()}
+
+    def _reference_freed(spec) -> tuple[str, ...]:
+        """The declared reference parameters the runs do not determine on their own, freed with the candidate that
+        reads them (judged with it: at one cold temperature only ``b_25 exp(a_v dT)`` shows, so both the 25 degC
+        drag and the coefficient are held, as the coefficient was while the 25 degC drag was fitted; runs at two
+        cold temperatures determine both)."""
+        return tuple(n for n in spec.reference if n in ref_held)
     base_priors: dict[str, tuple[float, float]] = {}  # the base corrections' priors (kept in every later fit)
 
     def job(label, effs, free, pset, data, prior=True, profile=None, spec=None, lift=()):
@@ -361,7 +368,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         pri = {n: v for n, v in base_priors.items() if n in free and n not in lift}
         judge = {}
         if spec is not None and not profile:
-            for n in spec.free + spec.second_stage:
+            for n in spec.free + spec.second_stage + _reference_freed(spec):
                 if n in uncertain or n in base_priors:
                     continue
                 ref = max(abs(params.value(n)), abs(spec.seeds.get(n, 0.0)),
@@ -510,7 +517,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 # retraction disk friction to 0): a profiled candidate restarts the declared parameters, and
                 # centres their priors, at the parameter file's values
                 pset = pset.replace({n: params.value(n) for n in uncertain})
-            free = tuple(dict.fromkeys(cur_free + spec.free))
+            free = tuple(dict.fromkeys(cur_free + spec.free + _reference_freed(spec)))
             jobs.append(job(spec.name, effs, free, pset, fit_runs, profile=spec.profile, spec=spec))
         say(f"round {len(rounds) + 1}: scoring {len(jobs)} candidates ({', '.join(s.name for s in scorable)})")
         fits = _run_jobs(jobs, st.workers, say)
