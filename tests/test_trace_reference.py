@@ -85,3 +85,11 @@ def test_identifier_fits_the_segment_states_only_when_asked(runs, params):
     pred = res.predictions[run.name]
     e = np.asarray(pred["measured"]["motor_speed"]) - np.asarray(pred["simulated"]["motor_speed"])
     assert np.all(np.isfinite(e)) and e.size == short.time.size
+
+
+def test_only_the_cold_records_of_the_catalogue_hold_it(params):
+    """Every committed rig-sim run at 25 degC determines the 25 degC drag (its trace is unchanged by the rule); the
+    two cold ramps (-30 degC) do not."""
+    held = {p.stem for p in sorted(DATA.glob("*.csv"))
+            if reference_not_determined([run_kinematics(read_run(p), params)], params, (VISC,))}
+    assert held == {"rig_temp_friction", "null_rig_cold_s52"}
