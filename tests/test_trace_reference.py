@@ -18,7 +18,12 @@ from thsa_control.data.rigdata import read_run
 from thsa_control.errors import ParameterError
 from thsa_control.fit.identify import IdentificationSettings, Identifier
 from thsa_control.fit.kinematics import run_kinematics
-from thsa_control.trace.candidates import CANDIDATES, MIN_WINDOW_SAMPLES, _window, reference_not_determined
+from thsa_control.trace.candidates import (
+    CANDIDATES,
+    MIN_WINDOW_SAMPLES,
+    _window,
+    reference_not_determined,
+)
 
 DATA = Path(__file__).resolve().parent / "data" / "rigsim"
 VISC = "gear.viscous_friction"
