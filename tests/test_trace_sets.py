@@ -89,7 +89,8 @@ KNOWN_FAILING = {
                         "would separate it).  Before the rival rule of this branch direction_friction was named.  A "
                         "fresh set with a load sweep added (seeds 613/614/615) is worse: screw_friction_ripple "
                         "(window 8 %) then direction_friction (0.108 N m) named, the axial force correction at 351 of "
-                        "its 390 N bound and never offered beyond it; with position_steps (10 kN) added instead (seed 619), where "
+                        "its 390 N bound and never offered beyond it; with position_steps (10 kN) added instead "
+                        "(seed 619), where "
                         "the separability has the force determined (inflation 5.2), direction_friction is named "
                         "(0.116 N m) and the force beyond its bound reaches 1080 N of 1500 with both efficiencies "
                         "pinned at their bounds",
