@@ -86,7 +86,7 @@ class CandidateSpec:
     ``free``: its parameters identified with the declared ones; ``seeds``:
     starting values where the parameter file has the effect off (0);
     ``window``: where it acts (``moving``, ``all``, ``loaded``, ``reversal``,
-    ``reversal_or_stop``, ``cold``, ``resolved_cogging``, ``load_change``); ``channel``: the channel where it shows most; ``profile``:
+    ``clearance``, ``cold``, ``resolved_cogging``, ``load_change``); ``channel``: the channel where it shows most; ``profile``:
     parameters that act through a switch (no gradient), searched over a range
     ``(lo, hi)`` by :func:`~thsa_control.fit.profile.profile_identify` (the
     first finely, the others where they matter) while ``free`` is fitted at

@@ -79,7 +79,7 @@ __all__ = ["TraceSettings", "CandidateSpec", "CANDIDATES", "DEFAULT_UNCERTAIN", 
 TRACE_FORMAT = "thsa-trace/1"
 
 #: candidate windows at the transients themselves: scored on every sample (``score_outside_transients``)
-TRANSIENT_WINDOWS = ("reversal", "reversal_or_stop", "load_change")
+TRANSIENT_WINDOWS = ("reversal", "clearance", "load_change")
 
 
 @dataclass(frozen=True)
@@ -160,7 +160,7 @@ class TraceSettings:
         samples outside the base's transients
         (:func:`~thsa_control.trace.signature.base_transients`: starts, stops,
         reversals, load changes), except candidates that act there (windows
-        ``reversal``, ``reversal_or_stop``): a declared model of another
+        ``reversal``, ``clearance``): a declared model of another
         rig's base leaves its largest residual at those transients, and a
         few such held-out segments decided the sign of every drop.
     robust_constant_torque : bool
