@@ -27,6 +27,7 @@ from thsa_control.trace import TraceSettings, trace
 NOISE = RIG_NOISE
 TRUE_PITCH = 0.10  # rad at the screw; the parameter file says 0.1496
 PITCH = "noback.pawl_pitch"
+INITIAL = "noback.pawl_initial_clearance"  # fraction of the pitch; the parameter file says 0.5
 DISTRACTORS = ("coulomb_friction", "force_offset", "direction_friction")
 
 
@@ -47,13 +48,14 @@ def stops_record(tmp_path_factory, params, rig_1khz):
     d = tmp_path_factory.mktemp("backlash")
     cache = {}
 
-    def _record(level="C", seed=1):
-        if (level, seed) not in cache:
-            stem = d / f"stops_{level}_{seed}"
-            VirtualRig(level, params=params.replace({PITCH: TRUE_PITCH}), design=rig, noise=NOISE, seed=seed,
+    def _record(level="C", seed=1, initial=None):
+        if (level, seed, initial) not in cache:
+            stem = d / f"stops_{level}_{seed}_{initial}".replace(".", "p")
+            truth = params.replace({PITCH: TRUE_PITCH, **({INITIAL: initial} if initial is not None else {})})
+            VirtualRig(level, params=truth, design=rig, noise=NOISE, seed=seed,
                        truth_columns=True).record(_stops_scenario(), stem)
-            cache[level, seed] = read_run(stem.with_suffix(".csv"))
-        return cache[level, seed]
+            cache[level, seed, initial] = read_run(stem.with_suffix(".csv"))
+        return cache[level, seed, initial]
 
     return _record
 
@@ -169,6 +171,28 @@ def test_backlash_is_found_first_with_its_pitch(stops_record, params, capsys):
         print(f"\nbacklash: pitch {pitch['value']:.5f} rad (truth {TRUE_PITCH}), interval {lo:.5f}..{hi:.5f}; "
               f"RMS drop {', '.join(f'{c} {v:.0%}' for c, v in red.items())}; "
               f"profiled candidate fit {cand['fit_time_s']:.1f} s")
+
+
+@pytest.mark.slow
+def test_initial_clearance_is_screened_as_an_angle_not_taken_up_by_the_pitch(stops_record, params):
+    """Truth: pitch 0.10 rad, the ratchets stopped 0.2 pitch from their pawls (0.02 rad; the file's fraction is
+    0.5).  The load's application back-drives through that angle before any travel, the five stops through the
+    extensions' travel modulo the pitch.  Screened in the model's coordinates one after the other (the pitch at
+    the file's fraction 0.5 first), the pitch took up the first back-drive (0.5 x pitch = its angle); screened as
+    the angle first, both come out right."""
+    from thsa_control.fit.identify import IdentificationSettings
+
+    run = stops_record("C", 1, 0.2)
+    free = ("gear.viscous_friction",)
+    st = IdentificationSettings(max_nfev=20)
+    prof = profile_identify(run, params, free, {PITCH: (0.03, 0.3), INITIAL: (0.0, 1.0)}, level="C", settings=st,
+                            fractions={INITIAL: PITCH})
+    assert prof.values[PITCH] == pytest.approx(TRUE_PITCH, rel=0.05), prof.values
+    assert prof.values[INITIAL] * prof.values[PITCH] == pytest.approx(0.2 * TRUE_PITCH, abs=0.004), prof.values
+    assert prof.mattered[INITIAL] and any("product" in n for n in prof.notes)
+    with pytest.raises(ParameterError, match="fraction"):
+        profile_identify(run, params, free, {PITCH: (0.03, 0.3), INITIAL: (0.0, 1.0)}, level="C", settings=st,
+                         fractions={PITCH: INITIAL})
 
 
 @pytest.mark.slow

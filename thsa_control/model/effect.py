@@ -99,6 +99,10 @@ class CandidateSpec:
     window: str = "moving"
     channel: str = "motor_speed"
     profile: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    #: further profiled parameters the model uses as a fraction of the first one (name -> that one's name): the
+    #: runs see their product, which is screened first and held while the first is screened
+    #: (:func:`~thsa_control.fit.profile.profile_identify`, ``fractions``)
+    profile_fractions: Mapping[str, str] = field(default_factory=dict)
     #: a constant-torque explainer: besides being a candidate it may stand for the base mismatch every real
     #: drive has (a drag, an efficiency, a fixture force), fitted in the tracer's base-correction step within
     #: the plausible magnitude (``trace.candidates.PLAUSIBLE``) named here for each free parameter

@@ -41,7 +41,7 @@ def _fit_job(job: dict) -> dict:
             from ..fit.profile import profile_identify
 
             prof = profile_identify(job["runs"], params, job["free"], job["profile"], effects=job["effects"],
-                                    settings=job["settings"])
+                                    settings=job["settings"], fractions=job.get("profile_fractions"))
             res = prof.result
         else:
             ident = Identifier(None, params, job["free"], effects=job["effects"], settings=job["settings"])

@@ -408,7 +408,9 @@ register(Effect(
     # within one pitch of screw travel after each change of direction (a reversal; a back-drive by the load at a
     # stop; the first motion): the "clearance" window
     candidate=CandidateSpec("noback_backlash", (), {}, "clearance",
-                            profile={"noback.pawl_pitch": (0.03, 0.3), "noback.pawl_initial_clearance": (0.0, 1.0)}),
+                            profile={"noback.pawl_pitch": (0.03, 0.3), "noback.pawl_initial_clearance": (0.0, 1.0)},
+                            # the first back-drive sees the initial clearance angle, fraction x pitch
+                            profile_fractions={"noback.pawl_initial_clearance": "noback.pawl_pitch"}),
     linear=LinearHints(
         # in a steady motion the clearances ramp (+-w/N) and nothing depends on them away from an edge
         drifting=_PAWLS,
