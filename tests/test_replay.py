@@ -139,3 +139,29 @@ def test_shared_example_replays(params):
     # better than level A (which lacks the aiding-load friction)
     assert b.fits["motor_current"].fit_percent > a.fits["motor_current"].fit_percent + 20
     assert b.fits["motor_speed"].fit_percent > 80
+
+
+def test_run_map_in_chunks_is_one_mapaccum_to_the_bit(params, monkeypatch):
+    """The open-loop replay strings the map over the run in chunks (casadi builds a mapaccum of 10^4 steps or
+    more about ten times slower): the same steps in the same order as one mapaccum over the whole run, so the
+    same numbers to the bit, across chunk boundaries and with a shorter last chunk."""
+    import casadi as ca
+
+    from thsa_control.fit import replay as rp
+
+    plant = build_plant("B")
+    mech = rp.current_driven_map(plant, 2)
+    n = 53
+    t = np.arange(n) * 1e-3
+    V = np.zeros((mech.size1_in(1), n))
+    V[0], V[1] = 3.0 * np.sin(40 * t), 3.0 * np.sin(40 * (t + 1e-3))  # current at the period's start and end
+    V[3] = V[4] = 12e3  # load at the period's start and end
+    V[5] = 25.0  # temperature
+    p = plant.p_vector(params)
+    hs = np.full(n, 1e-3)
+    x0 = plant.initial_state(params, load_force=12e3, nut_position=0.0)
+    _, whole = mech.mapaccum("whole", n)(np.asarray(x0, float), V, ca.repmat(ca.DM(p), 1, n), ca.DM(hs).T)
+    monkeypatch.setattr(rp, "_MAP_CHUNK", 10)
+    chunked = rp.run_map(mech, x0, V, p, hs)
+    assert np.ptp(chunked[plant.outputs.index("motor_speed")]) > 0  # it moved
+    np.testing.assert_array_equal(chunked, np.asarray(whole))

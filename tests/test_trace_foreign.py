@@ -128,9 +128,6 @@ KNOWN_FAILING = {
                                  "growth is +6 % but the candidate is not significant (20/37 held-out segments). "
                                  "Found with --channel-weights base-residual (opt-in, test_trace_drivetrain.py)",
     # the out-of-library effects (docs/trace_notes.md, "Out-of-library effects: what the remainder shows")
-    "rig_friction_bump": "flagged (nut_position repeated over passes, unexplained true) but screw_friction_ripple "
-                         "is added with a 6 % window drop: the ripple absorbs part of the position-local bump "
-                         "(measured on the campaign of d5f81d2)",
     "rig_loadcell_drift": "not flagged, the run carries too little: per-pass drift test p 0.017 (slopes +1.6e-3 "
                           "extending / -1.4e-3 N m/s retracting, standard error 7.3e-4 each, as the 40 N/s offset "
                           "predicts through the load torque and the no-back's drag); the level needs about 80 N/s",

@@ -56,6 +56,28 @@ def test_step_constraints_are_the_analysis_step_metrics(params, design):
     assert rows["velocity_loop.min_delay_margin_s"].value < req["min_delay_margin_s"]  # the issue's 134 Hz design
 
 
+def test_step_constraints_keep_the_last_evaluation_only_for_the_same_gains_and_limits(params, design):
+    """The values and the Jacobian at the same gains come from one evaluation (the solver asks for both
+    separately), the same numbers as a fresh one; other gains or a changed limit are evaluated again."""
+    step = RobustConstraints(design, params, (-30.0,)).step
+    fresh = RobustConstraints(design, params, (-30.0,)).step
+    kp, ki = design.velocity_kp, design.velocity_ki
+    v, j = step.value_and_jacobian(kp, ki)
+    v[:] = np.nan  # the caller's copy: the kept result is not changed through it
+    for other in ((kp, ki), (1.5 * kp, ki)):
+        a, b = step.value_and_jacobian(*other), fresh._value_and_jacobian(*other)
+        np.testing.assert_array_equal(a[0], b[0])
+        np.testing.assert_array_equal(a[1], b[1])
+    before = step.value_and_jacobian(kp, ki)[0]
+    step.set_limit("max_overshoot_percent", 0.5 * step.req["max_overshoot_percent"])
+    fresh.set_limit("max_overshoot_percent", 0.5 * fresh.req["max_overshoot_percent"])
+    after = step.value_and_jacobian(kp, ki)[0]
+    np.testing.assert_array_equal(after, fresh._value_and_jacobian(kp, ki)[0])
+    i = step.names.index("max_overshoot_percent at -30 degC")
+    assert after[i] < before[i]  # a tighter overshoot limit: less margin to it; the other constraints as they were
+    np.testing.assert_array_equal(np.delete(after, i), np.delete(before, i))
+
+
 def test_high_kp_fails_check_and_report_naming_the_same_requirement(params, design, tmp_path, capsys):
     """velocity kp = 2.5 A s/rad: thsa check and thsa report --check exit 1 and name the same failing
     requirements (the delay margin among them), with the same worst value."""

@@ -27,7 +27,6 @@ shaft (the main body's and the one the motor current accelerates).
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from collections.abc import Iterable
 from dataclasses import dataclass
 
@@ -35,6 +34,7 @@ import casadi as ca
 import numpy as np
 
 from ..errors import ModelError, ParameterError
+from ..memo import KeyedLRU
 from . import effects as _effects  # noqa: F401  (registers the library's effects)
 from .effect import EFFECTS, effect_order
 from .levels import resolve_effects
@@ -235,21 +235,11 @@ def build_plant(level: str | None = "A", effects: Iterable[str] = (), *, remove:
     # process.  The key holds the identity of each chosen Effect (kept alive by the entry, so an id is not
     # reused): an effect registered again under the same name gets a new plant.
     objs = tuple(EFFECTS[e] for e in chosen)
-    key = (chosen, tuple(names), tuple(map(id, objs)))
-    hit = _PLANTS.get(key)
-    if hit is not None:
-        _PLANTS.move_to_end(key)
-        return hit[1]
-    plant = _build(chosen, names)
-    _PLANTS[key] = (objs, plant)
-    if len(_PLANTS) > _PLANTS_KEPT:
-        _PLANTS.popitem(last=False)
-    return plant
+    return _PLANTS.get((chosen, tuple(names), tuple(map(id, objs))), lambda: _build(chosen, names), keep=objs)
 
 
-#: build_plant's memo: key -> (the chosen Effect objects, Plant), least recently used first.
-_PLANTS: OrderedDict = OrderedDict()
-_PLANTS_KEPT = 64
+#: build_plant's memo: key -> Plant, the chosen Effect objects kept with it; the 64 most recently used.
+_PLANTS = KeyedLRU(64)
 
 
 def _build(chosen: tuple[str, ...], names) -> Plant:

@@ -264,7 +264,9 @@ def format_trace_summary(doc: dict) -> str:
             flag = "SIGNIFICANT" if c["significant"] else ("implausible: " + "; ".join(c["implausible_because"])
                                                            if not c["plausible"] else
                                                            "not significant" + (f": {c['not_robust']}"
-                                                                                if c.get("not_robust") else ""))
+                                                                                if c.get("not_robust") else "")
+                                                           + (f": {c['not_periodic']}" if c.get("not_periodic")
+                                                              else ""))
             lines.append(f"    {c['name']:<26} held-out chi2 drop {_num(c['holdout_chi2_drop'], '.4g'):>10} "
                          f"(threshold {_num(c['chi2_threshold'], '.3g')}, null {_num(c.get('null_chi2_drop'), '.3g')}), "
                          f"score {_num(c['score'], '.3f')}  {flag}")

@@ -48,7 +48,6 @@ from __future__ import annotations
 import math
 import os
 import time
-from collections import OrderedDict
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -58,6 +57,7 @@ import numpy as np
 
 from ..loops.design import Design
 from ..errors import ScenarioError, ThsaError
+from ..memo import KeyedLRU
 from ..model.plant import Plant
 from ..model.params import ParameterSet
 from .loop import OPTIONAL_INPUTS, RUN_INPUTS, ClosedLoop, LoopExtension, output_decimation, plant_input_vector
@@ -238,26 +238,17 @@ class SimulationResult:
 
 
 #: Closed loops shared by every Simulator of the process: (id(plant), substeps, extension keys, cache folder)
-#: -> (plant, loop), least recently used first.  A ClosedLoop is its Functions and its loaded run loop, nothing of a run; the
+#: -> loop, the 32 most recently used.  A ClosedLoop is its Functions and its loaded run loop, nothing of a run; the
 #: entry keeps its plant alive, so the id is not reused.  build_plant returns one Plant per effect set, so
 #: a new Simulator of an effect set already simulated does not generate and load its run loop again.
-_LOOPS: OrderedDict = OrderedDict()
-_LOOPS_KEPT = 32
+_LOOPS = KeyedLRU(32)
 
 
 def _shared_loop(plant: Plant, substeps: int, extensions: tuple, key: tuple) -> ClosedLoop:
     # the cache folder is part of the key: a process that points THSA_CACHE_DIR elsewhere (a sweep's worker)
     # loads its run loop from there
     k = (id(plant), int(substeps), key, os.environ.get("THSA_CACHE_DIR"), os.environ.get("XDG_CACHE_HOME"))
-    hit = _LOOPS.get(k)
-    if hit is not None and hit[0] is plant:
-        _LOOPS.move_to_end(k)
-        return hit[1]
-    loop = ClosedLoop(plant, substeps, extensions)
-    _LOOPS[k] = (plant, loop)
-    if len(_LOOPS) > _LOOPS_KEPT:
-        _LOOPS.popitem(last=False)
-    return loop
+    return _LOOPS.get(k, lambda: ClosedLoop(plant, substeps, extensions), keep=plant)
 
 
 class Simulator:

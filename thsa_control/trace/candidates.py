@@ -143,19 +143,26 @@ def _resolved_periods(params: ParameterSet, runs, lo: float, hi: float) -> tuple
 PROFILE_LIMITS: dict[str, Callable] = {"drive.cogging_periods": _resolved_periods}
 
 
+def nut_travel(run: RigRun, params: ParameterSet) -> np.ndarray:
+    """The nut position per sample [m]: the LVDT's, or (no LVDT) the travel integrated from the measured motor
+    speed through the screw's kinematics."""
+    x = np.asarray(run.signals["nut_position"], float) if run.has("nut_position") else np.array([np.nan])
+    if np.isfinite(x).any():
+        return x
+    r_kin = params.value("screw.lead") / (2 * math.pi * params.value("gear.ratio"))
+    t = np.asarray(run.time, float)
+    w = np.nan_to_num(measured_motor_speed(run))
+    return np.concatenate([[0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t))]) * r_kin
+
+
 def _screw_revolutions(params: ParameterSet, runs) -> str | None:
     """A ripple once per screw revolution is told from a drag that depends on the nut position (a bump, a worn
     spot, a trend of the base's own drags along the stroke) only where the same screw angle recurs at another
     nut position: the nut's travel in one run must span two leads.  Reason to skip, or None."""
     lead = params.value("screw.lead")
-    r_kin = lead / (2 * math.pi * params.value("gear.ratio"))
     span = 0.0
     for r in runs:
-        x = np.asarray(r.signals["nut_position"], float) if r.has("nut_position") else np.array([np.nan])
-        if not np.isfinite(x).any():  # no LVDT: the nut travel from the measured motor speed
-            t = np.asarray(r.time, float)
-            w = np.nan_to_num(measured_motor_speed(r))
-            x = np.concatenate([[0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t))]) * r_kin
+        x = nut_travel(r, params)
         span = max(span, float(np.nanmax(x) - np.nanmin(x)))
     if span >= 2 * lead:
         return None
@@ -165,6 +172,20 @@ def _screw_revolutions(params: ParameterSet, runs) -> str | None:
 
 #: Candidates a record cannot resolve (name -> function(params, runs) -> reason to skip, or None).
 RESOLVES: dict[str, Callable] = {"screw_friction_ripple": _screw_revolutions}
+
+
+def _ripple_period(params: ParameterSet) -> float:
+    return params.value("screw.lead")  # once per screw revolution: one lead of nut travel
+
+
+def _cogging_period(params: ParameterSet) -> float:
+    # n periods per motor revolution, ratio motor revolutions per lead
+    return params.value("screw.lead") / (params.value("gear.ratio") * params.value("drive.cogging_periods"))
+
+
+#: Angle-periodic candidates: name -> function(fitted params) -> the period of its angle in nut travel [m].  Their
+#: held-out gain must repeat over the travel (:mod:`thsa_control.trace.periodicity`).
+PERIODS: dict[str, Callable] = {"screw_friction_ripple": _ripple_period, "cogging_torque": _cogging_period}
 
 #: Starting values read off the runs (:attr:`CandidateSpec.start` -> function(params, runs) -> {name: value}).
 STARTS: dict[str, Callable] = {"loadpath_static": _start_loadpath}

@@ -271,6 +271,7 @@ class StepConstraints:
         self.u1 = np.zeros(z.size, complex)
         self.u1[1:] = h / (zz - 1.0)
         self.K = min(int(round(horizon / h)) + 1, n_fft)
+        self._last = None  # (kp, ki, limits) -> (values, Jacobian) of the last call
         self.set_limit(None, None)
         self.names = tuple(f"{key} at {T:g} degC" for T in self.temperatures for key in self.req)
         self.n_out = len(self.names)
@@ -291,8 +292,12 @@ class StepConstraints:
         T[:, 0] = 1.0
         dTdL = np.zeros_like(L)
         dTdL[:, 1:] = 1.0 / (1.0 + L[:, 1:]) ** 2
-        y = np.cumsum(np.fft.irfft(T, n=self.n_fft, axis=1), axis=1)[:, :self.K]
-        dy = [np.cumsum(np.fft.irfft(dTdL * self.G * u[None, :], n=self.n_fft, axis=1), axis=1)[:, :self.K]
+        dTdG = dTdL * self.G
+        # the running sum of the first K samples only: a cumulative sum is sequential, so these are the first K
+        # values of the whole one
+        K = self.K
+        y = np.cumsum(np.fft.irfft(T, n=self.n_fft, axis=1)[:, :K], axis=1)
+        dy = [np.cumsum(np.fft.irfft(dTdG * u[None, :], n=self.n_fft, axis=1)[:, :K], axis=1)
               for u in (self.u0, self.u1)]
         return y, dy
 
@@ -305,7 +310,18 @@ class StepConstraints:
         return cmin - np.log(w.sum()) / self.rho, (w / w.sum()) @ dc
 
     def value_and_jacobian(self, kp, ki):
-        """Constraint values (>= 0 feasible) in :attr:`names` order and their Jacobian (n_out x 2)."""
+        """Constraint values (>= 0 feasible) in :attr:`names` order and their Jacobian (n_out x 2).
+
+        The last call's result is kept: the solver asks for the values and for the Jacobian at the same gains
+        through two casadi callbacks (:class:`_StepCallback`, :class:`_StepJac`)."""
+        key = (float(kp).hex(), float(ki).hex(), tuple(sorted(self.req.items())))  # -0.0 is not 0.0 here
+        if self._last is not None and self._last[0] == key:
+            return self._last[1][0].copy(), self._last[1][1].copy()
+        vals, jac = self._value_and_jacobian(kp, ki)
+        self._last = (key, (vals, jac))
+        return vals.copy(), jac.copy()
+
+    def _value_and_jacobian(self, kp, ki):
         y, dy = self.responses(kp, ki)
         P = y.shape[0]
         vals, jac = [], []
