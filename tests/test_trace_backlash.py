@@ -125,7 +125,10 @@ def test_clearance_window_is_the_first_pitch_after_each_change_of_direction():
                  {"screw_speed": ws, "motor_speed": w, "load_force": np.full(t.size, 2e4)}, gear_ratio=n_ratio,
                  source_columns=cols)
     win = clearance_window(run, 0.3)
-    spans = lambda m: (float(t[m].min()), float(t[m].max())) if m.any() else None  # noqa: E731
+
+    def spans(m):
+        return (float(t[m].min()), float(t[m].max())) if m.any() else None
+
     first = win & (t < 1.9)
     assert spans(first)[0] == pytest.approx(0.5, abs=0.01) and spans(first)[1] == pytest.approx(0.65, abs=0.01)
     assert win[(t >= 2.0) & (t < 2.2)].mean() > 0.95  # the back-drive (0.2 rad < 0.3)
