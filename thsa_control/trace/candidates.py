@@ -215,6 +215,45 @@ def candidate_specs(model_effects: Iterable[str], params: ParameterSet, names: S
     return out
 
 
+#: Fewest samples (over all runs) a candidate's window must hold for the candidate to be scored on them; the same
+#: count of moving samples outside a window is what determines the declared parameters read at its reference
+#: condition (:func:`reference_not_determined`)
+MIN_WINDOW_SAMPLES = 50
+
+
+def reference_not_determined(runs: Sequence[RigRun], params: ParameterSet, names: Iterable[str]) -> dict[str, str]:
+    """Declared parameters (of ``names``) the runs do not determine because they are defined at a reference
+    condition the runs never reach while moving (:attr:`CandidateSpec.reference`): name -> reason.
+
+    ``gear.viscous_friction`` is the 25 degC drag (its source in the parameter file; ``temperature_friction``
+    reads it as ``b_25`` and scales it by ``exp(a_v (T_ref - T))``).  A run that moves only far from 25 degC
+    measures the drag at its own temperature: fitted there, the 25 degC coefficient takes what the temperature
+    effect would explain (measured on rig-sim's cold ramp at -30 degC: 7.4e-4 N m s/rad against the file's 8e-5,
+    which left the temperature candidate 17 % of its window).  Without a temperature law the data say nothing of
+    the drag at 25 degC: the parameter is held at its file value, as a candidate's undetermined parameter is.
+    """
+    names = list(names)
+    out: dict[str, str] = {}
+    for spec in CANDIDATES.values():
+        ref = [n for n in spec.reference if n in names and n not in out]
+        if not ref:
+            continue
+        n_ref = sum(int(np.sum(_window("moving", r, params) & ~_window(spec.window, r, params))) for r in runs)
+        if n_ref < MIN_WINDOW_SAMPLES:
+            for n in ref:
+                out[n] = (f"defined at the reference condition of {spec.name} (outside its '{spec.window}' window: "
+                          f"{_WINDOW_TEXT.get(spec.window, spec.window)}); the runs move there on {n_ref} samples "
+                          f"(fewer than {MIN_WINDOW_SAMPLES}), so they measure it only together with {spec.name}")
+    return out
+
+
+#: The ``cold`` window: farther than ``COLD_BAND_K`` from ``COLD_REFERENCE_C``, the temperature of the declared
+#: (level-A) friction (``friction.reference_temperature``'s file value)
+COLD_REFERENCE_C, COLD_BAND_K = 25.0, 5.0
+#: What a window's reference condition (its complement) is, for the reasons given to the user.
+_WINDOW_TEXT = {"cold": f"within {COLD_BAND_K:g} K of {COLD_REFERENCE_C:g} degC"}
+
+
 #: The windows a candidate may act in (:attr:`CandidateSpec.window`, :func:`_window`).
 WINDOWS = ("moving", "all", "loaded", "reversal", "clearance", "cold", "resolved_cogging", "load_change")
 
@@ -304,6 +343,6 @@ def _window(kind: str, run: RigRun, params: ParameterSet | None = None) -> np.nd
         return out
     if kind == "cold":
         temp = np.asarray(s["temperature"], float)
-        return np.abs(temp - 25.0) > 5.0
+        return np.abs(temp - COLD_REFERENCE_C) > COLD_BAND_K
     raise ValueError(f"unknown window {kind!r}")
 

@@ -62,8 +62,8 @@ from ..data.rigformat import speed_sensor_intervals
 from ..fit.replay import check_run_model
 from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
 from ..model.params import ParameterSet, default_parameters
-from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, PERIODS, PLAUSIBLE, PROFILE_LIMITS,
-                         RESOLVES, STARTS, WINDOWS,
+from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, MIN_WINDOW_SAMPLES, PERIODS, PLAUSIBLE,
+                         PROFILE_LIMITS, RESOLVES, STARTS, WINDOWS, reference_not_determined,
                          _window,
                          candidate_specs, not_candidates, nut_travel)
 from . import periodicity
@@ -339,6 +339,16 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         return base_plant if tuple(effects) == tuple(declared) else build_plant(None, effects, params=p)
 
     uncertain = tuple(n for n in uncertain if n in base_plant.parameters)
+    # identifiability of the declared set itself: a parameter defined at a reference condition the runs never
+    # reach while moving (the 25 degC drag on a cold-only record) is held at its file value, reported; a parameter
+    # the user names (``uncertain``) is fitted as asked
+    ref_held = reference_not_determined(runs, params, uncertain) if st.uncertain is None else {}
+    declared_held = [{"parameter": n, "held_at": params.value(n), "unit": params[n].unit, "reason": why}
+                     for n, why in ref_held.items()]
+    if ref_held:
+        uncertain = tuple(n for n in uncertain if n not in ref_held)
+        say("not determined by these runs: " + "; ".join(f"{h['parameter']} held at {h['held_at']:g} {h['unit']} "
+                                                         f"({h['reason']})" for h in declared_held))
     # the replay is current-driven: the rig's controller plays no part (and need not be one we model)
     fit_runs = [dataclasses.replace(r, controller=None) for r in runs]
     channels = tuple(c for c in ("motor_speed", "nut_position", "screw_speed")
@@ -360,6 +370,13 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                                       quasi_static_starts=quasi_static, speed_sensors=st.speed_sensors)
 
     plaus = {k: fn(params, runs) for k, fn in PLAUSIBLE.items()}
+
+    def _reference_freed(spec) -> tuple[str, ...]:
+        """The declared reference parameters the runs do not determine on their own, freed with the candidate that
+        reads them (judged with it: at one cold temperature only ``b_25 exp(a_v dT)`` shows, so both the 25 degC
+        drag and the coefficient are held, as the coefficient was while the 25 degC drag was fitted; runs at two
+        cold temperatures determine both)."""
+        return tuple(n for n in spec.reference if n in ref_held)
     base_priors: dict[str, tuple[float, float]] = {}  # the base corrections' priors (kept in every later fit)
 
     def job(label, effs, free, pset, data, prior=True, profile=None, spec=None, lift=()):
@@ -367,7 +384,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         pri = {n: v for n, v in base_priors.items() if n in free and n not in lift}
         judge = {}
         if spec is not None and not profile:
-            for n in spec.free + spec.second_stage:
+            for n in spec.free + spec.second_stage + _reference_freed(spec):
                 if n in uncertain or n in base_priors:
                     continue
                 ref = max(abs(params.value(n)), abs(spec.seeds.get(n, 0.0)),
@@ -385,7 +402,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     for r in runs:
         for w in check_run_model(r, base_plant, mode="open_loop"):
             say(f"warning: {w}")
-    say(f"fitting the declared model ({', '.join(declared) or 'level A'}): {', '.join(uncertain)}")
+    say(f"fitting the declared model ({', '.join(declared) or 'level A'}): "
+        f"{', '.join(uncertain) or 'no parameter free (the segment states only)'}")
     t0 = time.perf_counter()
     base = _run_jobs([job("base", declared, uncertain, params, fit_runs)], 1, None)[0]
     if "error" in base:
@@ -415,7 +433,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         windows_cache = {spec: {r.name: _window(spec, r, params) for r in runs} for spec in WINDOWS}
         refinements = [sp for sp in candidate_specs(declared, params, st.candidates)
                        if set(EFFECTS[sp.name].supersedes) & set(declared) and not sp.profile
-                       and sum(int(w.sum()) for w in windows_cache[sp.window].values()) >= 50]
+                       and sum(int(w.sum()) for w in windows_cache[sp.window].values()) >= MIN_WINDOW_SAMPLES]
         if refinements:
             say("base step: the corrections fitted with and without the detailed "
                 f"{', '.join(sp.name for sp in refinements)} (declared {', '.join(sorted({x for sp in refinements for x in EFFECTS[sp.name].supersedes}))})")
@@ -469,7 +487,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         scorable, skipped = [], []
         for spec in specs:
             win = windows_cache[spec.window]
-            if sum(int(w.sum()) for w in win.values()) < 50:
+            if sum(int(w.sum()) for w in win.values()) < MIN_WINDOW_SAMPLES:
                 skipped.append({"name": spec.name, "reason": f"does not act on these runs (window '{spec.window}' empty)"})
             elif spec.name in base_step_refused:
                 skipped.append({"name": spec.name, "reason": "the detailed model of a declared component, judged in "
@@ -516,7 +534,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 # retraction disk friction to 0): a profiled candidate restarts the declared parameters, and
                 # centres their priors, at the parameter file's values
                 pset = pset.replace({n: params.value(n) for n in uncertain})
-            free = tuple(dict.fromkeys(cur_free + spec.free))
+            free = tuple(dict.fromkeys(cur_free + spec.free + _reference_freed(spec)))
             jobs.append(job(spec.name, effs, free, pset, fit_runs, profile=spec.profile, spec=spec))
         say(f"round {len(rounds) + 1}: scoring {len(jobs)} candidates ({', '.join(s.name for s in scorable)})")
         fits = _run_jobs(jobs, st.workers, say)
@@ -726,6 +744,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         "declared_from_runs": from_runs,
         "final_effects": list(cur_effects),
         "uncertain_parameters": list(uncertain),
+        "declared_not_determined": declared_held,
         "base_parameters": {n: v for n, v in first["estimates"].items()},
         "effects_added": added,
         "found_effects": [e["name"] for e in added],
