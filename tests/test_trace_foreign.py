@@ -150,10 +150,6 @@ KNOWN_FAILING = {
                               "it where the declared model leaves up to 0.54 N m at every reversal, and each kind of "
                               "event (start, reversal to extension, to retraction) happens at one position only; "
                               "nothing invented",
-    "rig_ratchet_backlash": "noback_backlash found first among the physical effects after the detailed no-back "
-                            "(pitch 0.153 rad, rig-sim 0.1496), its window RMS drop 43 % (motor speed; 43 % beyond "
-                            "the noise), LVDT 14 % (measured on this branch merged with main 8e186e7; 6 % / 17 % "
-                            "before main's no-back static coefficients were freed)",
     "rig_loadpath_preload": "loadpath_compliance found first among the physical effects after the detailed no-back, "
                             "its window RMS drop 43 % (< 50 %): the fit is right (contact stiffnesses 4.59e7 / "
                             "5.59e7 N/m = rig-sim's 5.32e7 / 6.65e7 in series with its 3e8 N/m ball-nut contact, "

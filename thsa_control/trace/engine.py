@@ -81,7 +81,7 @@ __all__ = ["TraceSettings", "CandidateSpec", "CANDIDATES", "DEFAULT_UNCERTAIN", 
 TRACE_FORMAT = "thsa-trace/1"
 
 #: candidate windows at the transients themselves: scored on every sample (``score_outside_transients``)
-TRANSIENT_WINDOWS = ("reversal", "reversal_or_stop", "load_change")
+TRANSIENT_WINDOWS = ("reversal", "clearance", "load_change")
 
 
 @dataclass(frozen=True)
@@ -172,7 +172,7 @@ class TraceSettings:
         samples outside the base's transients
         (:func:`~thsa_control.trace.signature.base_transients`: starts, stops,
         reversals, load changes), except candidates that act there (windows
-        ``reversal``, ``reversal_or_stop``): a declared model of another
+        ``reversal``, ``clearance``): a declared model of another
         rig's base leaves its largest residual at those transients, and a
         few such held-out segments decided the sign of every drop.
     robust_constant_torque : bool
@@ -394,6 +394,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "settings": id_settings(prior, [n for n in free + (spec.second_stage if spec is not None else ())
                                                 if n not in uncertain and n not in pri], pri),
                 "runs": data, "profile": dict(profile or {}), "judge": judge,
+                "profile_fractions": dict(spec.profile_fractions) if spec is not None and profile else {},
                 "hold_at": {n: (pset.value(n) if spec is not None and spec.start else params.value(n)) for n in judge}, "determination_z": st.determination_z,
                 "second_stage": tuple(spec.second_stage) if spec is not None and not profile else (),
                 "absent": {n: zero_is_absent(spec.name, n) for n in judge}}
