@@ -49,6 +49,10 @@ def conclusion_table_html(doc: dict) -> str:
     each channel's error before -> after and what the run did not determine."""
     rows = []
     esc = html.escape
+    for h in doc.get("declared_not_determined") or []:  # the declared model's own parameters the runs do not fix
+        rows.append(("declared model", esc(doc.get("base_model") or "functional"),
+                     f"{esc(h['parameter'])} = {_num(h['held_at'])} {esc(h['unit'])} (held)", "-", "-",
+                     f"{esc(h['parameter'])} held at {_num(h['held_at'])} {esc(h['unit'])}: {esc(h['reason'])}"))
     bc = doc.get("base_corrections") or {}
     if bc.get("accepted"):
         for c in bc.get("corrections", []):
@@ -85,6 +89,32 @@ def conclusion_table_html(doc: dict) -> str:
                f"quadrant; not counted as unexplained): {esc('; '.join(base_like))}</small>" if base_like else "")
             + "</p>")
     return head + body + "</table>" + tail
+
+
+def separability_table_html(doc: dict) -> str:
+    """The constant-torque explainers: how much of each one's torque the model's other explainers reproduce on this
+    record (variance inflation), with whom, and the inflation on a record completed by each kind of operating
+    point; then the plain sentences."""
+    import html as _h
+
+    sep = doc.get("separability") or {}
+    kinds = sep.get("record_kinds", {})
+    lim = sep.get("vif_limit", 10.0)
+    singles = [k for k in kinds]
+    head = "".join(f"<th>+ {_h.escape(kinds[k])}</th>" for k in singles)
+    rows = []
+    for t, e in sep.get("explainers", {}).items():
+        cells = "".join(
+            f"<td>{'<b>' if e['separated_by'].get(k, math.inf) <= lim else ''}{_num(e['separated_by'].get(k), '.3g')}"
+            f"{'</b>' if e['separated_by'].get(k, math.inf) <= lim else ''}</td>" for k in singles)
+        rows.append(f"<tr><td>{_h.escape(e['effect'])}: {_h.escape(t)}</td><td>{_num(100 * e['r2'], '.1f')} %</td>"
+                    f"<td>{_num(e['vif'], '.3g')}</td><td>{_h.escape(', '.join(e['same_part_as']) or '-')}</td>{cells}</tr>")
+    text = "".join(f"<p>{_h.escape(x)}</p>" for x in sep.get("sentences", []))
+    return (f"<p>Variance inflation of each constant-torque explainer against the model's others over the record's "
+            f"{sep.get('points', 0)} moving operating points (above {lim:g}: the record cannot tell them apart; bold: "
+            f"a record completed with that kind of operating point would).</p>"
+            f"<table><tr><th>explainer</th><th>reproduced by the others</th><th>inflation</th><th>same part as</th>"
+            f"{head}</tr>{''.join(rows)}</table>{text}")
 
 
 def _errors_cell(before: dict, after: dict) -> str:
@@ -238,10 +268,33 @@ def plot_signature(sig: dict):
     return fig
 
 
+def _ambiguity_hint(doc: dict, names) -> str:
+    """What would tell ambiguous candidates apart, read off the trace's separability (the kinds of record that bring
+    each one's variance inflation against the base's explainers below the limit); generic without it."""
+    sep = doc.get("separability") or {}
+    kinds, lim = sep.get("record_kinds", {}), sep.get("vif_limit", 10.0)
+    parts = []
+    for e in (sep.get("explainers") or {}).values():
+        if e["effect"] not in names:
+            continue
+        good = sorted((v, k) for k, v in e["separated_by"].items() if v <= lim)
+        if good:
+            k = good[0][1]
+            parts.append(f"{e['effect']} by {' together with '.join(kinds[x] for x in k.split('+'))}")
+        else:
+            parts.append(f"{e['effect']} by none of the kinds of record tried")
+    if not parts:
+        return " (another speed, load or direction would)."
+    return "; from the torque sensitivities, a record would separate " + "; ".join(parts) + "."
+
+
 def format_trace_summary(doc: dict) -> str:
     """Console / report text: what was added, the ranking, the errors, the signature."""
     lines = [f"declared model: {doc['base_model']} ({', '.join(doc['declared_effects']) or 'functional'}), "
-             f"uncertain set fitted: {', '.join(doc['uncertain_parameters'])}"]
+             f"uncertain set fitted: {', '.join(doc['uncertain_parameters']) or 'none'}"]
+    for h in doc.get("declared_not_determined") or []:
+        lines.append(f"    not determined by these runs: {h['parameter']} held at {_num(h['held_at'])} {h['unit']} "
+                     f"({h['reason']})")
     for e, why in (doc.get("declared_from_runs") or {}).items():
         lines.append(f"    declared from the runs' rig description: {e} ({why}); hardware, not a finding")
     bc = doc.get("base_corrections")
@@ -283,9 +336,15 @@ def format_trace_summary(doc: dict) -> str:
         drops = ", ".join(f"{n} {_num(v, '.4g')}" for n, v in a["holdout_chi2_drop"].items())
         lines.append(f"not named (round {a['round']}): {', '.join(a['candidates'])} explain the same part of the "
                      f"residual; held-out chi2 drops {drops} differ by less than {_num(a['indistinct_below'], '.3g')}. "
-                     f"The data cannot tell them apart (another speed, load or direction would).")
+                     "The data cannot tell them apart"
+                     + _ambiguity_hint(doc, a["candidates"]))
     if not doc["effects_added"] and not doc.get("ambiguous"):
         lines.append("no candidate effect is significant")
+    sep = doc.get("separability") or {}
+    if sep.get("sentences"):
+        lines.append("what this record cannot tell apart (constant-torque explainers, from their torque "
+                     "sensitivities over its moving samples):")
+        lines += [f"    {x}" for x in sep["sentences"]]
     for r in doc["rounds"]:
         lines.append(f"round {r['round']} (model: {', '.join(r['model']) or 'functional'}): candidates")
         for c in r["candidates"]:
@@ -356,5 +415,7 @@ def write_trace_folder(folder: str | Path, result) -> dict:
         plot_signature(doc["residual_signature"]))
     write_html_report(folder / "report.html", title=f"Residual trace: {', '.join(d['name'] for d in doc['datasets'])}",
                       sections=[("Conclusion", Html(conclusion_table_html(doc))),
+                                *([("What this record cannot tell apart", Html(separability_table_html(doc)))]
+                                  if (doc.get("separability") or {}).get("explainers") else []),
                                 ("Summary", format_trace_summary(doc))], figures=figs)
     return doc
