@@ -19,6 +19,9 @@ difference by its size and correlation, a quasi-likelihood scaling): a periodic 
 explains the other periods as well, by the same amplitude and phase, so its gain outside any one period is
 as significant as a whole effect's; a local structure's is not.  It needs the travel to span two periods (the
 candidates' resolution rule, :data:`~thsa_control.trace.candidates.RESOLVES`), else nothing is left to repeat.
+The tracer runs it only for a period of two bins of its nut-position test or more
+(:func:`thsa_control.trace.engine._repetition`): the screw ripple's lead, not the cogging's 0.01 mm, which no drag
+local at the scale the tracer resolves projects on.
 """
 
 from __future__ import annotations
