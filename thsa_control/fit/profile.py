@@ -157,9 +157,11 @@ class ProfileResult:
 
 
 def chi2_by_channel(predictions: Mapping[str, Mapping], noise: Mapping[str, float], select: str = "holdout",
-                    windows: Mapping[str, np.ndarray] | None = None) -> dict[str, float]:
+                    windows: Mapping[str, np.ndarray] | None = None, counts: dict[str, int] | None = None
+                    ) -> dict[str, float]:
     """Noise-weighted squared error per channel of segment predictions (``IdentificationResult.predictions``)
-    over the held-out (``select="holdout"``) or all samples, optionally only inside ``windows[run]``."""
+    over the held-out (``select="holdout"``) or all samples, optionally only inside ``windows[run]``;
+    ``counts``, when given, receives the number of samples summed per channel."""
     out: dict[str, float] = {}
     for r, p in predictions.items():
         hold = np.asarray(p["holdout"], bool)
@@ -169,6 +171,8 @@ def chi2_by_channel(predictions: Mapping[str, Mapping], noise: Mapping[str, floa
             if windows is not None:
                 m &= windows[r][:m.size]
             out[c] = out.get(c, 0.0) + float(np.sum(e[m] ** 2))
+            if counts is not None:
+                counts[c] = counts.get(c, 0) + int(m.sum())
     return out
 
 

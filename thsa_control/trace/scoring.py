@@ -241,14 +241,7 @@ def _window_beyond_noise(before: dict, after: dict, noise: Mapping[str, float], 
     ``2 sqrt(2 n)`` (two standard deviations of a chi2(n)) of the noise level: nothing beyond noise to explain.
     Reported, not used to select (the noise level is an estimate)."""
     n: dict[str, int] = {}
-    for r, p in before["predictions"].items():
-        hold = np.asarray(p["holdout"], bool)
-        for c, y in p["measured"].items():
-            m = hold & np.isfinite(np.asarray(y, float))
-            if windows is not None:
-                m &= windows[r][:m.size]
-            n[c] = n.get(c, 0) + int(m.sum())
-    wb = _chi2_by_channel(before, noise, "holdout", windows)
+    wb = chi2_by_channel(before["predictions"], noise, "holdout", windows, counts=n)
     wa = _chi2_by_channel(after, noise, "holdout", windows)
     out = {}
     for c in wa:
