@@ -17,10 +17,13 @@ from pathlib import Path
 from thsa_control.trace.engine import CANDIDATES
 
 #: the judge's catalogue, shared with tests/test_trace_foreign.py
-CATALOGUE = json.loads((Path(__file__).resolve().parents[1] / "tests" / "data" / "rigsim" / "catalogue.json").read_text())
+DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "rigsim"
+CATALOGUE = json.loads((DATA / "catalogue.json").read_text())
 LIBRARY = CATALOGUE["library"]
 EXPLAINERS = {n for n, s in CANDIDATES.items() if s.base_correction}
 FOREIGN = {k: tuple(v) for k, v in CATALOGUE["foreign"].items()}
+#: a sensor effect's signature follows the channel it is planted on (the truth's ``channel`` parameter)
+SENSOR_CHANNEL = {k: tuple(v) for k, v in CATALOGUE.get("foreign_sensor_channel", {}).items()}
 BASE_CONTENT = set(CATALOGUE["base_content"])
 BASE_COMPLIANCE = set(CATALOGUE["base_compliance"])
 INVENTED = set(CATALOGUE["invented"])
@@ -41,10 +44,13 @@ def row(folder: Path) -> dict | None:
         return None
     doc = json.loads(f.read_text())
     csv = Path(doc["datasets"][0]["csv"])
-    truth = json.loads(csv.with_suffix("").with_suffix(".truth.json").read_text()) \
-        if csv.with_suffix("").with_suffix(".truth.json").exists() else \
-        json.loads(Path(str(csv)[:-4] + ".truth.json").read_text())
+    # beside the CSV; for a committed run traced from a checkout that is gone, the repository's copy
+    here = [Path(str(csv)[:-4] + ".truth.json"), DATA / (csv.stem + ".truth.json")]
+    truth = json.loads(next((t for t in here if t.exists()), here[0]).read_text())
     effs = list(truth.get("effects") or {})
+    channel = next((p["channel"]["value"] for p in ((e or {}).get("params", {}) for e in (truth.get("effects") or
+                                                                                         {}).values())
+                    if isinstance(p.get("channel"), dict)), None)
     bc = doc.get("base_corrections") or {}
     corr = [f"{c['parameter'].split('.')[-1]}={c['value']:.3g}{'*' if _at_bound(c) else ''}"
             for c in bc.get("corrections", [])] if bc.get("accepted") else []
@@ -67,7 +73,8 @@ def row(folder: Path) -> dict | None:
             "base_like": doc["residual_signature"].get("base_like", []),
             "windows": {e["name"]: max((e.get("window_reduction") or {0: 0.0}).values()) for e in doc["effects_added"]
                         if not e.get("implied_by")},
-            "beyond": [e["name"] for e in doc["effects_added"] if e.get("beyond_base_correction")]}
+            "beyond": [e["name"] for e in doc["effects_added"] if e.get("beyond_base_correction")],
+            "channel": channel}
 
 
 def main(argv=None) -> int:
@@ -102,7 +109,8 @@ def main(argv=None) -> int:
             clean += [r["run"]] if ok else []
         if len(r["truth"]) == 1 and r["truth"][0] in FOREIGN:
             foreign.append(r["run"])
-            if r["unexplained"] and any(v in x for v in FOREIGN[r["truth"][0]] for x in r["structured"]) \
+            want = SENSOR_CHANNEL.get(r["channel"], FOREIGN[r["truth"][0]]) if r["channel"] else FOREIGN[r["truth"][0]]
+            if r["unexplained"] and any(v in x for v in want for x in r["structured"]) \
                     and not set(r["found"]) & INVENTED:
                 flagged.append(r["run"])
     print(f"\nright first effect with its window error halved: {right} / {lib} library runs (first, any drop: "

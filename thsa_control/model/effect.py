@@ -114,6 +114,12 @@ class CandidateSpec:
     #: the current-to-speed response on a drive train the run shows rigid.  Judged by the same rule (held at the
     #: file value where the second fit does not determine it)
     second_stage: tuple[str, ...] = ()
+    #: declared parameters this effect's law reads as their value at its reference condition, i.e. outside its
+    #: window (``temperature_friction`` reads ``gear.viscous_friction`` as the 25 degC drag ``b_25``).  Runs with
+    #: (almost) no moving sample outside the window do not determine them: fitted there, they take this effect's
+    #: share (a cold run's drag fitted as a 25 degC viscous friction 9 x the file's); the tracer holds them at
+    #: their file values (``trace.candidates.reference_not_determined``)
+    reference: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -49,6 +49,10 @@ def conclusion_table_html(doc: dict) -> str:
     each channel's error before -> after and what the run did not determine."""
     rows = []
     esc = html.escape
+    for h in doc.get("declared_not_determined") or []:  # the declared model's own parameters the runs do not fix
+        rows.append(("declared model", esc(doc.get("base_model") or "functional"),
+                     f"{esc(h['parameter'])} = {_num(h['held_at'])} {esc(h['unit'])} (held)", "-", "-",
+                     f"{esc(h['parameter'])} held at {_num(h['held_at'])} {esc(h['unit'])}: {esc(h['reason'])}"))
     bc = doc.get("base_corrections") or {}
     if bc.get("accepted"):
         for c in bc.get("corrections", []):
@@ -210,7 +214,10 @@ def plot_signature(sig: dict):
 def format_trace_summary(doc: dict) -> str:
     """Console / report text: what was added, the ranking, the errors, the signature."""
     lines = [f"declared model: {doc['base_model']} ({', '.join(doc['declared_effects']) or 'functional'}), "
-             f"uncertain set fitted: {', '.join(doc['uncertain_parameters'])}"]
+             f"uncertain set fitted: {', '.join(doc['uncertain_parameters']) or 'none'}"]
+    for h in doc.get("declared_not_determined") or []:
+        lines.append(f"    not determined by these runs: {h['parameter']} held at {_num(h['held_at'])} {h['unit']} "
+                     f"({h['reason']})")
     for e, why in (doc.get("declared_from_runs") or {}).items():
         lines.append(f"    declared from the runs' rig description: {e} ({why}); hardware, not a finding")
     bc = doc.get("base_corrections")
@@ -264,7 +271,9 @@ def format_trace_summary(doc: dict) -> str:
             flag = "SIGNIFICANT" if c["significant"] else ("implausible: " + "; ".join(c["implausible_because"])
                                                            if not c["plausible"] else
                                                            "not significant" + (f": {c['not_robust']}"
-                                                                                if c.get("not_robust") else ""))
+                                                                                if c.get("not_robust") else "")
+                                                           + (f": {c['not_periodic']}" if c.get("not_periodic")
+                                                              else ""))
             lines.append(f"    {c['name']:<26} held-out chi2 drop {_num(c['holdout_chi2_drop'], '.4g'):>10} "
                          f"(threshold {_num(c['chi2_threshold'], '.3g')}, null {_num(c.get('null_chi2_drop'), '.3g')}), "
                          f"score {_num(c['score'], '.3f')}  {flag}")

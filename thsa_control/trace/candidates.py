@@ -143,19 +143,26 @@ def _resolved_periods(params: ParameterSet, runs, lo: float, hi: float) -> tuple
 PROFILE_LIMITS: dict[str, Callable] = {"drive.cogging_periods": _resolved_periods}
 
 
+def nut_travel(run: RigRun, params: ParameterSet) -> np.ndarray:
+    """The nut position per sample [m]: the LVDT's, or (no LVDT) the travel integrated from the measured motor
+    speed through the screw's kinematics."""
+    x = np.asarray(run.signals["nut_position"], float) if run.has("nut_position") else np.array([np.nan])
+    if np.isfinite(x).any():
+        return x
+    r_kin = params.value("screw.lead") / (2 * math.pi * params.value("gear.ratio"))
+    t = np.asarray(run.time, float)
+    w = np.nan_to_num(measured_motor_speed(run))
+    return np.concatenate([[0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t))]) * r_kin
+
+
 def _screw_revolutions(params: ParameterSet, runs) -> str | None:
     """A ripple once per screw revolution is told from a drag that depends on the nut position (a bump, a worn
     spot, a trend of the base's own drags along the stroke) only where the same screw angle recurs at another
     nut position: the nut's travel in one run must span two leads.  Reason to skip, or None."""
     lead = params.value("screw.lead")
-    r_kin = lead / (2 * math.pi * params.value("gear.ratio"))
     span = 0.0
     for r in runs:
-        x = np.asarray(r.signals["nut_position"], float) if r.has("nut_position") else np.array([np.nan])
-        if not np.isfinite(x).any():  # no LVDT: the nut travel from the measured motor speed
-            t = np.asarray(r.time, float)
-            w = np.nan_to_num(measured_motor_speed(r))
-            x = np.concatenate([[0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t))]) * r_kin
+        x = nut_travel(r, params)
         span = max(span, float(np.nanmax(x) - np.nanmin(x)))
     if span >= 2 * lead:
         return None
@@ -165,6 +172,20 @@ def _screw_revolutions(params: ParameterSet, runs) -> str | None:
 
 #: Candidates a record cannot resolve (name -> function(params, runs) -> reason to skip, or None).
 RESOLVES: dict[str, Callable] = {"screw_friction_ripple": _screw_revolutions}
+
+
+def _ripple_period(params: ParameterSet) -> float:
+    return params.value("screw.lead")  # once per screw revolution: one lead of nut travel
+
+
+def _cogging_period(params: ParameterSet) -> float:
+    # n periods per motor revolution, ratio motor revolutions per lead
+    return params.value("screw.lead") / (params.value("gear.ratio") * params.value("drive.cogging_periods"))
+
+
+#: Angle-periodic candidates: name -> function(fitted params) -> the period of its angle in nut travel [m].  Their
+#: held-out gain must repeat over the travel (:mod:`thsa_control.trace.periodicity`).
+PERIODS: dict[str, Callable] = {"screw_friction_ripple": _ripple_period, "cogging_torque": _cogging_period}
 
 #: Starting values read off the runs (:attr:`CandidateSpec.start` -> function(params, runs) -> {name: value}).
 STARTS: dict[str, Callable] = {"loadpath_static": _start_loadpath}
@@ -192,6 +213,45 @@ def candidate_specs(model_effects: Iterable[str], params: ParameterSet, names: S
         if spec is not None and all(p in params for p in (*spec.free, *spec.profile)):
             out.append(spec)
     return out
+
+
+#: Fewest samples (over all runs) a candidate's window must hold for the candidate to be scored on them; the same
+#: count of moving samples outside a window is what determines the declared parameters read at its reference
+#: condition (:func:`reference_not_determined`)
+MIN_WINDOW_SAMPLES = 50
+
+
+def reference_not_determined(runs: Sequence[RigRun], params: ParameterSet, names: Iterable[str]) -> dict[str, str]:
+    """Declared parameters (of ``names``) the runs do not determine because they are defined at a reference
+    condition the runs never reach while moving (:attr:`CandidateSpec.reference`): name -> reason.
+
+    ``gear.viscous_friction`` is the 25 degC drag (its source in the parameter file; ``temperature_friction``
+    reads it as ``b_25`` and scales it by ``exp(a_v (T_ref - T))``).  A run that moves only far from 25 degC
+    measures the drag at its own temperature: fitted there, the 25 degC coefficient takes what the temperature
+    effect would explain (measured on rig-sim's cold ramp at -30 degC: 7.4e-4 N m s/rad against the file's 8e-5,
+    which left the temperature candidate 17 % of its window).  Without a temperature law the data say nothing of
+    the drag at 25 degC: the parameter is held at its file value, as a candidate's undetermined parameter is.
+    """
+    names = list(names)
+    out: dict[str, str] = {}
+    for spec in CANDIDATES.values():
+        ref = [n for n in spec.reference if n in names and n not in out]
+        if not ref:
+            continue
+        n_ref = sum(int(np.sum(_window("moving", r, params) & ~_window(spec.window, r, params))) for r in runs)
+        if n_ref < MIN_WINDOW_SAMPLES:
+            for n in ref:
+                out[n] = (f"defined at the reference condition of {spec.name} (outside its '{spec.window}' window: "
+                          f"{_WINDOW_TEXT.get(spec.window, spec.window)}); the runs move there on {n_ref} samples "
+                          f"(fewer than {MIN_WINDOW_SAMPLES}), so they measure it only together with {spec.name}")
+    return out
+
+
+#: The ``cold`` window: farther than ``COLD_BAND_K`` from ``COLD_REFERENCE_C``, the temperature of the declared
+#: (level-A) friction (``friction.reference_temperature``'s file value)
+COLD_REFERENCE_C, COLD_BAND_K = 25.0, 5.0
+#: What a window's reference condition (its complement) is, for the reasons given to the user.
+_WINDOW_TEXT = {"cold": f"within {COLD_BAND_K:g} K of {COLD_REFERENCE_C:g} degC"}
 
 
 #: The windows a candidate may act in (:attr:`CandidateSpec.window`, :func:`_window`).
@@ -236,6 +296,6 @@ def _window(kind: str, run: RigRun, params: ParameterSet | None = None) -> np.nd
         return out
     if kind == "cold":
         temp = np.asarray(s["temperature"], float)
-        return np.abs(temp - 25.0) > 5.0
+        return np.abs(temp - COLD_REFERENCE_C) > COLD_BAND_K
     raise ValueError(f"unknown window {kind!r}")
 

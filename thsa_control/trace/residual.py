@@ -25,6 +25,18 @@ from .signature import (SignatureSettings, base_transients, binned_mean, cross_c
 
 
 # ----------------------------------------------------------------------------- signature
+def _derivative(t: np.ndarray, w: np.ndarray, window: int) -> np.ndarray:
+    """d w / d t by a Savitzky-Golay filter of ``window`` samples (the missing torque's own derivative filter)."""
+    from scipy.signal import savgol_filter
+
+    n = w.size
+    win = min(window if window % 2 else window + 1, n - 1 if n % 2 == 0 else n)
+    if n < 5 or win < 5:
+        return np.full(n, np.nan)
+    dt = float(np.median(np.diff(t)))
+    return savgol_filter(w, win, 2, deriv=1, delta=dt)
+
+
 def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s: SignatureSettings,
                noise: Mapping[str, float] | None = None) -> dict:
     inertia = plant.inertia(params)[1]  # the signature's missing torque at the motor shaft (what the current drives)
@@ -34,6 +46,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     local_in: dict[str, list] = {"e": [], "x": [], "d": []}
     steady: list = []  # outside the base's transients, per run
     drift_in: list = []  # (time, segment torque, direction)
+    accel: list = []  # J x the measured motor acceleration, per run
     t_offset = 0.0
     for run in runs:
         pr = fit["predictions"][run.name]
@@ -68,6 +81,8 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             # a torque-constant error (torque against current); a slow drift is tested per pass below
             "motor_current (torque constant)": ("linear", np.asarray(run.signals["motor_current"], float)),
         }
+        # the rotor's measured acceleration torque, the nuisance of the torque-constant test (see signature_tests)
+        accel.append(inertia * _derivative(t, w, s.window))
         del dt
         for name in ("motor_angle", "screw_angle"):
             a = cols[name][1]
@@ -92,7 +107,8 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         return {"missing_torque_rms": None, "tests": [], "sensors": []}
     e_all = np.concatenate(torque)
     variables = {n: (k, np.concatenate(v)) for n, (k, v) in vars_.items()}
-    tests = signature_tests(e_all, variables, unit="N m", settings=s)
+    tests = signature_tests(e_all, variables, unit="N m", settings=s,
+                            given={"motor_current (torque constant)": np.concatenate(accel)})
     xs = variables["nut_position"][1]
     loc = position_local_test(np.concatenate(local_in["e"]), np.concatenate(local_in["x"]),
                               np.concatenate(local_in["d"]), bin_width=s.position_bin, alpha=s.local_alpha,

@@ -44,7 +44,9 @@ def _fit_job(job: dict) -> dict:
                                     settings=job["settings"])
             res = prof.result
         else:
-            ident = Identifier(None, params, job["free"], effects=job["effects"], settings=job["settings"])
+            # an empty free set: the declared model whose uncertain parameters the runs do not determine
+            ident = Identifier(None, params, job["free"], effects=job["effects"], settings=job["settings"],
+                               states_only=not job["free"])
             res = ident.fit(job["runs"])
             judged = {n: r for n, r in (job.get("judge") or {}).items() if n in job["free"]}
             held = _undetermined(res, judged, job.get("determination_z", 2.0), job.get("absent"))

@@ -232,7 +232,7 @@ def _result(name, kind, size, r2, p, s: SignatureSettings, unit, **extra):
 
 
 def signature_tests(residual, variables: dict, *, unit: str = "N m",
-                    settings: SignatureSettings | None = None) -> list[dict]:
+                    settings: SignatureSettings | None = None, given: dict | None = None) -> list[dict]:
     """Dependence of ``residual`` on each variable, strongest first.
 
     Parameters
@@ -244,6 +244,12 @@ def signature_tests(residual, variables: dict, *, unit: str = "N m",
         by quantiles), ``"position"`` (binned ``position_bin`` wide),
         ``"angle"`` (radians; Fourier series up to ``harmonics``), ``"linear"``
         (one regressor: a slow drift in time, a torque proportional to current).
+    given : dict name -> array, optional
+        For a ``"linear"`` variable: a nuisance regressor the test is conditioned on (the dependence on the
+        variable beyond what the nuisance explains, Frisch-Waugh: both regressed on ``[1, nuisance]`` first).
+        A torque-constant error is a torque proportional to the current; so is an inertia error wherever the
+        current is mostly accelerating the rotor (a speed excitation at one load), so the current is tested
+        given the motor acceleration.
     """
     s = settings or SignatureSettings()
     e_all = np.asarray(residual, float)
@@ -271,14 +277,26 @@ def signature_tests(residual, variables: dict, *, unit: str = "N m",
                                harmonic_amplitudes=[float(a) for a in amps]))
             continue
         if kind == "linear":  # one regressor (a slow drift in time, a torque-constant error against current)
-            x = e - e.mean()
-            vc = v - v.mean()
+            extra = {}
+            if given and name in given:
+                z = np.asarray(given[name], float)
+                zok = np.isfinite(z[ok])
+                e, v, z = e[zok], v[zok], z[ok][zok]
+                if e.size < 50:
+                    continue
+                Z = np.column_stack([np.ones_like(z), z])
+                x = e - Z @ np.linalg.lstsq(Z, e, rcond=None)[0]
+                vc = v - Z @ np.linalg.lstsq(Z, v, rcond=None)[0]
+                extra = {"given": "motor acceleration"}
+            else:
+                x = e - e.mean()
+                vc = v - v.mean()
             den = float(vc @ vc)
             if den <= 0:
                 continue
             slope = float(vc @ x) / den
-            size, r2, p = _f_test(e, slope * vc, 1)
-            out.append(_result(name, "linear", size, r2, p, s, unit, slope=slope))
+            size, r2, p = _f_test(x, slope * vc, 1)
+            out.append(_result(name, "linear", size, r2, p, s, unit, slope=slope, **extra))
             continue
         if kind == "category":
             labels = v

@@ -362,7 +362,8 @@ register(Effect(
              Output("viscous_coefficient", "N m s/rad",
                     lambda a: a.p["motor.bearing_viscous_friction"] + a.p["gear.viscous_friction"])),
     candidate=CandidateSpec("temperature_friction",
-                            ("friction.cold_coulomb_torque", "friction.viscous_temperature_coefficient"), {}, "cold"),
+                            ("friction.cold_coulomb_torque", "friction.viscous_temperature_coefficient"), {}, "cold",
+                            reference=("gear.viscous_friction",)),
 ))
 register(Effect(
     "noback_quadrant_friction", "no-back friction disks with load- and quadrant-dependent normal force",

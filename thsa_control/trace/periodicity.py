@@ -1,0 +1,121 @@
+"""Is an angle-periodic candidate's gain periodic?  The repetition test of a ripple or a cogging fit (numerics only).
+
+A torque periodic in an angle of the drive (the screw friction ripple once per screw revolution, the motor's
+cogging at its order) is the same torque in every period of that angle: within one period it is indistinguishable
+from any drag that depends on the nut position (a friction bump at one place, a worn spot, a trend of the base's
+drags along the stroke), and only its *repetition* over the nut travel tells it from them.  A fit of such a
+candidate to a residual that is local in nut position (rig-sim's friction bump: 8 N m at the screw over a few
+millimetres) buys its held-out drop in the one period that holds the local structure and nothing, or a loss,
+elsewhere.
+
+:func:`repetition_test` splits a candidate's held-out chi2 drop by where the nut was: per held-out segment (the
+segments are separate shooting segments, each started from its own fitted state), the segment's drop and its
+span of nut position.  It finds the one period of travel (a window of the candidate's period, placed anywhere)
+whose segments carry the largest part of the drop, leaves those segments out and asks whether the rest still
+passes the held-out test of an effect with the candidate's ``k`` parameters.  The threshold (given by the
+caller) is the ``chi2(k)`` quantile scaled like the tracer's ambiguity gap (the candidate fit's reduced held-out
+chi2 and the held-out residual's integrated autocorrelation time: a structured remainder inflates every chi2
+difference by its size and correlation, a quasi-likelihood scaling): a periodic effect present in the data
+explains the other periods as well, by the same amplitude and phase, so its gain outside any one period is
+as significant as a whole effect's; a local structure's is not.  It needs the travel to span two periods (the
+candidates' resolution rule, :data:`~thsa_control.trace.candidates.RESOLVES`), else nothing is left to repeat.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+import numpy as np
+
+
+def segment_drops(before: dict, after: dict, noise: Mapping[str, float], position: Mapping[str, np.ndarray],
+                  mask: Mapping[str, np.ndarray] | None = None) -> list[dict]:
+    """Per held-out segment: its noise-weighted chi2 drop (``before`` less ``after``, over the samples of ``mask``)
+    and the nut position span of those samples (``position``: run -> nut position per sample [m])."""
+    out = []
+    for r, pb in before["predictions"].items():
+        pa = after["predictions"].get(r)
+        if pa is None or r not in position:
+            continue
+        hold = np.asarray(pb["holdout"], bool)
+        n = hold.size
+        t = np.asarray(pb["time"], float)[:n]
+        st = np.asarray(pb["segment_starts"])
+        st = np.searchsorted(t, st) if st.dtype.kind == "f" else st.astype(int)
+        seg = np.searchsorted(st, np.arange(n), side="right") - 1
+        sel = hold & (seg >= 0)
+        if mask is not None:
+            sel &= np.asarray(mask[r], bool)[:n]
+        x = np.asarray(position[r], float)[:n]
+        d = np.zeros(len(st))
+        used = np.zeros(len(st), bool)
+        for c, y in pb["measured"].items():
+            if c not in pa["simulated"] or not noise.get(c):
+                continue
+            y = np.asarray(y, float)[:n]
+            eb = ((y - np.asarray(pb["simulated"][c], float)[:n]) / noise[c]) ** 2
+            ea = ((y - np.asarray(pa["simulated"][c], float)[:n]) / noise[c]) ** 2
+            m = sel & np.isfinite(eb) & np.isfinite(ea)
+            np.add.at(d, seg[m], (eb - ea)[m])
+            used[np.unique(seg[m])] = True
+        for i in np.flatnonzero(used):
+            xi = x[sel & (seg == i) & np.isfinite(x)]
+            if xi.size:
+                out.append({"run": r, "drop": float(d[i]), "x_min": float(xi.min()), "x_max": float(xi.max())})
+    return out
+
+
+def repetition_test(segments: list[dict], period: float, threshold: float) -> dict:
+    """Leave out the one period of nut travel whose held-out segments carry the largest drop; the rest must pass
+    ``threshold``.
+
+    ``segments``: :func:`segment_drops`.  ``period``: the candidate's period in nut travel [m] (a screw lead for
+    the ripple).  A segment is in the window ``[a, a + period)`` when its span of nut position meets it; the
+    windows tried start at every segment's lowest position (the best window starts at one of them).
+    Returns the total drop, the left-out window and its drop and share, the rest, the threshold, the number of
+    periods of travel the held-out segments cover and those with a net gain, and ``repeats`` (rest > threshold).
+    """
+    if not segments or not period > 0:
+        return {"repeats": True, "reason": "no held-out segment with a nut position", "segments": len(segments)}
+    lo = np.array([s["x_min"] for s in segments])
+    hi = np.array([s["x_max"] for s in segments])
+    d = np.array([s["drop"] for s in segments])
+    span = float(hi.max() - lo.min())
+    if span < 2 * period:  # nothing left to repeat in: the record cannot tell (the resolution rule's business)
+        return {"repeats": True, "period": float(period), "travel": span, "segments": int(d.size),
+                "reason": f"the held-out segments span {span * 1e3:.3g} mm of nut travel, less than two periods "
+                          f"({2 * period * 1e3:.3g} mm): repetition not testable"}
+    total = float(d.sum())
+    best, best_a = -math.inf, float(lo.min())
+    for a in np.unique(lo):
+        inside = (hi >= a) & (lo < a + period)
+        v = float(d[inside].sum())
+        if v > best:
+            best, best_a = v, float(a)
+    rest = total - best
+    # the travel in whole periods from the lowest position, and the net gain per period (reported, not judged)
+    x0 = float(lo.min())
+    k = np.floor((0.5 * (lo + hi) - x0) / period).astype(int)
+    per = {int(i): float(d[k == i].sum()) for i in np.unique(k)}
+    return {"repeats": bool(rest > threshold), "period": float(period), "travel": span, "total_drop": total,
+            "left_out": [best_a, best_a + float(period)], "left_out_drop": best,
+            "left_out_share": best / total if total > 0 else None, "rest_drop": rest, "threshold": float(threshold),
+            "segments": int(d.size), "periods_covered": len(per),
+            "periods_gaining": int(sum(1 for v in per.values() if v > 0)),
+            "drop_per_period": [per[i] for i in sorted(per)]}
+
+
+def describe(test: dict) -> str:
+    """The refusal reason of a candidate whose gain does not repeat."""
+    a, b = test["left_out"]
+    where = f"one period of nut travel, {a * 1e3:.3g} .. {b * 1e3:.3g} mm"
+    others = test["periods_covered"] - 1
+    if test["rest_drop"] <= 0:
+        return (f"not periodic over the travel: its held-out drop comes from {where} (drop {test['left_out_drop']:.4g}); "
+                f"over the other {others} period{'s' if others != 1 else ''} of travel it makes the held-out error "
+                f"worse ({test['rest_drop']:.4g})")
+    return (f"not periodic over the travel: {test['left_out_drop']:.4g} of its held-out drop {test['total_drop']:.4g} "
+            f"comes from {where}; the rest ({test['rest_drop']:.4g}, {others} other period{'s' if others != 1 else ''}) "
+            f"does not pass the held-out test ({test['threshold']:.3g}: chi2 quantile x reduced chi2 "
+            f"{test.get('reduced_chi2', 1.0):.3g} x IACT {test.get('iact', 1.0):.3g})")
