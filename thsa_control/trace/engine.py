@@ -81,7 +81,7 @@ __all__ = ["TraceSettings", "CandidateSpec", "CANDIDATES", "DEFAULT_UNCERTAIN", 
 TRACE_FORMAT = "thsa-trace/1"
 
 #: candidate windows at the transients themselves: scored on every sample (``score_outside_transients``)
-TRANSIENT_WINDOWS = ("reversal", "reversal_or_stop", "load_change")
+TRANSIENT_WINDOWS = ("reversal", "clearance", "load_change")
 
 
 @dataclass(frozen=True)
@@ -172,7 +172,7 @@ class TraceSettings:
         samples outside the base's transients
         (:func:`~thsa_control.trace.signature.base_transients`: starts, stops,
         reversals, load changes), except candidates that act there (windows
-        ``reversal``, ``reversal_or_stop``): a declared model of another
+        ``reversal``, ``clearance``): a declared model of another
         rig's base leaves its largest residual at those transients, and a
         few such held-out segments decided the sign of every drop.
     robust_constant_torque : bool
@@ -394,6 +394,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "settings": id_settings(prior, [n for n in free + (spec.second_stage if spec is not None else ())
                                                 if n not in uncertain and n not in pri], pri),
                 "runs": data, "profile": dict(profile or {}), "judge": judge,
+                "profile_fractions": dict(spec.profile_fractions) if spec is not None and profile else {},
                 "hold_at": {n: (pset.value(n) if spec is not None and spec.start else params.value(n)) for n in judge}, "determination_z": st.determination_z,
                 "second_stage": tuple(spec.second_stage) if spec is not None and not profile else (),
                 "absent": {n: zero_is_absent(spec.name, n) for n in judge}}
@@ -427,6 +428,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     at_plausible_bound: dict[str, str] = {}  # explainer parameter -> its effect, where the base correction hit the bound
     base_bounds: dict[str, tuple[float, float, str]] = {}  # explainer parameter -> (lo, hi, effect) while bounded
     base_step_refused: set[str] = set()  # declared components detailed (or tried) in the base step
+    cur_sig: dict | None = None  # the signature of the current model's residual, where computed
     if use_base:
         say("base-correction step: constant-torque explainers and screw efficiencies within plausible magnitudes")
         windows_cache = {spec: {r.name: _window(spec, r, params) for r in runs} for spec in WINDOWS}
@@ -463,8 +465,9 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 cur_params = ParameterSet.from_toml(f["params_toml"])
                 cur_free = tuple(f["free"])
             at_plausible_bound = _explainers_at_bound(current, base_bounds)
-            base_doc["signature_after"] = _signature_brief(
-                _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, sensor_noise))
+            cur_sig = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature,
+                                 sensor_noise)
+            base_doc["signature_after"] = _signature_brief(cur_sig)
     windows_cache = {spec: {r.name: _window(spec, r, params) for r in runs} for spec in WINDOWS}
     # where the candidates are scored: outside the base's transients on data the declared model may not describe
     steady = ({r.name: ~base_transients(r.time, measured_motor_speed(r), r.signals["load_force"],
@@ -576,6 +579,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             period_test = (_repetition(current, f, spec, k, runs, noise, score_mask(spec.window), st.alpha,
                                        2 * st.signature.position_bin)
                            if spec.name in PERIODS and st.periodic_repeat else None)
+            if period_test is not None and not period_test["repeats"]:
+                _local_structure(period_test, cur_sig)
             # judged (and a refusal reported) only where it decides: on a candidate that passes the other tests
             repeats = period_test is None or period_test["repeats"] or not prelim
             prelim = prelim and repeats
@@ -720,8 +725,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         lifted = set(best["_spec"].free) if best.get("beyond_base_correction") else set()
         base_bounds = {n: b for n, b in base_bounds.items() if n not in lifted}
         at_plausible_bound = _explainers_at_bound(f, base_bounds)
-        rounds[-1]["signature_after"] = _signature_brief(
-            _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, sensor_noise))
+        cur_sig = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, sensor_noise)
+        rounds[-1]["signature_after"] = _signature_brief(cur_sig)
     sig_before = _signature(first, runs, ParameterSet.from_toml(first["params_toml"]), base_plant, st.signature, sensor_noise)
     sig_after = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, sensor_noise)
     if rounds and "signature_after" not in rounds[-1]:  # a round that added nothing leaves the model as it was
@@ -731,6 +736,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     structured, base_like = split_remainder(sig_after)
     base_like += [{"variable": f"held-out residual above noise ({c}: {r:.2g} x)"}
                   for c, r in sig_after.get("residual_to_noise", {}).items() if r > st.signature.max_noise_ratio]
+    separ = _separability_doc(runs, cur_effects, cur_params, base_doc, added, rounds, uncertain, plaus, say) \
+        if use_base and base_doc is not None and base_doc.get("accepted") else None
     doc = {
         "format": TRACE_FORMAT,
         "datasets": [{"name": r.name, "csv": str(r.csv_path), "samples": int(len(r.time)),
@@ -754,6 +761,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         "error_by_regime_after": _regime_errors(current, runs),
         "unexplained": bool(structured),
         "ambiguous": ambiguous,
+        "separability": separ,
         "residual_signature": {**sig_after, "structured": [t["variable"] for t in structured],
                                "base_like": [t["variable"] for t in base_like]},
         "residual_signature_before": sig_before,
@@ -765,6 +773,44 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                    "total_s": time.perf_counter() - t_start},
     }
     return TraceResult(doc, {"before": first, "after": current})
+
+
+def _separability_doc(runs, cur_effects, cur_params: ParameterSet, base_doc: dict, added: list, rounds: list,
+                      uncertain, plaus: dict, say) -> dict | None:
+    """What the record can tell apart among the constant-torque explainers (:mod:`~thsa_control.trace.separability`):
+    the final model's base corrections, the detailed component's parameters and the declared uncertain set as what
+    the model carries, the constant-torque candidates as what is asked about; reported, not used to select."""
+    from .separability import explainer_steps, separability, separability_sentences
+
+    base = {c["parameter"]: c["effect"] for c in base_doc.get("corrections", [])}
+    for e in added:
+        if e.get("refines_declared"):
+            base.update({n: e["name"] for n in e.get("parameters", {})})
+            base.update({h["parameter"]: e["name"] for h in e.get("not_determined", [])})
+    base.update({n: "declared" for n in uncertain if n in cur_params})
+    targets = {n: name for name, spec in CANDIDATES.items() if spec.base_correction and name in EFFECTS
+               for n in spec.free if n in cur_params}
+    # steps signed as the last fits found them (a direction drag acts one way only)
+    fitted = {n: p["value"] for r in rounds for c in r["candidates"] for n, p in (c.get("parameters") or {}).items()
+              if n in targets}
+    mags = {}
+    for spec in CANDIDATES.values():
+        for n, rule in spec.plausible.items():
+            if rule in plaus:
+                mags[n] = plaus[rule][0]
+    for n, rule in EFFICIENCY_EXPLAINER.plausible.items():
+        mags[n] = plaus[rule][0]
+    try:
+        doc = separability(runs, cur_effects, cur_params, base, targets,
+                           explainer_steps(cur_params, list(base) + list(targets), fitted, mags))
+    except Exception as exc:  # noqa: BLE001 - a diagnostic that selects nothing: its failure is reported in
+        # trace.json ("separability": {"error": ...}) and the progress, and the trace stands
+        say(f"separability of the constant-torque explainers not computed: {type(exc).__name__}: {exc}")
+        return {"error": f"{type(exc).__name__}: {exc}"}
+    doc["sentences"] = separability_sentences(doc)
+    for line in doc["sentences"]:
+        say(line)
+    return doc
 
 
 def _residual_rms(fit: dict, runs) -> dict[str, float]:
@@ -908,10 +954,43 @@ def _rivals(best: dict, scored: list[dict], alpha: float) -> list[dict]:
     gap = float(chi2.ppf(1 - alpha, 1)) * max(1.0, hold / max(n, 1)) * tau
     best["_indistinct_below"] = gap
     best["_holdout_iact"] = tau
-    # a constant torque whose drop a few held-out segments carry (``not_robust``) is no measure of what it explains
+    # a constant torque whose drop a few held-out segments carry (``not_robust``) is no measure of what it explains;
+    # against a constant-torque best, though, another constant torque that improves the typical held-out segment of
+    # its window (median segment drop > 0: more segments better than worse) with the same pooled drop is the same
+    # explanation, only less sure: naming the best would be a claim the data do not make (measured: on a run set
+    # with an axial force planted, force_offset and direction_friction dropped 20557 / 20555, the force improving
+    # 38 of 56 segments, sign test p 0.005 > alpha, and direction_friction was named)
+    # Likewise a constant torque refused only because its own parameter is not determined or "collapses to zero":
+    # with the same pooled drop as the best, its standard error is large because its torque is collinear with the
+    # base corrections' (trace.json ``separability``), not because the data say it is absent (measured on
+    # rig_direction_friction, round 2: coulomb_friction named with drop 168.4 while force_offset dropped 168.6,
+    # "2.14e3 N collapses to zero (stderr 1.4e3)", and direction_friction 164.4, "not determined")
+    def collinear_only(s):
+        return bool(s["implausible_because"]) and all(
+            w.startswith("no parameter determined") or "collapses to zero" in w for w in s["implausible_because"])
+
+    def measured(s):
+        if not s["plausible"] and not (_is_explainer(best) and _is_explainer(s) and collinear_only(s)):
+            return False
+        if not s.get("not_robust"):
+            return True
+        return _is_explainer(best) and (s.get("window_segments") or {}).get("median_drop", 0.0) > 0
+
     # a periodic one whose gain comes from one place of the travel (``periodicity``) explains a local structure
-    return [s for s in scored if s is not best and "error" not in s and s["plausible"] and not s.get("not_robust")
+    return [s for s in scored if s is not best and "error" not in s and measured(s)
             and (s.get("periodicity") or {}).get("repeats", True) and best["holdout_chi2_drop"] - s["holdout_chi2_drop"] < gap]
+
+
+def _local_structure(test: dict, sig: dict | None) -> None:
+    """Name, in a failed repetition test, the nut-position test's local structure of the current model's residual
+    (:mod:`~thsa_control.trace.signature`) that lies in the period left out: what the candidate was fitted to."""
+    a, b = test["left_out"]
+    for t in (sig or {}).get("tests", []):
+        pk = t.get("peak_bin")
+        if t.get("kind") == "local" and t.get("significant") and pk and pk[1] >= a and pk[0] <= b:
+            test["local_structure"] = {"variable": t["variable"], "peak_bin": list(pk), "p_value": t.get("p_value"),
+                                       **({"law": t["law"]} if t.get("law") else {})}
+            return
 
 
 def _repetition(current: dict, fit: dict, spec: CandidateSpec, k: int, runs, noise, mask, alpha: float,

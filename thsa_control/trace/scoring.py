@@ -41,7 +41,7 @@ def _fit_job(job: dict) -> dict:
             from ..fit.profile import profile_identify
 
             prof = profile_identify(job["runs"], params, job["free"], job["profile"], effects=job["effects"],
-                                    settings=job["settings"])
+                                    settings=job["settings"], fractions=job.get("profile_fractions"))
             res = prof.result
         else:
             # an empty free set: the declared model whose uncertain parameters the runs do not determine
