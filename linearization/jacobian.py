@@ -42,6 +42,7 @@ import casadi as ca
 import numpy as np
 
 from ._typing import ArrayLike, Float1D, Float2D, Float3D
+from .buffered import call_dense
 from .linear_model import LinearModel
 from .model import NamedModel
 from .operating_point import OperatingPoint
@@ -111,11 +112,11 @@ def jacobian_function(model: NamedModel) -> ca.Function:
     return model._cache[key]
 
 
-def _stack_jacobians(model: NamedModel, outs: Sequence[ca.DM], n: int) -> Float3D:
+def _stack_jacobians(model: NamedModel, outs: Sequence[np.ndarray], n: int) -> Float3D:
     """Mapped (A, B, C, D) outputs -> array (n, n_x + n_y, n_x + n_u)."""
     nx, nu, ny = model.n_x, model.n_u, model.n_y
 
-    def unstack(val: ca.DM, rows: int, cols: int) -> Float3D:
+    def unstack(val: np.ndarray, rows: int, cols: int) -> Float3D:
         arr = np.asarray(val, dtype=float).reshape(rows, n * cols)
         return arr.reshape(rows, n, cols).transpose(1, 0, 2)
 
@@ -136,7 +137,7 @@ def _ad_jacobians(
     if key not in model._cache:
         fn = jacobian_function(model)
         model._cache[key] = fn if n == 1 else fn.map(n, parallelization)
-    outs = model._cache[key](X, U, P)
+    outs = call_dense(model._cache[key], X, U, P)
     return _stack_jacobians(model, outs, n)
 
 
@@ -327,10 +328,8 @@ def _guard_margins(
 ) -> Float2D:
     """Margins (n_g, N) at column-stacked points, one mapped call."""
     n = X.shape[1]
-    outs = fn.map(n, parallelization)(X, U, P) if n > 1 else fn(X, U, P)
-    if not isinstance(outs, (tuple, list)):
-        outs = (outs,)
-    rows = [np.asarray(ca.densify(o), dtype=float).reshape(-1, n) for o in outs]
+    outs = call_dense(fn.map(n, parallelization) if n > 1 else fn, X, U, P)
+    rows = [o.reshape(-1, n) for o in outs]
     return np.vstack(rows) if rows else np.zeros((0, n))
 
 

@@ -17,13 +17,16 @@ import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import control as ct
 import numpy as np
 
 from ._typing import Float2D
 from .errors import UnknownSignalError
 from .operating_point import OperatingPoint
+
+if TYPE_CHECKING:
+    import control as ct
 
 __all__ = ["LinearModel", "NPZ_FORMAT"]
 
@@ -161,6 +164,8 @@ class LinearModel:
                 "python-control cannot represent a StateSpace with states and no "
                 f"inputs (states {list(self.states)}); use A, C directly"
             )
+        import control as ct  # here, not at import: python-control (and scipy.signal) take ~1.5 s to import
+
         kwargs = {} if name is None else {"name": name}
         return ct.ss(
             np.array(self.A), np.array(self.B), np.array(self.C), np.array(self.D),
@@ -239,6 +244,8 @@ class LinearModel:
         >>> [float(c) for c in tf.num[0][0]], [float(c) for c in tf.den[0][0]]
         ([3.0], [1.0, 2.0])
         """
+        import control as ct
+
         sub = self.subsystem(inputs=[input], outputs=[output])
         tf = ct.ss2tf(sub.to_statespace())
         return tf.minreal() if minimal else tf

@@ -19,6 +19,7 @@ import casadi as ca
 import numpy as np
 
 from ._typing import ArrayLike, Float1D, Float2D
+from .buffered import call_dense
 from .errors import ModelStructureError, UnknownSignalError
 
 __all__ = ["NamedModel", "SignalKind"]
@@ -390,11 +391,8 @@ class NamedModel:
         """
         X, U, P = self.stack_points(X, U, P)
         n = X.shape[1]
-        xdot, y = self.mapped_function(n, parallelization)(X, U, P)
-        return (
-            np.asarray(xdot, dtype=float).reshape(self.n_x, n),
-            np.asarray(y, dtype=float).reshape(self.n_y, n),
-        )
+        xdot, y = call_dense(self.mapped_function(n, parallelization), X, U, P)
+        return xdot.reshape(self.n_x, n), y.reshape(self.n_y, n)
 
     def stack_points(
         self, X: ArrayLike, U: ArrayLike, P: ArrayLike

@@ -19,6 +19,7 @@ level or in any other function, counts.
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 
@@ -92,11 +93,18 @@ def _known(name: str) -> str | None:
     return None
 
 
+@functools.lru_cache(maxsize=None)
+def _tree(path: str, mtime_ns: int) -> ast.Module:
+    """The parsed file (once per file and modification time: both layout tests walk every module; the walk
+    does not change the tree)."""
+    return ast.parse(Path(path).read_text(encoding="utf-8"), path)
+
+
 def imports(module: str, *, with_function: bool = False) -> list[tuple]:
     """``(target module, imported name or None, line)`` of every import of the packages in ``module``
     (with ``with_function``: and the innermost enclosing function's name, or None at module level)."""
     path = MODULES[module]
-    tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+    tree = _tree(str(path), path.stat().st_mtime_ns)
     is_pkg = path.name == "__init__.py"
     out = []
     for node, func in _walk(tree):

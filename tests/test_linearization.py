@@ -614,3 +614,34 @@ def test_linearize_rejects_an_operating_point_of_another_model(msd):
         linearize(msd, op)
     with pytest.raises(ValueError, match="drifting"):
         linearize(cart, op, drifting="ignore")
+
+
+# ----------------------------------------------------------------------------- call_dense (casadi buffer interface)
+def test_call_dense_gives_the_ordinary_call_s_numbers_to_the_bit():
+    """Mapped over points, with a matrix and a vector argument: the same numbers as the ordinary call; a
+    broadcast argument and a sparse output take the ordinary call, with the same result."""
+    import casadi as ca
+
+    from linearization.buffered import call_dense
+
+    x, p = ca.SX.sym("x", 3), ca.SX.sym("p", 2)
+    y = ca.vertcat(ca.sin(x[0] * p[0]) + x[1] ** 2, ca.exp(-x[2]) * p[1])
+    f = ca.Function("f", [x, p], [y, ca.jacobian(y, x)])  # the Jacobian is sparse
+    fd = ca.Function("fd", [x, p], [ca.densify(y), ca.densify(ca.jacobian(y, x))])
+    rng = np.random.default_rng(4)
+    n = 7
+    X, P = rng.normal(size=(3, n)), rng.normal(size=(2, n))
+    m = fd.map(n)
+    got = call_dense(m, X, P)
+    ref = [np.asarray(v) for v in m(X, P)]
+    assert [g.shape for g in got] == [(2, n), (2, 3 * n)]
+    for g, r in zip(got, ref):
+        np.testing.assert_array_equal(g, r)
+    one = call_dense(fd, X[:, 0], P[:, :1])  # a vector as 1-D or as one column
+    np.testing.assert_array_equal(one[1], np.asarray(fd(X[:, 0], P[:, 0])[1]))
+    bc = call_dense(m, X, P[:, :1])  # one column broadcast by casadi: the ordinary call
+    np.testing.assert_array_equal(bc[0], np.asarray(m(X, P[:, :1])[0]))
+    sparse = call_dense(f, X[:, 0], P[:, 0])
+    np.testing.assert_array_equal(sparse[1], np.asarray(ca.densify(f(X[:, 0], P[:, 0])[1])))
+    with pytest.raises(ValueError, match="takes 2 arguments"):
+        call_dense(f, X[:, 0])

@@ -76,6 +76,25 @@ def test_registration_is_undone_and_unknown_before():
         resolve_effects("A", add=[TOY])
 
 
+def test_default_parameters_follow_the_registry():
+    """default_parameters() is parsed once per state of the registry (the same immutable set until it changes):
+    registering the toy adds its parameter, registering it again gives a new set, unregistering removes it."""
+    before = default_parameters()
+    assert default_parameters() is before and DRAG not in before
+    register(_toy_effect())
+    try:
+        with_toy = default_parameters()
+        assert DRAG in with_toy and with_toy.value(DRAG) == 0.0 and with_toy is default_parameters()
+        assert with_toy.names[:len(before)] == before.names
+        register(_toy_effect(), replace=True)  # a new definition under the same name
+        again = default_parameters()
+        assert again is not with_toy and DRAG in again
+    finally:
+        unregister(TOY)
+    after = default_parameters()
+    assert DRAG not in after and after.names == before.names
+
+
 def test_a_registered_effect_gets_the_whole_contract(toy, rng):
     params = default_parameters()
     assert params.value(DRAG) == 0.0 and TOY in EFFECT_ORDER

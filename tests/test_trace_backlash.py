@@ -27,6 +27,7 @@ from thsa_control.trace import TraceSettings, trace
 NOISE = RIG_NOISE
 TRUE_PITCH = 0.10  # rad at the screw; the parameter file says 0.1496
 PITCH = "noback.pawl_pitch"
+INITIAL = "noback.pawl_initial_clearance"  # fraction of the pitch; the parameter file says 0.5
 DISTRACTORS = ("coulomb_friction", "force_offset", "direction_friction")
 
 
@@ -47,13 +48,14 @@ def stops_record(tmp_path_factory, params, rig_1khz):
     d = tmp_path_factory.mktemp("backlash")
     cache = {}
 
-    def _record(level="C", seed=1):
-        if (level, seed) not in cache:
-            stem = d / f"stops_{level}_{seed}"
-            VirtualRig(level, params=params.replace({PITCH: TRUE_PITCH}), design=rig, noise=NOISE, seed=seed,
+    def _record(level="C", seed=1, initial=None):
+        if (level, seed, initial) not in cache:
+            stem = d / f"stops_{level}_{seed}_{initial}".replace(".", "p")
+            truth = params.replace({PITCH: TRUE_PITCH, **({INITIAL: initial} if initial is not None else {})})
+            VirtualRig(level, params=truth, design=rig, noise=NOISE, seed=seed,
                        truth_columns=True).record(_stops_scenario(), stem)
-            cache[level, seed] = read_run(stem.with_suffix(".csv"))
-        return cache[level, seed]
+            cache[level, seed, initial] = read_run(stem.with_suffix(".csv"))
+        return cache[level, seed, initial]
 
     return _record
 
@@ -98,6 +100,46 @@ def test_segment_clearances_follow_the_truth_at_the_true_pitch(stops_record, par
     assert grid[int(np.argmin(chi2))] == pytest.approx(TRUE_PITCH, rel=0.01)
 
 
+def test_clearance_window_is_the_first_pitch_after_each_change_of_direction():
+    """The backlash acts within one pitch of screw travel after the screw changes direction: the first motion,
+    a back-drive after a stop; not a restart in the back-drive's direction once past the pitch, not a lone noise
+    spike, not the rotors ringing while the screw sensor shows the screw held."""
+    from pathlib import Path
+
+    from thsa_control.data.rigdata import RigRun
+    from thsa_control.trace.candidates import clearance_window
+
+    fs, n_ratio = 500.0, 65.61
+    t = np.arange(0.0, 4.0, 1 / fs)
+    ws = np.zeros_like(t)
+    ws[(t >= 0.5) & (t < 1.5)] = 2.0     # extension, 2 rad of screw travel
+    ws[(t >= 2.0) & (t < 2.2)] = -1.0    # back-driven by the load, 0.2 rad
+    ws[(t >= 2.6) & (t < 3.4)] = -2.0    # retraction: the same direction as the back-drive
+    ws = ws + 0.01 * np.random.default_rng(3).standard_normal(t.size)
+    ws[np.argmin(np.abs(t - 1.8))] = 0.5  # one noise spike while still
+    w = n_ratio * ws
+    ring = (t >= 2.2) & (t < 2.5)        # the rotors ring on the drive train while the screw is held
+    w[ring] += 5.0 * np.sin(2 * np.pi * 48 * t[ring])
+    cols = {"screw_speed": "screw_speed_rpm", "motor_speed": "motor_speed_rpm"}
+    run = RigRun("synthetic", Path("synthetic.csv"), Path("synthetic.json"), {}, t,
+                 {"screw_speed": ws, "motor_speed": w, "load_force": np.full(t.size, 2e4)}, gear_ratio=n_ratio,
+                 source_columns=cols)
+    win = clearance_window(run, 0.3)
+
+    def spans(m):
+        return (float(t[m].min()), float(t[m].max())) if m.any() else None
+
+    first = win & (t < 1.9)
+    assert spans(first)[0] == pytest.approx(0.5, abs=0.01) and spans(first)[1] == pytest.approx(0.65, abs=0.01)
+    assert win[(t >= 2.0) & (t < 2.2)].mean() > 0.95  # the back-drive (0.2 rad < 0.3)
+    assert not win[(t > 1.7) & (t < 1.95)].any() and not win[ring].any()
+    restart = win & (t >= 2.5)  # 0.1 rad of retraction makes up the 0.3 rad since the back-drive began
+    assert spans(restart)[0] == pytest.approx(2.6, abs=0.01) and spans(restart)[1] == pytest.approx(2.65, abs=0.01)
+    # without the screw sensor the motor speed over the gear ratio is read: the ringing is then motion too
+    bare = dataclasses.replace(run, source_columns={"motor_speed": "motor_speed_rpm"})
+    assert clearance_window(bare, 0.3)[ring].any()
+
+
 def test_profiled_parameter_cannot_also_be_free(stops_record, params):
     with pytest.raises(ParameterError, match="both free and profiled"):
         profile_identify(stops_record("C"), params, (PITCH,), {PITCH: (0.03, 0.3)}, level="C")
@@ -127,11 +169,33 @@ def test_backlash_is_found_first_with_its_pitch(stops_record, params, capsys):
     best = min((f for f in prof["fits"] if "score" in f), key=lambda f: f["score"])
     assert best["values"][PITCH] == pitch["value"]
     cand = next(c for c in doc["candidates"] if c["name"] == "noback_backlash")
-    assert cand["window"] == "reversal_or_stop" and cand["window_reduction"]["motor_speed"] >= 0.5
+    assert cand["window"] == "clearance" and cand["window_reduction"]["motor_speed"] >= 0.5
     with capsys.disabled():
         print(f"\nbacklash: pitch {pitch['value']:.5f} rad (truth {TRUE_PITCH}), interval {lo:.5f}..{hi:.5f}; "
               f"RMS drop {', '.join(f'{c} {v:.0%}' for c, v in red.items())}; "
               f"profiled candidate fit {cand['fit_time_s']:.1f} s")
+
+
+@pytest.mark.slow
+def test_initial_clearance_is_screened_as_an_angle_not_taken_up_by_the_pitch(stops_record, params):
+    """Truth: pitch 0.10 rad, the ratchets stopped 0.2 pitch from their pawls (0.02 rad; the file's fraction is
+    0.5).  The load's application back-drives through that angle before any travel, the five stops through the
+    extensions' travel modulo the pitch.  Screened in the model's coordinates one after the other (the pitch at
+    the file's fraction 0.5 first), the pitch took up the first back-drive (0.5 x pitch = its angle); screened as
+    the angle first, both come out right."""
+    from thsa_control.fit.identify import IdentificationSettings
+
+    run = stops_record("C", 1, 0.2)
+    free = ("gear.viscous_friction",)
+    st = IdentificationSettings(max_nfev=20)
+    prof = profile_identify(run, params, free, {PITCH: (0.03, 0.3), INITIAL: (0.0, 1.0)}, level="C", settings=st,
+                            fractions={INITIAL: PITCH})
+    assert prof.values[PITCH] == pytest.approx(TRUE_PITCH, rel=0.05), prof.values
+    assert prof.values[INITIAL] * prof.values[PITCH] == pytest.approx(0.2 * TRUE_PITCH, abs=0.004), prof.values
+    assert prof.mattered[INITIAL] and any("product" in n for n in prof.notes)
+    with pytest.raises(ParameterError, match="fraction"):
+        profile_identify(run, params, free, {PITCH: (0.03, 0.3), INITIAL: (0.0, 1.0)}, level="C", settings=st,
+                         fractions={PITCH: INITIAL})
 
 
 @pytest.mark.slow

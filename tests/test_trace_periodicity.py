@@ -139,6 +139,9 @@ def test_ripple_fitted_to_a_friction_bump_is_refused_as_not_periodic(params):
                         for c in fits), fits
     t = fits[0]["periodicity"]
     assert t["left_out"][0] <= 0.005 <= t["left_out"][1] and t["rest_drop"] < t["threshold"], t
+    # the refusal names the local residual the ripple was fitted to: the nut-position test's peak, near 5 mm
+    lo, hi = t["local_structure"]["peak_bin"]
+    assert lo - 0.002 <= 0.005 <= hi + 0.002, t
     assert doc["unexplained"] and any("nut_position" in s for s in doc["residual_signature"]["structured"])
 
 
@@ -168,3 +171,18 @@ def test_a_period_shorter_than_two_position_bins_is_not_tested(params):
     assert cog["repeats"] and "not tested" in cog["reason"], cog
     rip = _repetition(fit, fit, CANDIDATES["screw_friction_ripple"], 2, [], {}, None, 1e-3, two_bins)
     assert "not tested" not in rip.get("reason", ""), rip
+
+
+def test_report_draws_the_drop_per_period_and_says_why():
+    """The report's figure: one panel per tested candidate, a bar per period of travel, the verdict in the title;
+    the summary line carries the refusal reason."""
+    from thsa_control.report.trace import _periodic_tests, plot_periodicity
+
+    t = periodicity.repetition_test(_segments(_bump_gain(0.005), 4), LEAD, threshold=14.0)
+    cand = {"name": "screw_friction_ripple", "periodicity": t, "not_periodic": periodicity.describe(t)}
+    doc = {"rounds": [{"round": 1, "candidates": [cand, {"name": "coulomb_friction"}]}]}
+    assert [c["name"] for _, c in _periodic_tests(doc)] == ["screw_friction_ripple"]
+    fig = plot_periodicity(doc)
+    ax = fig.axes[0]
+    assert len(ax.patches) == t["periods_covered"] == 4 and "NOT periodic" in ax.get_title()
+    assert ax.get_xticklabels()[0].get_text() == "0..12 mm"

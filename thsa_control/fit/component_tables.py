@@ -43,6 +43,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import NDArray
 
+from linearization.buffered import call_dense
 from thsa_control.errors import ModelError, ParameterError, RigDataError
 from thsa_control.model.laws import LAWS
 from thsa_control.model.params import ParameterSet, default_parameters
@@ -576,16 +577,16 @@ class _Model:
         out = ca.vertcat(*parts)
         perm = np.argsort(np.concatenate(order))
         out = out[perm.tolist()]
-        self.value = ca.Function("component_model", [P], [out])
-        self.with_jacobian = ca.Function("component_model_jac", [P], [out, ca.jacobian(out, P)])
+        self.value = ca.Function("component_model", [P], [ca.densify(out)])
+        self.with_jacobian = ca.Function("component_model_jac", [P], [ca.densify(out), ca.densify(ca.jacobian(out, P))])
         self.n = table.n_rows
 
     def evaluate(self, p: np.ndarray) -> Float1D:
-        return np.asarray(self.value(p)).reshape(-1)
+        return call_dense(self.value, p)[0].reshape(-1)
 
     def jacobian(self, p: np.ndarray) -> tuple[Float1D, np.ndarray]:
-        out, jac = self.with_jacobian(p)
-        return np.asarray(out).reshape(-1), np.asarray(ca.densify(jac))
+        out, jac = call_dense(self.with_jacobian, p)
+        return out.reshape(-1), jac
 
     def parameters_used(self) -> tuple[str, ...]:
         return tuple(dict.fromkeys(n for law in self.groups for n in LAWS[law].parameters))

@@ -218,6 +218,10 @@ class Identifier:
         ``max`` (SI).  They must contain the initial value and lie inside the
         parameter's physical ``valid`` interval (else :class:`ParameterError`
         naming the parameter).
+    states_only : bool
+        Fit the segment states only, with ``free`` empty (the model's own
+        segment predictions at ``params``); without it an empty ``free`` is a
+        :class:`ParameterError`.
 
     Examples
     --------
@@ -228,8 +232,11 @@ class Identifier:
 
     def __init__(self, level: str | None = "A", params: ParameterSet | None = None, free: Sequence[str] = (), *,
                  effects: Iterable[str] = (), settings: IdentificationSettings | None = None,
-                 bounds: Mapping[str, tuple[float, float]] | None = None):
+                 bounds: Mapping[str, tuple[float, float]] | None = None, states_only: bool = False):
         self.level = level
+        #: no parameter free on purpose: only the segment states are fitted (the model's own segment predictions
+        #: at ``params``; the tracer's declared model when the runs determine none of its uncertain parameters)
+        self.states_only = bool(states_only)
         self.params = params if params is not None else default_parameters()
         self.bounds = dict(bounds or {})
         self.free = tuple(free)
@@ -238,8 +245,10 @@ class Identifier:
 
     def _check(self, plant: Plant) -> None:
         self.settings.validate()
-        if not self.free:
+        if not self.free and not self.states_only:
             raise ParameterError("<free>", "no free parameters: name at least one parameter to identify")
+        if self.free and self.states_only:
+            raise ParameterError("<free>", f"states_only with free parameters {', '.join(self.free)}")
         seen = set()
         xs, us, ps, hs = (ca.SX.sym(k, plant.step.size1_in(i)) for i, k in enumerate(("x", "u", "p", "h")))
         used = ca.which_depends(ca.vertcat(*plant.step(xs, us, ps, hs)), ps, 1, False)

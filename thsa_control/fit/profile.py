@@ -157,9 +157,11 @@ class ProfileResult:
 
 
 def chi2_by_channel(predictions: Mapping[str, Mapping], noise: Mapping[str, float], select: str = "holdout",
-                    windows: Mapping[str, np.ndarray] | None = None) -> dict[str, float]:
+                    windows: Mapping[str, np.ndarray] | None = None, counts: dict[str, int] | None = None
+                    ) -> dict[str, float]:
     """Noise-weighted squared error per channel of segment predictions (``IdentificationResult.predictions``)
-    over the held-out (``select="holdout"``) or all samples, optionally only inside ``windows[run]``."""
+    over the held-out (``select="holdout"``) or all samples, optionally only inside ``windows[run]``;
+    ``counts``, when given, receives the number of samples summed per channel."""
     out: dict[str, float] = {}
     for r, p in predictions.items():
         hold = np.asarray(p["holdout"], bool)
@@ -169,6 +171,8 @@ def chi2_by_channel(predictions: Mapping[str, Mapping], noise: Mapping[str, floa
             if windows is not None:
                 m &= windows[r][:m.size]
             out[c] = out.get(c, 0.0) + float(np.sum(e[m] ** 2))
+            if counts is not None:
+                counts[c] = counts.get(c, 0) + int(m.sum())
     return out
 
 
@@ -295,7 +299,8 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
                      profile: Mapping[str, tuple[float, float]], *, level: str | None = None, effects=(),
                      settings: IdentificationSettings | None = None, psettings: ProfileSettings | None = None,
                      score: Callable[[IdentificationResult], float] | None = None,
-                     progress: Callable[[str], None] | None = None) -> ProfileResult:
+                     progress: Callable[[str], None] | None = None,
+                     fractions: Mapping[str, str] | None = None) -> ProfileResult:
     """Identify ``free`` with the ``profile`` parameters searched over their ranges (see the module doc).
 
     Parameters
@@ -316,6 +321,20 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
         ``score(result) -> float`` to minimise over the profile fits (default:
         :func:`holdout_chi2` with the settings' noise, else the fit's chi-square).
     progress : callable, optional
+    fractions : mapping name -> name, optional
+        Further profiled parameters the model uses as a fraction of the first
+        one (the initial pawl clearance, a fraction of the pitch).  What a run
+        sees of them is the product (the first back-drive crosses the
+        clearance angle, fraction x pitch), so after the first screen each is
+        screened finely (a grid over its range, then a finer one around the
+        best) at the first parameter's best value, and the first parameter is
+        screened again with the product held (the fraction clipped to its
+        range), the fraction once more at the new best: one step of descent
+        in the coordinates the data see.  Screened only after the first, at
+        the first's value found with the fraction at its file value, on five
+        points, the fraction never moved: on rig-sim's trim runs (pawl phases
+        drawn from the seed) it stayed at the file's 0.5 on every seed and
+        the pitch came out as twice the first back-drive's clearance.
 
     Raises
     ------
@@ -353,40 +372,90 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
     screen = OneStepScreen(runs, plant, params, st.substeps)
     names = list(profile)
     main = names[0]
+    fractions = dict(fractions or {})
+    for name, of in fractions.items():
+        if name not in names[1:] or of != main:
+            raise ParameterError(name, f"a profiled fraction must be a further profiled parameter and a fraction of the "
+                                       f"first one ({main}), got a fraction of {of!r}")
+    lo, hi = profile[main]
+    products: dict[str, float] = {}  # fraction -> the product held while the first parameter is screened
+    screens: dict[str, list] = {}
+    mattered: dict[str, bool] = {}
+
+    def held(v: float) -> dict:
+        """The fractions at a value of the first parameter: their products held, clipped to their ranges."""
+        return {n: float(min(max(g / v, profile[n][0]), profile[n][1])) for n, g in products.items()}
+
     # 1-2: screen the first parameter, then refine around its best local minima; an integer parameter (a
     # count) is screened at every whole value, with the free parameters solved linearly at each (the count
     # decides which terms act; their sizes are what the fit is for)
-    lo, hi = profile[main]
     integer = bool(params[main].integer)
     # solved in the screen: the effect being tried (the free parameters without a prior), else every free one
     solve = (tuple(n for n in free if n in st.no_prior) or tuple(free)) if integer else ()
     x = _grid(lo, hi, ps.screen_points, integer)
     if x.size == 0:
         raise ParameterError(main, f"profile range {lo:g}..{hi:g} holds no whole value")
-    if solve:
-        y = np.array([screen.chi2(params.replace({main: float(v)}), solve) for v in x])
-    else:
-        y = screen.chi2_many([params.replace({main: float(v)}) for v in x])
-    say(f"profile {main}: screened {x.size} values")
-    cands, fine_pts = [], {}
-    for i in _local_minima(x, y, ps.local_minima):
-        if integer:
-            cands.append(float(x[i]))
-            continue
-        a, b = x[max(i - 1, 0)], x[min(i + 1, x.size - 1)]
-        xf = np.linspace(a, b, ps.fine_points)
-        yf = screen.chi2_many([params.replace({main: float(v)}) for v in xf])
-        fine_pts.update(zip(xf.tolist(), yf.tolist()))
-        cands.append(float(xf[int(np.argmin(yf))]))
-    allx = np.array(sorted(set(x.tolist()) | set(fine_pts)))
-    ally = np.array([fine_pts.get(v, None) if v in fine_pts else float(y[np.searchsorted(x, v)]) for v in allx])
+
+    def screen_main():
+        if solve:
+            y = np.array([screen.chi2(params.replace({main: float(v), **held(v)}), solve) for v in x])
+        else:
+            y = screen.chi2_many([params.replace({main: float(v), **held(v)}) for v in x])
+        say(f"profile {main}: screened {x.size} values")
+        cands, fine_pts = [], {}
+        for i in _local_minima(x, y, ps.local_minima):
+            if integer:
+                cands.append(float(x[i]))
+                continue
+            a, b = x[max(i - 1, 0)], x[min(i + 1, x.size - 1)]
+            xf = np.linspace(a, b, ps.fine_points)
+            yf = screen.chi2_many([params.replace({main: float(v), **held(v)}) for v in xf])
+            fine_pts.update(zip(xf.tolist(), yf.tolist()))
+            cands.append(float(xf[int(np.argmin(yf))]))
+        allx = np.array(sorted(set(x.tolist()) | set(fine_pts)))
+        ally = np.array([fine_pts[v] if v in fine_pts else float(y[np.searchsorted(x, v)]) for v in allx])
+        return cands, allx, ally
+
+    def screen_fraction(name: str, v: float) -> None:
+        """A fraction at the first parameter's value ``v``: a grid over its range, then a finer one around the best;
+        it matters when it moves the screen by more than the interval threshold of its own screen's minimum."""
+        a, b = profile[name]
+        xo = np.linspace(a, b, ps.fine_points)
+        yo = screen.chi2_many([params.replace({main: v, name: float(u)}) for u in xo])
+        i = int(np.argmin(yo))
+        xf = np.linspace(xo[max(i - 1, 0)], xo[min(i + 1, xo.size - 1)], ps.fine_points)
+        yf = screen.chi2_many([params.replace({main: v, name: float(u)}) for u in xf])
+        pts = dict(zip(xo.tolist(), yo.tolist()))
+        pts.update(zip(xf.tolist(), yf.tolist()))
+        screens[name] = sorted((u * v, c) for u, c in pts.items())  # in units of the product
+        c = np.array(list(pts.values()))
+        mattered[name] = bool(np.ptp(c) > q * max(float(np.min(c)) / max(screen.n - 1, 1), 1.0))
+        if mattered[name]:
+            products[name] = float(min(pts, key=pts.get)) * v
+        else:
+            products.pop(name, None)
+
+    cands, allx, ally = screen_main()
+    if fractions:
+        # one step of descent in the coordinates the runs see (the first parameter, each fraction's product): the
+        # fractions at the first parameter's best value, then the first parameter again with their products held
+        for name in fractions:
+            screen_fraction(name, float(allx[int(np.argmin(ally))]))
+        if products:
+            cands, allx, ally = screen_main()
+            for name in fractions:
+                screen_fraction(name, float(allx[int(np.argmin(ally))]))
     redchi = float(np.min(ally)) / max(screen.n - 1, 1)
     thr = q * max(redchi, 1.0)
-    screens = {main: list(zip(allx.tolist(), ally.tolist()))}
+    screens = {main: list(zip(allx.tolist(), ally.tolist())), **screens}
     # 4: further parameters, one at a time at the best screened values
     best_vals = {main: float(allx[int(np.argmin(ally))])}
-    mattered = {main: bool(np.ptp(ally) > thr)}
+    mattered[main] = bool(np.ptp(ally) > thr)
+    for name in fractions:
+        best_vals[name] = held(best_vals[main])[name] if mattered[name] else params.value(name)
     for name in names[1:]:
+        if name in fractions:
+            continue
         a, b = profile[name]
         xo = np.linspace(a, b, ps.other_points)
         yo = screen.chi2_many([params.replace({**best_vals, name: float(v)}) for v in xo])
@@ -394,6 +463,9 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
         mattered[name] = bool(np.ptp(yo) > thr)
         best_vals[name] = float(xo[int(np.argmin(yo))]) if mattered[name] else params.value(name)
     others = {n: best_vals[n] for n in names[1:]}
+
+    def others_at(v: float) -> dict:  # the products held at every profile fit
+        return {**others, **held(v)}
     t_screen = time.perf_counter() - t0
 
     # 3: profile fits at the candidate minima, scored on held-out data
@@ -401,15 +473,16 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
 
     def fit_at(v: float):
         nonlocal best
-        pset = params.replace({main: float(v), **others})
+        at = others_at(v)
+        pset = params.replace({main: float(v), **at})
         try:
             res = Identifier(level, pset, free, effects=effects, settings=st).fit(runs)
         except (ThsaError, RuntimeError) as exc:  # one value failing does not end the profile
-            fits.append({"values": {main: float(v), **others}, "error": str(exc)})
+            fits.append({"values": {main: float(v), **at}, "error": str(exc)})
             say(f"profile fit {main} = {v:.5g} failed: {exc}")
             return
         s = float(score(res))
-        fits.append({"values": {main: float(v), **others}, "score": s, "chisqr": res.chisqr, "converged": res.converged})
+        fits.append({"values": {main: float(v), **at}, "score": s, "chisqr": res.chisqr, "converged": res.converged})
         say(f"profile fit {main} = {v:.5g}: held-out chi2 {s:.5g}")
         if best is None or s < best[0]:
             best = (s, float(v), res)
@@ -424,24 +497,29 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
         for v in (v0 - 0.5 * step, v0 + 0.5 * step):
             if lo <= v <= hi:
                 fit_at(v)
-    values = {main: best[1], **others}
+    values = {main: best[1], **others_at(best[1])}
     # interval of the chosen value on the screened profile (nearest screened point, then its local minimum)
     intervals, at_bound = {}, {}
     for name, pts in screens.items():
         xs = np.array([a for a, _ in pts])
         ys = np.array([b for _, b in pts])
-        i0 = int(np.argmin(np.abs(xs - values[name])))
+        # a fraction's screen is kept in units of its product with the first parameter
+        scale = 1.0 / values[main] if name in fractions else 1.0
+        i0 = int(np.argmin(np.abs(xs * scale - values[name])))
         while True:  # downhill to the screened local minimum the chosen value sits in
             nb = [j for j in (i0 - 1, i0 + 1) if 0 <= j < xs.size and ys[j] < ys[i0]]
             if not nb:
                 break
             i0 = min(nb, key=lambda j: ys[j])
-        intervals[name] = _interval(xs, ys, i0, thr) if mattered[name] else None
+        iv = _interval(xs, ys, i0, thr) if mattered[name] else None
+        intervals[name] = (iv[0] * scale, iv[1] * scale) if iv is not None else None
         rlo, rhi = profile[name]
         span = rhi - rlo
         at_bound[name] = ("min" if values[name] - rlo <= 1e-9 * span else
                           "max" if rhi - values[name] <= 1e-9 * span else None) if mattered[name] else None
     notes = [f"{n} does not change the one-step error by more than the threshold: held at {values[n]:g}"
              for n in names if not mattered[n]]
+    notes += [f"{n} screened at the best {main}, then held as its product with it ({products[n]:.4g}) while {main} "
+              f"was screened again" for n in products]
     return ProfileResult(best[2], values, intervals, at_bound, mattered, screens, fits, time.perf_counter() - t0,
                          thr, notes, t_screen)

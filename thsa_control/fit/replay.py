@@ -41,6 +41,8 @@ from types import MappingProxyType
 import casadi as ca
 import numpy as np
 
+from linearization.buffered import call_dense
+
 from ..loops.design import Design
 from ..errors import RigDataError, ThsaError
 from ..model.plant import SENSOR_OUTPUTS, Plant
@@ -678,9 +680,9 @@ def run_map(step: ca.Function, x0, V: np.ndarray, p: np.ndarray, hs: np.ndarray)
         F = maps.get(m)
         if F is None:
             F = maps[m] = step.mapaccum("mech_run", m)
-        X, Y = F(x, V[:, a:a + m], np.repeat(p, m, axis=1), hs[None, a:a + m])
-        x = np.asarray(X)[:, -1]
-        out.append(np.asarray(Y))
+        X, Y = call_dense(F, x, V[:, a:a + m], np.repeat(p, m, axis=1), hs[None, a:a + m])
+        x = X[:, -1]
+        out.append(Y)
     return np.concatenate(out, axis=1) if out else np.zeros((step.size1_out(1), 0))
 
 

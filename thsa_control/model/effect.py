@@ -86,7 +86,7 @@ class CandidateSpec:
     ``free``: its parameters identified with the declared ones; ``seeds``:
     starting values where the parameter file has the effect off (0);
     ``window``: where it acts (``moving``, ``all``, ``loaded``, ``reversal``,
-    ``reversal_or_stop``, ``cold``, ``resolved_cogging``, ``load_change``); ``channel``: the channel where it shows most; ``profile``:
+    ``clearance``, ``cold``, ``resolved_cogging``, ``load_change``); ``channel``: the channel where it shows most; ``profile``:
     parameters that act through a switch (no gradient), searched over a range
     ``(lo, hi)`` by :func:`~thsa_control.fit.profile.profile_identify` (the
     first finely, the others where they matter) while ``free`` is fitted at
@@ -99,6 +99,10 @@ class CandidateSpec:
     window: str = "moving"
     channel: str = "motor_speed"
     profile: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    #: further profiled parameters the model uses as a fraction of the first one (name -> that one's name): the
+    #: runs see their product, which is screened first and held while the first is screened
+    #: (:func:`~thsa_control.fit.profile.profile_identify`, ``fractions``)
+    profile_fractions: Mapping[str, str] = field(default_factory=dict)
     #: a constant-torque explainer: besides being a candidate it may stand for the base mismatch every real
     #: drive has (a drag, an efficiency, a fixture force), fitted in the tracer's base-correction step within
     #: the plausible magnitude (``trace.candidates.PLAUSIBLE``) named here for each free parameter
@@ -114,6 +118,12 @@ class CandidateSpec:
     #: the current-to-speed response on a drive train the run shows rigid.  Judged by the same rule (held at the
     #: file value where the second fit does not determine it)
     second_stage: tuple[str, ...] = ()
+    #: declared parameters this effect's law reads as their value at its reference condition, i.e. outside its
+    #: window (``temperature_friction`` reads ``gear.viscous_friction`` as the 25 degC drag ``b_25``).  Runs with
+    #: (almost) no moving sample outside the window do not determine them: fitted there, they take this effect's
+    #: share (a cold run's drag fitted as a 25 degC viscous friction 9 x the file's); the tracer holds them at
+    #: their file values (``trace.candidates.reference_not_determined``)
+    reference: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)

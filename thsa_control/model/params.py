@@ -32,6 +32,7 @@ import numpy as np
 import tomli_w
 
 from ..errors import ParameterError
+from ..memo import KeyedLRU
 
 __all__ = ["Parameter", "ParameterSet", "default_parameters", "load_parameters", "convert_unit", "UNIT_CONVERSIONS",
            "search_bounds_for", "SEARCH_DECADES"]
@@ -501,7 +502,19 @@ def default_parameters() -> ParameterSet:
     """
     from .effect import EFFECTS  # the registry imports nothing of the model
 
+    # Parsed once per state of the registry (the set is immutable; the TOML parse is most of the cost): the key
+    # holds the identity of each registered Effect (kept alive by the entry), so registering or removing one,
+    # or registering one again under its name, gives a new set.
+    effects = tuple(EFFECTS.values())
+    return _DEFAULTS.get(tuple(map(id, effects)), lambda: _default_parameters(effects), keep=effects)
+
+
+def _default_parameters(effects) -> ParameterSet:
     text = resources.files("thsa_control.model").joinpath("default_actuator.toml").read_text(encoding="utf-8")
     base = ParameterSet.from_toml(text, source_name="default_actuator.toml")
-    extra = {p.name: p for e in EFFECTS.values() for p in e.parameter_defaults if p.name not in base}
+    extra = {p.name: p for e in effects for p in e.parameter_defaults if p.name not in base}
     return ParameterSet(base.parameters + tuple(extra.values())) if extra else base
+
+
+#: default_parameters' memo: the registry's Effect objects (their identities) -> ParameterSet.
+_DEFAULTS = KeyedLRU(8)

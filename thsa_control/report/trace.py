@@ -13,7 +13,7 @@ from .figure import subplots  # noqa: E402
 from .identification import Html, figure_png, write_html_report  # noqa: E402
 
 __all__ = ["write_trace_folder", "format_trace_summary", "plot_residual_before_after", "conclusion_table_html",
-           "plot_candidate_drops", "plot_signature"]
+           "plot_candidate_drops", "plot_signature", "plot_periodicity"]
 
 
 def _num(x, fmt=".4g"):
@@ -49,6 +49,10 @@ def conclusion_table_html(doc: dict) -> str:
     each channel's error before -> after and what the run did not determine."""
     rows = []
     esc = html.escape
+    for h in doc.get("declared_not_determined") or []:  # the declared model's own parameters the runs do not fix
+        rows.append(("declared model", esc(doc.get("base_model") or "functional"),
+                     f"{esc(h['parameter'])} = {_num(h['held_at'])} {esc(h['unit'])} (held)", "-", "-",
+                     f"{esc(h['parameter'])} held at {_num(h['held_at'])} {esc(h['unit'])}: {esc(h['reason'])}"))
     bc = doc.get("base_corrections") or {}
     if bc.get("accepted"):
         for c in bc.get("corrections", []):
@@ -87,6 +91,32 @@ def conclusion_table_html(doc: dict) -> str:
     return head + body + "</table>" + tail
 
 
+def separability_table_html(doc: dict) -> str:
+    """The constant-torque explainers: how much of each one's torque the model's other explainers reproduce on this
+    record (variance inflation), with whom, and the inflation on a record completed by each kind of operating
+    point; then the plain sentences."""
+    import html as _h
+
+    sep = doc.get("separability") or {}
+    kinds = sep.get("record_kinds", {})
+    lim = sep.get("vif_limit", 10.0)
+    singles = [k for k in kinds]
+    head = "".join(f"<th>+ {_h.escape(kinds[k])}</th>" for k in singles)
+    rows = []
+    for t, e in sep.get("explainers", {}).items():
+        cells = "".join(
+            f"<td>{'<b>' if e['separated_by'].get(k, math.inf) <= lim else ''}{_num(e['separated_by'].get(k), '.3g')}"
+            f"{'</b>' if e['separated_by'].get(k, math.inf) <= lim else ''}</td>" for k in singles)
+        rows.append(f"<tr><td>{_h.escape(e['effect'])}: {_h.escape(t)}</td><td>{_num(100 * e['r2'], '.1f')} %</td>"
+                    f"<td>{_num(e['vif'], '.3g')}</td><td>{_h.escape(', '.join(e['same_part_as']) or '-')}</td>{cells}</tr>")
+    text = "".join(f"<p>{_h.escape(x)}</p>" for x in sep.get("sentences", []))
+    return (f"<p>Variance inflation of each constant-torque explainer against the model's others over the record's "
+            f"{sep.get('points', 0)} moving operating points (above {lim:g}: the record cannot tell them apart; bold: "
+            f"a record completed with that kind of operating point would).</p>"
+            f"<table><tr><th>explainer</th><th>reproduced by the others</th><th>inflation</th><th>same part as</th>"
+            f"{head}</tr>{''.join(rows)}</table>{text}")
+
+
 def _errors_cell(before: dict, after: dict) -> str:
     return "<br>".join(f"{html.escape(c)}: {_num(b.get('rms'))} &rarr; {_num(after.get(c, {}).get('rms'))} "
                        f"{html.escape(b.get('unit', ''))}" for c, b in before.items())
@@ -111,6 +141,37 @@ def plot_candidate_drops(doc: dict):
         ax.axvline(0, color="0.3", lw=0.6)
         ax.set_xlabel("held-out chi2 drop, symmetric log (green: significant, red: implausible, grey: not significant)")
         ax.set_title(f"round {r['round']}: model {', '.join(r['model']) or 'functional'}", fontsize=9, wrap=True)
+    return fig
+
+
+def _periodic_tests(doc: dict) -> list[tuple[int, dict]]:
+    """(round, candidate) of the angle-periodic candidates whose repetition over the travel was tested."""
+    return [(r["round"], c) for r in doc["rounds"] for c in r["candidates"]
+            if (c.get("periodicity") or {}).get("drop_per_period")]
+
+
+def plot_periodicity(doc: dict):
+    """The repetition test of each angle-periodic candidate: its held-out chi2 drop per period of nut travel (a
+    ripple gains in every lead, a fit to a local drag in one), the period left out and the rest against its
+    threshold."""
+    tests = _periodic_tests(doc)
+    fig, axes = subplots(len(tests), 1, figsize=(9, 0.6 + 2.4 * len(tests)), squeeze=False)
+    for ax, (rnd, c) in zip(axes[:, 0], tests):
+        t = c["periodicity"]
+        d = np.asarray(t["drop_per_period"], float)
+        ax.bar(np.arange(d.size), d, color=["C2" if v > 0 else "C3" for v in d])
+        ax.axhline(0, color="0.3", lw=0.6)
+        starts = t.get("period_starts") or [math.nan] * d.size
+        ax.set_xticks(np.arange(d.size), [f"{x * 1e3:.3g}..{(x + t['period']) * 1e3:.3g} mm" for x in starts],
+                      fontsize=8)
+        ax.set_xlabel("nut travel, one period each (from the lowest held-out position)", fontsize=8)
+        ax.set_yscale("symlog", linthresh=10.0)
+        ax.set_ylabel("held-out chi2 drop", fontsize=8)
+        a, b = t["left_out"]
+        verdict = "repeats" if t["repeats"] else "NOT periodic"
+        ax.set_title(f"round {rnd}: {c['name']} ({t['period'] * 1e3:.3g} mm of travel per period): left out "
+                     f"{a * 1e3:.3g}..{b * 1e3:.3g} mm ({_num(t['left_out_drop'], '.4g')}), rest "
+                     f"{_num(t['rest_drop'], '.4g')} vs {_num(t['threshold'], '.3g')}: {verdict}", fontsize=9, wrap=True)
     return fig
 
 
@@ -207,10 +268,33 @@ def plot_signature(sig: dict):
     return fig
 
 
+def _ambiguity_hint(doc: dict, names) -> str:
+    """What would tell ambiguous candidates apart, read off the trace's separability (the kinds of record that bring
+    each one's variance inflation against the base's explainers below the limit); generic without it."""
+    sep = doc.get("separability") or {}
+    kinds, lim = sep.get("record_kinds", {}), sep.get("vif_limit", 10.0)
+    parts = []
+    for e in (sep.get("explainers") or {}).values():
+        if e["effect"] not in names:
+            continue
+        good = sorted((v, k) for k, v in e["separated_by"].items() if v <= lim)
+        if good:
+            k = good[0][1]
+            parts.append(f"{e['effect']} by {' together with '.join(kinds[x] for x in k.split('+'))}")
+        else:
+            parts.append(f"{e['effect']} by none of the kinds of record tried")
+    if not parts:
+        return " (another speed, load or direction would)."
+    return "; from the torque sensitivities, a record would separate " + "; ".join(parts) + "."
+
+
 def format_trace_summary(doc: dict) -> str:
     """Console / report text: what was added, the ranking, the errors, the signature."""
     lines = [f"declared model: {doc['base_model']} ({', '.join(doc['declared_effects']) or 'functional'}), "
-             f"uncertain set fitted: {', '.join(doc['uncertain_parameters'])}"]
+             f"uncertain set fitted: {', '.join(doc['uncertain_parameters']) or 'none'}"]
+    for h in doc.get("declared_not_determined") or []:
+        lines.append(f"    not determined by these runs: {h['parameter']} held at {_num(h['held_at'])} {h['unit']} "
+                     f"({h['reason']})")
     for e, why in (doc.get("declared_from_runs") or {}).items():
         lines.append(f"    declared from the runs' rig description: {e} ({why}); hardware, not a finding")
     bc = doc.get("base_corrections")
@@ -252,9 +336,15 @@ def format_trace_summary(doc: dict) -> str:
         drops = ", ".join(f"{n} {_num(v, '.4g')}" for n, v in a["holdout_chi2_drop"].items())
         lines.append(f"not named (round {a['round']}): {', '.join(a['candidates'])} explain the same part of the "
                      f"residual; held-out chi2 drops {drops} differ by less than {_num(a['indistinct_below'], '.3g')}. "
-                     f"The data cannot tell them apart (another speed, load or direction would).")
+                     "The data cannot tell them apart"
+                     + _ambiguity_hint(doc, a["candidates"]))
     if not doc["effects_added"] and not doc.get("ambiguous"):
         lines.append("no candidate effect is significant")
+    sep = doc.get("separability") or {}
+    if sep.get("sentences"):
+        lines.append("what this record cannot tell apart (constant-torque explainers, from their torque "
+                     "sensitivities over its moving samples):")
+        lines += [f"    {x}" for x in sep["sentences"]]
     for r in doc["rounds"]:
         lines.append(f"round {r['round']} (model: {', '.join(r['model']) or 'functional'}): candidates")
         for c in r["candidates"]:
@@ -318,9 +408,14 @@ def write_trace_folder(folder: str | Path, result) -> dict:
                     plot_residual_before_after(before, after, run["name"], ch))
     if doc["rounds"]:
         figs = {"candidates' held-out chi2 drops, per round": figure_png(plot_candidate_drops(doc)), **figs}
+    if _periodic_tests(doc):
+        figs["periodic candidates: held-out drop per period of nut travel (repetition test)"] = figure_png(
+            plot_periodicity(doc))
     figs["signature of the remaining residual (missing torque at the motor shaft)"] = figure_png(
         plot_signature(doc["residual_signature"]))
     write_html_report(folder / "report.html", title=f"Residual trace: {', '.join(d['name'] for d in doc['datasets'])}",
                       sections=[("Conclusion", Html(conclusion_table_html(doc))),
+                                *([("What this record cannot tell apart", Html(separability_table_html(doc)))]
+                                  if (doc.get("separability") or {}).get("explainers") else []),
                                 ("Summary", format_trace_summary(doc))], figures=figs)
     return doc

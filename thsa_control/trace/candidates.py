@@ -246,8 +246,98 @@ def candidate_specs(model_effects: Iterable[str], params: ParameterSet, names: S
     return out
 
 
+#: Fewest samples (over all runs) a candidate's window must hold for the candidate to be scored on them; the same
+#: count of moving samples outside a window is what determines the declared parameters read at its reference
+#: condition (:func:`reference_not_determined`)
+MIN_WINDOW_SAMPLES = 50
+
+
+def reference_not_determined(runs: Sequence[RigRun], params: ParameterSet, names: Iterable[str]) -> dict[str, str]:
+    """Declared parameters (of ``names``) the runs do not determine because they are defined at a reference
+    condition the runs never reach while moving (:attr:`CandidateSpec.reference`): name -> reason.
+
+    ``gear.viscous_friction`` is the 25 degC drag (its source in the parameter file; ``temperature_friction``
+    reads it as ``b_25`` and scales it by ``exp(a_v (T_ref - T))``).  A run that moves only far from 25 degC
+    measures the drag at its own temperature: fitted there, the 25 degC coefficient takes what the temperature
+    effect would explain (measured on rig-sim's cold ramp at -30 degC: 7.4e-4 N m s/rad against the file's 8e-5,
+    which left the temperature candidate 17 % of its window).  Without a temperature law the data say nothing of
+    the drag at 25 degC: the parameter is held at its file value, as a candidate's undetermined parameter is.
+    """
+    names = list(names)
+    out: dict[str, str] = {}
+    for spec in CANDIDATES.values():
+        ref = [n for n in spec.reference if n in names and n not in out]
+        if not ref:
+            continue
+        n_ref = sum(int(np.sum(_window("moving", r, params) & ~_window(spec.window, r, params))) for r in runs)
+        if n_ref < MIN_WINDOW_SAMPLES:
+            for n in ref:
+                out[n] = (f"defined at the reference condition of {spec.name} (outside its '{spec.window}' window: "
+                          f"{_WINDOW_TEXT.get(spec.window, spec.window)}); the runs move there on {n_ref} samples "
+                          f"(fewer than {MIN_WINDOW_SAMPLES}), so they measure it only together with {spec.name}")
+    return out
+
+
+#: The ``cold`` window: farther than ``COLD_BAND_K`` from ``COLD_REFERENCE_C``, the temperature of the declared
+#: (level-A) friction (``friction.reference_temperature``'s file value)
+COLD_REFERENCE_C, COLD_BAND_K = 25.0, 5.0
+#: What a window's reference condition (its complement) is, for the reasons given to the user.
+_WINDOW_TEXT = {"cold": f"within {COLD_BAND_K:g} K of {COLD_REFERENCE_C:g} degC"}
+
+
 #: The windows a candidate may act in (:attr:`CandidateSpec.window`, :func:`_window`).
-WINDOWS = ("moving", "all", "loaded", "reversal", "reversal_or_stop", "cold", "resolved_cogging", "load_change")
+WINDOWS = ("moving", "all", "loaded", "reversal", "clearance", "cold", "resolved_cogging", "load_change")
+
+#: A screw speed beyond this many noise standard deviations, on two successive samples of one sign, is motion (the
+#: clearance window): a lone sample beyond 4 sigma has a probability of 6e-5 under white Gaussian noise, two in a
+#: row of one sign about 1e-9 per sample.
+MOTION_SIGMA = 4.0
+
+
+def _largest_clearance() -> float:
+    """The largest pawl pitch the backlash candidate searches [rad of screw rotation]: the end of its profile
+    range (the papers' 8.57 deg maximum, searched up to twice that)."""
+    spec = EFFECTS["noback_backlash"].candidate
+    return float(spec.profile["noback.pawl_pitch"][1])
+
+
+def clearance_window(run: RigRun, travel: float) -> np.ndarray:
+    """Samples where the screw moves within ``travel`` [rad] of its last change of direction.
+
+    A circumferential clearance (the no-back's pawl play) is crossed only there: after the screw changes
+    direction (a reversal, a back-drive by the load once the drive is off, or the record's first motion, the
+    clearance left where the ratchets stopped being unknown), the pawl that now locks is met within one pitch
+    and then holds.  Elsewhere a clearance model predicts what a model without it does, so a window of a fixed
+    time around reversals and stops measures other things: on rig-sim's trim stops the 0.3 s after the arrest
+    held the drive train's ringing (a 48 Hz mode of the rotors on the rig base's gear stiffness, which the
+    screw-speed sensor does not see and no rigid model predicts) and the deceleration with the motor on, and
+    the back-drive at the load's application (a start from rest) was outside it.  The screw's motion is read
+    from its speed sensor where there is one (the rotors ring while the screw is held), else from the motor
+    speed over the gear ratio; still samples are not in the window, and a stop does not end a direction (the
+    clearance is not opened again by a restart in the same direction).
+    """
+    t = np.asarray(run.time, float)
+    if t.size < 2:
+        return np.zeros(t.shape, bool)
+    ws = np.asarray(run.signals["screw_speed"], float) if "screw_speed" in run.source_columns else None
+    if ws is None or not np.isfinite(ws).any():
+        ws = np.asarray(measured_motor_speed(run), float) / run.gear_ratio
+    ws = np.nan_to_num(ws)
+    from ..fit.identify import estimate_noise
+
+    band = MOTION_SIGMA * estimate_noise(ws)
+    sign = np.where(ws > band, 1, np.where(ws < -band, -1, 0))
+    dt = np.diff(t, prepend=t[0] - (t[1] - t[0]))
+    out = np.zeros(t.size, bool)
+    last, turned = 0, 0.0
+    for k in range(1, t.size):
+        if sign[k] == 0 or sign[k - 1] != sign[k]:
+            continue
+        if sign[k] != last:
+            last, turned = int(sign[k]), 0.0
+        turned += abs(ws[k]) * dt[k]
+        out[k] = turned <= travel
+    return out
 
 
 def _window(kind: str, run: RigRun, params: ParameterSet | None = None) -> np.ndarray:
@@ -263,12 +353,8 @@ def _window(kind: str, run: RigRun, params: ParameterSet | None = None) -> np.nd
         return moving & (np.abs(load) > max(0.05 * float(np.max(np.abs(load))), 500.0))
     if kind == "reversal":
         return moving & (reversal_proximity(run.time, w, deadband=0.05 * float(np.max(np.abs(w)))) < 0.3)
-    if kind == "reversal_or_stop":  # 0.3 s around a reversal, or after the motion stops (moving -> still)
-        t = np.asarray(run.time, float)
-        near = reversal_proximity(t, w, deadband=0.05 * float(np.max(np.abs(w)))) < 0.3
-        for ts in t[1:][moving[:-1] & ~moving[1:]]:
-            near |= (t >= ts) & (t < ts + 0.3)
-        return near
+    if kind == "clearance":  # the first pitch of screw travel after each change of direction
+        return clearance_window(run, _largest_clearance())
     if kind == "resolved_cogging":  # moving slowly enough that the cogging's period spans 4 samples or more
         t = np.asarray(run.time, float)
         fs = 1.0 / float(np.median(np.diff(t))) if t.size > 1 else 0.0
@@ -288,6 +374,6 @@ def _window(kind: str, run: RigRun, params: ParameterSet | None = None) -> np.nd
         return out
     if kind == "cold":
         temp = np.asarray(s["temperature"], float)
-        return np.abs(temp - 25.0) > 5.0
+        return np.abs(temp - COLD_REFERENCE_C) > COLD_BAND_K
     raise ValueError(f"unknown window {kind!r}")
 

@@ -19,6 +19,9 @@ difference by its size and correlation, a quasi-likelihood scaling): a periodic 
 explains the other periods as well, by the same amplitude and phase, so its gain outside any one period is
 as significant as a whole effect's; a local structure's is not.  It needs the travel to span two periods (the
 candidates' resolution rule, :data:`~thsa_control.trace.candidates.RESOLVES`), else nothing is left to repeat.
+The tracer runs it only for a period of two bins of its nut-position test or more
+(:func:`thsa_control.trace.engine._repetition`): the screw ripple's lead, not the cogging's 0.01 mm, which no drag
+local at the scale the tracer resolves projects on.
 """
 
 from __future__ import annotations
@@ -103,19 +106,24 @@ def repetition_test(segments: list[dict], period: float, threshold: float) -> di
             "left_out_share": best / total if total > 0 else None, "rest_drop": rest, "threshold": float(threshold),
             "segments": int(d.size), "periods_covered": len(per),
             "periods_gaining": int(sum(1 for v in per.values() if v > 0)),
-            "drop_per_period": [per[i] for i in sorted(per)]}
+            "drop_per_period": [per[i] for i in sorted(per)],
+            "period_starts": [x0 + i * float(period) for i in sorted(per)]}
 
 
 def describe(test: dict) -> str:
     """The refusal reason of a candidate whose gain does not repeat."""
     a, b = test["left_out"]
     where = f"one period of nut travel, {a * 1e3:.3g} .. {b * 1e3:.3g} mm"
+    loc = test.get("local_structure")
+    if loc:  # the position-local residual the candidate was fitted to (the signature's nut-position test)
+        where += (f" (where the {loc['variable']} test finds a local residual, {loc['peak_bin'][0] * 1e3:.3g} .. "
+                  f"{loc['peak_bin'][1] * 1e3:.3g} mm, p {loc['p_value']:.2g})")
     others = test["periods_covered"] - 1
+    other = f"the other {others} period{'s' if others != 1 else ''} of travel"
     if test["rest_drop"] <= 0:
-        return (f"not periodic over the travel: its held-out drop comes from {where} (drop {test['left_out_drop']:.4g}); "
-                f"over the other {others} period{'s' if others != 1 else ''} of travel it makes the held-out error "
-                f"worse ({test['rest_drop']:.4g})")
-    return (f"not periodic over the travel: {test['left_out_drop']:.4g} of its held-out drop {test['total_drop']:.4g} "
-            f"comes from {where}; the rest ({test['rest_drop']:.4g}, {others} other period{'s' if others != 1 else ''}) "
-            f"does not pass the held-out test ({test['threshold']:.3g}: chi2 quantile x reduced chi2 "
-            f"{test.get('reduced_chi2', 1.0):.3g} x IACT {test.get('iact', 1.0):.3g})")
+        return (f"not periodic over the travel: it gains {test['left_out_drop']:.4g} of held-out chi2 in {where} and "
+                f"makes the held-out error worse over {other} ({test['rest_drop']:.4g})")
+    return (f"not periodic over the travel: it gains {test['left_out_drop']:.4g} of its held-out drop "
+            f"{test['total_drop']:.4g} in {where}; over {other} {test['rest_drop']:.4g}, which does not pass the "
+            f"held-out test ({test['threshold']:.3g}: chi2 quantile x reduced chi2 {test.get('reduced_chi2', 1.0):.3g} "
+            f"x IACT {test.get('iact', 1.0):.3g})")

@@ -46,10 +46,12 @@ def _fit_job(job: dict) -> dict:
             from ..fit.profile import profile_identify
 
             prof = profile_identify(job["runs"], params, job["free"], job["profile"], effects=job["effects"],
-                                    settings=job["settings"])
+                                    settings=job["settings"], fractions=job.get("profile_fractions"))
             res = prof.result
         else:
-            ident = Identifier(None, params, job["free"], effects=job["effects"], settings=job["settings"])
+            # an empty free set: the declared model whose uncertain parameters the runs do not determine
+            ident = Identifier(None, params, job["free"], effects=job["effects"], settings=job["settings"],
+                               states_only=not job["free"])
             res = ident.fit(job["runs"])
             judged = {n: r for n, r in (job.get("judge") or {}).items() if n in job["free"]}
             held = _undetermined(res, judged, job.get("determination_z", 2.0), job.get("absent"))
@@ -244,14 +246,7 @@ def _window_beyond_noise(before: dict, after: dict, noise: Mapping[str, float], 
     ``2 sqrt(2 n)`` (two standard deviations of a chi2(n)) of the noise level: nothing beyond noise to explain.
     Reported, not used to select (the noise level is an estimate)."""
     n: dict[str, int] = {}
-    for r, p in before["predictions"].items():
-        hold = np.asarray(p["holdout"], bool)
-        for c, y in p["measured"].items():
-            m = hold & np.isfinite(np.asarray(y, float))
-            if windows is not None:
-                m &= windows[r][:m.size]
-            n[c] = n.get(c, 0) + int(m.sum())
-    wb = _chi2_by_channel(before, noise, "holdout", windows)
+    wb = chi2_by_channel(before["predictions"], noise, "holdout", windows, counts=n)
     wa = _chi2_by_channel(after, noise, "holdout", windows)
     out = {}
     for c in wa:

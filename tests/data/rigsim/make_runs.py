@@ -13,7 +13,8 @@ Usage::
 
 The shared folder defaults to ``../shared`` beside the repository.  The runs are logged at 500 Hz
 and cut to the part of the scenario where the effect shows (``t_end``), so that the committed data
-stay small and the traces short; the cut keeps the start of the record (``time_s`` from 0).
+stay small and the traces short; the cut keeps the start of the record (``time_s`` from 0).  The run sets
+(:data:`SETS`, several runs of one rig traced together) go to ``sets/``.
 """
 
 from __future__ import annotations
@@ -67,6 +68,26 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     "rig_pair_coulomb_ripple": ("trim_ramp_compressive", "rig", "coulomb,screw_ripple", 41, None, "pair"),
 }
 
+#: run sets traced together (``thsa trace A.csv B.csv``; tests/test_trace_sets.py), written to ``sets/``: the rig base
+#: with one constant-torque library effect (same parameters) on two scenarios that differ in load sign and each
+#: run both directions (reversals at 25 kN compressive, ramps at 20 kN tensile), and the same pair with nothing
+#: planted.  name -> [(scenario, base, effects, seed, t_end)]
+SETS: dict[str, list[tuple[str, str, str, int, float | None]]] = {
+    "set_coulomb": [("reversals_under_load", "rig", "coulomb", 117, 5.0),
+                    ("bipolar_ramp_tensile", "rig", "coulomb", 118, 9.0)],
+    "set_direction_friction": [("reversals_under_load", "rig", "direction_friction", 127, 5.0),
+                               ("bipolar_ramp_tensile", "rig", "direction_friction", 128, 9.0)],
+    "set_axial_offset": [("reversals_under_load", "rig", "axial_offset", 137, 5.0),
+                         ("bipolar_ramp_tensile", "rig", "axial_offset", 138, 9.0)],
+    "set_null": [("reversals_under_load", "rig", "", 147, 5.0),
+                 ("bipolar_ramp_tensile", "rig", "", 148, 9.0)],
+}
+
+
+def set_runs() -> dict[str, tuple[str, str, str, int, float | None, str]]:
+    """The runs of :data:`SETS` by file stem (``SET_1``, ``SET_2`` ...), in the :data:`RUNS` form."""
+    return {f"{s}_{i + 1}": (*r, "set") for s, rs in SETS.items() for i, r in enumerate(rs)}
+
 
 def shared_dir() -> Path:
     env = os.environ.get("THSA_SHARED_DIR")
@@ -80,7 +101,7 @@ def _cut(csv: Path, t_end: float) -> None:
 
 
 def make(name: str, out: Path, rigsim: Path) -> None:
-    scenario, base, effects, seed, t_end, _purpose = RUNS[name]
+    scenario, base, effects, seed, t_end, _purpose = {**RUNS, **set_runs()}[name]
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [sys.executable, str(rigsim), "--scenario", scenario, "--base", base, "--seed", str(seed),
                "--out", tmp, "--name", name, "--record-hz", str(RECORD_HZ)]
@@ -111,13 +132,15 @@ def main(argv=None) -> int:
         return 2
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    names = a.only or list(RUNS)
-    bad = [n for n in names if n not in RUNS]
+    names = a.only or [*RUNS, *set_runs()]
+    bad = [n for n in names if n not in RUNS and n not in set_runs()]
     if bad:
         print(f"make_runs: unknown run(s) {bad}", file=sys.stderr)
         return 2
     for n in names:
-        make(n, out, rigsim)
+        dest = out / "sets" if n in set_runs() else out
+        dest.mkdir(parents=True, exist_ok=True)
+        make(n, dest, rigsim)
         print(f"wrote {n}")
     return 0
 

@@ -1,7 +1,8 @@
 #!/bin/sh
 # Trace every committed rig-sim run as a user does (thsa trace RUN.csv --model A), two at a time, into DIR/RUN;
 # then `THSA_TRACED_DIR=DIR python -m pytest -m campaign tests/test_trace_foreign.py` judges those traces and
-# `python bench/trace_rigsim_table.py DIR/*` tabulates them.
+# `python bench/trace_rigsim_table.py DIR/*` tabulates them. The run sets (sets/, traced together) have their own
+# script, trace_sets.sh, and tests (tests/test_trace_sets.py, THSA_TRACED_SETS_DIR).
 # Usage: tests/data/rigsim/trace_all.sh DIR [PARALLEL]
 set -e
 out=${1:?usage: trace_all.sh DIR [PARALLEL]}

@@ -362,7 +362,8 @@ register(Effect(
              Output("viscous_coefficient", "N m s/rad",
                     lambda a: a.p["motor.bearing_viscous_friction"] + a.p["gear.viscous_friction"])),
     candidate=CandidateSpec("temperature_friction",
-                            ("friction.cold_coulomb_torque", "friction.viscous_temperature_coefficient"), {}, "cold"),
+                            ("friction.cold_coulomb_torque", "friction.viscous_temperature_coefficient"), {}, "cold",
+                            reference=("gear.viscous_friction",)),
 ))
 register(Effect(
     "noback_quadrant_friction", "no-back friction disks with load- and quadrant-dependent normal force",
@@ -405,9 +406,12 @@ register(Effect(
     outputs=(Output("pawl_clearance_comp", "rad"), Output("pawl_clearance_tens", "rad")),
     # the pawl switch gives no gradient: the pitch (papers: 8.57 deg max; searched 1.7..17 deg) is profiled,
     # each value with segment clearances of its own; the initial clearance only where it matters.  It acts
-    # after a reversal and at a stop under load (the load back-drives through the clearance)
-    candidate=CandidateSpec("noback_backlash", (), {}, "reversal_or_stop",
-                            profile={"noback.pawl_pitch": (0.03, 0.3), "noback.pawl_initial_clearance": (0.0, 1.0)}),
+    # within one pitch of screw travel after each change of direction (a reversal; a back-drive by the load at a
+    # stop; the first motion): the "clearance" window
+    candidate=CandidateSpec("noback_backlash", (), {}, "clearance",
+                            profile={"noback.pawl_pitch": (0.03, 0.3), "noback.pawl_initial_clearance": (0.0, 1.0)},
+                            # the first back-drive sees the initial clearance angle, fraction x pitch
+                            profile_fractions={"noback.pawl_initial_clearance": "noback.pawl_pitch"}),
     linear=LinearHints(
         # in a steady motion the clearances ramp (+-w/N) and nothing depends on them away from an edge
         drifting=_PAWLS,
