@@ -1,0 +1,99 @@
+"""The residual signature's motor-angle test on a reversal run (issue #21): a transient at every reversal is not
+periodic in angle because the reversals happen at the same angles; a feature on every revolution is.
+
+Analytic: a synthetic reversal record (passes between the same two nut positions, so every reversal is at the same
+motor angle), the missing torque planted directly in the speed residual of a stand-in fit.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from thsa_control.data.rigdata import RigRun
+from thsa_control.trace.residual import _signature
+from thsa_control.trace.signature import SignatureSettings, split_remainder
+
+FS, LEAD, RATIO, J = 500.0, 0.012, 65.61, 1.2e-4  # sample rate, rig-sim's lead and gear ratio, rotor inertia
+SEG = 0.05  # multiple-shooting segment length [s]
+
+
+class _Plant:
+    def inertia(self, params):
+        return (0.0, J)
+
+
+def _record(seed: int, missing_torque):
+    """±1 mm/s reversals every 1.2 s (speed ramped through zero in 40 ms) at 25 kN, 10 s: passes between the same
+    two nut positions, 6.6 motor revolutions each.  ``missing_torque(t, tau, angle)`` [N m] (``tau`` the time since
+    the last reversal) is integrated into the speed residual (measured minus simulated) of a stand-in fit."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 10.0, 1 / FS)
+    phase = (t % 2.4) / 2.4
+    v = 1e-3 * np.clip((np.where(phase < 0.5, 0.25 - np.abs(phase - 0.25), np.abs(phase - 0.75) - 0.25)) / (0.02 / 2.4),
+                       -1.0, 1.0)  # +1 mm/s for 1.2 s, -1 mm/s for 1.2 s, linear through zero over 40 ms
+    w = v * 2 * math.pi * RATIO / LEAD
+    x = np.cumsum(v) / FS
+    angle = np.cumsum(w) / FS
+    rev = np.r_[0.0, t[1:][np.sign(v[1:]) != np.sign(v[:-1])]]
+    tau = t - rev[np.searchsorted(rev, t, side="right") - 1]
+    # speed residual: the integral of the missing torque over the inertia, plus the speed sensor's white noise
+    # (2 rpm, rig-sim's resolver at 1 ms; its derivative dominates the missing torque's noise, as on the rig)
+    e_w = np.cumsum(missing_torque(t, tau, angle)) / FS / J + 0.2 * rng.standard_normal(t.size)
+    w_meas = w + 0.2 * rng.standard_normal(t.size)
+    sig = {"motor_speed": w_meas, "nut_position": x + 2e-6 * rng.standard_normal(t.size),
+           "load_force": np.full(t.size, 2.5e4), "motor_current": 2.0 + 0.5 * np.sign(v),
+           "temperature": np.full(t.size, 25.0), "primary_enable": np.ones(t.size), "standby_enable": np.zeros(t.size),
+           "speed_cmd": v}
+    run = RigRun("synthetic_reversals", Path("synthetic.csv"), Path("synthetic.json"), {}, t, sig, gear_ratio=RATIO,
+                 screw_lead=LEAD, source_columns={c: c for c in ("motor_speed", "nut_position", "motor_current")})
+    starts = np.arange(0.0, 10.0, SEG)
+    fit = {"predictions": {run.name: {"measured": {"motor_speed": w_meas}, "simulated": {"motor_speed": w_meas - e_w},
+                                      "segment_starts": starts, "holdout": (np.floor(t / SEG) % 3 == 2)}}}
+    return run, fit
+
+
+def _angle_test(seed, missing_torque):
+    run, fit = _record(seed, missing_torque)
+    sig = _signature(fit, [run], None, _Plant(), SignatureSettings())
+    test = next(d for d in sig["tests"] if d["variable"] == "motor_angle")
+    return test, [d["variable"] for d in split_remainder(sig)[0]]
+
+
+def _reversal_ring(t, tau, angle):
+    """The settling a declared model of another rig's base leaves after each reversal: 0.05 N m decaying in 0.1 s,
+    with a part at the motor's revolution frequency - the same at every reversal, hence at the same angles."""
+    return 0.05 * np.exp(-tau / 0.1) * np.cos(angle)
+
+
+def test_a_transient_repeated_at_the_reversals_angles_is_not_periodic_in_angle():
+    from thsa_control.trace.signature import missing_torque, signature_tests
+
+    for seed in (1, 2, 3):
+        test, structured = _angle_test(seed, _reversal_ring)
+        assert not test["significant"], (seed, test["p_value"])
+        assert "motor_angle" not in structured
+        # the case is one: on every sample (the test before it kept to the steady ones) the transient, repeated
+        # at the same angles by every pass, reads as a significant first harmonic
+        run, fit = _record(seed, _reversal_ring)
+        pr = fit["predictions"][run.name]
+        e_w = pr["measured"]["motor_speed"] - pr["simulated"]["motor_speed"]
+        m = missing_torque(run.time, e_w, np.searchsorted(run.time, pr["segment_starts"]), J, 21)
+        w = run.signals["motor_speed"]
+        angle = np.r_[0.0, np.cumsum(0.5 * (w[1:] + w[:-1]) / FS)]
+        every = signature_tests(m, {"motor_angle": ("angle", angle)})[0]
+        assert every["significant"] and every["dominant_harmonic"] == 1, (seed, every["p_value"])
+
+
+def test_a_feature_on_every_revolution_is_periodic_in_angle():
+    """The test is on the samples outside the base's transients, not blind: a cogging-like first and third harmonic
+    on every revolution is found, with its amplitude."""
+    for seed in (1, 2):
+        test, structured = _angle_test(seed, lambda t, tau, a: 0.004 * np.cos(a) + 0.002 * np.sin(3 * a))
+        assert test["significant"] and test["remainder"] == "structured", (seed, test["p_value"])
+        assert test["dominant_harmonic"] == 1
+        assert test["dominant_amplitude"] == pytest.approx(0.004, rel=0.25)
+        assert "motor_angle" in structured
