@@ -42,7 +42,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     inertia = plant.inertia(params)[1]  # the signature's missing torque at the motor shaft (what the current drives)
     torque: list = []
     vars_: dict = {}
-    spans: dict[str, float] = {}  # the largest motor and screw angle travelled in one run [rad]
+    spans: dict[str, float] = {}  # the largest motor and screw angle spanned by one run's steady samples [rad]
     local_in: dict[str, list] = {"e": [], "x": [], "d": []}
     steady: list = []  # outside the base's transients, per run
     drift_in: list = []  # (time, segment torque, direction)
@@ -64,8 +64,17 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         dt = np.r_[np.diff(t), 0.0]
         angle = np.r_[0.0, np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t))]
         load = np.asarray(run.signals["load_force"], float)
-        # outside the base's transients: the samples the pass-replicated position test and the angle tests use
+        # outside the base's transients: the samples the pass-replicated position test uses; the angle tests use
+        # the samples outside its starts, stops, reversals, load changes and sustained speed changes (a periodic
+        # torque's own speed ripple is not a transient: ``sustained``)
         steady.append(~base_transients(t, w, load, s.transient_time))
+        steady_angle = ~base_transients(t, w, load, s.transient_time, sustained=True)
+        # the angle the steady samples span; under two revolutions the harmonics are not told from a dependence on
+        # position (below) and a Fourier series on less than a revolution is degenerate: the test then keeps every
+        # sample, for the report only (its remainder is "base")
+        steady_span = float(np.ptp(angle[steady_angle])) if steady_angle.any() else 0.0
+        if steady_span < 4 * math.pi:
+            steady_angle = np.ones(n, bool)
         dv = 0.05 * max(float(np.max(np.abs(w))), 1e-9)
         on = (np.asarray(run.signals["primary_enable"]) > 0.5) | (np.asarray(run.signals["standby_enable"]) > 0.5)
         if run.motor_disabled_when_cmd_zero:
@@ -77,14 +86,14 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             "time_since_reversal": ("quantile", np.minimum(reversal_proximity(t, w, deadband=dv), 10.0)),
             "nut_position": ("position", np.asarray(run.signals["nut_position"], float)
                              if "nut_position" in run.source_columns else np.full(n, np.nan)),
-            # periodic in angle: tested on the samples outside the base's transients only.  A run whose passes start
-            # and end at the same nut positions (reversals, trim stops) puts every start, stop and reversal at the
-            # same motor angle, so the transient residual a declared model of another rig's base leaves there
-            # projects coherently on the angle harmonics and is replicated by every pass (a fresh reversal null:
-            # 88 % of the first harmonic's projection from the 55 % of samples within 0.3 s of a reversal, p 4e-8 on
-            # all samples, p 1 outside them).  A cogging or ripple acts on every revolution, steady ones included.
-            "motor_angle": ("angle", np.where(steady[-1], angle, np.nan)),
-            "screw_angle": ("angle", np.where(steady[-1], angle / run.gear_ratio, np.nan)),
+            # periodic in angle: on the samples outside the base's transients only (``steady_angle``).  A run whose
+            # passes start and end at the same nut positions (reversals, trim stops) puts every start, stop and
+            # reversal at the same motor angle, so the transient residual a declared model of another rig's base
+            # leaves there projects coherently on the angle harmonics and is replicated by every pass (a fresh
+            # reversal null: 88 % of the first harmonic's projection from the 55 % of samples within 0.3 s of a
+            # reversal, p 4e-8 on all samples, p 1 outside them).  A cogging or ripple acts on every revolution.
+            "motor_angle": ("angle", np.where(steady_angle, angle, np.nan)),
+            "screw_angle": ("angle", np.where(steady_angle, angle / run.gear_ratio, np.nan)),
             "speed_sign": ("category", np.sign(np.where(np.abs(w) > dv, w, 0.0))),
             # a torque-constant error (torque against current); a slow drift is tested per pass below
             "motor_current (torque constant)": ("linear", np.asarray(run.signals["motor_current"], float)),
@@ -92,8 +101,8 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         # the rotor's measured acceleration torque, the nuisance of the torque-constant test (see signature_tests)
         accel.append(inertia * _derivative(t, w, s.window))
         del dt
-        for name, a in (("motor_angle", angle), ("screw_angle", angle / run.gear_ratio)):
-            spans[name] = max(spans.get(name, 0.0), float(np.ptp(a)) if a.size else 0.0)
+        for name, span in (("motor_angle", steady_span), ("screw_angle", steady_span / run.gear_ratio)):
+            spans[name] = max(spans.get(name, 0.0), span)
         for name, (kind, v) in cols.items():
             vars_.setdefault(name, (kind, []))[1].append(np.asarray(v, float))
         # the pass-replicated position test (runs separated by a gap that ends every pass), on the residual
@@ -149,11 +158,12 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     for d in tests:
         d["remainder"] = remainder_kind(d, t_span, s)
         # periodic in an angle only where the same angle recurs at another position: a travel of less than two
-        # revolutions bins the residual by position (the base's drags at the ends of a short stroke)
+        # revolutions bins the residual by position (the base's drags at the ends of a short stroke); the travel of
+        # the samples outside the base's transients, which the test uses
         if d["variable"] in spans and spans[d["variable"]] < 4 * math.pi and d["remainder"] == "structured":
             d["remainder"] = "base"
-            d["why_base"] = (f"{d['variable']} spans {spans[d['variable']] / (2 * math.pi):.2g} revolutions (< 2): "
-                             "not told from a dependence on position")
+            d["why_base"] = (f"{d['variable']} spans {spans[d['variable']] / (2 * math.pi):.2g} revolutions (< 2) "
+                             "outside the base's transients: not told from a dependence on position")
     for d in sensors:
         d["remainder"] = "structured"
     ok = np.isfinite(e_all)

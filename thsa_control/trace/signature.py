@@ -67,10 +67,15 @@ def split_remainder(sig: dict) -> tuple[list[dict], list[dict]]:
     return structured, [t for t in sig_tests if t not in structured]
 
 
-def base_transients(time, speed, load, duration: float = 0.3) -> np.ndarray:
+def base_transients(time, speed, load, duration: float = 0.3, sustained: bool = False) -> np.ndarray:
     """Samples within ``duration`` of a start, stop, reversal or load change, or while the speed changes fast
     (a speed step taking less than 2 s over the record's speed range): where a declared model of another rig's
-    base leaves structure (its stiction, Stribeck curve and loop settling)."""
+    base leaves structure (its stiction, Stribeck curve and loop settling).
+
+    ``sustained``: judge the speed change on the speed averaged over ``duration`` (a step or a ramp of the
+    operating point, not a ripple faster than ``1 / duration``): a periodic torque ripples the speed itself (the
+    rig-sim cogging, 0.05 N m at 18 per revolution, changes a 1 rev/s speed by 0.3 rev/s in 30 ms), so a test for
+    a periodic torque must not call its own ripple a transient."""
     t = np.asarray(time, float)
     w = np.nan_to_num(np.asarray(speed, float))
     f = np.nan_to_num(np.asarray(load, float))
@@ -96,6 +101,8 @@ def base_transients(time, speed, load, duration: float = 0.3) -> np.ndarray:
         near = np.minimum(near, np.abs(t - ev[np.clip(i - 1, 0, ev.size - 1)]))
         out |= near <= duration
     m = max(round(0.05 / dt), 1)  # speed change rate over 50 ms
+    if sustained and n > k:
+        w = np.convolve(w, np.ones(k) / k, mode="same")  # the speed averaged over ``duration``
     if n > m:
         acc = np.zeros(n)
         acc[m:] = np.abs(w[m:] - w[:-m]) / (m * dt)
