@@ -73,8 +73,10 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         # position (below) and a Fourier series on less than a revolution is degenerate: the test then keeps every
         # sample, for the report only (its remainder is "base")
         steady_span = float(np.ptp(angle[steady_angle])) if steady_angle.any() else 0.0
-        if steady_span < 4 * math.pi:
-            steady_angle = np.ones(n, bool)
+        tested = {}  # angle variable -> (its samples, the angle its steady samples span)
+        for name, a in (("motor_angle", angle), ("screw_angle", angle / run.gear_ratio)):
+            span = steady_span / (run.gear_ratio if name == "screw_angle" else 1.0)
+            tested[name] = (np.where(steady_angle, a, np.nan) if span >= 4 * math.pi else a, span)
         dv = 0.05 * max(float(np.max(np.abs(w))), 1e-9)
         on = (np.asarray(run.signals["primary_enable"]) > 0.5) | (np.asarray(run.signals["standby_enable"]) > 0.5)
         if run.motor_disabled_when_cmd_zero:
@@ -92,8 +94,8 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             # leaves there projects coherently on the angle harmonics and is replicated by every pass (a fresh
             # reversal null: 88 % of the first harmonic's projection from the 55 % of samples within 0.3 s of a
             # reversal, p 4e-8 on all samples, p 1 outside them).  A cogging or ripple acts on every revolution.
-            "motor_angle": ("angle", np.where(steady_angle, angle, np.nan)),
-            "screw_angle": ("angle", np.where(steady_angle, angle / run.gear_ratio, np.nan)),
+            "motor_angle": ("angle", tested["motor_angle"][0]),
+            "screw_angle": ("angle", tested["screw_angle"][0]),
             "speed_sign": ("category", np.sign(np.where(np.abs(w) > dv, w, 0.0))),
             # a torque-constant error (torque against current); a slow drift is tested per pass below
             "motor_current (torque constant)": ("linear", np.asarray(run.signals["motor_current"], float)),
@@ -101,7 +103,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         # the rotor's measured acceleration torque, the nuisance of the torque-constant test (see signature_tests)
         accel.append(inertia * _derivative(t, w, s.window))
         del dt
-        for name, span in (("motor_angle", steady_span), ("screw_angle", steady_span / run.gear_ratio)):
+        for name, (_a, span) in tested.items():
             spans[name] = max(spans.get(name, 0.0), span)
         for name, (kind, v) in cols.items():
             vars_.setdefault(name, (kind, []))[1].append(np.asarray(v, float))
