@@ -258,6 +258,18 @@ def test_nulls_add_only_what_the_base_contains(traced, name):
 
 @pytest.mark.campaign
 @pytest.mark.slow
+@pytest.mark.parametrize("name", _cases([(n,) for n in NULLS]))
+def test_nulls_leave_no_structured_remainder(traced, name):
+    """Nothing planted: what the base leaves is its regime dependences (starts, stops, reversals, quadrant), never a
+    structure an unmodelled effect would leave (periodic in angle, local in position over passes, a drift, a sensor):
+    ``unexplained`` on a null is a false alarm the user chases (a reversal run's transients at the same motor angles
+    once read as a motor-angle harmonic, docs/trace_notes.md "The motor-angle flag on reversal nulls")."""
+    doc = traced(name)
+    assert not doc["unexplained"], doc["residual_signature"]["structured"]
+
+
+@pytest.mark.campaign
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["null_rig_trim_s1", "rig_noback_quadrant"])
 def test_base_step_details_the_declared_no_back(traced, name):
     """Level A's ideal no-back is no real one: the base step fits the no-back's disks jointly with the base

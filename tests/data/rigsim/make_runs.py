@@ -53,6 +53,10 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     # cold (-30 C) ramps against 55 kN, drive off in the stops: the null of rig_temp_friction (a drive-train
     # compliance and a no-back backlash were once named on it)
     "null_rig_cold_s52": ("cold_ramp", "rig", "", 52, 5.0, "null"),
+    # the whole 10 s of reversals (8 passes between the same two nut positions, so every reversal at the same motor
+    # angle): the transient each reversal leaves once read as a motor-angle harmonic (`unexplained`; the 5 s cut of
+    # seed 2 above has too few passes to show it; docs/trace_notes.md "The motor-angle flag on reversal nulls")
+    "null_rig_reversals_s303": ("reversals_under_load", "rig", "", 303, None, "null"),
     "null_papers_trim_s1": ("trim_ramp_compressive", "papers", "", 1, None, "null"),
     "null_papers_reversals_s2": ("reversals_under_load", "papers", "", 2, 5.0, "null"),
     "null_papers_bipolar_s3": ("bipolar_ramp_tensile", "papers", "", 3, 9.0, "null"),
