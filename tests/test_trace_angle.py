@@ -97,3 +97,19 @@ def test_a_feature_on_every_revolution_is_periodic_in_angle():
         assert test["dominant_harmonic"] == 1
         assert test["dominant_amplitude"] == pytest.approx(0.004, rel=0.25)
         assert "motor_angle" in structured
+
+
+def test_a_speed_ripple_is_not_a_sustained_speed_change_but_a_step_is():
+    """``base_transients(sustained=True)``: a cogging's own speed ripple (18 per revolution at 0.8 rev/s, +-20 %) is
+    not a transient, a speed step still is (0.3 s each side); without ``sustained`` the ripple covers the record."""
+    from thsa_control.trace.signature import base_transients
+
+    t = np.arange(0.0, 4.0, 1 / FS)
+    w = 2 * math.pi * 0.8 * (1 + 0.2 * np.sin(2 * math.pi * 18 * 0.8 * t))
+    w[t >= 2.0] *= 2.0  # a step of the operating point at 2 s
+    load = np.full(t.size, 5e3)
+    plain = base_transients(t, w, load, 0.3)
+    sus = base_transients(t, w, load, 0.3, sustained=True)
+    assert plain[(t > 0.5) & (t < 1.5)].mean() > 0.8  # the ripple alone: 88 % of those samples
+    assert not sus[(t > 0.5) & (t < 1.5)].any() and not sus[(t > 2.6) & (t < 3.5)].any()
+    assert sus[(t > 1.9) & (t < 2.1)].all()
