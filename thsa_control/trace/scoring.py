@@ -45,9 +45,21 @@ def _fit_job(job: dict) -> dict:
         if job.get("profile"):
             from ..fit.profile import profile_identify
 
+            from .signature import _effective_n_iact
+
+            # the profile set's threshold scaled as the ambiguity gap's (engine._rivals: reduced chi2 x IACT)
             prof = profile_identify(job["runs"], params, job["free"], job["profile"], effects=job["effects"],
-                                    settings=job["settings"], fractions=job.get("profile_fractions"))
+                                    settings=job["settings"], fractions=job.get("profile_fractions"),
+                                    iact=lambda e: e.size / max(_effective_n_iact(e), 1.0))
             res = prof.result
+            for n, d in prof.determination.items():
+                if not d["determined"]:  # identifiability before plausibility: the profile says it
+                    held[n] = {"reason": "profile: " + d["reason"] + (
+                                   "; held at the parameter file's value (inside the profile set)" if d["file_in_set"]
+                                   else "; the parameter file's value is outside the profile set: the best profile "
+                                        "fit's value is used, one of the set"),
+                               "value_if_free": d["value_if_free"], "stderr_if_free": None, "held_at": d["held_at"],
+                               "profile_set": d["components"], "file_value": params.value(n)}
         else:
             # an empty free set: the declared model whose uncertain parameters the runs do not determine
             ident = Identifier(None, params, job["free"], effects=job["effects"], settings=job["settings"],
@@ -80,7 +92,9 @@ def _fit_job(job: dict) -> dict:
         for n, (lo, hi) in job["profile"].items():
             est[n] = {"value": prof.values[n], "stderr": None, "init": params.value(n), "at_bound": prof.at_bound[n],
                       "min": lo, "max": hi, "unit": params[n].unit, "interval": prof.interval[n],
-                      "profiled": True, "mattered": prof.mattered[n]}
+                      "profiled": True, "mattered": prof.mattered[n],
+                      **({"determined": False, "held": bool(prof.determination[n]["file_in_set"])}
+                         if n in held else {})}
     preds = {r: {"time": p["time"], "measured": dict(p["measured"]), "simulated": dict(p["simulated"]),
                  "holdout": p["holdout"], "segment_starts": p["segment_starts"]} for r, p in res.predictions.items()}
     if prof is None:
@@ -357,7 +371,7 @@ def _plausibility(fit: dict, spec: CandidateSpec, plaus: Mapping | None = None) 
             continue
         if e["at_bound"]:
             why.append(f"{n} at the {e['at_bound']} end of its profile range")
-        elif e["interval"] is not None:
+        elif e["interval"] is not None and e.get("determined", True):  # a profile set that does not determine it
             determined += 1
     pairs = spec.name in ("screw_friction_ripple", "cogging_torque")
     # "collapses to zero" says the effect is absent: only for a parameter whose zero is the effect's neutral value
@@ -401,7 +415,8 @@ def _param_entry(e: dict) -> dict:
 def _held_out(fit: dict) -> list[dict]:
     """The parameters a candidate fit held at their file values because the run does not determine them."""
     return [{"parameter": n, "held_at": h["held_at"], "unit": fit["estimates"].get(n, {}).get("unit", ""),
-             "reason": h["reason"], "value_if_free": h["value_if_free"], "stderr_if_free": h["stderr_if_free"]}
+             "reason": h["reason"], "value_if_free": h["value_if_free"], "stderr_if_free": h["stderr_if_free"],
+             **({"profile_set": h["profile_set"], "file_value": h["file_value"]} if "profile_set" in h else {})}
             for n, h in (fit.get("held") or {}).items()]
 
 
