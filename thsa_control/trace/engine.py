@@ -396,6 +396,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "runs": data, "profile": dict(profile or {}), "judge": judge,
                 "profile_fractions": dict(spec.profile_fractions) if spec is not None and profile else {},
                 "hold_at": {n: (pset.value(n) if spec is not None and spec.start else params.value(n)) for n in judge}, "determination_z": st.determination_z,
+                "alpha": st.alpha,
                 "second_stage": tuple(spec.second_stage) if spec is not None and not profile else (),
                 "absent": {n: zero_is_absent(spec.name, n) for n in judge}}
 

@@ -50,7 +50,8 @@ def _fit_job(job: dict) -> dict:
             # the profile set's threshold scaled as the ambiguity gap's (engine._rivals: reduced chi2 x IACT)
             prof = profile_identify(job["runs"], params, job["free"], job["profile"], effects=job["effects"],
                                     settings=job["settings"], fractions=job.get("profile_fractions"),
-                                    iact=lambda e: e.size / max(_effective_n_iact(e), 1.0))
+                                    iact=lambda e: e.size / max(_effective_n_iact(e), 1.0),
+                                    holdout_gap=_profile_holdout_gap(job["settings"].noise, job.get("alpha", 1e-3)))
             res = prof.result
             for n, d in prof.determination.items():
                 if not d["determined"]:  # identifiability before plausibility: the profile says it
@@ -116,6 +117,25 @@ def _fit_job(job: dict) -> dict:
             "status": res.status, "time_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
             "predictions": preds,
             "params_toml": res.to_parameter_set().to_toml(), "profile": prof.to_dict() if prof is not None else None}
+
+
+def _profile_holdout_gap(noise, alpha: float):
+    """``gap(result)``: the held-out chi2 difference the data resolve at a profile fit, scaled as the ambiguity gap
+    (:func:`thsa_control.trace.engine._rivals`: the ``chi2(1)`` quantile at ``alpha`` x the reduced held-out chi2 x
+    the held-out residual's IACT); infinite without a noise level (nothing to scale by)."""
+    from scipy.stats import chi2
+
+    from .engine import _holdout_iact, _holdout_samples
+
+    def gap(res) -> float:
+        if not noise:
+            return math.inf
+        fit = {"predictions": res.predictions}
+        hold = sum(chi2_by_channel(res.predictions, noise, "holdout").values())
+        n = _holdout_samples(fit)
+        return float(chi2.ppf(1 - alpha, 1)) * max(1.0, hold / max(n, 1)) * _holdout_iact(fit, noise)
+
+    return gap
 
 
 def _second_stage(job: dict, res, params: ParameterSet, held: dict):
