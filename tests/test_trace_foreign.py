@@ -315,6 +315,22 @@ def test_out_of_library_effect_is_unexplained_with_its_signature(traced, name):
 
 @pytest.mark.campaign
 @pytest.mark.slow
+def test_no_ratchet_backlash_invented_beside_a_load_path_backlash(traced):
+    """rig base + load-path backlash on an elastic surface (spring_load_ramp): the load path is found; no other
+    physical effect is added, and every effect added lowers the error on the samples it was fitted to (its AIC
+    drop is positive: a pitch screened on the held-out segments once bought a ratchet backlash whose training
+    error was higher than without it)."""
+    name = "rig_loadpath_backlash_spring"
+    assert _truth_effects(name) == ["loadpath_backlash"]
+    doc = traced(name)
+    phys = [e["name"] for e in _physical(doc)]
+    assert phys == [LIBRARY["loadpath_backlash"]], doc["rounds"]
+    for e in doc["effects_added"]:
+        assert e.get("aic_drop") is None or e["aic_drop"] > 0, e
+
+
+@pytest.mark.campaign
+@pytest.mark.slow
 @pytest.mark.xfail(strict=False, reason="measured (trace-drags): after the detailed no-back, screw_friction_ripple "
                                         "is added first (window drop 76 %), then the load-path compliance; the "
                                         "Coulomb part stays in the base correction at its bound (0.057 N m, with the "

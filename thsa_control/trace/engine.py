@@ -573,6 +573,13 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 # transients, or a reversal window), where the effect's physics acts too
                 plausible = False
                 why.append(f"{spec.channel} error over the whole record grows by {-err_red[spec.channel]:.0%}")
+            aic_drop = current["aic"] - f["aic"]
+            if aic_drop <= 0:
+                # the training samples prefer the model without it (Akaike): a fit of nested physics cannot rise
+                # there unless its profiled values were chosen on the held-out segments (the pitch screen scores
+                # held-out chi2), and then its held-out drop is no longer out of sample
+                plausible = False
+                why.append(f"not supported by the samples it was fitted to (AIC drop {aic_drop:.3g} <= 0)")
             prelim = drop > thr and max(win_red.values(), default=0.0) >= st.min_window_reduction and plausible
             seg_win = _holdout_segment_changes(current, f, noise, win)
             constant = CANDIDATES.get(spec.name) is not None and CANDIDATES[spec.name].base_correction
@@ -589,7 +596,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             scored.append({
                 "name": spec.name, "score": drop / max(sum(base_hold.values()), 1e-300), "holdout_chi2_drop": drop,
                 "chi2_threshold": thr, "error_reduction": err_red, "window": spec.window, "window_reduction": win_red,
-                "window_reduction_beyond_noise": win_sys, "aic_drop": current["aic"] - f["aic"], "bic_drop": current["bic"] - f["bic"],
+                "window_reduction_beyond_noise": win_sys, "aic_drop": aic_drop, "bic_drop": current["bic"] - f["bic"],
                 "plausible": plausible, "implausible_because": why, "parameters": _params_out(f, spec),
                 "fit_time_s": f["time_s"], "converged": f["converged"], "prelim": prelim, "_fit": f, "_job": jb,
                 "not_determined": _held_out(f),

@@ -66,6 +66,9 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     "rig_worn_spot_stiction": ("reversals_under_load", "rig", "worn_spot_stiction", 37, 5.0, "foreign"),
     # --- a pair of library effects
     "rig_pair_coulomb_ripple": ("trim_ramp_compressive", "rig", "coulomb,screw_ripple", 41, None, "pair"),
+    # a second load-path backlash record (an elastic surface): a ratchet backlash whose pitch was screened on the
+    # held-out segments was added beside it with its training error higher than without it (AIC drop -187)
+    "rig_loadpath_backlash_spring": ("spring_load_ramp", "rig", "loadpath_backlash", 205, None, "library"),
 }
 
 #: run sets traced together (``thsa trace A.csv B.csv``; tests/test_trace_sets.py), written to ``sets/``: the rig base
