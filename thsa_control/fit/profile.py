@@ -375,6 +375,20 @@ def profile_set(x: Sequence[float], y: Sequence[float], threshold: float, search
             "reason": "; ".join(why) if why else None}
 
 
+def why_held(d: Mapping) -> str:
+    """Where a not-determined profiled parameter was held (a ``ProfileResult.determination`` entry), in words."""
+    if d.get("file_in_set") and d.get("held_at") == d.get("file_value"):
+        return "the parameter file's value, inside the profile set"
+    if d.get("file_in_set") and "file_holdout_above_best" in d:
+        return (f"the best profile fit's, one of the set; the parameter file's value is inside the screen's set but "
+                f"its held-out fit is worse by {d['file_holdout_above_best']:.4g}, more than the held-out gap "
+                f"{d['holdout_gap']:.4g}")
+    if d.get("file_in_set"):
+        return "the best profile fit's, one of the set; the profile fit at the parameter file's value failed"
+    return "the best profile fit's, one of the set; the parameter file's value is outside the profile set" + (
+        f" (+{d['file_chi2_above_min']:.4g} above its minimum)" if "file_chi2_above_min" in d else "")
+
+
 def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free: Sequence[str],
                      profile: Mapping[str, tuple[float, float]], *, level: str | None = None, effects=(),
                      settings: IdentificationSettings | None = None, psettings: ProfileSettings | None = None,
@@ -613,6 +627,7 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
         d.update(iact=tau, reduced_chi2=redchi, value_if_free=best[1], held_at=None, file_in_set=None)
         if not d["determined"]:
             v_file = params.value(main)
+            d["file_value"] = v_file
             if lo <= v_file <= hi:
                 c_file = float(screen.chi2_many([params.replace({main: v_file, **held(v_file)})])[0])
                 d["file_chi2_above_min"] = c_file - float(np.min(ally))
@@ -626,8 +641,6 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
                     if held_fit[0] - best[0] <= gap:
                         best = held_fit
                         d["held_at"] = v_file
-                    else:
-                        d["file_in_set"] = False
             if d["held_at"] is None:
                 d["held_at"] = best[1]
             say(f"profile {main}: not determined ({d['reason']}); held at {d['held_at']:.5g}")
@@ -659,9 +672,7 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
              for n in names if not mattered[n]]
     notes += [f"{n} screened at the best {main}, then held as its product with it ({products[n]:.4g}) while {main} "
               f"was screened again" for n in products]
-    notes += [f"{n} not determined by the runs ({d['reason']}): held at {d['held_at']:.5g}"
-              + (" (the parameter file's value, inside the profile set)" if d["file_in_set"] else
-                 " (the best profile fit's; the parameter file's value is outside the profile set)")
+    notes += [f"{n} not determined by the runs ({d['reason']}): held at {d['held_at']:.5g} ({why_held(d)})"
               for n, d in determination.items() if not d["determined"]]
     return ProfileResult(best[2], values, intervals, at_bound, mattered, screens, fits, time.perf_counter() - t0,
                          thr, notes, t_screen, determination)

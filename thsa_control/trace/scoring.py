@@ -43,7 +43,7 @@ def _fit_job(job: dict) -> dict:
         params = ParameterSet.from_toml(job["params_toml"])
         prof = None
         if job.get("profile"):
-            from ..fit.profile import profile_identify
+            from ..fit.profile import profile_identify, why_held
 
             from .signature import _effective_n_iact
 
@@ -55,10 +55,7 @@ def _fit_job(job: dict) -> dict:
             res = prof.result
             for n, d in prof.determination.items():
                 if not d["determined"]:  # identifiability before plausibility: the profile says it
-                    held[n] = {"reason": "profile: " + d["reason"] + (
-                                   "; held at the parameter file's value (inside the profile set)" if d["file_in_set"]
-                                   else "; the parameter file's value is outside the profile set: the best profile "
-                                        "fit's value is used, one of the set"),
+                    held[n] = {"reason": f"profile: {d['reason']}; held at {why_held(d)}",
                                "value_if_free": d["value_if_free"], "stderr_if_free": None, "held_at": d["held_at"],
                                "profile_set": d["components"], "file_value": params.value(n)}
         else:
@@ -94,7 +91,7 @@ def _fit_job(job: dict) -> dict:
             est[n] = {"value": prof.values[n], "stderr": None, "init": params.value(n), "at_bound": prof.at_bound[n],
                       "min": lo, "max": hi, "unit": params[n].unit, "interval": prof.interval[n],
                       "profiled": True, "mattered": prof.mattered[n],
-                      **({"determined": False, "held": bool(prof.determination[n]["file_in_set"])}
+                      **({"determined": False, "held": prof.determination[n]["held_at"] == params.value(n)}
                          if n in held else {})}
     preds = {r: {"time": p["time"], "measured": dict(p["measured"]), "simulated": dict(p["simulated"]),
                  "holdout": p["holdout"], "segment_starts": p["segment_starts"]} for r, p in res.predictions.items()}
@@ -125,8 +122,6 @@ def _profile_holdout_gap(noise, alpha: float):
     the held-out residual's IACT); infinite without a noise level (nothing to scale by)."""
     from scipy.stats import chi2
 
-    from .engine import _holdout_iact, _holdout_samples
-
     def gap(res) -> float:
         if not noise:
             return math.inf
@@ -136,6 +131,47 @@ def _profile_holdout_gap(noise, alpha: float):
         return float(chi2.ppf(1 - alpha, 1)) * max(1.0, hold / max(n, 1)) * _holdout_iact(fit, noise)
 
     return gap
+
+
+def _holdout_iact(fit: dict, noise, mask: dict | None = None) -> float:
+    """Integrated autocorrelation time of a fit's held-out residual (noise-weighted, Geyer's estimate per held-out
+    segment run and channel, averaged with the channels' chi2 as weights), at least 1.
+
+    A chi2 difference between two fits is a sum over the residual times the change of the prediction; when the
+    residual is autocorrelated structure, not white noise, its variance grows by this factor (the quasi-likelihood
+    scaling by the reduced chi2 covers the residual's size, this its correlation).
+    """
+    from .signature import _effective_n_iact
+
+    acc, wsum = 0.0, 0.0
+    for r, p in fit["predictions"].items():
+        hold = np.asarray(p["holdout"], bool)
+        if mask is not None:
+            hold = hold & np.asarray(mask[r], bool)[:hold.size]
+        for c, y in p["measured"].items():
+            if not noise.get(c):
+                continue
+            e = ((np.asarray(y, float) - np.asarray(p["simulated"][c], float)) / noise[c])[:hold.size]
+            m = hold[:e.size] & np.isfinite(e)
+            x = e[m]
+            if x.size < 8:
+                continue
+            w = float(x @ x)
+            acc += w * x.size / max(_effective_n_iact(x), 1.0)
+            wsum += w
+    return max(acc / wsum, 1.0) if wsum > 0 else 1.0
+
+
+def _holdout_samples(fit: dict, mask: dict | None = None) -> int:
+    """Number of finite held-out samples over all channels of a fit (inside ``mask[run]`` when given)."""
+    n = 0
+    for r, p in fit["predictions"].items():
+        hold = np.asarray(p["holdout"], bool)
+        if mask is not None:
+            hold = hold & np.asarray(mask[r], bool)[:hold.size]
+        for c, y in p["measured"].items():
+            n += int(np.sum(hold & np.isfinite(np.asarray(y) - np.asarray(p["simulated"][c]))[:hold.size]))
+    return n
 
 
 def _second_stage(job: dict, res, params: ParameterSet, held: dict):
