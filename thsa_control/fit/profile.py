@@ -149,8 +149,11 @@ class ProfileResult:
         done with it: ``determined``, ``reason``, ``components``, ``threshold``,
         ``iact``, ``reduced_chi2``, ``value_if_free`` (the best profile fit's
         value), ``held_at`` (the value used when not determined: the parameter
-        file's when the profile set holds it, else the best fit's) and
-        ``file_in_set``.
+        file's when the profile set holds it and its held-out fit is within
+        the held-out gap of the best, else the best fit's), ``file_value``,
+        ``file_in_set`` (in the screen's set), ``file_chi2_above_min`` and,
+        where the file value was fitted, ``file_holdout_above_best`` and
+        ``holdout_gap``; :func:`why_held` says it in words.
     """
 
     result: IdentificationResult
