@@ -288,6 +288,27 @@ def test_base_step_details_the_declared_no_back(traced, name):
         assert c["bound"][0] - 1e-9 <= c["value"] <= c["bound"][1] + 1e-9 and c["bound_source"], c
 
 
+@pytest.mark.campaign
+@pytest.mark.slow
+def test_a_pitch_one_loaded_stop_cannot_fix_is_reported_not_determined(traced, params):
+    """rig_ratchet_backlash: one stop under load after one long extension shows the pawl pitch only through the
+    stop's depth, the extension's travel modulo the pitch (a comb of pitches).  The backlash is added (its window
+    drop is the library test's), and its pitch is reported not determined with the profile's set (several
+    ranges), the interval shown being that set's hull, not a local one; held at the file value where the set and
+    the held-out fits keep it, else at the best profile fit's."""
+    doc = traced("rig_ratchet_backlash")
+    step = next((e for e in doc["effects_added"] if e["name"] == "noback_backlash"), None)
+    assert step is not None, doc["rounds"]
+    held = {h["parameter"]: h for h in step["not_determined"]}
+    assert "noback.pawl_pitch" in held, step["not_determined"]
+    h = held["noback.pawl_pitch"]
+    assert len(h["profile_set"]) >= 2, h
+    p = step["parameters"]["noback.pawl_pitch"]
+    assert p["ci95"] == pytest.approx([h["profile_set"][0][0], h["profile_set"][-1][1]])
+    assert p["value"] == pytest.approx(h["held_at"])
+    assert h["held_at"] in (pytest.approx(params.value("noback.pawl_pitch")), pytest.approx(h["value_if_free"]))
+
+
 FOREIGN = {f"rig_{k}": tuple(v) for k, v in CATALOGUE["foreign"].items()}
 
 

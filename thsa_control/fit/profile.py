@@ -65,7 +65,8 @@ from .segment_states import (
     one_step_map,
 )
 
-__all__ = ["OneStepScreen", "ProfileResult", "ProfileSettings", "chi2_by_channel", "holdout_chi2", "profile_identify"]
+__all__ = ["OneStepScreen", "ProfileResult", "ProfileSettings", "chi2_by_channel", "holdout_chi2", "profile_identify",
+           "profile_set"]
 
 
 @dataclass(frozen=True)
@@ -87,6 +88,14 @@ class ProfileSettings:
         Extra profile fits half a fine step either side of the best (0 or 2).
     level : float
         Confidence level of the profile interval.
+    determined_span : float
+        Largest share of the first parameter's search range (in its grid's
+        coordinate: logarithmic for a geometric grid) its profile set may
+        cover and still count as determined (:func:`profile_set`).  The
+        search range is the parameter's plausible range (for the pawl pitch
+        0.2..2 x the papers' maximum); a set covering more than half of it
+        has not halved what was known before the run (less than one bit of
+        information): the run does not determine the parameter.
     """
 
     screen_points: int = 301
@@ -95,6 +104,7 @@ class ProfileSettings:
     fine_points: int = 21
     refine_fits: int = 0
     level: float = 0.95
+    determined_span: float = 0.5
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad field."""
@@ -108,6 +118,8 @@ class ProfileSettings:
             raise ValueError(f"ProfileSettings.refine_fits = {self.refine_fits!r} must be 0 or 2")
         if not (0 < self.level < 1):
             raise ValueError(f"ProfileSettings.level = {self.level!r} must lie in (0, 1)")
+        if not (0 < self.determined_span <= 1):
+            raise ValueError(f"ProfileSettings.determined_span = {self.determined_span!r} must lie in (0, 1]")
 
 
 @dataclass(frozen=True)
@@ -132,6 +144,16 @@ class ProfileResult:
     fits : list of dict
         The profile fits: ``values``, ``score`` (held-out chi-square), ``chisqr``.
     time_s : float
+    determination : dict name -> dict
+        The first parameter's profile set (:func:`profile_set`) and what was
+        done with it: ``determined``, ``reason``, ``components``, ``threshold``,
+        ``iact``, ``reduced_chi2``, ``value_if_free`` (the best profile fit's
+        value), ``held_at`` (the value used when not determined: the parameter
+        file's when the profile set holds it and its held-out fit is within
+        the held-out gap of the best, else the best fit's), ``file_value``,
+        ``file_in_set`` (in the screen's set), ``file_chi2_above_min`` and,
+        where the file value was fitted, ``file_holdout_above_best`` and
+        ``holdout_gap``; :func:`why_held` says it in words.
     """
 
     result: IdentificationResult
@@ -145,6 +167,7 @@ class ProfileResult:
     threshold: float = math.nan
     notes: list = field(default_factory=list)
     screen_time_s: float = math.nan
+    determination: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         """JSON-ready summary (no time series)."""
@@ -152,7 +175,7 @@ class ProfileResult:
                 "at_bound": dict(self.at_bound), "mattered": dict(self.mattered),
                 "screen": {n: [[float(a), float(b)] for a, b in v] for n, v in self.screen.items()},
                 "fits": [dict(f) for f in self.fits], "time_s": self.time_s, "screen_time_s": self.screen_time_s,
-                "threshold": self.threshold,
+                "threshold": self.threshold, "determination": {n: dict(d) for n, d in self.determination.items()},
                 "notes": list(self.notes)}
 
 
@@ -295,12 +318,88 @@ def _interval(x: np.ndarray, y: np.ndarray, i0: int, thr: float) -> tuple[float,
     return float(x[i - 1]), float(x[j + 1])
 
 
+def profile_set(x: Sequence[float], y: Sequence[float], threshold: float, search: tuple[float, float],
+                steps: int, chosen: float | None = None, span: float = 0.5) -> dict:
+    """The profile-likelihood set of a screened parameter and whether it determines the parameter.
+
+    The set is every screened value whose chi-square lies within ``threshold`` of the profile's minimum (the
+    ``chi2(1)`` quantile scaled as the fit's held-out differences are: reduced chi-square x the residual's
+    integrated autocorrelation time).  Its connected components are runs of consecutive screened values;
+    two runs separated by less than two steps of the coarse grid (``steps`` values over ``search``: at most
+    one coarse value between them) are one component, since the screen resolves nothing finer than its grid
+    (a switch acts at whole samples: the profile is a staircase at fine scale).
+
+    Determined when the set is one component, does not reach an end of the search range, covers at most
+    ``span`` of the range (in the grid's coordinate: the logarithm for a geometric grid, i.e. a range that
+    starts above 0) and holds ``chosen`` (the value the held-out profile fits chose) within one coarse step.
+    A pawl pitch seen through one stop's depth (the travel modulo the pitch) has a comb of equal minima:
+    several components, and the screen samples the comb at random.
+
+    Returns a dict: ``components`` (list of [lo, hi]), ``threshold``, ``determined``, ``reason`` (None when
+    determined), ``share`` (of the search range the set's hull covers).
+    """
+    x = np.asarray(x, float)
+    y = np.asarray(y, float)
+    order = np.argsort(x)
+    x, y = x[order], y[order]
+    lo, hi = search
+    geo = lo > 0
+    u = np.log(x) if geo else x
+    ulo, uhi = (math.log(lo), math.log(hi)) if geo else (lo, hi)
+    step = (uhi - ulo) / max(steps - 1, 1)
+    ok = np.isfinite(y)
+    if not ok.any():
+        return {"components": [], "threshold": float(threshold), "determined": False, "share": math.nan,
+                "reason": "no screened value gives a finite chi-square"}
+    top = float(np.min(y[ok])) + threshold
+    inside = np.flatnonzero(ok & (y <= top))
+    comps: list[list[int]] = []
+    for i in inside:
+        if comps and u[i] - u[comps[-1][1]] < 2 * step * (1 + 1e-9):
+            comps[-1][1] = int(i)
+        else:
+            comps.append([int(i), int(i)])
+    components = [[float(x[a]), float(x[b])] for a, b in comps]
+    share = float((u[inside[-1]] - u[inside[0]]) / (uhi - ulo)) if uhi > ulo else math.nan
+    why = []
+    if len(comps) > 1:
+        why.append(f"{len(comps)} separate ranges within the threshold (a comb of equal minima): "
+                   + ", ".join(f"{a:.4g}" if a == b else f"{a:.4g}..{b:.4g}" for a, b in components))
+    if comps[0][0] == 0 or comps[-1][1] == x.size - 1:
+        why.append(f"the set reaches an end of the search range {lo:g}..{hi:g}")
+    if share > span:
+        why.append(f"the set covers {share:.0%} of the search range (more than {span:.0%})")
+    if chosen is not None and not why:
+        uc = math.log(chosen) if geo else chosen
+        if not (u[comps[0][0]] - step * (1 + 1e-9) <= uc <= u[comps[0][1]] + step * (1 + 1e-9)):
+            why.append(f"the held-out profile fits chose {chosen:.4g}, outside the screen's set "
+                       f"{components[0][0]:.4g}..{components[0][1]:.4g}")
+    return {"components": components, "threshold": float(threshold), "determined": not why, "share": share,
+            "reason": "; ".join(why) if why else None}
+
+
+def why_held(d: Mapping) -> str:
+    """Where a not-determined profiled parameter was held (a ``ProfileResult.determination`` entry), in words."""
+    if d.get("file_in_set") and d.get("held_at") == d.get("file_value"):
+        return "the parameter file's value, inside the profile set"
+    if d.get("file_in_set") and "file_holdout_above_best" in d:
+        return (f"the best profile fit's, one of the set; the parameter file's value is inside the screen's set but "
+                f"its held-out fit is worse by {d['file_holdout_above_best']:.4g}, more than the held-out gap "
+                f"{d['holdout_gap']:.4g}")
+    if d.get("file_in_set"):
+        return "the best profile fit's, one of the set; the profile fit at the parameter file's value failed"
+    return "the best profile fit's, one of the set; the parameter file's value is outside the profile set" + (
+        f" (+{d['file_chi2_above_min']:.4g} above its minimum)" if "file_chi2_above_min" in d else "")
+
+
 def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free: Sequence[str],
                      profile: Mapping[str, tuple[float, float]], *, level: str | None = None, effects=(),
                      settings: IdentificationSettings | None = None, psettings: ProfileSettings | None = None,
                      score: Callable[[IdentificationResult], float] | None = None,
                      progress: Callable[[str], None] | None = None,
-                     fractions: Mapping[str, str] | None = None) -> ProfileResult:
+                     fractions: Mapping[str, str] | None = None,
+                     iact: Callable[[np.ndarray], float] | None = None,
+                     holdout_gap: Callable[[IdentificationResult], float] | None = None) -> ProfileResult:
     """Identify ``free`` with the ``profile`` parameters searched over their ranges (see the module doc).
 
     Parameters
@@ -335,6 +434,26 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
         points, the fraction never moved: on rig-sim's trim runs (pawl phases
         drawn from the seed) it stayed at the file's 0.5 on every seed and
         the pitch came out as twice the first back-drive's clearance.
+    iact : callable, optional
+        ``iact(errors) -> float``: the integrated autocorrelation time of the
+        one-step errors at the best screened value (1 when not given).  The
+        profile set's threshold (:func:`profile_set`) is the ``chi2(1)``
+        quantile x the screen's reduced chi-square x this time: a difference
+        of chi-squares is a sum over an autocorrelated residual, whose
+        variance grows by that factor (the tracer's ambiguity gap, scaled the
+        same way).  When the set does not determine the first parameter, it
+        is held at the parameter file's value where the set holds that value
+        (one more profile fit, the fractions' products as screened), else at
+        the best fit's value; either way ``determination`` says so.
+    holdout_gap : callable, optional
+        ``holdout_gap(result) -> float``: the difference of held-out scores
+        the data resolve at the best profile fit (the tracer's ambiguity gap).
+        The parameter file's value is held only when its profile fit's
+        held-out score is within that gap of the best fit's too: the one-step
+        screen scores every sample, the fits are judged on the held-out ones,
+        and a value both do not reject is the one to hold (measured: a
+        5 deg rig-sim pitch, the file's 8.57 deg inside the screen's set, held
+        out 80 879 against 60 701 at the best tooth).
 
     Raises
     ------
@@ -471,7 +590,7 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
     # 3: profile fits at the candidate minima, scored on held-out data
     fits, best = [], None
 
-    def fit_at(v: float):
+    def fit_at(v: float, keep: bool = True):
         nonlocal best
         at = others_at(v)
         pset = params.replace({main: float(v), **at})
@@ -480,12 +599,14 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
         except (ThsaError, RuntimeError) as exc:  # one value failing does not end the profile
             fits.append({"values": {main: float(v), **at}, "error": str(exc)})
             say(f"profile fit {main} = {v:.5g} failed: {exc}")
-            return
+            return None
         s = float(score(res))
-        fits.append({"values": {main: float(v), **at}, "score": s, "chisqr": res.chisqr, "converged": res.converged})
+        fits.append({"values": {main: float(v), **at}, "score": s, "chisqr": res.chisqr, "converged": res.converged,
+                     **({} if keep else {"held": True})})
         say(f"profile fit {main} = {v:.5g}: held-out chi2 {s:.5g}")
-        if best is None or s < best[0]:
+        if keep and (best is None or s < best[0]):
             best = (s, float(v), res)
+        return s, float(v), res
 
     for v in dict.fromkeys(cands):
         fit_at(v)
@@ -497,6 +618,36 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
         for v in (v0 - 0.5 * step, v0 + 0.5 * step):
             if lo <= v <= hi:
                 fit_at(v)
+    # is the first parameter determined?  its profile set at the threshold the tracer uses for held-out differences
+    determination: dict = {}
+    if mattered[main] and not integer:
+        e_best = screen._errors_many([params.replace({main: float(allx[int(np.argmin(ally))]),
+                                                      **held(float(allx[int(np.argmin(ally))]))})])[0]
+        e_best = e_best[np.isfinite(e_best)]
+        tau = max(float(iact(e_best)), 1.0) if iact is not None and e_best.size >= 8 else 1.0
+        d = profile_set(allx, ally, q * max(redchi, 1.0) * tau, (lo, hi), ps.screen_points, best[1],
+                        ps.determined_span)
+        d.update(iact=tau, reduced_chi2=redchi, value_if_free=best[1], held_at=None, file_in_set=None)
+        if not d["determined"]:
+            v_file = params.value(main)
+            d["file_value"] = v_file
+            if lo <= v_file <= hi:
+                c_file = float(screen.chi2_many([params.replace({main: v_file, **held(v_file)})])[0])
+                d["file_chi2_above_min"] = c_file - float(np.min(ally))
+                d["file_in_set"] = bool(c_file <= float(np.min(ally)) + d["threshold"])
+            if d["file_in_set"]:
+                held_fit = fit_at(v_file, keep=False)
+                if held_fit is not None:
+                    gap = float(holdout_gap(best[2])) if holdout_gap is not None else math.inf
+                    d["file_holdout_above_best"] = held_fit[0] - best[0]
+                    d["holdout_gap"] = gap
+                    if held_fit[0] - best[0] <= gap:
+                        best = held_fit
+                        d["held_at"] = v_file
+            if d["held_at"] is None:
+                d["held_at"] = best[1]
+            say(f"profile {main}: not determined ({d['reason']}); held at {d['held_at']:.5g}")
+        determination[main] = d
     values = {main: best[1], **others_at(best[1])}
     # interval of the chosen value on the screened profile (nearest screened point, then its local minimum)
     intervals, at_bound = {}, {}
@@ -513,6 +664,9 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
             i0 = min(nb, key=lambda j: ys[j])
         iv = _interval(xs, ys, i0, thr) if mattered[name] else None
         intervals[name] = (iv[0] * scale, iv[1] * scale) if iv is not None else None
+        if name in determination and not determination[name]["determined"]:
+            comps = determination[name]["components"]  # the profile's set, not a local interval
+            intervals[name] = (comps[0][0], comps[-1][1]) if comps else None
         rlo, rhi = profile[name]
         span = rhi - rlo
         at_bound[name] = ("min" if values[name] - rlo <= 1e-9 * span else
@@ -521,5 +675,7 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
              for n in names if not mattered[n]]
     notes += [f"{n} screened at the best {main}, then held as its product with it ({products[n]:.4g}) while {main} "
               f"was screened again" for n in products]
+    notes += [f"{n} not determined by the runs ({d['reason']}): held at {d['held_at']:.5g} ({why_held(d)})"
+              for n, d in determination.items() if not d["determined"]]
     return ProfileResult(best[2], values, intervals, at_bound, mattered, screens, fits, time.perf_counter() - t0,
-                         thr, notes, t_screen)
+                         thr, notes, t_screen, determination)

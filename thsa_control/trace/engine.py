@@ -70,7 +70,8 @@ from . import periodicity
 from .residual import _regime_errors, _signature
 from .scoring import (_base_correction, _window_beyond_noise, _channel_errors, _chi2_by_channel, _explainers_at_bound, _held_out,
                       _holdout_segment_changes,
-                      _held_params, _null_runs, _param_entry, _plausibility, _rms_by_channel, _run_jobs,
+                      _held_params, _holdout_iact, _holdout_samples, _null_runs, _param_entry, _plausibility,
+                      _rms_by_channel, _run_jobs,
                       _signature_brief, zero_is_absent)
 from .signature import SignatureSettings, base_transients, split_remainder
 from .threads import limit_blas_threads
@@ -396,6 +397,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "runs": data, "profile": dict(profile or {}), "judge": judge,
                 "profile_fractions": dict(spec.profile_fractions) if spec is not None and profile else {},
                 "hold_at": {n: (pset.value(n) if spec is not None and spec.start else params.value(n)) for n in judge}, "determination_z": st.determination_z,
+                "alpha": st.alpha,
                 "second_stage": tuple(spec.second_stage) if spec is not None and not profile else (),
                 "absent": {n: zero_is_absent(spec.name, n) for n in judge}}
 
@@ -1031,47 +1033,6 @@ def _repetition(current: dict, fit: dict, spec: CandidateSpec, k: int, runs, noi
     out = periodicity.repetition_test(segs, period, thr)
     out.update(reduced_chi2=hold / max(n, 1), iact=tau)
     return out
-
-
-def _holdout_iact(fit: dict, noise, mask: dict | None = None) -> float:
-    """Integrated autocorrelation time of a fit's held-out residual (noise-weighted, Geyer's estimate per held-out
-    segment run and channel, averaged with the channels' chi2 as weights), at least 1.
-
-    A chi2 difference between two fits is a sum over the residual times the change of the prediction; when the
-    residual is autocorrelated structure, not white noise, its variance grows by this factor (the quasi-likelihood
-    scaling by the reduced chi2 covers the residual's size, this its correlation).
-    """
-    from .signature import _effective_n_iact
-
-    acc, wsum = 0.0, 0.0
-    for r, p in fit["predictions"].items():
-        hold = np.asarray(p["holdout"], bool)
-        if mask is not None:
-            hold = hold & np.asarray(mask[r], bool)[:hold.size]
-        for c, y in p["measured"].items():
-            if not noise.get(c):
-                continue
-            e = ((np.asarray(y, float) - np.asarray(p["simulated"][c], float)) / noise[c])[:hold.size]
-            m = hold[:e.size] & np.isfinite(e)
-            x = e[m]
-            if x.size < 8:
-                continue
-            w = float(x @ x)
-            acc += w * x.size / max(_effective_n_iact(x), 1.0)
-            wsum += w
-    return max(acc / wsum, 1.0) if wsum > 0 else 1.0
-
-
-def _holdout_samples(fit: dict, mask: dict | None = None) -> int:
-    """Number of finite held-out samples over all channels of a fit (inside ``mask[run]`` when given)."""
-    n = 0
-    for r, p in fit["predictions"].items():
-        hold = np.asarray(p["holdout"], bool)
-        if mask is not None:
-            hold = hold & np.asarray(mask[r], bool)[:hold.size]
-        for c, y in p["measured"].items():
-            n += int(np.sum(hold & np.isfinite(np.asarray(y) - np.asarray(p["simulated"][c]))[:hold.size]))
-    return n
 
 
 def _params_out(f: dict, spec: CandidateSpec) -> dict:

@@ -43,11 +43,21 @@ def _fit_job(job: dict) -> dict:
         params = ParameterSet.from_toml(job["params_toml"])
         prof = None
         if job.get("profile"):
-            from ..fit.profile import profile_identify
+            from ..fit.profile import profile_identify, why_held
 
+            from .signature import _effective_n_iact
+
+            # the profile set's threshold scaled as the ambiguity gap's (engine._rivals: reduced chi2 x IACT)
             prof = profile_identify(job["runs"], params, job["free"], job["profile"], effects=job["effects"],
-                                    settings=job["settings"], fractions=job.get("profile_fractions"))
+                                    settings=job["settings"], fractions=job.get("profile_fractions"),
+                                    iact=lambda e: e.size / max(_effective_n_iact(e), 1.0),
+                                    holdout_gap=_profile_holdout_gap(job["settings"].noise, job.get("alpha", 1e-3)))
             res = prof.result
+            for n, d in prof.determination.items():
+                if not d["determined"]:  # identifiability before plausibility: the profile says it
+                    held[n] = {"reason": f"profile: {d['reason']}; held at {why_held(d)}",
+                               "value_if_free": d["value_if_free"], "stderr_if_free": None, "held_at": d["held_at"],
+                               "profile_set": d["components"], "file_value": params.value(n)}
         else:
             # an empty free set: the declared model whose uncertain parameters the runs do not determine
             ident = Identifier(None, params, job["free"], effects=job["effects"], settings=job["settings"],
@@ -80,7 +90,9 @@ def _fit_job(job: dict) -> dict:
         for n, (lo, hi) in job["profile"].items():
             est[n] = {"value": prof.values[n], "stderr": None, "init": params.value(n), "at_bound": prof.at_bound[n],
                       "min": lo, "max": hi, "unit": params[n].unit, "interval": prof.interval[n],
-                      "profiled": True, "mattered": prof.mattered[n]}
+                      "profiled": True, "mattered": prof.mattered[n],
+                      **({"determined": False, "held": prof.determination[n]["held_at"] == params.value(n)}
+                         if n in held else {})}
     preds = {r: {"time": p["time"], "measured": dict(p["measured"]), "simulated": dict(p["simulated"]),
                  "holdout": p["holdout"], "segment_starts": p["segment_starts"]} for r, p in res.predictions.items()}
     if prof is None:
@@ -102,6 +114,64 @@ def _fit_job(job: dict) -> dict:
             "status": res.status, "time_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
             "predictions": preds,
             "params_toml": res.to_parameter_set().to_toml(), "profile": prof.to_dict() if prof is not None else None}
+
+
+def _profile_holdout_gap(noise, alpha: float):
+    """``gap(result)``: the held-out chi2 difference the data resolve at a profile fit, scaled as the ambiguity gap
+    (:func:`thsa_control.trace.engine._rivals`: the ``chi2(1)`` quantile at ``alpha`` x the reduced held-out chi2 x
+    the held-out residual's IACT); infinite without a noise level (nothing to scale by)."""
+    from scipy.stats import chi2
+
+    def gap(res) -> float:
+        if not noise:
+            return math.inf
+        fit = {"predictions": res.predictions}
+        hold = sum(chi2_by_channel(res.predictions, noise, "holdout").values())
+        n = _holdout_samples(fit)
+        return float(chi2.ppf(1 - alpha, 1)) * max(1.0, hold / max(n, 1)) * _holdout_iact(fit, noise)
+
+    return gap
+
+
+def _holdout_iact(fit: dict, noise, mask: dict | None = None) -> float:
+    """Integrated autocorrelation time of a fit's held-out residual (noise-weighted, Geyer's estimate per held-out
+    segment run and channel, averaged with the channels' chi2 as weights), at least 1.
+
+    A chi2 difference between two fits is a sum over the residual times the change of the prediction; when the
+    residual is autocorrelated structure, not white noise, its variance grows by this factor (the quasi-likelihood
+    scaling by the reduced chi2 covers the residual's size, this its correlation).
+    """
+    from .signature import _effective_n_iact
+
+    acc, wsum = 0.0, 0.0
+    for r, p in fit["predictions"].items():
+        hold = np.asarray(p["holdout"], bool)
+        if mask is not None:
+            hold = hold & np.asarray(mask[r], bool)[:hold.size]
+        for c, y in p["measured"].items():
+            if not noise.get(c):
+                continue
+            e = ((np.asarray(y, float) - np.asarray(p["simulated"][c], float)) / noise[c])[:hold.size]
+            m = hold[:e.size] & np.isfinite(e)
+            x = e[m]
+            if x.size < 8:
+                continue
+            w = float(x @ x)
+            acc += w * x.size / max(_effective_n_iact(x), 1.0)
+            wsum += w
+    return max(acc / wsum, 1.0) if wsum > 0 else 1.0
+
+
+def _holdout_samples(fit: dict, mask: dict | None = None) -> int:
+    """Number of finite held-out samples over all channels of a fit (inside ``mask[run]`` when given)."""
+    n = 0
+    for r, p in fit["predictions"].items():
+        hold = np.asarray(p["holdout"], bool)
+        if mask is not None:
+            hold = hold & np.asarray(mask[r], bool)[:hold.size]
+        for c, y in p["measured"].items():
+            n += int(np.sum(hold & np.isfinite(np.asarray(y) - np.asarray(p["simulated"][c]))[:hold.size]))
+    return n
 
 
 def _second_stage(job: dict, res, params: ParameterSet, held: dict):
@@ -357,7 +427,7 @@ def _plausibility(fit: dict, spec: CandidateSpec, plaus: Mapping | None = None) 
             continue
         if e["at_bound"]:
             why.append(f"{n} at the {e['at_bound']} end of its profile range")
-        elif e["interval"] is not None:
+        elif e["interval"] is not None and e.get("determined", True):  # a profile set that does not determine it
             determined += 1
     pairs = spec.name in ("screw_friction_ripple", "cogging_torque")
     # "collapses to zero" says the effect is absent: only for a parameter whose zero is the effect's neutral value
@@ -401,7 +471,8 @@ def _param_entry(e: dict) -> dict:
 def _held_out(fit: dict) -> list[dict]:
     """The parameters a candidate fit held at their file values because the run does not determine them."""
     return [{"parameter": n, "held_at": h["held_at"], "unit": fit["estimates"].get(n, {}).get("unit", ""),
-             "reason": h["reason"], "value_if_free": h["value_if_free"], "stderr_if_free": h["stderr_if_free"]}
+             "reason": h["reason"], "value_if_free": h["value_if_free"], "stderr_if_free": h["stderr_if_free"],
+             **({"profile_set": h["profile_set"], "file_value": h["file_value"]} if "profile_set" in h else {})}
             for n, h in (fit.get("held") or {}).items()]
 
 
