@@ -79,7 +79,9 @@ def test_plain_screw_drive_coulomb_then_offset(record, params):
 
 @pytest.mark.parametrize("effect, values, candidates, load, temperature", [
     ("coulomb_friction", {"drive.coulomb_torque": 0.05}, ("coulomb_friction", "screw_friction_ripple"), 0.0, 25.0),
-    ("force_offset", {"drive.axial_force_offset": 1500.0}, ("force_offset", "cogging_torque"), 0.0, 25.0),
+    # slow: in the fast subset test_plain_screw_drive_coulomb_then_offset finds the force offset (within 10 %)
+    pytest.param("force_offset", {"drive.axial_force_offset": 1500.0}, ("force_offset", "cogging_torque"), 0.0, 25.0,
+                 marks=pytest.mark.slow),
 ])
 def test_candidate_is_found_first_and_halves_its_channel_error(record, params, effect, values, candidates, load,
                                                                temperature):
