@@ -32,6 +32,33 @@ from collections.abc import Mapping
 import numpy as np
 
 
+def run_segment_drops(pb: Mapping, pa: Mapping, noise: Mapping[str, float], sel: np.ndarray | None = None):
+    """One run's predictions before (``pb``) and after (``pa``): per shooting segment, the noise-weighted chi2
+    drop over its held-out samples (those of ``sel`` too, where given) and how many samples it counts.
+
+    Returns ``(hold, starts, seg, drop, counted)``: the held-out flags, the segment starts as sample indices, the
+    segment of each sample (-1 before the first), and per segment the drop and the counted samples."""
+    hold = np.asarray(pb["holdout"], bool)
+    n = hold.size
+    t = np.asarray(pb["time"], float)[:n]
+    st = np.asarray(pb["segment_starts"])
+    st = np.searchsorted(t, st) if st.dtype.kind == "f" else st.astype(int)
+    seg = np.searchsorted(st, np.arange(n), side="right") - 1
+    keep = hold & (seg >= 0) if sel is None else hold & (seg >= 0) & np.asarray(sel, bool)[:n]
+    d = np.zeros(len(st))
+    counted = np.zeros(len(st), int)
+    for c, y in pb["measured"].items():
+        if c not in pa["simulated"] or not noise.get(c):
+            continue
+        y = np.asarray(y, float)[:n]
+        eb = ((y - np.asarray(pb["simulated"][c], float)[:n]) / noise[c]) ** 2
+        ea = ((y - np.asarray(pa["simulated"][c], float)[:n]) / noise[c]) ** 2
+        m = keep & np.isfinite(eb) & np.isfinite(ea)
+        np.add.at(d, seg[m], (eb - ea)[m])
+        np.add.at(counted, seg[m], 1)
+    return hold, st, seg, d, counted
+
+
 def segment_drops(before: dict, after: dict, noise: Mapping[str, float], position: Mapping[str, np.ndarray],
                   mask: Mapping[str, np.ndarray] | None = None) -> list[dict]:
     """Per held-out segment: its noise-weighted chi2 drop (``before`` less ``after``, over the samples of ``mask``)
@@ -41,28 +68,13 @@ def segment_drops(before: dict, after: dict, noise: Mapping[str, float], positio
         pa = after["predictions"].get(r)
         if pa is None or r not in position:
             continue
-        hold = np.asarray(pb["holdout"], bool)
+        hold, _st, seg, d, counted = run_segment_drops(pb, pa, noise, None if mask is None else mask[r])
         n = hold.size
-        t = np.asarray(pb["time"], float)[:n]
-        st = np.asarray(pb["segment_starts"])
-        st = np.searchsorted(t, st) if st.dtype.kind == "f" else st.astype(int)
-        seg = np.searchsorted(st, np.arange(n), side="right") - 1
         sel = hold & (seg >= 0)
         if mask is not None:
             sel &= np.asarray(mask[r], bool)[:n]
         x = np.asarray(position[r], float)[:n]
-        d = np.zeros(len(st))
-        used = np.zeros(len(st), bool)
-        for c, y in pb["measured"].items():
-            if c not in pa["simulated"] or not noise.get(c):
-                continue
-            y = np.asarray(y, float)[:n]
-            eb = ((y - np.asarray(pb["simulated"][c], float)[:n]) / noise[c]) ** 2
-            ea = ((y - np.asarray(pa["simulated"][c], float)[:n]) / noise[c]) ** 2
-            m = sel & np.isfinite(eb) & np.isfinite(ea)
-            np.add.at(d, seg[m], (eb - ea)[m])
-            used[np.unique(seg[m])] = True
-        for i in np.flatnonzero(used):
+        for i in np.flatnonzero(counted > 0):
             xi = x[sel & (seg == i) & np.isfinite(x)]
             if xi.size:
                 out.append({"run": r, "drop": float(d[i]), "x_min": float(xi.min()), "x_max": float(xi.max())})

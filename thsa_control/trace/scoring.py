@@ -29,6 +29,7 @@ from .candidates import (
     INERTIA_DATASHEET_TOLERANCE,
     INERTIA_EXPLAINER,
 )
+from .periodicity import run_segment_drops
 from .signature import split_remainder
 from .threads import limit_blas_threads
 
@@ -344,23 +345,7 @@ def _holdout_segment_changes(before: dict, after: dict, noise: Mapping[str, floa
         pa = after["predictions"].get(r)
         if pa is None:
             continue
-        hold = np.asarray(pb["holdout"], bool)
-        t = np.asarray(pb["time"], float)[:hold.size]
-        st = np.asarray(pb["segment_starts"])
-        st = np.searchsorted(t, st) if st.dtype.kind == "f" else st.astype(int)
-        seg = np.searchsorted(st, np.arange(hold.size), side="right") - 1
-        d = np.zeros(len(st))
-        n_in = np.zeros(len(st), int)
-        sel = np.ones(hold.size, bool) if mask is None else np.asarray(mask[r], bool)[:hold.size]
-        for c, y in pb["measured"].items():
-            if c not in pa["simulated"] or not noise.get(c):
-                continue
-            y = np.asarray(y, float)[:hold.size]
-            eb = ((y - np.asarray(pb["simulated"][c], float)[:hold.size]) / noise[c]) ** 2
-            ea = ((y - np.asarray(pa["simulated"][c], float)[:hold.size]) / noise[c]) ** 2
-            m = hold & sel[:hold.size] & np.isfinite(eb) & np.isfinite(ea) & (seg >= 0)
-            np.add.at(d, seg[m], (eb - ea)[m])
-            np.add.at(n_in, seg[m], 1)
+        hold, st, _seg, d, n_in = run_segment_drops(pb, pa, noise, None if mask is None else mask[r])
         held = np.array([bool(hold[i]) for i in st[st < hold.size]] + [False] * int(np.sum(st >= hold.size)))
         if mask is not None:
             held &= n_in > 0
