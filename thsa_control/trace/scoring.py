@@ -45,7 +45,6 @@ def _fit_job(job: dict) -> dict:
         prof = None
         if job.get("profile"):
             from ..fit.profile import profile_identify, why_held
-
             from .signature import _effective_n_iact
 
             # the profile set's threshold scaled as the ambiguity gap's (engine._rivals: reduced chi2 x IACT)
