@@ -273,16 +273,28 @@ def reference_not_determined(runs: Sequence[RigRun], params: ParameterSet, names
         if n_ref < MIN_WINDOW_SAMPLES:
             for n in ref:
                 out[n] = (f"defined at the reference condition of {spec.name} (outside its '{spec.window}' window: "
-                          f"{_WINDOW_TEXT.get(spec.window, spec.window)}); the runs move there on {n_ref} samples "
+                          f"{_window_text(spec.window, params)}); the runs move there on {n_ref} samples "
                           f"(fewer than {MIN_WINDOW_SAMPLES}), so they measure it only together with {spec.name}")
     return out
 
 
-#: The ``cold`` window: farther than ``COLD_BAND_K`` from ``COLD_REFERENCE_C``, the temperature of the declared
-#: (level-A) friction (``friction.reference_temperature``'s file value)
+#: The ``cold`` window: farther than ``COLD_BAND_K`` from the temperature of the declared (level-A) friction,
+#: ``friction.reference_temperature`` (``COLD_REFERENCE_C`` where a parameter set lacks it: the embedded actuator's)
 COLD_REFERENCE_C, COLD_BAND_K = 25.0, 5.0
-#: What a window's reference condition (its complement) is, for the reasons given to the user.
-_WINDOW_TEXT = {"cold": f"within {COLD_BAND_K:g} K of {COLD_REFERENCE_C:g} degC"}
+
+
+def _cold_reference(params: ParameterSet | None) -> float:
+    """The temperature the declared friction is defined at [degC] (the ``cold`` window is away from it)."""
+    if params is not None and "friction.reference_temperature" in params:
+        return params.value("friction.reference_temperature")
+    return COLD_REFERENCE_C
+
+
+def _window_text(kind: str, params: ParameterSet | None) -> str:
+    """What a window's reference condition (its complement) is, for the reasons given to the user."""
+    if kind == "cold":
+        return f"within {COLD_BAND_K:g} K of {_cold_reference(params):g} degC"
+    return kind
 
 
 #: The windows a candidate may act in (:attr:`CandidateSpec.window`, :func:`_window`).
@@ -374,6 +386,6 @@ def _window(kind: str, run: RigRun, params: ParameterSet | None = None) -> np.nd
         return out
     if kind == "cold":
         temp = np.asarray(s["temperature"], float)
-        return np.abs(temp - COLD_REFERENCE_C) > COLD_BAND_K
+        return np.abs(temp - _cold_reference(params)) > COLD_BAND_K
     raise ValueError(f"unknown window {kind!r}")
 
