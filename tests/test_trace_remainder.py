@@ -270,17 +270,15 @@ def test_an_inertia_error_on_an_excitation_is_not_a_torque_constant_error(seed):
     error is proportional to the current as much as a torque-constant error would be.  Tested given the measured
     acceleration, the current explains nothing; a torque-constant error whose current also carries a load change
     the acceleration does not is still found."""
-    from thsa_control.trace.signature import signature_tests
-
-    from thsa_control.trace.residual import _derivative
+    from thsa_control.trace.signature import sg_derivative, signature_tests
 
     rng, t, inertia, kt, accel, current = _excitation(seed)
     noise = 2e-4 * rng.standard_normal(t.size)
     speed = np.cumsum(accel) * (t[1] - t[0])  # the measured motor speed, 0.2 rad/s noise, differentiated as the
-    acc_meas = inertia * _derivative(t, speed + 0.2 * rng.standard_normal(t.size), 21)  # tracer does
+    acc_meas = inertia * sg_derivative(speed + 0.2 * rng.standard_normal(t.size), 21, t[1] - t[0])  # tracer does
     current = current + 0.02 * rng.standard_normal(t.size)  # the current sensor's noise
     # the rotor 5 % heavier than declared; the missing torque is J d(speed error)/dt through the same filter
-    resid = -0.05 * inertia * _derivative(t, speed, 21) + noise
+    resid = -0.05 * inertia * sg_derivative(speed, 21, t[1] - t[0]) + noise
     plain = signature_tests(resid, {"i": ("linear", current)})[0]
     given = signature_tests(resid, {"i": ("linear", current)}, given={"i": acc_meas})[0]
     assert plain["significant"] and plain["p_value"] < 1e-12  # what the unconditioned test took for a Kt error

@@ -21,22 +21,10 @@ from ..model.params import ParameterSet
 from .scoring import _rms_by_channel
 from .signature import (SignatureSettings, base_transients, binned_mean, cross_correlation, current_offset_test,
                         drift_test, missing_torque, position_local_test, remainder_kind, segment_torques,
-                        sensor_consistency, signature_tests)
+                        sensor_consistency, sg_derivative, signature_tests)
 
 
 # ----------------------------------------------------------------------------- signature
-def _derivative(t: np.ndarray, w: np.ndarray, window: int) -> np.ndarray:
-    """d w / d t by a Savitzky-Golay filter of ``window`` samples (the missing torque's own derivative filter)."""
-    from scipy.signal import savgol_filter
-
-    n = w.size
-    win = min(window if window % 2 else window + 1, n - 1 if n % 2 == 0 else n)
-    if n < 5 or win < 5:
-        return np.full(n, np.nan)
-    dt = float(np.median(np.diff(t)))
-    return savgol_filter(w, win, 2, deriv=1, delta=dt)
-
-
 def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s: SignatureSettings,
                noise: Mapping[str, float] | None = None) -> dict:
     inertia = plant.inertia(params)[1]  # the signature's missing torque at the motor shaft (what the current drives)
@@ -101,7 +89,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             "motor_current (torque constant)": ("linear", np.asarray(run.signals["motor_current"], float)),
         }
         # the rotor's measured acceleration torque, the nuisance of the torque-constant test (see signature_tests)
-        accel.append(inertia * _derivative(t, w, s.window))
+        accel.append(inertia * sg_derivative(w, s.window, float(np.median(np.diff(t)))))
         del dt
         for name, (_a, span) in tested.items():
             spans[name] = max(spans.get(name, 0.0), span)

@@ -136,10 +136,20 @@ class SignatureSettings:
     temperature_span: float = 5.0
 
 
-def missing_torque(time, e_speed, segment_starts, inertia: float, window: int = 21) -> np.ndarray:
-    """``J d(e_w)/dt`` [N m] by a Savitzky-Golay derivative inside each segment (NaN at segment edges)."""
+def sg_derivative(x: np.ndarray, window: int, dt: float) -> np.ndarray:
+    """``d x / d t`` by a quadratic Savitzky-Golay filter of ``window`` samples (made odd, at most the series'
+    length; NaN for a series shorter than 5 samples): the missing torque's derivative filter."""
     from scipy.signal import savgol_filter
 
+    n = x.size
+    win = min(window if window % 2 else window + 1, n - 1 if n % 2 == 0 else n)
+    if n < 5 or win < 5:
+        return np.full(n, np.nan)
+    return savgol_filter(x, win, 2, deriv=1, delta=dt)
+
+
+def missing_torque(time, e_speed, segment_starts, inertia: float, window: int = 21) -> np.ndarray:
+    """``J d(e_w)/dt`` [N m] by a Savitzky-Golay derivative inside each segment (NaN at segment edges)."""
     t = np.asarray(time, float)
     e = np.asarray(e_speed, float)
     out = np.full(e.shape, np.nan)
@@ -151,7 +161,7 @@ def missing_torque(time, e_speed, segment_starts, inertia: float, window: int = 
         seg = e[a:b]
         if b - a < w + 2 or not np.all(np.isfinite(seg)):
             continue
-        d = savgol_filter(seg, w, 2, deriv=1, delta=dt)
+        d = sg_derivative(seg, w, dt)  # the segment is longer than the window
         h = w // 2
         out[a + h:b - h] = inertia * d[h:len(d) - h]
     return out
