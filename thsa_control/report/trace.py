@@ -73,8 +73,10 @@ def conclusion_table_html(doc: dict) -> str:
         nd = "<br>".join(f"{esc(h['parameter'])} held at {_num(h['held_at'])} {esc(h['unit'])}: {esc(h['reason'])}"
                          for h in e.get("not_determined", []))
         win = e.get("window_reduction") or {}
-        wtxt = ", ".join(f"{c} {100 * v:+.0f} %" for c, v in win.items())
-        rows.append((kind, e["name"], pars, _errors_cell(e["error_before"], e["error_after"]), esc(wtxt),
+        wtxt = esc(", ".join(f"{c} {100 * v:+.0f} %" for c, v in win.items()))
+        if e.get("contribution"):  # the part beyond the bound (above) and the whole effect with its bounded share
+            wtxt += f"<br><small>{esc(_contribution_text(e['contribution']))}</small>"
+        rows.append((kind, e["name"], pars, _errors_cell(e["error_before"], e["error_after"]), wtxt,
                      nd or "-"))
     if not rows:
         return "<p>Nothing added: no base correction and no candidate effect is significant.</p>"
@@ -82,6 +84,10 @@ def conclusion_table_html(doc: dict) -> str:
             "<th>channel RMS before &rarr; after</th><th>error drop in its window</th>"
             "<th>not determined by this run</th></tr>")
     body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in (esc(r[0]), esc(r[1]), *r[2:])) + "</tr>" for r in rows)
+    joints = [(r["round"], r["joint_lift"]) for r in doc.get("rounds", []) if r.get("joint_lift")]
+    if joints:  # constant torques beyond a plausible base: the whole set lifted together, per round
+        body += "".join(f"<tr><td>joint lift (round {k})</td><td>base corrections beyond their bounds</td>"
+                        f"<td colspan='4'>{esc(_joint_text(j))}</td></tr>" for k, j in joints)
     base_like = doc["residual_signature"].get("base_like") or []
     tail = (f"<p>unexplained: <b>{doc['unexplained']}</b>"
             + (f" (structured: {esc(', '.join(doc['residual_signature']['structured']))})" if doc["unexplained"] else "")
@@ -288,6 +294,26 @@ def _ambiguity_hint(doc: dict, names) -> str:
     return "; from the torque sensitivities, a record would separate " + "; ".join(parts) + "."
 
 
+def _contribution_text(c: dict) -> str:
+    """One line: what an effect named beyond its base correction contributes in all, and the bounded share."""
+    tot, bnd = c.get("total_window_reduction"), c.get("bounded_window_reduction")
+    return (f"whole contribution ({c['parameter']} {_num(c['value'])} against 0, everything else as fitted): "
+            f"{c['channel']} window error {_num(None if tot is None else 100 * tot, '.0f')} % lower with it; a base "
+            f"correction at its plausible bound ({_num(c['bound'])}, {_num(None if c.get('bounded_share') is None else 100 * c['bounded_share'], '.0f')} % of the value) "
+            f"would carry {_num(None if bnd is None else 100 * bnd, '.0f')} % of it; the window drop counted for the "
+            "selection is what lies beyond the bound")
+
+
+def _joint_text(j: dict) -> str:
+    """One line: the joint lift of the plausible set and its verdict."""
+    if "error" in j:
+        return f"joint lift of the base corrections: fit failed ({j['error']})"
+    vals = ", ".join(f"{n} {_num(v)}" for n, v in (j.get("values") or {}).items())
+    return (f"joint lift ({j['parameters_lifted']} base corrections freed beyond their plausible bounds together"
+            f"{': ' + vals if vals else ''}): held-out chi2 drop {_num(j['holdout_chi2_drop'], '.4g')} (threshold "
+            f"{_num(j['chi2_threshold'], '.3g')}); {j['verdict']}")
+
+
 def format_trace_summary(doc: dict) -> str:
     """Console / report text: what was added, the ranking, the errors, the signature."""
     lines = [f"declared model: {doc['base_model']} ({', '.join(doc['declared_effects']) or 'functional'}), "
@@ -332,6 +358,8 @@ def format_trace_summary(doc: dict) -> str:
         for c, red in e["error_reduction"].items():
             b, a = e["error_before"].get(c, {}), e["error_after"].get(c, {})
             lines.append(f"    {c}: RMS {_num(b.get('rms'))} -> {_num(a.get('rms'))} ({100 * red:+.1f} % drop)")
+        if e.get("contribution"):
+            lines.append(f"    {_contribution_text(e['contribution'])}")
     for a in doc.get("ambiguous", []):
         drops = ", ".join(f"{n} {_num(v, '.4g')}" for n, v in a["holdout_chi2_drop"].items())
         lines.append(f"not named (round {a['round']}): {', '.join(a['candidates'])} explain the same part of the "
@@ -364,6 +392,8 @@ def format_trace_summary(doc: dict) -> str:
                 lines.append(f"        not determined: {h['parameter']} held at {_num(h['held_at'])} {h['unit']}")
         for s in r["skipped"]:
             lines.append(f"    {s['name']:<26} skipped: {s['reason']}")
+        if r.get("joint_lift"):
+            lines.append(f"    {_joint_text(r['joint_lift'])}")
     lines.append("error before -> after (all samples):")
     for c, b in doc["error_before"].items():
         a = doc["error_after"][c]

@@ -73,6 +73,7 @@ from .scoring import (_base_correction, _window_beyond_noise, _channel_errors, _
                       _held_params, _holdout_iact, _holdout_samples, _null_runs, _param_entry, _plausibility,
                       _rms_by_channel, _run_jobs,
                       _signature_brief, zero_is_absent)
+from .lift import better, contribution, interior, joint_verdict, lift_names, lifted as lifted_bounds
 from .signature import SignatureSettings, base_transients, split_remainder
 from .threads import limit_blas_threads
 
@@ -187,6 +188,13 @@ class TraceSettings:
         transients; over all 33 held-out segments 13, three of them carrying 91 % of the change).  The held-out segments are separate shooting
         segments, each started from its own fitted state, and 2 segment lengths apart: their drops are taken
         as independent.
+    joint_lift : bool
+        With the base step, where a Coulomb-drag or axial-force correction ran to its plausible bound: the
+        explainers lifted together (:func:`~thsa_control.trace.lift.joint_verdict`) and the lifted fits started
+        from the unsaturated interior too (:func:`~thsa_control.trace.lift.interior`).  From the saturated fit a
+        lifted explainer is fitted with the others pinned where the bounded fit left them (measured: an axial
+        force lifted on a record that determines it reached 1080 N of the planted 1500 with both efficiencies
+        left at their bounds).
     rig_hardware : bool
         Complete the declared model with what the runs' own rig description
         declares (:func:`~thsa_control.fit.replay.rig_declared_effects`: a
@@ -228,6 +236,12 @@ class TraceSettings:
     score_outside_transients: bool = True
     robust_constant_torque: bool = True
     rig_hardware: bool = True
+    #: with the base step, when a constant-torque base correction sits at its plausible bound: fit the whole
+    #: plausible set lifted together against all bounded (one held-out likelihood ratio, reported per round as
+    #: ``joint_lift`` with the single candidate that carries it), and fit each constant-torque candidate from the
+    #: unsaturated interior as well as from the bounded optimum, keeping the start the training samples prefer
+    #: (:mod:`~thsa_control.trace.lift`)
+    joint_lift: bool = True
     #: segments start the plant's fast internal modes quasi-static (IdentificationSettings.quasi_static_starts);
     #: None: with the base step (data the declared model may not describe), free otherwise
     quasi_static_starts: bool | None = None
@@ -517,14 +531,17 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             break
         # the longest fits first, so that the workers finish together (profiled, then the structural effects)
         scorable.sort(key=lambda sp: (not sp.profile, sp.base_correction, -len(sp.free)))
-        jobs = []
+        jobs, extra = [], {}  # extra: index of a job -> its fit from the unsaturated interior (lift.interior)
+        lifting = lift_names(base_priors, cur_free) if (use_base and st.joint_lift and at_plausible_bound) else []
         for spec in scorable:
             lift = tuple(n for n in spec.free if n in at_plausible_bound)
             if lift:  # beyond its base correction
                 effs = cur_effects
-                pset = cur_params.replace_parameters({n: dataclasses.replace(cur_params[n], min=params[n].min,
-                                                                             max=params[n].max) for n in lift})
+                pset = lifted_bounds(cur_params, params, lift)
                 jobs.append(job(spec.name, effs, cur_free, pset, fit_runs, lift=lift))
+                if lifting:  # the others restart inside their bounds: from the saturated fit they stay pinned
+                    extra[len(jobs) - 1] = job(f"{spec.name} (interior start)", effs, cur_free,
+                                               interior(pset, base_priors, lifting, keep=lift), fit_runs, lift=lift)
                 continue
             req = [r for r in EFFECTS[spec.name].requires if r not in cur_effects]
             replaced = {x for e in req + [spec.name] for x in EFFECTS[e].supersedes}
@@ -541,8 +558,24 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 pset = pset.replace({n: params.value(n) for n in uncertain})
             free = tuple(dict.fromkeys(cur_free + spec.free + _reference_freed(spec)))
             jobs.append(job(spec.name, effs, free, pset, fit_runs, profile=spec.profile, spec=spec))
-        say(f"round {len(rounds) + 1}: scoring {len(jobs)} candidates ({', '.join(s.name for s in scorable)})")
-        fits = _run_jobs(jobs, st.workers, say)
+            if lifting and spec.base_correction:  # a found constant torque, the explainers unsaturated too
+                extra[len(jobs) - 1] = job(f"{spec.name} (interior start)", effs, free,
+                                           interior(pset, base_priors, lifting), fit_runs, spec=spec)
+        joint_jobs = []
+        if lifting:  # the whole plausible set lifted together, from the bounded optimum and from the interior
+            lp = lifted_bounds(cur_params, params, lifting)
+            joint_jobs = [job("joint lift", cur_effects, cur_free, lp, fit_runs, lift=tuple(lifting)),
+                          job("joint lift (interior start)", cur_effects, cur_free,
+                              interior(lp, base_priors, lifting), fit_runs, lift=tuple(lifting))]
+        say(f"round {len(rounds) + 1}: scoring {len(jobs)} candidates ({', '.join(s.name for s in scorable)})"
+            + (f"; {len(extra)} of them also from the unsaturated interior, and the joint lift of "
+               f"{', '.join(lifting)}" if lifting else ""))
+        idx_extra = list(extra)
+        fits = _run_jobs(jobs + [extra[i] for i in idx_extra] + joint_jobs, st.workers, say)
+        fits, fits_extra, fits_joint = (fits[:len(jobs)], fits[len(jobs):len(jobs) + len(idx_extra)],
+                                        fits[len(jobs) + len(idx_extra):])
+        for i, fe in zip(idx_extra, fits_extra):
+            fits[i] = better(fits[i], fe)
         base_holds = {w: _chi2_by_channel(current, noise, "holdout", score_mask(w)) for w in WINDOWS}
         scored = []
         for spec, f, jb in zip(scorable, fits, jobs):
@@ -600,6 +633,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "window_reduction_beyond_noise": win_sys, "aic_drop": aic_drop, "bic_drop": current["bic"] - f["bic"],
                 "plausible": plausible, "implausible_because": why, "parameters": _params_out(f, spec),
                 "fit_time_s": f["time_s"], "converged": f["converged"], "prelim": prelim, "_fit": f, "_job": jb,
+                **({"starts": f["starts"]} if "starts" in f else {}),
                 "not_determined": _held_out(f),
                 "holdout_segments": _holdout_segment_changes(current, f, noise),
                 "window_segments": seg_win,
@@ -674,10 +708,21 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             s["significant"] = bool(s["prelim"] and nd is not None and math.isfinite(nd)
                                     and s["holdout_chi2_drop"] > st.null_factor * max(nd, 0.0))
         scored.sort(key=lambda s: -(s.get("holdout_chi2_drop") or -math.inf))
+        joint = None
+        if fits_joint:
+            jf = better(fits_joint[0], fits_joint[1])
+            if "error" not in jf:
+                jf = {**jf, "_lifted": tuple(lifting)}
+                joint = joint_verdict(current, jf, [s for s in scored if _is_explainer(s)], noise,
+                                      score_mask(CANDIDATES["coulomb_friction"].window), len(lifting), st.alpha)
+                say(f"joint lift of {', '.join(lifting)}: held-out chi2 drop {joint['holdout_chi2_drop']:.4g} "
+                    f"(threshold {joint['chi2_threshold']:.3g}); {joint['verdict']}")
+            else:
+                joint = {"error": jf["error"]}
         # a candidate that made the held-out error worse is not fitted again in the next round
         hurt = {c["name"] for c in scored if "error" not in c and c["holdout_chi2_drop"] < 0}
         rounds.append({"round": len(rounds) + 1, "model": list(cur_effects), "skipped": skipped,
-                       "candidates": [_public(s) for s in scored]})
+                       "candidates": [_public(s) for s in scored], **({"joint_lift": joint} if joint else {})})
         best = next((s for s in scored if s.get("significant")), None)
         if best is None:
             say("no candidate is significant: stop")
@@ -711,6 +756,9 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "not_determined": best["not_determined"],
                 **({"beyond_base_correction": True} if best.get("beyond_base_correction") else {}),
                 **({"profile": best["profile"]} if best.get("profile") else {})}
+        if best.get("beyond_base_correction"):
+            step["contribution"] = _contribution(best, f, base_bounds, cur_effects, fit_runs, noise, job,
+                                                 win_scored[best["window"]], st, say)
         refines = [x for x in EFFECTS[best["name"]].supersedes if x in cur_effects]
         if refines:  # a detailed model of a declared component (the rig's no-back for the level's ideal one)
             step["refines_declared"] = refines
@@ -783,6 +831,32 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                    "total_s": time.perf_counter() - t_start},
     }
     return TraceResult(doc, {"before": first, "after": current})
+
+
+def _contribution(best: dict, f: dict, base_bounds: Mapping, cur_effects, fit_runs, noise, job, win, st,
+                  say) -> dict:
+    """What an effect named beyond its base correction contributes, the bounded part included (issue #21).
+
+    The window drop of a lifted explainer (``window_reduction``) counts only what lies beyond the base correction's
+    plausible bound: the bounded fit it is compared with already carries the effect up to the bound.  An engineer
+    asks what the effect does to the error in all, and how much of it a plausible base would hold: the fitted model
+    with the effect's value set to 0 and at the bound, every other parameter as fitted (the segment start states
+    refitted, since they follow the data), against the model with all of it (:func:`~thsa_control.trace.lift.
+    contribution`)."""
+    spec = best["_spec"]
+    n = next(x for x in spec.free if x in base_bounds)
+    lo, hi, _ = base_bounds[n]
+    v = f["estimates"][n]["value"]
+    bound = hi if v >= 0 else lo
+    p = ParameterSet.from_toml(f["params_toml"])
+    jobs = [job(f"{best['name']} set to 0", cur_effects, (), p.replace({n: 0.0}), fit_runs),
+            job(f"{best['name']} at its plausible bound", cur_effects, (), p.replace({n: bound}), fit_runs)]
+    none, at_b = _run_jobs(jobs, st.workers, say)
+    out = {"parameter": n, **contribution(f, none, at_b, noise, win, spec.channel, v, bound)}
+    say(f"{best['name']}: its whole contribution drops the {spec.channel} window error by "
+        f"{100 * (out.get('total_window_reduction') or math.nan):.0f} %, of which the plausible base correction "
+        f"({bound:.4g}) would carry {100 * (out.get('bounded_window_reduction') or math.nan):.0f} %")
+    return out
 
 
 def _separability_doc(runs, cur_effects, cur_params: ParameterSet, base_doc: dict, added: list, rounds: list,

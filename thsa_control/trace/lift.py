@@ -1,0 +1,126 @@
+"""Constant torques beyond a plausible base: the joint lift and the lifted fits' interior starts (numerics only).
+
+When the base corrections (:func:`~thsa_control.trace.scoring._base_correction`: a Coulomb drag, an axial force,
+the screw's efficiencies, each inside a plausible magnitude) sit at their plausible bounds, a constant torque larger
+than a rig's base may be in the record.  The explainers share one torque per (load sign, direction) cell on a
+one-load record (trace.json ``separability``), so lifting one bound at a time from the saturated fit asks a
+question the others have already answered: started from the bounded optimum the others stay where they were pinned
+(measured, docs/trace_notes.md "The joint lift").  Two things are built here:
+
+* the **joint lift**: the whole plausible set lifted together (every constant-torque explainer and both
+  efficiencies free to the parameter file's limits, their priors dropped) against all bounded, one likelihood
+  ratio on the held-out segments (``chi2(k)``, ``k`` the lifted parameters), fitted from the bounded optimum and
+  from the unsaturated interior (the explainers at their prior centres), the better kept;
+* the **carrier**: which single candidate (one explainer lifted with the others bounded, or a found constant
+  torque) carries the joint drop, i.e. leaves less than the ``chi2(k - 1)`` quantile (scaled as the ambiguity gap:
+  reduced held-out chi2 x integrated autocorrelation time) of it unexplained.  Several carriers are the same
+  explanation (the ambiguity rule's list); none while the joint lift is significant says "a constant torque beyond
+  a plausible base, ambiguous among the explainers" (what one record cannot separate).
+
+Used by :mod:`thsa_control.trace.engine`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+
+from ..model.params import ParameterSet
+from .candidates import INERTIA_EXPLAINER
+from .scoring import _chi2_by_channel, _holdout_iact, _holdout_samples
+
+
+def lift_names(base_priors: Mapping[str, tuple[float, float]], free: Sequence[str]) -> list[str]:
+    """The base corrections that carry a constant or load-proportional torque (all but the motor-side inertia,
+    which carries an acceleration torque and is determined on its own)."""
+    return [n for n in base_priors if n in free and n not in INERTIA_EXPLAINER.free]
+
+
+def interior(pset: ParameterSet, base_priors: Mapping[str, tuple[float, float]], names: Sequence[str],
+             keep: Sequence[str] = ()) -> ParameterSet:
+    """``pset`` with the explainers ``names`` (but ``keep``) restarted at their prior centres (no drag, no force,
+    the file's efficiencies): the unsaturated interior of the plausible set."""
+    return pset.replace({n: base_priors[n][0] for n in names if n not in keep and n in pset})
+
+
+def lifted(pset: ParameterSet, file_params: ParameterSet, names: Sequence[str]) -> ParameterSet:
+    """``pset`` with the bounds of ``names`` lifted to the parameter file's (the plausible ones dropped)."""
+    return pset.replace_parameters({n: dataclasses.replace(pset[n], min=file_params[n].min, max=file_params[n].max)
+                                    for n in names})
+
+
+def better(a: dict, b: dict | None) -> dict:
+    """Of two fits of the same model and free set from different starts, the one the training samples prefer
+    (lower AIC: the same parameter count, so the lower training cost); ``starts`` records both."""
+    if b is None or "error" in b:
+        return a
+    if "error" in a:
+        return {**b, "starts": {"saturated": None, "interior": b["aic"], "kept": "interior"}}
+    kept = "interior" if b["aic"] < a["aic"] else "saturated"
+    out = b if kept == "interior" else a
+    return {**out, "starts": {"saturated": a["aic"], "interior": b["aic"], "kept": kept}}
+
+
+def joint_verdict(current: dict, joint: dict, scored: Sequence[dict], noise: Mapping[str, float], mask,
+                  k: int, alpha: float) -> dict:
+    """The joint lift's held-out likelihood ratio against the bounded fit, and which single candidate carries it.
+
+    ``scored``: the round's constant-torque candidates (their ``holdout_chi2_drop`` scored on ``mask``, the
+    samples outside the base's transients).  A candidate carries the joint lift when the joint drop exceeds its
+    own by less than the ``chi2(k - 1)`` quantile at ``alpha`` (the k - 1 parameters the joint fit frees beyond
+    it), scaled as the ambiguity gap (reduced held-out chi2 of the joint fit x its residual's integrated
+    autocorrelation time: an autocorrelated residual multiplies the variance of a chi2 difference by it).
+    """
+    from scipy.stats import chi2
+
+    b0 = sum(_chi2_by_channel(current, noise, "holdout", mask).values())
+    b1 = sum(_chi2_by_channel(joint, noise, "holdout", mask).values())
+    drop = b0 - b1
+    thr = float(chi2.ppf(1 - alpha, k))
+    n = _holdout_samples(joint, mask)
+    tau = _holdout_iact(joint, noise, mask)
+    scale = max(1.0, b1 / max(n, 1)) * tau
+    gap = float(chi2.ppf(1 - alpha, max(k - 1, 1))) * scale
+    singles = {s["name"]: s["holdout_chi2_drop"] for s in scored
+               if "error" not in s and s.get("holdout_chi2_drop") is not None}
+    carriers = sorted((nm for nm, d in singles.items() if drop - d < gap), key=lambda nm: -singles[nm])
+    significant = bool(drop > thr * scale)
+    if not significant:
+        verdict = "nothing beyond a plausible base: the whole set lifted does not pass"
+    elif len(carriers) == 1:
+        verdict = f"carried by {carriers[0]} alone"
+    elif carriers:
+        verdict = f"carried by each of {', '.join(carriers)}: the record does not tell them apart"
+    else:
+        verdict = ("a constant torque beyond a plausible base that no single explainer carries: ambiguous among "
+                   + ", ".join(sorted(singles)))
+    est = joint["estimates"]
+    return {"parameters_lifted": k, "holdout_chi2_drop": drop, "chi2_threshold": thr * scale,
+            "threshold_scale": scale, "holdout_iact": tau, "carry_gap": gap, "significant": significant,
+            "single_drops": singles, "carriers": carriers, "verdict": verdict,
+            "values": {n: est[n]["value"] for n in est if n in (joint.get("_lifted") or ())},
+            **({"starts": joint["starts"]} if "starts" in joint else {})}
+
+
+def contribution(fit: dict, none: dict | None, at_bound: dict | None, noise: Mapping[str, float], mask,
+                 channel: str, value: float, bound: float) -> dict:
+    """What an effect partly inside a base correction contributes in its window, on ``channel``.
+
+    ``fit``: the model with all of it; ``none``: the same parameters with the effect's value set to 0 (its segment
+    states refitted, every other parameter as fitted); ``at_bound``: the value at the base correction's plausible
+    bound.  ``total_window_reduction`` = 1 - sqrt(chi2 all / chi2 none) (what an engineer reads as the effect's
+    part of the error), ``bounded_window_reduction`` = 1 - sqrt(chi2 bound / chi2 none) (the share a plausible base
+    correction would carry), ``bounded_share`` = bound / value (of the torque).
+    """
+    def chi(f):
+        return _chi2_by_channel(f, noise, "holdout", mask).get(channel, math.nan) if f and "error" not in f else math.nan
+
+    c_all, c_none, c_bound = chi(fit), chi(none), chi(at_bound)
+    out = {"channel": channel, "value": value, "bound": bound,
+           "bounded_share": (bound / value) if value else None,
+           "holdout_chi2_none": c_none, "holdout_chi2_at_bound": c_bound, "holdout_chi2_all": c_all}
+    if c_none > 0 and math.isfinite(c_none):
+        out["total_window_reduction"] = 1 - math.sqrt(c_all / c_none) if math.isfinite(c_all) else None
+        out["bounded_window_reduction"] = 1 - math.sqrt(c_bound / c_none) if math.isfinite(c_bound) else None
+    return out
