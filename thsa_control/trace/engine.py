@@ -488,7 +488,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     windows_cache = {spec: {r.name: _window(spec, r, params) for r in runs} for spec in WINDOWS}
     # where the candidates are scored: outside the base's transients on data the declared model may not describe
     steady = ({r.name: ~base_transients(r.time, measured_motor_speed(r), r.signals["load_force"],
-                                        st.signature.transient_time) for r in runs}
+                                        st.signature.transient_time, load_steps=True) for r in runs}
               if use_base and st.score_outside_transients else None)
 
     def score_mask(window: str):
