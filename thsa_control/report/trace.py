@@ -383,6 +383,8 @@ def format_trace_summary(doc: dict) -> str:
                                                            if not c["plausible"] else
                                                            "not significant" + (f": {c['not_robust']}"
                                                                                 if c.get("not_robust") else "")
+                                                           + (f": {c['joint_lift_refused']}"
+                                                              if c.get("joint_lift_refused") else "")
                                                            + (f": {c['not_periodic']}" if c.get("not_periodic")
                                                               else ""))
             lines.append(f"    {c['name']:<26} held-out chi2 drop {_num(c['holdout_chi2_drop'], '.4g'):>10} "

@@ -62,13 +62,14 @@ from ..data.rigformat import speed_sensor_intervals
 from ..fit.replay import check_run_model
 from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
 from ..model.params import ParameterSet, default_parameters
-from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, MIN_WINDOW_SAMPLES, PERIODS, PLAUSIBLE,
+from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, INERTIA_EXPLAINER, MIN_WINDOW_SAMPLES,
+                         PERIODS, PLAUSIBLE,
                          PROFILE_LIMITS, RESOLVES, STARTS, WINDOWS, reference_not_determined,
                          _window,
                          candidate_specs, not_candidates, nut_travel)
 from . import periodicity
 from .residual import _regime_errors, _signature
-from .scoring import (_base_correction, _window_beyond_noise, _channel_errors, _chi2_by_channel, _explainers_at_bound, _held_out,
+from .scoring import (_at_edge, _base_correction, _window_beyond_noise, _channel_errors, _chi2_by_channel, _explainers_at_bound, _held_out,
                       _holdout_segment_changes,
                       _held_params, _holdout_iact, _holdout_samples, _null_runs, _param_entry, _plausibility,
                       _rms_by_channel, _run_jobs,
@@ -499,10 +500,16 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     hurt: set[str] = set()
     while sum(1 for e in added if "implied_by" not in e) < st.max_effects:
         specs = candidate_specs(cur_effects, cur_params, st.candidates)
+        # any base correction at its plausible bound (an efficiency included: the explainers share one torque per
+        # load sign and direction, so one at its bound saturates the set): the joint lift is fitted, and every
+        # constant-torque correction still bounded is offered beyond its bound, each judged against the joint lift
+        lifting = (lift_names(base_priors, cur_free)
+                   if use_base and st.joint_lift and _any_at_bound(current, base_doc, base_priors, base_bounds) else [])
+        offer_beyond = ({n: e for n, (_, _, e) in base_bounds.items()} if lifting else at_plausible_bound)
         # a base correction that ran to its plausible bound: the same effect, larger than a rig's base can be,
         # is a candidate of its own (its bound lifted to the parameter file's)
         specs += [dataclasses.replace(CANDIDATES[e], base_correction=False)
-                  for e in dict.fromkeys(at_plausible_bound.values()) if e in CANDIDATES]
+                  for e in dict.fromkeys(offer_beyond.values()) if e in CANDIDATES]
         scorable, skipped = [], []
         for spec in specs:
             win = windows_cache[spec.window]
@@ -532,9 +539,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         # the longest fits first, so that the workers finish together (profiled, then the structural effects)
         scorable.sort(key=lambda sp: (not sp.profile, sp.base_correction, -len(sp.free)))
         jobs, extra = [], {}  # extra: index of a job -> its fit from the unsaturated interior (lift.interior)
-        lifting = lift_names(base_priors, cur_free) if (use_base and st.joint_lift and at_plausible_bound) else []
         for spec in scorable:
-            lift = tuple(n for n in spec.free if n in at_plausible_bound)
+            lift = tuple(n for n in spec.free if n in offer_beyond)
             if lift:  # beyond its base correction
                 effs = cur_effects
                 pset = lifted_bounds(cur_params, params, lift)
@@ -567,6 +573,12 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             joint_jobs = [job("joint lift", cur_effects, cur_free, lp, fit_runs, lift=tuple(lifting)),
                           job("joint lift (interior start)", cur_effects, cur_free,
                               interior(lp, base_priors, lifting), fit_runs, lift=tuple(lifting))]
+            eff = tuple(n for n in lifting if n in EFFICIENCY_EXPLAINER.free)
+            if eff:  # the base's own load-proportional loss beyond the catalogue spread, the others bounded
+                ep = lifted_bounds(cur_params, params, eff)
+                joint_jobs += [job("efficiencies lifted", cur_effects, cur_free, ep, fit_runs, lift=eff),
+                               job("efficiencies lifted (interior start)", cur_effects, cur_free,
+                                   interior(ep, base_priors, lifting, keep=eff), fit_runs, lift=eff)]
         say(f"round {len(rounds) + 1}: scoring {len(jobs)} candidates ({', '.join(s.name for s in scorable)})"
             + (f"; {len(extra)} of them also from the unsaturated interior, and the joint lift of "
                f"{', '.join(lifting)}" if lifting else ""))
@@ -644,7 +656,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 **({} if repeats else {"not_periodic": periodicity.describe(period_test)}),
                 **({"scored_outside_transients": True} if score_mask(spec.window) is not None else {}),
                 "_mask": score_mask(spec.window),
-                **({"beyond_base_correction": True} if any(n in at_plausible_bound for n in spec.free) else {}),
+                **({"beyond_base_correction": True} if any(n in offer_beyond for n in spec.free) else {}),
                 **({"profile": f["profile"]} if f.get("profile") else {}),
                 "_noise": noise,
                 "_spec": spec,
@@ -711,12 +723,20 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         joint = None
         if fits_joint:
             jf = better(fits_joint[0], fits_joint[1])
+            cmask = score_mask(CANDIDATES["coulomb_friction"].window)
+            singles = [s for s in scored if _is_explainer(s)]
+            if len(fits_joint) > 2:  # the efficiencies lifted: a single lift of its own (the base, not an effect)
+                ef = better(fits_joint[2], fits_joint[3])
+                if "error" not in ef:
+                    singles.append({"name": EFFICIENCY_LIFT, "holdout_chi2_drop": (
+                        sum(_chi2_by_channel(current, noise, "holdout", cmask).values())
+                        - sum(_chi2_by_channel(ef, noise, "holdout", cmask).values()))})
             if "error" not in jf:
                 jf = {**jf, "_lifted": tuple(lifting)}
-                joint = joint_verdict(current, jf, [s for s in scored if _is_explainer(s)], noise,
-                                      score_mask(CANDIDATES["coulomb_friction"].window), len(lifting), st.alpha)
+                joint = joint_verdict(current, jf, singles, noise, cmask, len(lifting), st.alpha)
                 say(f"joint lift of {', '.join(lifting)}: held-out chi2 drop {joint['holdout_chi2_drop']:.4g} "
                     f"(threshold {joint['chi2_threshold']:.3g}); {joint['verdict']}")
+                _gate_on_joint(scored, joint)
             else:
                 joint = {"error": jf["error"]}
         # a candidate that made the held-out error worse is not fitted again in the next round
@@ -831,6 +851,54 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                    "total_s": time.perf_counter() - t_start},
     }
     return TraceResult(doc, {"before": first, "after": current})
+
+
+#: the name the efficiencies lifted beyond their plausible spread go by among the joint lift's single lifts
+EFFICIENCY_LIFT = "efficiencies beyond their catalogue spread (base)"
+
+
+def _any_at_bound(current: dict, base_doc: dict | None, base_priors: Mapping, base_bounds: Mapping) -> bool:
+    """A constant-torque or efficiency base correction at its plausible bound in ``current`` (the motor-side inertia
+    carries no constant torque; an explainer already lifted is no longer bounded)."""
+    if not base_doc:
+        return False
+    for n, e in (base_doc.get("explainers") or {}).items():
+        if n not in base_priors or n in INERTIA_EXPLAINER.free or n not in current["estimates"]:
+            continue
+        if e["effect"] in EFFECTS and n not in base_bounds:
+            continue  # lifted in an earlier round
+        lo, hi = e["bound"]
+        if _at_edge(current["estimates"][n]["value"], lo, hi, base_priors[n][0]):
+            return True
+    return False
+
+
+def _gate_on_joint(scored: list[dict], joint: dict) -> None:
+    """Constant torques judged against the joint lift (:func:`~thsa_control.trace.lift.joint_verdict`).
+
+    A base correction offered beyond its bound is significant only when the whole plausible set lifted together
+    passes its likelihood-ratio test and the candidate carries that drop.  Any constant torque (a lift or a found
+    drag) is refused when the base's own efficiencies lifted beyond their catalogue spread explain as much as it
+    (held-out drops within the carry gap): a rig whose load-proportional losses exceed the spread, such as a no-back
+    that drags while driven, is a base, not an effect, and where both explain the same the record cannot tell a
+    drag beyond the base from a lossier base."""
+    d_eff = joint["single_drops"].get(EFFICIENCY_LIFT)
+    for s in scored:
+        if not (_is_explainer(s) and s.get("significant")):
+            continue
+        why = None
+        if s.get("beyond_base_correction") and not joint["significant"]:
+            why = "the base corrections lifted together do not pass their likelihood-ratio test"
+        elif s.get("beyond_base_correction") and s["name"] not in joint["carriers"]:
+            why = (f"does not carry the joint lift (held-out drop {s['holdout_chi2_drop']:.4g} against the joint "
+                   f"{joint['holdout_chi2_drop']:.4g}, gap {joint['carry_gap']:.3g})")
+        elif d_eff is not None and s["holdout_chi2_drop"] - d_eff < joint["carry_gap"]:
+            why = (f"the base's efficiencies lifted beyond their catalogue spread explain as much (held-out drop "
+                   f"{d_eff:.4g} against {s['holdout_chi2_drop']:.4g}, gap {joint['carry_gap']:.3g}): this record "
+                   "cannot tell a constant torque beyond the base from a lossier base")
+        if why:
+            s["significant"] = False
+            s["joint_lift_refused"] = why
 
 
 def _contribution(best: dict, f: dict, base_bounds: Mapping, cur_effects, fit_runs, noise, job, win, st,

@@ -1,0 +1,89 @@
+"""Constant torques beyond a plausible base (issue #21, branch trace-lift): the joint lift of the base corrections,
+the whole contribution of an effect partly inside a base correction, and the scoring mask of records whose load
+ramps steadily.  The rig-sim traces themselves are judged by tests/test_trace_foreign.py's campaign."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from handcalc import RIG_NOISE
+
+from thsa_control.data.rigdata import read_run
+from thsa_control.fit.virtual_rig import VirtualRig, excitation_inputs
+from thsa_control.trace import TraceSettings, trace
+from thsa_control.trace.signature import base_transients
+
+
+def _ramp(load_of_t, duration=10.0, hz=500.0):
+    t = np.arange(0.0, duration, 1.0 / hz)
+    w = np.full(t.size, 100.0)  # steady motion all along: only the load can make a transient
+    return t, w, load_of_t(t)
+
+
+def test_a_steady_load_ramp_is_no_transient_a_load_step_is():
+    """A load ramping at a constant rate (a triangular sweep, 11.6 kN/s) settles nothing: with ``load_steps`` only
+    the apexes of the triangle, where the rate reverses, are load changes; a load applied in 0.2 s is one, in both
+    definitions."""
+    t, w, f = _ramp(lambda t: np.interp(t, [0, 2.5, 7.5, 10.0], [0.0, 29e3, -29e3, 0.0]))
+    plain = base_transients(t, w, f, 0.3)
+    steps = base_transients(t, w, f, 0.3, load_steps=True)
+    assert plain.all()  # every 0.3 s the load moves by 3.5 kN > 5 % of its 58 kN range
+    assert steps[np.abs(t - 2.5) < 0.1].all() and steps[np.abs(t - 7.5) < 0.1].all()  # the apexes
+    away = (np.abs(t - 2.5) > 0.7) & (np.abs(t - 7.5) > 0.7) & (t > 0.7) & (t < 9.3)
+    assert not steps[away].any()
+    t, w, f = _ramp(lambda t: np.interp(t, [0, 4.0, 4.2, 10.0], [0.0, 0.0, 30e3, 30e3]))
+    for mask in (base_transients(t, w, f, 0.3), base_transients(t, w, f, 0.3, load_steps=True)):
+        assert mask[np.abs(t - 4.1) < 0.3].all() and not mask[t < 3.3].any() and not mask[t > 4.9].any()
+
+
+@pytest.fixture(scope="module")
+def coulomb_beyond(tmp_path_factory, rig_1khz, params):
+    """The virtual rig (level A, its own ideal no-back) with a Coulomb drag of 0.15 N m, 2.6 times the base
+    correction's plausible bound (3 % of rated torque, 0.057 N m), bipolar excitation under 12 kN; traced with the
+    base step and the three constant-torque candidates."""
+    truth = 0.15
+    u = excitation_inputs(2.5, bipolar=True, control_period=1e-3, seed=3)
+    stem = tmp_path_factory.mktemp("lift") / "coulomb"
+    VirtualRig("A", effects=("coulomb_friction",), params=params.replace({"drive.coulomb_torque": truth}),
+               design=rig_1khz, noise=RIG_NOISE, seed=3).record(u, stem)
+    run = read_run(stem.with_suffix(".csv"))
+    st = TraceSettings(candidates=("coulomb_friction", "force_offset", "direction_friction"), base_corrections=True,
+                       max_effects=1, max_nfev=30, workers=1)
+    return truth, trace(run, "A", params=params, settings=st).to_dict()
+
+
+@pytest.mark.slow
+def test_coulomb_beyond_its_bound_is_named_with_its_whole_contribution(coulomb_beyond):
+    """The drag is named beyond its base correction, near the truth; its whole contribution (error with none of it
+    against all of it, everything else as fitted) is at least what lies beyond the bound, and the bounded share is the
+    bound over the value."""
+    truth, doc = coulomb_beyond
+    bc = {c["parameter"]: c for c in doc["base_corrections"]["corrections"]}
+    assert bc["drive.coulomb_torque"]["at_plausible_bound"], bc
+    step = next(e for e in doc["effects_added"] if e["name"] == "coulomb_friction")
+    assert step.get("beyond_base_correction"), step
+    value = step["parameters"]["drive.coulomb_torque"]["value"]
+    assert value == pytest.approx(truth, rel=0.15)
+    c = step["contribution"]
+    bound = bc["drive.coulomb_torque"]["bound"][1]
+    assert c["parameter"] == "drive.coulomb_torque" and c["bound"] == pytest.approx(bound)
+    assert c["bounded_share"] == pytest.approx(bound / value)
+    beyond = step["window_reduction"][c["channel"]]
+    assert c["total_window_reduction"] >= beyond - 1e-9, (c, beyond)
+    assert 0.0 < c["bounded_window_reduction"] < c["total_window_reduction"], c
+    # the held-out errors are ordered as the torque: none > at the bound > all of it
+    assert c["holdout_chi2_none"] > c["holdout_chi2_at_bound"] > c["holdout_chi2_all"], c
+
+
+@pytest.mark.slow
+def test_joint_lift_is_carried_by_the_planted_drag(coulomb_beyond):
+    """The whole plausible set lifted together passes its likelihood-ratio test, and the Coulomb drag alone carries
+    it (its held-out drop within the chi2(k - 1) gap of the joint drop)."""
+    _, doc = coulomb_beyond
+    j = doc["rounds"][0]["joint_lift"]
+    assert j["significant"], j
+    assert "coulomb_friction" in j["carriers"], j
+    assert j["holdout_chi2_drop"] >= j["single_drops"]["coulomb_friction"] - j["carry_gap"], j
+    assert dataclasses.is_dataclass(TraceSettings) and TraceSettings().joint_lift
