@@ -366,6 +366,36 @@ def test_pair_of_library_effects_found_in_the_order_of_what_they_explain(traced)
     assert r1[first] >= r1[second], r1
 
 
+#: one-load records of a constant-torque library effect (one load magnitude and sign, both directions or a trim):
+#: the per-(load sign, direction) constants are spanned by the base's explainers (trace.json ``separability``), so
+#: the planted effect may be named, left ambiguous with others, or not named; never another constant torque alone
+ONE_LOAD_CONSTANT_TORQUE = [("rig_coulomb", "coulomb_friction"), ("rig_axial_offset", "force_offset"),
+                            ("rig_direction_friction", "direction_friction"),
+                            ("rig_pair_coulomb_ripple", "coulomb_friction")]
+CONSTANT_TORQUES = {"coulomb_friction", "force_offset", "direction_friction"}
+
+
+@pytest.mark.campaign
+@pytest.mark.slow
+@pytest.mark.parametrize("name, planted", ONE_LOAD_CONSTANT_TORQUE)
+def test_nothing_wrong_is_named_where_one_load_cannot_separate_the_constant_torques(traced, name, planted):
+    """On a one-load record the planted constant torque, an ambiguity that includes it, or nothing: no other
+    constant torque is named, no ambiguity or joint lift's carriers leave the planted one out, and a joint lift
+    verdict is reported in every round where a base correction sat at its bound."""
+    doc = traced(name)
+    named = [e["name"] for e in doc["effects_added"] if not e.get("implied_by") and not e.get("refines_declared")
+             and e["name"] in CONSTANT_TORQUES]
+    assert set(named) <= {planted}, (named, doc["rounds"])
+    for a in doc["ambiguous"]:
+        if set(a["candidates"]) & CONSTANT_TORQUES:
+            assert planted in a["candidates"], a
+    for r in doc["rounds"]:
+        j = r.get("joint_lift")
+        if j and "error" not in j and j["significant"]:  # the base's own efficiencies alone are no wrong name
+            named_alone = [c for c in j["carriers"] if c in CONSTANT_TORQUES] if len(j["carriers"]) == 1 else []
+            assert named_alone in ([], [planted]), j
+
+
 @pytest.mark.slow
 def test_trace_json_and_report_say_what_was_done(traced_result, tmp_path):
     """trace.json follows its schema and reports the base corrections with their bounds' sources; the report has

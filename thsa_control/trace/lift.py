@@ -14,8 +14,9 @@ question the others have already answered: started from the bounded optimum the 
 * the **carrier**: which single candidate (one explainer lifted with the others bounded, or a found constant
   torque) carries the joint drop, i.e. leaves less than the ``chi2(k - 1)`` quantile (scaled as the ambiguity gap:
   reduced held-out chi2 x integrated autocorrelation time) of it unexplained.  Several carriers are the same
-  explanation (the ambiguity rule's list); none while the joint lift is significant says "a constant torque beyond
-  a plausible base, ambiguous among the explainers" (what one record cannot separate).
+  explanation (the ambiguity rule's list); none while the joint lift is significant says that what the base leaves
+  exceeds the plausible set without any single constant torque carrying it (on load sweeps with nothing planted the
+  lifted set absorbs the base's own mismatch around the load's zero crossing: no claim of an effect).
 
 Used by :mod:`thsa_control.trace.engine`.
 """
@@ -92,9 +93,10 @@ def joint_verdict(current: dict, joint: dict, scored: Sequence[dict], noise: Map
         verdict = f"carried by {carriers[0]} alone"
     elif carriers:
         verdict = f"carried by each of {', '.join(carriers)}: the record does not tell them apart"
-    else:
-        verdict = ("a constant torque beyond a plausible base that no single explainer carries: ambiguous among "
-                   + ", ".join(sorted(singles)))
+    else:  # measured on load sweeps with nothing planted: the lifted set absorbs a base mismatch no constant has
+        verdict = ("the explainers lifted together explain more than any one of them (" + ", ".join(sorted(singles))
+                   + "): what the base leaves exceeds the plausible set, but no single constant torque carries it "
+                   "(a base mismatch the explainers share, or a torque this record cannot attribute); nothing named")
     est = joint["estimates"]
     return {"parameters_lifted": k, "holdout_chi2_drop": drop, "chi2_threshold": thr * scale,
             "threshold_scale": scale, "holdout_iact": tau, "carry_gap": gap, "significant": significant,
