@@ -1122,6 +1122,12 @@ def _rivals(best: dict, scored: list[dict], alpha: float) -> list[dict]:
             w.startswith("no parameter determined") or "collapses to zero" in w for w in s["implausible_because"])
 
     def measured(s):
+        if s.get("joint_lift_refused"):
+            # refused against the joint lift of the base corrections: its drop is what the base's mismatch beyond the
+            # plausible set buys, not a rival explanation (measured on rig_loadpath_preload, a load sweep: an axial
+            # force beyond its bound dropped 63709 without carrying the joint lift, and as a rival it left the load
+            # path, 4726, unnamed)
+            return False
         if not s["plausible"] and not (_is_explainer(best) and _is_explainer(s) and collinear_only(s)):
             return False
         if not s.get("not_robust"):
