@@ -389,6 +389,9 @@ def format_trace_summary(doc: dict) -> str:
             extra = f", gain {t['gain']:.4f}, lag {1e3 * t['lag_s']:.1f} ms"
         elif t["kind"] == "sensor_offset":
             extra = f", offset {t['offset']:.3f} A over {t['samples']} samples"
+        elif t["kind"] == "sensor_drift":
+            extra = (f", load reading {t['slope']:.3g}+-{t['stderr']:.2g} N/s over {t['holds']} holds"
+                     + (", the LVDT follows it: a real load change" if t.get("load_change_seen_by_lvdt") else ""))
         lines.append(f"    {t['variable']:<40} size {_num(t['size'], '.3g')} {t['unit']}, p {_num(t['p_value'], '.2g')}"
                      f"{extra}{'  <- STRUCTURED' if t['significant'] else ''}")
     return "\n".join(lines)
