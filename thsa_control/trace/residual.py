@@ -188,7 +188,9 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     # the load cell where the physics holds the load (drive stopped, nut held): a reading trending with time, which
     # the structure's deflection (LVDT) does not follow, is a drifting sensor (from the records alone)
     hd = hold_drift_of_runs(runs, s)
+    hold_curve = None
     if hd is not None:
+        hold_curve = {**hd.pop("curve"), "slope": hd["slope"], "p_value": hd["p_value"], "significant": hd["significant"]}
         sensors.append(hd)
     # which remainder each test describes: structure an unmodelled-but-declared base does not leave (local in
     # position over passes, periodic in angle, a drift, a torque-constant error, the sensors) or the regime
@@ -216,7 +218,9 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             "curves": {**_signature_curves(e_all, variables, runs, s, np.concatenate(steady)),
                        # the drift test's data: one torque per steady segment (runs one after another in time)
                        "segment_torque": {"time": [d[0] for d in drift_in], "torque": [d[1] for d in drift_in],
-                                          "direction": [d[2] for d in drift_in]}}}
+                                          "direction": [d[2] for d in drift_in]},
+                       # the load-cell drift test's data: the load reading and the LVDT in the holds
+                       "hold_load": hold_curve}}
 
 
 def _holdout_chi2_and_count(fit: dict, noise: Mapping[str, float]) -> dict:

@@ -753,6 +753,15 @@ def hold_drift_test(time, load, position, held, *, alpha: float = 1e-6, min_hold
                         "load_rate_seen_by_lvdt_stderr": fx["stderr"] / abs(c[0])})
     out["load_change_seen_by_lvdt"] = bool(seen)
     out["significant"] = bool(p < alpha and resolved and not seen)
+    # the report's data: each hold's readings about its own mean (the levels are nuisance), at most ~3000 points
+    step = max(int(out["samples"]) // 3000, 1)
+    q_all = [q[::step] for q in holds]
+    out["curve"] = {"time": np.concatenate([t[q] for q in q_all]).tolist(),
+                    "hold_mean_time": [float(t[q].mean()) for q in holds],
+                    "hold": np.concatenate([np.full(q.size, j) for j, q in enumerate(q_all)]).tolist(),
+                    "load_deviation": np.concatenate([f[qa] - f[q].mean() for qa, q in zip(q_all, holds)]).tolist(),
+                    "lvdt_deviation": (np.concatenate([x[qa] - x[q].mean() for qa, q in zip(q_all, holds)]).tolist()
+                                       if "lvdt_slope" in out else None)}
     return out
 
 
