@@ -67,7 +67,8 @@ def test_holds_are_the_stops_outside_the_base_transients():
 
 def test_a_planted_drift_is_found_with_its_rate_and_a_flat_hold_is_not():
     r = _test(*_trim(2, drift=40.0))
-    assert r["significant"] and r["variable"] == "time (slow drift)" and r["channel"] == "load_force", r
+    assert r["significant"] and r["channel"] == "load_force", r
+    assert r["variable"].startswith("time (slow drift)")  # the catalogue's signature of a slow drift
     assert r["holds"] >= 2 and r["slope"] == pytest.approx(40.0, abs=4 * r["stderr"])
     assert not r["load_change_seen_by_lvdt"]
     assert r["compliance"] == pytest.approx(COMPLIANCE, rel=0.05)  # from the load application while held

@@ -733,7 +733,8 @@ def hold_drift_test(time, load, position, held, *, alpha: float = 1e-6, min_hold
     b, se, p = fit["slope"], fit["stderr"], fit["p"]
     span = float(max(t[q[-1]] for q in holds) - min(t[q[0]] for q in holds))
     resolved = abs(b) * span >= fit["sd"]
-    out = {"variable": "time (slow drift)", "kind": "sensor_drift", "channel": "load_force",
+    out = {"variable": "time (slow drift) of the load reading in the holds", "kind": "sensor_drift",
+           "channel": "load_force",
            "size": abs(b), "unit": "N/s", "slope": b, "stderr": se, "p_value": p, "iact": fit["iact"],
            "holds": len(holds), "samples": int(sum(q.size for q in holds)),
            "hold_times": [[float(t[q[0]]), float(t[q[-1]])] for q in holds],
@@ -767,8 +768,8 @@ def hold_drift_test(time, load, position, held, *, alpha: float = 1e-6, min_hold
 
 def _compliance(t, f, x, samples, min_z: float = 20.0) -> tuple[float, float] | None:
     """The structure's compliance seen by the LVDT [m/N] from held samples where the load changes: LVDT regressed on
-    the load reading with one level per stretch; None when the slope is determined to worse than 5 % (``min_z`` standard errors) or is not negative (a compressive load pushes
-    the nut back)."""
+    the load reading with one level per stretch; None when the slope is determined to worse than 5 % (``min_z``
+    standard errors) or is not negative (a compressive load pushes the nut back)."""
     if samples is None:
         return None
     m = np.asarray(samples, bool) & np.isfinite(f) & np.isfinite(x)
