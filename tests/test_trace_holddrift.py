@@ -65,6 +65,20 @@ def test_holds_are_the_stops_outside_the_base_transients():
     assert h[(t > 4.6) & (t < 4.9)].all() and h[t > 9.1].all()
 
 
+def test_a_position_loop_pulsing_the_drive_for_a_sample_does_not_end_a_hold():
+    """A position loop at its deadband's edge commands a creep for a sample now and then (rig-sim's position_steps at
+    1 kHz): the nut stays still, the hold goes on; a command held for 50 ms ends it."""
+    t, w, f, _x, cmd = _trim(6)
+    pulsed = cmd.copy()
+    pulsed[np.flatnonzero((t > 9.2) & (np.arange(t.size) % 25 == 0))] = 3e-4  # 1 sample every 50 ms
+    h = hold_samples(t, w, f, pulsed)
+    assert h[t > 9.1].all()
+    long_cmd = cmd.copy()
+    long_cmd[(t > 9.5) & (t < 9.55)] = 3e-4
+    h = hold_samples(t, w, f, long_cmd)
+    assert not h[(t > 9.5) & (t < 9.55)].any() and h[(t > 9.2) & (t < 9.45)].all()
+
+
 def test_a_planted_drift_is_found_with_its_rate_and_a_flat_hold_is_not():
     r = _test(*_trim(2, drift=40.0))
     assert r["significant"] and r["channel"] == "load_force", r
