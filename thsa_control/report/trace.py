@@ -422,7 +422,8 @@ def format_trace_summary(doc: dict) -> str:
             extra = f", offset {t['offset']:.3f} A over {t['samples']} samples"
         elif t["kind"] == "sensor_drift":
             extra = (f", load reading {t['slope']:.3g}+-{t['stderr']:.2g} N/s over {t['holds']} holds"
-                     + (", the LVDT follows it: a real load change" if t.get("load_change_seen_by_lvdt") else ""))
+                     + (", the LVDT follows it: a real load change" if t.get("load_change_seen_by_lvdt") else "")
+                     + ("" if t.get("witness", "lvdt") == "lvdt" else ", no LVDT: a real load change not excluded"))
         lines.append(f"    {t['variable']:<40} size {_num(t['size'], '.3g')} {t['unit']}, p {_num(t['p_value'], '.2g')}"
                      f"{extra}{'  <- STRUCTURED' if t['significant'] else ''}")
     return "\n".join(lines)

@@ -763,6 +763,7 @@ def hold_drift_test(time, load, position, held, *, alpha: float = 1e-6, min_hold
                         "load_rate_seen_by_lvdt": fx["slope"] / c[0],
                         "load_rate_seen_by_lvdt_stderr": fx["stderr"] / abs(c[0])})
     out["load_change_seen_by_lvdt"] = bool(seen)
+    out["witness"] = "lvdt" if "lvdt_slope" in out else "none (no LVDT in the holds: a real load change is not excluded)"
     out["significant"] = bool(p < alpha and resolved and not seen)
     # the report's data: each hold's readings about its own mean (the levels are nuisance), at most ~3000 points
     step = max(int(out["samples"]) // 3000, 1)
