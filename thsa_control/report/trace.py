@@ -342,7 +342,9 @@ def _joint_text(j: dict) -> str:
     vals = ", ".join(f"{n} {_num(v)}" for n, v in (j.get("values") or {}).items())
     return (f"joint lift ({j['parameters_lifted']} base corrections freed beyond their plausible bounds together"
             f"{': ' + vals if vals else ''}): held-out chi2 drop {_num(j['holdout_chi2_drop'], '.4g')} (threshold "
-            f"{_num(j['chi2_threshold'], '.3g')}); {j['verdict']}")
+            f"{_num(j['chi2_threshold'], '.3g')}"
+            + (f"; the joint fit stopped at {_num(j['joint_fit_drop'], '.4g')}, below {j['joint_from']}, a special case "
+               "of it" if j.get("joint_from") else "") + f"); {j['verdict']}")
 
 
 def format_trace_summary(doc: dict) -> str:

@@ -733,7 +733,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                         - sum(_chi2_by_channel(ef, noise, "holdout", cmask).values()))})
             if "error" not in jf:
                 jf = {**jf, "_lifted": tuple(lifting)}
-                joint = joint_verdict(current, jf, singles, noise, cmask, len(lifting), st.alpha)
+                nested = [x["name"] for x in singles if x.get("beyond_base_correction")] + [EFFICIENCY_LIFT]
+                joint = joint_verdict(current, jf, singles, noise, cmask, len(lifting), st.alpha, nested)
                 say(f"joint lift of {', '.join(lifting)}: held-out chi2 drop {joint['holdout_chi2_drop']:.4g} "
                     f"(threshold {joint['chi2_threshold']:.3g}); {joint['verdict']}")
                 _gate_on_joint(scored, joint)
