@@ -844,6 +844,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         found_info[best["name"]] = bw.Added(
             name=best["name"], spec=best["_spec"], round=len(rounds), job=best["_job"],
             k=len(best["_spec"].free) + len(best["_spec"].profile), drop_when_added=best["holdout_chi2_drop"],
+            drop_when_added_all=(sum(_chi2_by_channel(current, noise, "holdout").values())
+                                 - sum(_chi2_by_channel(f, noise, "holdout").values())),
             replaced=tuple(e for e in cur_effects if e not in new_effects),
             implied=tuple(r for r in new_effects if r not in cur_effects and r != best["name"]),
             rebound={n: base_bounds[n][:2] for n in lifted if n in base_bounds}, beyond_base=bool(lifted),
@@ -924,7 +926,7 @@ def _order_by_contribution(added: list, found_info: dict, leave_one_out) -> dict
     if len(subj) < 2:
         return None
     loo = leave_one_out(subj)
-    contrib = {a.name: loo[a.name][2].get("holdout_chi2_drop", -math.inf) for a in subj}
+    contrib = {a.name: loo[a.name][2].get("holdout_chi2_drop_all_samples", -math.inf) for a in subj}
     steps = {e["name"]: e for e in added if e["name"] in found_info and not e.get("implied_by")}
     for a in subj:
         r = loo[a.name][2]
@@ -943,7 +945,9 @@ def _order_by_contribution(added: list, found_info: dict, leave_one_out) -> dict
     return {"measure": bw.ORDER_MEASURE, "order": [a.name for a in ranked], "order_of_addition": before,
             "changed": [a.name for a in ranked] != before,
             "contributions": [{"name": a.name, "round_added": a.round, "holdout_chi2_drop_given_others": contrib[a.name],
-                               "holdout_chi2_drop_when_added": a.drop_when_added,
+                               "holdout_chi2_drop_given_others_where_scored": loo[a.name][2].get("holdout_chi2_drop"),
+                               "holdout_chi2_drop_when_added": a.drop_when_added_all,
+                               "holdout_chi2_drop_when_added_where_scored": a.drop_when_added,
                                "window_reduction_given_others": loo[a.name][2].get("window_reduction")}
                               for a in ranked]}
 
