@@ -338,7 +338,8 @@ def format_trace_summary(doc: dict) -> str:
                " (base step: declared component detailed, counted as what the base contains)" if e.get("base_step")
                else "")
         lines.append(f"step {step}: added {e['name']}{how}"
-                     f" (score {_num(e['score'], '.3f')}, AIC drop {_num(e['aic_drop'], '.1f')}, "
+                     + (f" in round {e['round_added']}" if e.get("round_added") and doc.get("order") else "")
+                     + f" (score {_num(e['score'], '.3f')}, AIC drop {_num(e['aic_drop'], '.1f')}, "
                      f"BIC drop {_num(e['bic_drop'], '.1f')})")
         for n, p in e["parameters"].items():
             ci = p["ci95"]
