@@ -3,10 +3,12 @@ not determined by the run (held at its file value, reported) or collapses to zer
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
 from thsa_control.trace import CANDIDATES
-from thsa_control.trace.scoring import determination, zero_is_absent
+from thsa_control.trace.scoring import _ci95, _param_entry, determination, zero_is_absent
 
 Z = 2.0
 
@@ -54,3 +56,20 @@ def test_drivetrain_damping_is_a_second_stage_parameter():
     spec = CANDIDATES["drivetrain_compliance"]
     assert spec.free == ("gear.torsional_stiffness",)
     assert spec.second_stage == ("gear.torsional_damping",)
+
+
+def test_interval_of_a_positive_parameter_stays_positive():
+    """A stiffness (search bound above zero) poorly determined: its 95 % interval is symmetric in the logarithm, so it
+    never reaches zero, holds the estimate with the Wald interval's coverage in log space (sd(log v) = sd / v), and
+    comes back to the Wald interval when the relative error is small; a parameter that may take either sign keeps
+    the Wald interval."""
+    v, sd = 1.983e7, 1.044e7  # a contact stiffness on a reversal null (Wald: -6.4e5 .. 4.0e7 N/m)
+    (lo, hi), scale = _ci95(v, sd, 1e3)
+    assert scale == "log" and 0 < lo < v < hi
+    assert math.log(hi / v) == pytest.approx(math.log(v / lo)) == pytest.approx(1.96 * sd / v)
+    (lo, hi), _ = _ci95(v, 1e-3 * v, 1e3)
+    assert (lo, hi) == pytest.approx((v - 1.96e-3 * v, v + 1.96e-3 * v), rel=1e-5)
+    (lo, hi), scale = _ci95(-300.0, 200.0, -1e4)  # an axial force offset: either sign
+    assert scale == "wald" and (lo, hi) == pytest.approx((-692.0, 92.0))
+    e = {"value": v, "stderr": sd, "unit": "N/m", "at_bound": None, "min": 1e3}
+    assert _param_entry(e)["ci95_scale"] == "log" and _param_entry(e)["ci95"][0] > 0

@@ -133,6 +133,7 @@ from thsa_control.data.rigformat import (  # noqa: F401  (re-exported: the publi
     _number,
     true_runs,
     measured_motor_speed,
+    speed_integral,
     motor_speed_from,
 )
 from thsa_control.data.units import mm_to_m

@@ -311,6 +311,13 @@ def measured_motor_speed(run) -> np.ndarray | None:
         lambda c: np.asarray(run.signals[c], float) if c in run.source_columns else None, run.gear_ratio)
 
 
+def speed_integral(time, speed) -> np.ndarray:
+    """The angle [rad] (or travel) a speed covers from the first sample: the trapezoid rule over the samples, 0 at
+    the first one.  The one integration of a measured speed, for every tool that needs a motor angle or a travel."""
+    t, w = np.asarray(time, dtype=float), np.asarray(speed, dtype=float)
+    return np.concatenate([[0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t))])
+
+
 def motor_speed_from(get: Callable[[str], Any], gear_ratio: float):
     """A motor speed as measured: ``get("motor_speed")``, else ``gear_ratio * get("screw_speed")``, else None.
 

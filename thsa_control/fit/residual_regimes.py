@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import stats
 
+from thsa_control.data.rigformat import speed_integral
 from thsa_control.errors import SignalError
 
 if TYPE_CHECKING:
@@ -103,9 +104,7 @@ def wrapped_angle(time, speed, *, periods_per_revolution: float = 1.0) -> Float1
     With ``periods_per_revolution`` = pole pairs it is the electrical angle
     (torque ripple, cogging show as a dependence on it).
     """
-    t, w = np.asarray(time, dtype=float), np.asarray(speed, dtype=float)
-    ang = np.concatenate([[0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t))])
-    return np.mod(periods_per_revolution * ang, 2.0 * np.pi)
+    return np.mod(periods_per_revolution * speed_integral(time, speed), 2.0 * np.pi)
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from ..data.rigdata import RigRun, measured_motor_speed
+from ..data.rigdata import RigRun, measured_motor_speed, speed_integral
 from ..fit.residuals import reversal_proximity
 from ..model import EFFECTS, CandidateSpec
 from ..model.params import ParameterSet
@@ -181,9 +181,7 @@ def nut_travel(run: RigRun, params: ParameterSet) -> np.ndarray:
     if np.isfinite(x).any():
         return x
     r_kin = params.value("screw.lead") / (2 * math.pi * params.value("gear.ratio"))
-    t = np.asarray(run.time, float)
-    w = np.nan_to_num(measured_motor_speed(run))
-    return np.concatenate([[0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t))]) * r_kin
+    return speed_integral(run.time, np.nan_to_num(measured_motor_speed(run))) * r_kin
 
 
 def _screw_revolutions(params: ParameterSet, runs) -> str | None:

@@ -14,7 +14,7 @@ from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..data.rigdata import RigRun, measured_motor_speed, motor_speed_from
+from ..data.rigdata import RigRun, measured_motor_speed, motor_speed_from, speed_integral
 from ..fit.residuals import quadrant, reversal_proximity
 from ..model.laws import kinematic_ratio
 from ..model.params import ParameterSet
@@ -50,7 +50,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         torque.append(missing_torque(t, e, starts, inertia, s.window))
         w = np.nan_to_num(measured_motor_speed(run))
         dt = np.r_[np.diff(t), 0.0]
-        angle = np.r_[0.0, np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t))]
+        angle = speed_integral(t, w)
         load = np.asarray(run.signals["load_force"], float)
         # outside the base's transients: the samples the pass-replicated position test uses; the angle tests use
         # the samples outside its starts, stops, reversals, load changes and sustained speed changes (a periodic
