@@ -121,3 +121,49 @@ def test_a_parameter_collapsing_to_zero_given_the_others_is_a_reason_not_an_unde
     rec = _judge(a, _fit(y, signal + part, hold, starts, t, aic=0.0, estimates=undetermined), without)
     assert rec["determination"] == {"drive.coulomb_torque": "not determined"}
     assert rec["prelim"], rec["fails"]
+
+
+@pytest.mark.slow
+def test_a_removed_effect_leaves_the_model_and_is_said_so(tmp_path, rig_1khz, params, monkeypatch):
+    """The engine's side of a removal, on the plain screw drive of tests/test_trace.py (Coulomb 0.1 N m + offset
+    600 N, both found): with the criterion made to refuse the Coulomb friction given the offset (a stand-in for a
+    part the later effect explains), the Coulomb friction leaves the model after round 2 with the numbers, the
+    model the trace ends with is the one without it, it is not offered again, and the summary and the report say
+    so."""
+    from handcalc import RIG_NOISE
+
+    from thsa_control.data.rigdata import read_run
+    from thsa_control.fit.virtual_rig import VirtualRig, excitation_inputs
+    from thsa_control.report.trace import conclusion_table_html, format_trace_summary
+    from thsa_control.trace import TraceSettings, trace
+    from thsa_control.trace import backward as bw
+
+    design = dataclasses.replace(rig_1khz, velocity_ki=0.0)
+    truth = params.replace({"drive.coulomb_torque": 0.1, "drive.axial_force_offset": 600.0})
+    u = excitation_inputs(2.5, bipolar=True, load=0.0, control_period=1e-3, seed=1, temperature=25.0)
+    VirtualRig(None, effects=("coulomb_friction", "force_offset"), params=truth, design=design, noise=RIG_NOISE,
+               seed=1).record(u, tmp_path / "run")
+    run = read_run(tmp_path / "run.csv")
+    real = bw.judge_removal
+
+    def refuse_coulomb(a, full, reduced, **kw):
+        rec = real(a, full, reduced, **kw)
+        if a.name == "coulomb_friction":
+            rec["fails"].append("refused by the test")
+            rec["prelim"] = False
+        return rec
+
+    monkeypatch.setattr(bw, "judge_removal", refuse_coulomb)
+    res = trace(run, "A", remove=["noback_ideal"], params=params,
+                settings=TraceSettings(candidates=("coulomb_friction", "force_offset"), max_nfev=30))
+    doc = res.to_dict()
+    assert [e["name"] for e in doc["effects_added"]] == ["force_offset"], doc["rounds"]
+    (r,) = doc["effects_removed"]
+    assert r["name"] == "coulomb_friction" and r["explained_by"] == ["force_offset"] and r["removed_after_round"] == 2
+    assert r["holdout_chi2_drop_given_others"] > r["chi2_threshold"]  # the real criterion kept it: only the test refused
+    assert "coulomb_friction" not in doc["final_effects"] and "force_offset" in doc["final_effects"]
+    assert doc["order"] is None  # one found effect left: nothing to order
+    # not offered again: offered, it would have made a third round of candidates
+    assert len(doc["rounds"]) == 2 and "backward" in doc["rounds"][1], doc["rounds"]
+    assert "removed after round 2" in format_trace_summary(doc)
+    assert "removed (backward check)" in conclusion_table_html(doc)
