@@ -16,10 +16,10 @@ import time
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from thsa_control.data.rigdata import read_run  # noqa: E402
-from thsa_control.fit.kinematics import run_kinematics  # noqa: E402
-from thsa_control.model.params import default_parameters  # noqa: E402
-from thsa_control.trace import TraceSettings, trace  # noqa: E402
+from thsa_control.data.rigdata import read_run
+from thsa_control.fit.kinematics import run_kinematics
+from thsa_control.model.params import default_parameters
+from thsa_control.trace import TraceSettings, trace
 
 
 def _cpu() -> float:
@@ -41,7 +41,7 @@ def main(argv=None) -> int:
             doc = trace(run, "A", params=params, settings=TraceSettings(workers=a.workers, backward=on)).to_dict()
             out[on] = (_cpu() - c0, time.perf_counter() - t0, doc)
         (c_off, w_off, d_off), (c_on, w_on, d_on) = out[False], out[True]
-        names = lambda d: [e["name"] for e in d["effects_added"]]  # noqa: E731
+        names = lambda d: [e["name"] for e in d["effects_added"]]
         print(f"{run.name}: CPU {c_off:.1f} s -> {c_on:.1f} s (x{c_on / c_off:.2f}; wall {w_off:.1f} -> {w_on:.1f} s), "
               f"backward fits {d_on['timing']['backward_fits']} ({d_on['timing']['backward_cpu_s']:.1f} s CPU); "
               f"added {names(d_off)} -> {names(d_on)}; removed {[r['name'] for r in d_on['effects_removed']]}")

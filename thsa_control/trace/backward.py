@@ -32,7 +32,13 @@ from dataclasses import dataclass, field
 
 from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
 from ..model.params import ParameterSet
-from .scoring import (_chi2_by_channel, _holdout_segment_changes, _null_runs, _rms_by_channel, determination)
+from .scoring import (
+    _chi2_by_channel,
+    _holdout_segment_changes,
+    _null_runs,
+    _rms_by_channel,
+    determination,
+)
 
 #: how the kept effects are ordered (trace.json ``order.measure``)
 ORDER_MEASURE = ("leave-one-out held-out chi2 drop over all held-out samples: the rise of the noise-weighted held-out "
