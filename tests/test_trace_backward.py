@@ -33,7 +33,7 @@ def test_without_an_effect_its_implied_effect_goes_and_the_declared_one_comes_ba
     freed = ("noback.mu_coulomb_pos", "noback.mu_coulomb_neg")
     free = ("screw.efficiency_direct",) + freed
     a = _added("noback_backlash", replaced=("noback_ideal",), implied=("noback_quadrant_friction",), freed=freed)
-    effs, fr, pset = reduced_model(a, with_it, free, params, [a])
+    effs, fr, pset = reduced_model(a, with_it, free, params)
     assert set(effs) == set(declared)
     assert fr == ("screw.efficiency_direct",)
     assert pset is params
@@ -46,7 +46,7 @@ def test_an_effect_found_beyond_its_base_correction_gets_its_bound_back(params):
     lifted = params.replace_parameters({n: dataclasses.replace(params[n], value=0.1, min=0.0, max=1.0)})
     effs = resolve_effects("A", add=["coulomb_friction"])
     a = _added("coulomb_friction", beyond_base=True, rebound={n: (0.0, 0.057)})
-    e2, f2, p2 = reduced_model(a, effs, (n,), lifted, [a])
+    e2, f2, p2 = reduced_model(a, effs, (n,), lifted)
     assert e2 == effs and f2 == (n,)
     assert p2.value(n) == pytest.approx(0.057) and p2[n].max == pytest.approx(0.057)
     assert model_key(effs, (n,), lifted) != model_key(e2, f2, p2)

@@ -64,7 +64,7 @@ class Added:
     freed: tuple[str, ...] = ()  # parameters freed with it (its own, its implied effects', declared references)
 
 
-def reduced_model(a: Added, cur_effects, cur_free, cur_params: ParameterSet, kept: list[Added]):
+def reduced_model(a: Added, cur_effects, cur_free, cur_params: ParameterSet):
     """The model without ``a``: (effects, free parameters, parameter set).  Its implied effects go with it unless
     another kept effect needs them; what it replaced comes back unless a kept effect supersedes it; a lifted base
     correction gets its plausible bound back (value clipped into it)."""
@@ -158,7 +158,7 @@ def judge_removal(a: Added, full: dict, reduced: dict, *, noise, mask, window_ma
             "fails": why, "prelim": not why}
 
 
-def null_calibrate(recs: list[dict], fulls: Mapping, reduceds: Mapping, jobs_of: Mapping, fit_runs, noise,
+def null_calibrate(recs: list[dict], reduceds: Mapping, jobs_of: Mapping, fit_runs, noise,
                    masks: Mapping, seed: int, null_factor: float, fit_jobs: Callable) -> None:
     """Null drop of each record's effect: the model without it and the current model, both fitted to a null run of
     the model without it (its own predictions plus white noise of the measured level); sets ``null_chi2_drop`` and

@@ -504,7 +504,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         """name -> (fit without it, its job, the record of its admission criterion given the others)"""
         todo, out = [], {}
         for a in test:
-            effs, free, pset = bw.reduced_model(a, cur_effects, cur_free, cur_params, list(found_info.values()))
+            effs, free, pset = bw.reduced_model(a, cur_effects, cur_free, cur_params)
             jb = job(f"without {a.name}", effs, free, pset, fit_runs)
             key = bw.model_key(effs, free, pset)
             if key in fit_memo:
@@ -551,7 +551,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                     red, jr = loo[r["name"]][:2]
                     jobs_of[r["name"]] = ({**jr, "params_toml": red["params_toml"], "free": tuple(red["free"])},
                                           job(f"with {r['name']}", cur_effects, cur_free, cur_params, fit_runs))
-                bw.null_calibrate(cands, {}, {r["name"]: loo[r["name"]][0] for r in cands}, jobs_of, fit_runs, noise,
+                bw.null_calibrate(cands, {r["name"]: loo[r["name"]][0] for r in cands}, jobs_of, fit_runs, noise,
                                   {r["name"]: score_mask(found_info[r["name"]].spec.window) for r in cands},
                                   st.seed + 2000 + 10 * after_round, st.null_factor, fit_jobs)
             for r in recs:
