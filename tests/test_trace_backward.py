@@ -9,6 +9,8 @@ already removes must not.  The whole-trace behaviour is checked on rig-sim runs 
 from __future__ import annotations
 
 import dataclasses
+import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -165,5 +167,8 @@ def test_a_removed_effect_leaves_the_model_and_is_said_so(tmp_path, rig_1khz, pa
     assert doc["order"] is None  # one found effect left: nothing to order
     # not offered again: offered, it would have made a third round of candidates
     assert len(doc["rounds"]) == 2 and "backward" in doc["rounds"][1], doc["rounds"]
+    jsonschema = pytest.importorskip("jsonschema")
+    schema = Path(__file__).resolve().parents[1] / "docs" / "trace_schema.json"
+    jsonschema.validate(json.loads(json.dumps(doc, default=float)), json.loads(schema.read_text()))
     assert "removed after round 2" in format_trace_summary(doc)
     assert "removed (backward check)" in conclusion_table_html(doc)
