@@ -654,6 +654,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         say(f"round {len(rounds) + 1}: scoring {len(jobs)} candidates ({', '.join(s.name for s in scorable)})")
         fits = _run_jobs(jobs, st.workers, say)
         base_holds = {w: _chi2_by_channel(current, noise, "holdout", score_mask(w)) for w in WINDOWS}
+        base_hold_all = sum(_chi2_by_channel(current, noise, "holdout").values())  # one sample set for every candidate
         scored = []
         for spec, f, jb in zip(scorable, fits, jobs):
             if "error" in f:
@@ -706,6 +707,9 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             prelim = prelim and repeats
             scored.append({
                 "name": spec.name, "score": drop / max(sum(base_hold.values()), 1e-300), "holdout_chi2_drop": drop,
+                # reported beside it: the drop over all held-out samples (the candidates' scored samples differ by
+                # window; the order of what is explained compares this one, trace/backward.py)
+                "holdout_chi2_drop_all_samples": base_hold_all - sum(_chi2_by_channel(f, noise, "holdout").values()),
                 "chi2_threshold": thr, "error_reduction": err_red, "window": spec.window, "window_reduction": win_red,
                 "window_reduction_beyond_noise": win_sys, "aic_drop": aic_drop, "bic_drop": current["bic"] - f["bic"],
                 "plausible": plausible, "implausible_because": why, "parameters": _params_out(f, spec),
