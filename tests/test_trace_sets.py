@@ -101,7 +101,7 @@ KNOWN_FAILING = {
                         "(0.116 N m) and the force beyond its bound reaches 1080 N of 1500 with both efficiencies "
                         "pinned at their bounds" +
                         ".  trace-lift: force_offset and direction_friction both miss the sign test now (drops 16546 / "
-                        "16541, not robust) and the joint lift of the base corrections says it (drop 16542, carried by "
+                        "16541, not robust) and the joint lift of the base corrections says it (drop 16546, carried by "
                         "each of force_offset and direction_friction: the record does not tell them apart)",
 }
 
