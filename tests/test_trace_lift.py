@@ -109,3 +109,29 @@ def test_a_drag_inside_its_bound_names_nothing_beyond_the_base(tmp_path_factory,
     assert not [e for e in doc["effects_added"] if e.get("beyond_base_correction")], doc["effects_added"]
     assert not doc["effects_added"] and not doc["ambiguous"], doc["rounds"]
     assert not [r["joint_lift"] for r in doc["rounds"] if (r.get("joint_lift") or {}).get("significant")]
+
+
+def test_report_shows_the_whole_contribution_and_the_joint_lift():
+    """The summary and the conclusion table carry the effect's whole contribution beside the window drop beyond its
+    bound, and each round's joint-lift verdict."""
+    from thsa_control.report.trace import conclusion_table_html, format_trace_summary
+
+    err = {"motor_speed": {"rms": 1.0, "unit": "rad/s", "fit_percent": 90.0}}
+    contrib = {"parameter": "drive.coulomb_torque", "channel": "motor_speed", "value": 0.151, "bound": 0.057,
+               "bounded_share": 0.377, "total_window_reduction": 0.98, "bounded_window_reduction": 0.377}
+    joint = {"parameters_lifted": 4, "holdout_chi2_drop": 13191.5, "chi2_threshold": 18.5, "significant": True,
+             "carriers": ["coulomb_friction"], "verdict": "carried by coulomb_friction alone",
+             "values": {"drive.coulomb_torque": 0.15}, "single_drops": {"coulomb_friction": 13191.5}}
+    doc = {"base_model": "A", "declared_effects": ["noback_ideal"], "uncertain_parameters": [],
+           "effects_added": [{"name": "coulomb_friction", "beyond_base_correction": True, "score": 1.0, "aic_drop": 1.0,
+                              "bic_drop": 1.0, "parameters": {}, "not_determined": [],
+                              "window_reduction": {"motor_speed": 0.86}, "error_reduction": {"motor_speed": 0.8},
+                              "error_before": err, "error_after": err, "contribution": contrib}],
+           "ambiguous": [], "rounds": [{"round": 1, "model": [], "candidates": [], "skipped": [], "joint_lift": joint}],
+           "error_before": err, "error_after": err, "unexplained": False,
+           "residual_signature": {"structured": [], "base_like": [], "tests": [], "sensors": []}}
+    text = format_trace_summary(doc)
+    html = conclusion_table_html(doc)
+    for out in (text, html):
+        assert "whole contribution" in out and "98 %" in out and "38 % of the value" in out
+        assert "carried by coulomb_friction alone" in out
