@@ -127,9 +127,10 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             tests.insert(0, dr) if dr["significant"] else tests.append(dr)
     sensors = []
     for run in runs:
-        for d in sensor_consistency(run.time, {c: run.signals[c] for c in ("motor_speed", "screw_speed", "nut_position")
-                                               if c in run.source_columns},
-                                    gear_ratio=run.gear_ratio, lead=run.screw_lead, alpha=s.alpha):
+        measured = {c: run.signals[c] for c in ("motor_speed", "screw_speed", "nut_position") if c in run.source_columns}
+        for d in sensor_consistency(run.time, {**measured, "load_force": run.signals["load_force"]},
+                                    gear_ratio=run.gear_ratio, lead=run.screw_lead, alpha=s.alpha,
+                                    transient_time=s.transient_time):
             d["run"] = run.name
             sensors.append(d)
         on = (np.asarray(run.signals["primary_enable"]) > 0.5) | (np.asarray(run.signals["standby_enable"]) > 0.5)
