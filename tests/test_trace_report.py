@@ -47,15 +47,17 @@ def test_conclusion_table_names_the_implied_effect_and_what_was_held():
     assert "unexplained: <b>True</b>" in html and "nut_position (repeated over passes)" in html
 
 
-def test_signature_figure_has_the_six_panels_and_marks_the_position_test():
+def test_signature_figure_has_the_eight_panels_and_marks_the_position_test():
     """Binned by nut position per direction (with the position test's peak bin), by motor and screw angle, the
-    redundant sensors, the per-segment torques against time and the residual against the current."""
+    redundant sensors, the per-segment torques against time, the residual against the current, and the load cell and
+    the LVDT in the holds (the load-cell drift test's data)."""
     fig = plot_signature(_doc()["residual_signature"])
     axes = fig.get_axes()
-    assert len(axes) == 6
+    assert len(axes) == 8
     titles = [a.get_title() for a in axes]
     assert any("nut position" in t for t in titles) and any("slow drift" in t for t in titles)
     assert any("motor current" in t for t in titles)
+    assert any("load cell in the holds" in t for t in titles) and any("LVDT in the holds" in t for t in titles)
     pos = axes[titles.index(next(t for t in titles if "nut position" in t))]
     labels = pos.get_legend_handles_labels()[1]
     assert any(lb.startswith("extending") for lb in labels) and any(lb.startswith("retracting") for lb in labels)

@@ -193,7 +193,7 @@ def plot_signature(sig: dict):
     sensors' cross-correlation, the per-segment torque against time (the drift test's data) and the residual
     binned by the motor current (a torque-constant error)."""
     curves = sig.get("curves") or {}
-    fig, axes = subplots(3, 2, figsize=(11, 9.8))
+    fig, axes = subplots(4, 2, figsize=(11, 13))
     ax = axes[0, 0]
     if "nut_position" in curves:
         c = curves["nut_position"]
@@ -265,7 +265,38 @@ def plot_signature(sig: dict):
     ax.set_xlabel("motor current [A]")
     ax.set_ylabel("missing torque [N m]")
     ax.set_title("residual binned by motor current (torque constant)", fontsize=9)
+    _plot_holds(axes[3, 0], axes[3, 1], curves.get("hold_load"))
     return fig
+
+
+def _plot_holds(ax_f, ax_x, hc: dict | None) -> None:
+    """The load-cell drift test's data: the load reading and the LVDT in the holds (speed command 0, nut held,
+    outside the base's transients) about each hold's mean, with the slope shared by the holds."""
+    if not hc or not hc.get("time"):
+        for ax in (ax_f, ax_x):
+            ax.text(0.5, 0.5, "no hold of 0.2 s (speed command 0, nut still)\noutside the base's transients",
+                    ha="center", va="center", transform=ax.transAxes, fontsize=9, color="0.35")
+    else:
+        tm, hold = np.asarray(hc["time"], float), np.asarray(hc["hold"], int)
+        ax_f.plot(tm, hc["load_deviation"], ".", ms=1.5, color="0.55")
+        for j, tc in enumerate(hc["hold_mean_time"]):
+            tj = tm[hold == j]
+            if tj.size:
+                ax_f.plot([tj[0], tj[-1]], [hc["slope"] * (tj[0] - tc), hc["slope"] * (tj[-1] - tc)], color="C3", lw=1.5)
+        ax_f.text(0.02, 0.97, f"slope shared by the holds {hc['slope']:.3g} N/s, p {_num(hc['p_value'], '.2g')}"
+                  + (" (STRUCTURED)" if hc["significant"] else ""), transform=ax_f.transAxes, va="top", fontsize=7)
+        if hc.get("lvdt_deviation") is not None:
+            ax_x.plot(tm, 1e6 * np.asarray(hc["lvdt_deviation"], float), ".", ms=1.5, color="0.55")
+        else:
+            ax_x.text(0.5, 0.5, "no LVDT in these runs", ha="center", va="center", transform=ax_x.transAxes,
+                      fontsize=9, color="0.35")
+    for ax in (ax_f, ax_x):
+        ax.axhline(0, color="0.5", lw=0.5)
+        ax.set_xlabel("time [s] (runs one after another)")
+    ax_f.set_ylabel("load reading - hold mean [N]")
+    ax_f.set_title("load cell in the holds (slow drift)", fontsize=9)
+    ax_x.set_ylabel("LVDT - hold mean [um]")
+    ax_x.set_title("LVDT in the holds (a real load change deflects the structure)", fontsize=9)
 
 
 def _ambiguity_hint(doc: dict, names) -> str:
@@ -389,6 +420,10 @@ def format_trace_summary(doc: dict) -> str:
             extra = f", gain {t['gain']:.4f}, lag {1e3 * t['lag_s']:.1f} ms"
         elif t["kind"] == "sensor_offset":
             extra = f", offset {t['offset']:.3f} A over {t['samples']} samples"
+        elif t["kind"] == "sensor_drift":
+            extra = (f", load reading {t['slope']:.3g}+-{t['stderr']:.2g} N/s over {t['holds']} holds"
+                     + (", the LVDT follows it: a real load change" if t.get("load_change_seen_by_lvdt") else "")
+                     + ("" if t.get("witness", "lvdt") == "lvdt" else ", no LVDT: a real load change not excluded"))
         lines.append(f"    {t['variable']:<40} size {_num(t['size'], '.3g')} {t['unit']}, p {_num(t['p_value'], '.2g')}"
                      f"{extra}{'  <- STRUCTURED' if t['significant'] else ''}")
     return "\n".join(lines)

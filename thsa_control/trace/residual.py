@@ -19,9 +19,55 @@ from ..fit.residuals import quadrant, reversal_proximity
 from ..model.laws import kinematic_ratio
 from ..model.params import ParameterSet
 from .scoring import _rms_by_channel
-from .signature import (SignatureSettings, base_transients, binned_mean, cross_correlation, current_offset_test,
-                        drift_test, missing_torque, position_local_test, remainder_kind, segment_torques,
-                        sensor_consistency, sg_derivative, signature_tests)
+from .signature import (
+    SignatureSettings,
+    base_transients,
+    binned_mean,
+    cross_correlation,
+    current_offset_test,
+    drift_test,
+    hold_drift_test,
+    hold_samples,
+    missing_torque,
+    position_local_test,
+    remainder_kind,
+    segment_torques,
+    sensor_consistency,
+    sg_derivative,
+    signature_tests,
+    still_band,
+)
+
+
+def hold_drift_of_runs(runs: Sequence[RigRun], s: SignatureSettings | None = None) -> dict | None:
+    """:func:`~thsa_control.trace.signature.hold_drift_test` over the holds of ``runs`` (one after another in time,
+    a gap between runs ending every hold): the load reading where the physics holds the load, the LVDT as the
+    structure's witness, the compliance from the held samples where the load changes.  From the records alone (no
+    fit), at the tracer's sample-based level ``s.alpha``; None when no run has a hold."""
+    s = s or SignatureSettings()
+    cols: dict[str, list] = {"t": [], "f": [], "x": [], "held": [], "still": []}
+    t_offset = 0.0
+    for run in runs:
+        w = measured_motor_speed(run)
+        if w is None:
+            continue
+        t = np.asarray(run.time, float)
+        f = np.asarray(run.signals["load_force"], float)
+        cmd = np.asarray(run.signals["speed_cmd"], float)
+        held = hold_samples(t, w, f, cmd, transient_time=s.transient_time)
+        # held with the load changes included: the structure's compliance
+        still = (cmd == 0) & (np.abs(np.nan_to_num(np.asarray(w, float))) <= still_band(w, cmd))
+        x = np.asarray(run.signals["nut_position"], float) if "nut_position" in run.source_columns \
+            else np.full(t.size, np.nan)
+        for k, v in (("t", t - t[0] + t_offset), ("f", f), ("x", x), ("held", held), ("still", still)):
+            cols[k] += [v, np.zeros(1, bool) if k in ("held", "still") else np.full(1, np.nan)]
+        t_offset += float(t[-1] - t[0]) + 1.0
+    if not cols["t"]:
+        return None
+    c = {k: np.concatenate(v) for k, v in cols.items()}
+    c["t"] = np.where(np.isfinite(c["t"]), c["t"], 0.0)
+    x = c["x"] if np.isfinite(c["x"][c["held"]]).all() and c["held"].any() else None
+    return hold_drift_test(c["t"], c["f"], x, c["held"], alpha=s.alpha, compliance_samples=c["still"])
 
 
 # ----------------------------------------------------------------------------- signature
@@ -140,6 +186,13 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         if co is not None:
             co["run"] = run.name
             sensors.append(co)
+    # the load cell where the physics holds the load (drive stopped, nut held): a reading trending with time, which
+    # the structure's deflection (LVDT) does not follow, is a drifting sensor (from the records alone)
+    hd = hold_drift_of_runs(runs, s)
+    hold_curve = None
+    if hd is not None:
+        hold_curve = {**hd.pop("curve"), "slope": hd["slope"], "p_value": hd["p_value"], "significant": hd["significant"]}
+        sensors.append(hd)
     # which remainder each test describes: structure an unmodelled-but-declared base does not leave (local in
     # position over passes, periodic in angle, a drift, a torque-constant error, the sensors) or the regime
     # dependences such a base leaves (quadrant, motor on/off, time since a reversal, direction, position bins
@@ -166,7 +219,9 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             "curves": {**_signature_curves(e_all, variables, runs, s, np.concatenate(steady)),
                        # the drift test's data: one torque per steady segment (runs one after another in time)
                        "segment_torque": {"time": [d[0] for d in drift_in], "torque": [d[1] for d in drift_in],
-                                          "direction": [d[2] for d in drift_in]}}}
+                                          "direction": [d[2] for d in drift_in]},
+                       # the load-cell drift test's data: the load reading and the LVDT in the holds
+                       "hold_load": hold_curve}}
 
 
 def _holdout_chi2_and_count(fit: dict, noise: Mapping[str, float]) -> dict:

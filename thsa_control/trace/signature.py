@@ -41,7 +41,8 @@ from ..model.laws import kinematic_ratio
 
 __all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missing_torque", "current_offset_test",
            "binned_mean", "cross_correlation", "position_local_test", "base_transients", "remainder_kind",
-           "STRUCTURED_VARIABLES", "split_remainder", "segment_torques", "drift_test"]
+           "STRUCTURED_VARIABLES", "split_remainder", "segment_torques", "drift_test", "hold_samples", "still_band",
+           "hold_drift_test"]
 
 #: signature variables whose structure an unmodelled-but-declared base does not leave: a feature repeated at a nut
 #: position over passes, periodic in motor or screw angle, a slow drift, a torque proportional to the current
@@ -802,3 +803,167 @@ def _slope_se(x1: np.ndarray, rss1: float, n: int, k: int, tau: float) -> list[f
     s2 = rss1 / max(n - 2 * k, 1) * tau
     return [math.sqrt(s2 / float(x1[:, j] @ x1[:, j])) if float(x1[:, j] @ x1[:, j]) > 0 else math.inf
             for j in range(k)]
+
+
+def hold_samples(time, speed, load, speed_cmd, *, transient_time: float = 0.3, max_gap: float = 0.02) -> np.ndarray:
+    """Samples where the physics holds the load constant: the speed command is exactly 0 (the drive gated off, the
+    no-back holding the nut; or the speed loop holding it), the measured motor speed inside the stop band of
+    :func:`base_transients` (5 % of the record's largest speed: the nut is not moving) and outside the base's
+    transients (``transient_time`` after a stop, a start or a load change: the surface and the loading actuator
+    settle).  A loading actuator in force mode then holds its force, whatever the actuator does."""
+    t = np.asarray(time, float)
+    w = np.nan_to_num(np.asarray(speed, float))
+    f = np.asarray(load, float)
+    cmd = np.asarray(speed_cmd, float)
+    still = (np.abs(w) <= still_band(w, cmd)) & np.isfinite(f) & ~base_transients(t, w, f, transient_time)
+    held = still & (cmd == 0)
+    # a position loop holding the nut at its deadband's edge enables the drive for a sample or two (rig-sim's
+    # position_steps at 1 kHz: 1 ms creep commands every 10-150 ms): a gap of at most ``max_gap`` [s] in which the nut
+    # stays inside the stop band does not end a hold (it moves the nut by at most 5 % of the top speed x 20 ms, 15 um
+    # on rig-sim's 15 mm/s, once: no trend)
+    idx = np.flatnonzero(held)
+    if idx.size > 1 and t.size > 1:
+        for a, b in zip(idx[:-1], idx[1:]):
+            if 1 < b - a and t[b] - t[a] <= max_gap and still[a:b].all():
+                held[a:b] = True
+    return held
+
+
+def still_band(speed, speed_cmd) -> float:
+    """The motor speed [rad/s] under which the nut counts as not moving: the stop band of :func:`base_transients`
+    (5 % of the record's largest speed), and at least 5 robust standard deviations of the speed sensor's reading
+    while the command is 0 (a record that never moves has no largest speed; its reading is the sensor's noise)."""
+    w = np.nan_to_num(np.asarray(speed, float))
+    if not w.size:
+        return 0.0
+    w0 = w[np.asarray(speed_cmd, float) == 0]
+    noise = 1.4826 * float(np.median(np.abs(w0 - np.median(w0)))) if w0.size >= 10 else 0.0
+    return max(0.05 * float(np.max(np.abs(w))), 5.0 * noise, 1e-9)
+
+
+def _hold_slopes(t: np.ndarray, y: np.ndarray, holds: list[np.ndarray]) -> dict:
+    """Least squares of ``y`` on one level per hold and one slope in time shared by the holds: the slope, its
+    standard error with the residual's integrated autocorrelation time (a random walk or a slow settling makes the
+    samples of a hold correlated), and each hold's own slope and standard error."""
+    from scipy.stats import t as t_dist
+
+    tc = np.concatenate([t[q] - t[q].mean() for q in holds])
+    yc = np.concatenate([y[q] - y[q].mean() for q in holds])
+    sxx = float(tc @ tc)
+    b = float(tc @ yc) / sxx
+    r = yc - b * tc
+    n, k = yc.size, len(holds)
+    tau = max(n / _effective_n_iact(r), 1.0)
+    s2 = float(r @ r) / max(n - k - 1, 1)
+    se = math.sqrt(s2 * tau / sxx)
+    dof = n / tau - k - 1
+    p = float(2 * t_dist.sf(abs(b) / se, dof)) if dof >= 1 and se > 0 else 1.0
+    per = []
+    for q in holds:
+        tq = t[q] - t[q].mean()
+        yq = y[q] - y[q].mean()
+        bq = float(tq @ yq) / float(tq @ tq)
+        rq = yq - bq * tq
+        per.append((bq, math.sqrt(float(rq @ rq) / max(q.size - 2, 1) * tau / float(tq @ tq))))
+    return {"slope": b, "stderr": se, "p": p, "iact": tau, "dof": dof, "sd": math.sqrt(s2), "per_hold": per}
+
+
+def hold_drift_test(time, load, position, held, *, alpha: float = 1e-6, min_hold: float = 0.2,
+                    min_samples: int = 20, z_seen: float = 3.09, compliance_samples=None) -> dict | None:
+    """A load reading that trends with time where the physics holds the load constant: a drifting load cell.
+
+    ``held``: the samples of :func:`hold_samples` (the nut held, the drive still, outside the base's transients);
+    its contiguous stretches of at least ``min_hold`` [s] and ``min_samples`` samples are the holds (a shorter one adds
+    next to nothing to the shared slope, whose standard error grows as a hold's duration to the power -1.5: +-43 N/s
+    for 0.2 s of rig-sim's 25 N noise at 500 Hz against +-4 N/s for 1 s; the autocorrelation time is not estimated on
+    fewer samples).  The load
+    reading is regressed on one level per hold (a hold's load is whatever the loading actuator was set to) and one
+    slope in time shared by the holds (a sensor's zero drifts at one rate over the record; the holds combined).  The
+    slope's standard error counts the samples by the residual's integrated autocorrelation time, so a correlated
+    remainder (a loading actuator settling, a random walk) does not look significant; t test at ``alpha`` (the
+    level of the tracer's sample-based tests, whose counts are autocorrelation-corrected the same way).
+
+    The structure is the witness that tells a drifting reading from a real load change: a load that really changes
+    while the nut is held deflects the load path and the ball-screw contact, and the LVDT (nut relative to the
+    airframe) moves against a compressive increase (``position`` [m]).  The LVDT's slope in the same holds is fitted
+    the same way; when it moves, significantly at ``z_seen`` standard errors (one-sided p 1e-3: a drift is called a
+    load change once in a thousand records), in the direction a real load change of the reading's sign moves it, the
+    trend is a load change, not flagged.  The structure's compliance (LVDT per newton, from the record's own held
+    samples where the load changes, ``compliance_samples``; its load changes included) converts the LVDT's slope into
+    the load rate it shows (``load_rate_seen_by_lvdt``), so the report says how much of the reading's trend the
+    structure saw.  A drift whose change over the holds' span is below the reading's noise (one standard deviation
+    per sample) is no flag: a reading does not resolve it.  None when no hold is long enough.
+    """
+    t = np.asarray(time, float)
+    f = np.asarray(load, float)
+    h = np.asarray(held, bool) & np.isfinite(f) & np.isfinite(t)
+    idx = np.flatnonzero(h)
+    if idx.size < min_samples:
+        return None
+    stretches = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
+    holds = [q for q in stretches if q.size >= min_samples and t[q[-1]] - t[q[0]] >= min_hold]
+    if not holds:
+        return None
+    fit = _hold_slopes(t, f, holds)
+    b, se, p = fit["slope"], fit["stderr"], fit["p"]
+    span = float(max(t[q[-1]] for q in holds) - min(t[q[0]] for q in holds))
+    resolved = abs(b) * span >= fit["sd"]
+    out = {"variable": "time (slow drift) of the load reading in the holds", "kind": "sensor_drift",
+           "channel": "load_force",
+           "size": abs(b), "unit": "N/s", "slope": b, "stderr": se, "p_value": p, "iact": fit["iact"],
+           "holds": len(holds), "samples": int(sum(q.size for q in holds)),
+           "hold_times": [[float(t[q[0]]), float(t[q[-1]])] for q in holds],
+           "per_hold_slopes": [v for v, _ in fit["per_hold"]], "per_hold_stderr": [e for _, e in fit["per_hold"]],
+           "noise_sd": fit["sd"], "change_over_span": b * span, "span_s": span}
+    seen = False
+    x = None if position is None else np.asarray(position, float)
+    if x is not None and all(np.all(np.isfinite(x[q])) for q in holds):
+        fx = _hold_slopes(t, x, holds)
+        zx = -math.copysign(1.0, b) * fx["slope"] / fx["stderr"] if fx["stderr"] > 0 else 0.0
+        seen = zx > z_seen
+        out.update({"lvdt_slope": fx["slope"], "lvdt_stderr": fx["stderr"], "lvdt_z_toward_load_change": zx})
+        c = _compliance(t, f, x, compliance_samples)
+        if c is not None:
+            out.update({"compliance": c[0], "compliance_stderr": c[1],
+                        "load_rate_seen_by_lvdt": fx["slope"] / c[0],
+                        "load_rate_seen_by_lvdt_stderr": fx["stderr"] / abs(c[0])})
+    out["load_change_seen_by_lvdt"] = bool(seen)
+    out["witness"] = "lvdt" if "lvdt_slope" in out else "none (no LVDT in the holds: a real load change is not excluded)"
+    out["significant"] = bool(p < alpha and resolved and not seen)
+    # the report's data: each hold's readings about its own mean (the levels are nuisance), at most ~3000 points
+    step = max(int(out["samples"]) // 3000, 1)
+    q_all = [q[::step] for q in holds]
+    out["curve"] = {"time": np.concatenate([t[q] for q in q_all]).tolist(),
+                    "hold_mean_time": [float(t[q].mean()) for q in holds],
+                    "hold": np.concatenate([np.full(q.size, j) for j, q in enumerate(q_all)]).tolist(),
+                    "load_deviation": np.concatenate([f[qa] - f[q].mean() for qa, q in zip(q_all, holds)]).tolist(),
+                    "lvdt_deviation": (np.concatenate([x[qa] - x[q].mean() for qa, q in zip(q_all, holds)]).tolist()
+                                       if "lvdt_slope" in out else None)}
+    return out
+
+
+def _compliance(t, f, x, samples, min_z: float = 20.0) -> tuple[float, float] | None:
+    """The structure's compliance seen by the LVDT [m/N] from held samples where the load changes: LVDT regressed on
+    the load reading with one level per stretch; None when the slope is determined to worse than 5 % (``min_z``
+    standard errors) or is not negative (a compressive load pushes the nut back)."""
+    if samples is None:
+        return None
+    m = np.asarray(samples, bool) & np.isfinite(f) & np.isfinite(x)
+    idx = np.flatnonzero(m)
+    if idx.size < 50:
+        return None
+    parts = [q for q in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1) if q.size >= 10]
+    if not parts:
+        return None
+    fc = np.concatenate([f[q] - f[q].mean() for q in parts])
+    xc = np.concatenate([x[q] - x[q].mean() for q in parts])
+    sff = float(fc @ fc)
+    if sff <= 0:
+        return None
+    c = float(fc @ xc) / sff
+    r = xc - c * fc
+    tau = max(r.size / _effective_n_iact(r), 1.0)
+    se = math.sqrt(float(r @ r) / max(r.size - len(parts) - 1, 1) * tau / sff)
+    if c >= 0 or abs(c) < min_z * se:
+        return None
+    return c, se
