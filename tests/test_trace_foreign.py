@@ -312,6 +312,9 @@ def test_a_pitch_one_loaded_stop_cannot_fix_is_reported_not_determined(traced, p
 
 
 FOREIGN = {f"rig_{k}": tuple(v) for k, v in CATALOGUE["foreign"].items()}
+#: a sensor effect planted on another channel than rig_sensor_gain's: its signature follows the truth's channel
+#: (catalogue ``foreign_sensor_channel``)
+FOREIGN["rig_sensor_gain_lvdt"] = tuple(CATALOGUE["foreign_sensor_channel"]["nut_position"])
 
 
 @pytest.mark.campaign

@@ -41,12 +41,14 @@ from ..model.laws import kinematic_ratio
 
 __all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missing_torque", "current_offset_test",
            "binned_mean", "cross_correlation", "position_local_test", "base_transients", "remainder_kind",
-           "STRUCTURED_VARIABLES", "split_remainder", "segment_torques", "drift_test", "hold_samples", "still_band",
+           "STRUCTURED_VARIABLES", "split_remainder", "segment_torques", "drift_test",
+           "time_or_position_test", "hold_samples", "still_band",
            "hold_drift_test"]
 
 #: signature variables whose structure an unmodelled-but-declared base does not leave: a feature repeated at a nut
 #: position over passes, periodic in motor or screw angle, a slow drift, a torque proportional to the current
-STRUCTURED_VARIABLES = ("nut_position (repeated over passes)", "motor_angle", "screw_angle", "time (slow drift)",
+STRUCTURED_VARIABLES = ("nut_position (repeated over passes)", "nut_position (revisited, not a drift in time)",
+                        "motor_angle", "screw_angle", "time (slow drift)",
                         "motor_current (torque constant)")
 
 
@@ -484,8 +486,8 @@ def travel_gain_test(time, position, speed, load, *, ratio: float, transient_tim
            "residual_rms": float(np.sqrt(np.mean(res ** 2))), "determined": bool(determined)}
     if not determined:
         out["why_not_determined"] = (f"the load reproduces the travel (variance inflation {vif:.3g} > {VIF_LIMIT:g}): "
-                                     "the load follows the position (an elastic load), so a compliance of the load "
-                                     "path reads as a gain")
+                                     "a load that changes with the travel (an elastic load, or a sweep in step "
+                                     "with the passes) makes a compliance of the load path read as a gain")
     return out
 
 
@@ -967,3 +969,98 @@ def _compliance(t, f, x, samples, min_z: float = 20.0) -> tuple[float, float] | 
     if c >= 0 or abs(c) < min_z * se:
         return None
     return c, se
+
+
+def time_or_position_test(mid_time, torque, direction, position, group=None, *, degree: int = 3,
+                          max_gap: float = 0.2, min_segments: int = 4, alpha: float = 1e-4) -> dict | None:
+    """A drift in time told from a dependence on the nut position, on records whose passes revisit positions.
+
+    Within one pass time and position are the same variable: a drag ``T(x)`` that opposes the motion gives per-pass
+    slopes of one sign in both directions (``d(-T(x))/dt = -T'(x) v``, and on the way back both factors change
+    sign), which :func:`drift_test` reads as a drift.  Passes of one direction over the same positions at different
+    times separate them: a position dependence repeats at the same position, a drift grows from pass to pass.
+    Per-segment torques (as :func:`drift_test`), two nested linear models with one level per run and direction:
+    a position curve per direction (Legendre polynomial of degree ``degree`` over the record's span: a drag smooth
+    over one stroke, a bump or part of a ripple period; the stroke is what one pass covers) and a time trend per
+    direction (a drift's rate; linear over a record of seconds: a thermal time constant of tens of seconds, a
+    load-cell zero drift).  F tests, each at ``alpha``, sample count corrected by the full model's IACT: *time
+    beyond position* and *position beyond time*.  Within a pass the time trend's part is linear in position, so
+    what the time columns carry beyond the curve is the passes' order: a position dependence the curve misses is
+    the same in every pass and does not load on it.
+
+    ``verdict``: ``"time"`` (a drift: time beyond position significant, with or without position), ``"position"``
+    (position beyond time significant, time beyond it not: report a position dependence, never a drift), ``"not
+    told apart"`` (neither beyond the other) or ``"not separable"`` (the time trend's variance inflation against the
+    position curves above :data:`~thsa_control.trace.separability.VIF_LIMIT`: each position crossed once per
+    direction, a trim or a there-and-back record).  None with fewer than two passes in some direction.
+    """
+    from .separability import VIF_LIMIT
+
+    tm = np.asarray(mid_time, float)
+    y = np.asarray(torque, float)
+    d = np.asarray(direction, float)
+    x = np.asarray(position, float)
+    g = np.zeros(tm.size) if group is None else np.asarray(group, float)
+    ok = np.isfinite(tm) & np.isfinite(y) & (d != 0) & np.isfinite(x)
+    tm, y, d, x, g = tm[ok], y[ok], d[ok], x[ok], g[ok]
+    if y.size < 2 * min_segments:
+        return None
+    brk = np.flatnonzero((np.diff(tm) > max_gap) | (np.diff(d) != 0)) + 1
+    passes = [q for q in np.split(np.arange(y.size), brk) if q.size >= min_segments]
+    if not passes:
+        return None
+    per_dir = {s_: sum(1 for q in passes if d[q[0]] == s_) for s_ in (1.0, -1.0)}
+    if max(per_dir.values()) < 2:
+        return None
+    idx = np.concatenate(passes)
+    tm, y, d, x, g = tm[idx], y[idx], d[idx], x[idx], g[idx]
+    n = y.size
+    levels = [((g == a) & (d == b)).astype(float) for a in np.unique(g) for b in (1.0, -1.0) if np.any((g == a) & (d == b))]
+    L = np.column_stack(levels)
+    xs = 2 * (x - x.min()) / max(float(np.ptp(x)), 1e-12) - 1
+    leg = np.polynomial.legendre.legvander(xs, degree)[:, 1:]
+    ts = (tm - tm.mean()) / max(float(np.ptp(tm)), 1e-12)
+    Xp = np.column_stack([leg * (d == b)[:, None] for b in (1.0, -1.0) if np.any(d == b)])
+    Xt = np.column_stack([ts * (d == b) for b in (1.0, -1.0) if np.any(d == b)])
+    # separable: each time column's variance inflation against the levels and the position curves
+    base = np.column_stack([L, Xp])
+    vif = 0.0
+    for j in range(Xt.shape[1]):
+        c = Xt[:, j]
+        cc = c - base @ np.linalg.lstsq(base, c, rcond=None)[0]
+        cl = c - L @ np.linalg.lstsq(L, c, rcond=None)[0]
+        vif = max(vif, float(cl @ cl) / max(float(cc @ cc), 1e-300))
+    full = np.column_stack([L, Xp, Xt])
+    c1, *_ = np.linalg.lstsq(full, y, rcond=None)
+    r1 = y - full @ c1
+    tau = max(n / _effective_n_iact(r1), 1.0)
+
+    def nested(x0, x1):
+        F, _p, df_n, df_d, _c = _nested_f(y, x0, x1)
+        df_e = (df_n + df_d) / tau - df_n
+        if df_n < 1 or df_e < 1:
+            return 0.0, 1.0, df_n
+        from scipy.stats import f as f_dist
+
+        F /= tau
+        return float(F), float(f_dist.sf(F, df_n, df_e)), df_n
+
+    F_t, p_t, k_t = nested(np.column_stack([L, Xp]), Xt)
+    F_x, p_x, k_x = nested(np.column_stack([L, Xt]), Xp)
+    if vif > VIF_LIMIT:
+        verdict = "not separable"
+    elif p_t < alpha:
+        verdict = "time"
+    elif p_x < alpha:
+        verdict = "position"
+    else:
+        verdict = "not told apart"
+    rss_t = float(np.sum((y - np.column_stack([L, Xt]) @ np.linalg.lstsq(np.column_stack([L, Xt]), y, rcond=None)[0]) ** 2))
+    return {"variable": "nut_position (revisited, not a drift in time)", "kind": "local", "unit": "N m",
+            "verdict": verdict, "time_beyond_position": {"F": F_t, "p_value": p_t, "dof": k_t},
+            "position_beyond_time": {"F": F_x, "p_value": p_x, "dof": k_x}, "time_vif": vif,
+            "passes_per_direction": {"extending": per_dir[1.0], "retracting": per_dir[-1.0]},
+            "segments": int(n), "iact": tau, "degree": degree, "p_value": p_x, "r2": None,
+            "size": float(math.sqrt(max(rss_t - float(r1 @ r1), 0.0) / n)),
+            "significant": bool(verdict == "position"),
+            "position_span": [float(x.min()), float(x.max())]}

@@ -68,6 +68,9 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     "rig_current_offset": ("trim_ramp_compressive", "rig", "current_offset", 35, None, "foreign"),
     "rig_kt_temperature": ("trim_ramp_compressive", "rig", "kt_temperature", 36, None, "foreign"),
     "rig_worn_spot_stiction": ("reversals_under_load", "rig", "worn_spot_stiction", 37, 5.0, "foreign"),
+    # rig-sim's default sensor gain, on the LVDT (the committed rig_sensor_gain plants it on the screw speed): the
+    # LVDT's redundancy test once read it as a gain of 1.019 +- 0.79 from the differentiated position
+    "rig_sensor_gain_lvdt": ("reversals_under_load", "rig", "sensor_gain=channel:nut_position", 451, 5.0, "foreign"),
     # --- a pair of library effects
     "rig_pair_coulomb_ripple": ("trim_ramp_compressive", "rig", "coulomb,screw_ripple", 41, None, "pair"),
     # a second load-path backlash record (an elastic surface): a ratchet backlash whose pitch was screened on the
