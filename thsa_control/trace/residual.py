@@ -223,7 +223,8 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             "curves": {**_signature_curves(e_all, variables, runs, s, np.concatenate(steady)),
                        # the drift test's data: one torque per steady segment (runs one after another in time)
                        "segment_torque": {"time": [d[0] for d in drift_in], "torque": [d[1] for d in drift_in],
-                                          "direction": [d[2] for d in drift_in]},
+                                          "direction": [d[2] for d in drift_in],
+                                          "nut_position": [d[0] for d in drift_at]},
                        # the load-cell drift test's data: the load reading and the LVDT in the holds
                        "hold_load": hold_curve}}
 
@@ -232,8 +233,9 @@ def _time_or_position(dr: dict, drift_in: list, drift_at: list, tests: list, s: 
     """A significant per-pass drift on a record whose passes revisit positions: told from a dependence on the nut
     position (:func:`~thsa_control.trace.signature.time_or_position_test`).  Where position explains it and time
     does not, the drift is not significant (``superseded_by``) and the position test is reported instead: a
-    stationary drag along the stroke is never a slow drift."""
-    if not dr["significant"] or len(drift_at) != len(drift_in):
+    stationary drag along the stroke is never a slow drift.  On a drift test that is not significant the separation
+    is reported with it (``time_or_position``) and changes nothing."""
+    if len(drift_at) != len(drift_in):
         return
     tm, tq, dirn = (np.asarray(v) for v in zip(*drift_in))
     pos, grp = (np.asarray(v) for v in zip(*drift_at))
@@ -241,7 +243,7 @@ def _time_or_position(dr: dict, drift_in: list, drift_at: list, tests: list, s: 
     if sep is None:
         return
     dr["time_or_position"] = {k: v for k, v in sep.items() if k not in ("variable", "kind", "unit", "significant")}
-    if sep["verdict"] == "position":
+    if sep["verdict"] == "position" and dr["significant"]:
         dr["significant"] = False
         dr["superseded_by"] = sep["variable"]
         tests.remove(dr)

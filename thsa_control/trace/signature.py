@@ -1056,7 +1056,7 @@ def time_or_position_test(mid_time, torque, direction, position, group=None, *, 
     else:
         verdict = "not told apart"
     rss_t = float(np.sum((y - np.column_stack([L, Xt]) @ np.linalg.lstsq(np.column_stack([L, Xt]), y, rcond=None)[0]) ** 2))
-    return {"variable": "nut_position (revisited, not a drift in time)", "kind": "local", "unit": "N m",
+    return {"variable": "nut_position (revisited, not a drift in time)", "kind": "time_or_position", "unit": "N m",
             "verdict": verdict, "time_beyond_position": {"F": F_t, "p_value": p_t, "dof": k_t},
             "position_beyond_time": {"F": F_x, "p_value": p_x, "dof": k_x}, "time_vif": vif,
             "passes_per_direction": {"extending": per_dir[1.0], "retracting": per_dir[-1.0]},
