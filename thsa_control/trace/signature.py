@@ -379,7 +379,7 @@ LOAD_KNOT_GAP = 1000.0
 
 
 def travel_gain_test(time, position, speed, load, *, ratio: float, transient_time: float = 0.3,
-                     alpha: float = 1e-6, tolerance: float = GAIN_TOLERANCE) -> dict | None:
+                     alpha: float = 1e-6, tolerance: float = GAIN_TOLERANCE, steady_speed=None) -> dict | None:
     """Gain of a position sensor against the travel a redundant speed sensor integrates (the LVDT against the
     motor angle times ``ratio = lead / (2 pi N)``), over the steady passes of a record.
 
@@ -396,7 +396,9 @@ def travel_gain_test(time, position, speed, load, *, ratio: float, transient_tim
 
     Passes: stretches of one direction of motion outside ``transient_time`` of a start, stop or reversal and of a
     fast speed change (:func:`base_transients` without its load rule: the load is conditioned on), at least
-    ``transient_time`` long.  Standard error from the residual's integrated autocorrelation time per pass, scaled
+    ``transient_time`` long, judged on ``steady_speed`` where given (the motor speed: the screw speed, an RVDT
+    angle differenced over one logged sample, is noisy enough that its speed-change rule fires on noise on a
+    slow record).  Standard error from the residual's integrated autocorrelation time per pass, scaled
     by the Birge ratio of the per-pass gains where they scatter more than their errors (a gain is the sensor's,
     the same over every pass; a larger scatter is structure the error does not cover).  The gain is *not
     determined* where the load curve reproduces the travel (variance inflation of the travel beyond the passes'
@@ -417,9 +419,12 @@ def travel_gain_test(time, position, speed, load, *, ratio: float, transient_tim
     from ..data.rigformat import speed_integral
 
     travel = ratio * speed_integral(t, w)
-    dv = 0.05 * max(float(np.max(np.abs(w))), 1e-9)
-    sgn = np.where(w > dv, 1, np.where(w < -dv, -1, 0))
-    steady = ~base_transients(t, w, np.zeros_like(w), transient_time) & (sgn != 0) & np.isfinite(x) & np.isfinite(f)
+    ws = w if steady_speed is None else np.nan_to_num(np.asarray(steady_speed, float))
+    dv = 0.05 * max(float(np.max(np.abs(ws))), 1e-9)
+    sgn = np.where(ws > dv, 1, np.where(ws < -dv, -1, 0))
+    # a sustained speed change only: a torque ripple's own speed ripple (cogging at a slow speed) deflects nothing
+    steady = (~base_transients(t, ws, np.zeros_like(ws), transient_time, sustained=True) & (sgn != 0) & np.isfinite(x)
+              & np.isfinite(f))
     idx = np.flatnonzero(steady)
     if idx.size < 50:
         return None
@@ -542,7 +547,8 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
             d = _gain_lag(rate, r * savgol_filter(v, 31, 2, delta=dt), dt)  # the lag (and the rate's gain, a fallback)
             if not d:
                 continue
-            tg = travel_gain_test(t, x, v, load, ratio=r, transient_time=transient_time, alpha=alpha)
+            tg = travel_gain_test(t, x, v, load, ratio=r, transient_time=transient_time, alpha=alpha,
+                                  steady_speed=None if w is None else np.asarray(w, float))
             if tg is not None:
                 gain, se, p, sig_gain = tg["gain"], tg["gain_stderr"], tg["p_value"], tg["significant"]
             else:  # no steady pass: the rates' regression
