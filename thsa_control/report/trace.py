@@ -416,7 +416,9 @@ def format_trace_summary(doc: dict) -> str:
         elif t["kind"] == "drift":
             extra = ", slope per pass " + ", ".join(f"{v:.2g}+-{e:.1g}" for v, e in zip(t["slopes"], t["slope_stderr"])) \
                 + f" N m/s over {t['segments']} segments" + (
-                    f"; not a drift: {t['superseded_by']}" if t.get("superseded_by") else "")
+                    f"; not a drift: {t['superseded_by']}" if t.get("superseded_by") else "") + (
+                    f"; flagged by the {t['flagged_by']} (p {_num(t['time_or_position']['time_beyond_position']['p_value'], '.2g')})"
+                    if t.get("flagged_by") else "")
         elif t["kind"] == "redundant_sensors":
             extra = f", gain {t['gain']:.4f} +- {t['gain_stderr']:.1g}, lag {1e3 * t['lag_s']:.1f} ms" + (
                 f" (the odd sensor: {t['odd_sensor']})" if t.get("odd_sensor") else "")

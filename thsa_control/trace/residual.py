@@ -233,8 +233,10 @@ def _time_or_position(dr: dict, drift_in: list, drift_at: list, tests: list, s: 
     """A significant per-pass drift on a record whose passes revisit positions: told from a dependence on the nut
     position (:func:`~thsa_control.trace.signature.time_or_position_test`).  Where position explains it and time
     does not, the drift is not significant (``superseded_by``) and the position test is reported instead: a
-    stationary drag along the stroke is never a slow drift.  On a drift test that is not significant the separation
-    is reported with it (``time_or_position``) and changes nothing."""
+    stationary drag along the stroke is never a slow drift.  Where time explains it beyond position (the levels of
+    same-direction passes at the same positions grow), the drift is significant even when the per-pass slopes are
+    not (``flagged_by``): each test at the replicate-based level, so the drift's family-wise level is at most twice
+    it.  Otherwise the separation is reported with the drift test (``time_or_position``) and changes nothing."""
     if len(drift_at) != len(drift_in):
         return
     tm, tq, dirn = (np.asarray(v) for v in zip(*drift_in))
@@ -249,6 +251,13 @@ def _time_or_position(dr: dict, drift_in: list, drift_at: list, tests: list, s: 
         tests.remove(dr)
         tests.append(dr)
         tests.insert(0, sep)
+    elif sep["verdict"] == "time" and not dr["significant"]:
+        # the passes' levels at the same positions grow with time: a drift the per-pass slopes alone miss (a pass
+        # of a reversal record is 0.6 s outside the transients; its slope's error falls as the duration^1.5)
+        dr["significant"] = True
+        dr["flagged_by"] = "time beyond position over revisited passes"
+        tests.remove(dr)
+        tests.insert(0, dr)
 
 
 def _holdout_chi2_and_count(fit: dict, noise: Mapping[str, float]) -> dict:
