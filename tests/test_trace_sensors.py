@@ -15,8 +15,13 @@ import numpy as np
 import pytest
 
 from thsa_control.data.rigdata import read_run
-from thsa_control.trace.signature import (GAIN_TOLERANCE, drift_test, sensor_consistency, time_or_position_test,
-                                          travel_gain_test)
+from thsa_control.trace.signature import (
+    GAIN_TOLERANCE,
+    drift_test,
+    sensor_consistency,
+    time_or_position_test,
+    travel_gain_test,
+)
 
 DATA = Path(__file__).resolve().parent / "data" / "rigsim"
 LEAD, RATIO = 0.012, 65.61
@@ -101,7 +106,7 @@ def test_a_sweep_in_step_with_the_reversals_leaves_the_gain_not_determined():
     """Reversals while the load sweeps monotonically over several passes: within the sweep's half period every
     function of time is a function of the load, so the load curve reproduces the travel: not determined, never
     flagged (the passes' own gains are 1 -+ 1.6 % from the deflection)."""
-    sweep = lambda t, x: 29e3 * (2 * np.abs((t / 10.0) % 1.0 - 0.5) * 2 - 1)  # noqa: E731
+    sweep = lambda t, x: 29e3 * (2 * np.abs((t / 10.0) % 1.0 - 0.5) * 2 - 1)
     t, x, w, f = _reversals(5, load=sweep)
     d = travel_gain_test(t, x, w, f, ratio=R)
     assert not d["determined"] and not d["significant"] and d["travel_vif"] > 10
@@ -110,7 +115,7 @@ def test_a_sweep_in_step_with_the_reversals_leaves_the_gain_not_determined():
 def test_an_elastic_load_leaves_the_gain_not_determined():
     """The load follows the position (a spring on the surface): a compliance of the load path is then a gain;
     the test says not determined instead of flagging the LVDT."""
-    spring = lambda t, x: 5e3 + 2.5e6 * x  # noqa: E731
+    spring = lambda t, x: 5e3 + 2.5e6 * x
     t, x, w, f = _reversals(6, load=spring, compliance=1 / 3e6)  # a soft path: 0.83 of the travel
     d = travel_gain_test(t, x, w, f, ratio=R)
     assert not d["determined"] and not d["significant"] and d["travel_vif"] > 10
