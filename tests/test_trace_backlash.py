@@ -145,6 +145,9 @@ def test_profiled_parameter_cannot_also_be_free(stops_record, params):
         profile_identify(stops_record("C"), params, (PITCH,), {PITCH: (0.03, 0.3)}, level="C")
     with pytest.raises(ParameterError, match="inside its bounds"):
         profile_identify(stops_record("C"), params, ("gear.viscous_friction",), {PITCH: (0.03, 5.0)}, level="C")
+    with pytest.raises(ParameterError, match="holdout"):  # a held-out choice without held-out samples or noise
+        profile_identify(stops_record("C"), params, ("gear.viscous_friction",), {PITCH: (0.03, 0.3)}, level="C",
+                         score="holdout")
 
 
 @pytest.mark.slow
@@ -171,6 +174,9 @@ def test_backlash_is_found_first_with_its_pitch(stops_record, params, capsys):
     assert len(prof["screen"][PITCH]) > 100 and prof["fits"]
     best = min((f for f in prof["fits"] if "score" in f), key=lambda f: f["score"])
     assert best["values"][PITCH] == pitch["value"]
+    # chosen on the training error (the fits' own objective); the held-out error is kept for the judgement only
+    assert prof["chosen_by"] == "training_chi2" and pitch["chosen_by"] == "training_chi2", prof["chosen_by"]
+    assert all(f["score"] == f["training_chi2"] and "holdout_chi2" in f for f in prof["fits"] if "score" in f)
     cand = next(c for c in doc["candidates"] if c["name"] == "noback_backlash")
     assert cand["window"] == "clearance" and cand["window_reduction"]["motor_speed"] >= 0.5
     with capsys.disabled():
