@@ -9,8 +9,9 @@ predict different depths).  :func:`profile_identify` therefore profiles it:
 1. **screen**: on a geometric grid over the parameter's search range, the
    one-step-ahead prediction error of the measured motor speed
    (:func:`~thsa_control.fit.segment_states.one_step_map`: the model's own map
-   from the measured state, its custom states carried) is evaluated; it costs
-   one pass over the run per value, no fit;
+   from the measured state, its custom states carried) is evaluated on the
+   samples outside the fit's held-out segments (``ProfileSettings.screen_samples``);
+   it costs one pass over the run per value, no fit;
 2. **refine the screen**: a finer grid around its ``local_minima`` best
    local minima;
 3. **profile fits**: at each refined minimum the parameter is fixed, the
@@ -61,6 +62,7 @@ from .identify import (
     estimate_noise,
 )
 from .replay import current_driven_map, mech_inputs, sample_periods
+from .shooting import segment_layout
 from .segment_states import (
     custom_state_indices,
     measured_speed,
@@ -100,6 +102,12 @@ class ProfileSettings:
         0.2..2 x the papers' maximum); a set covering more than half of it
         has not halved what was known before the run (less than one bit of
         information): the run does not determine the parameter.
+    screen_samples : str
+        ``"training"``: the one-step screen sums the samples outside the
+        identification settings' held-out segments only (its minima are the
+        profile fits' candidates and its set decides "determined", so the
+        held-out samples would otherwise choose the pitch before any fit);
+        ``"all"``: every sample (the same when nothing is held out).
     """
 
     screen_points: int = 301
@@ -109,6 +117,7 @@ class ProfileSettings:
     refine_fits: int = 0
     level: float = 0.95
     determined_span: float = 0.5
+    screen_samples: str = "training"
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad field."""
@@ -124,6 +133,8 @@ class ProfileSettings:
             raise ValueError(f"ProfileSettings.level = {self.level!r} must lie in (0, 1)")
         if not (0 < self.determined_span <= 1):
             raise ValueError(f"ProfileSettings.determined_span = {self.determined_span!r} must lie in (0, 1]")
+        if self.screen_samples not in ("training", "all"):
+            raise ValueError(f"ProfileSettings.screen_samples = {self.screen_samples!r} must be 'training' or 'all'")
 
 
 @dataclass(frozen=True)
@@ -233,9 +244,16 @@ class OneStepScreen:
 
     Built once per model and runs; :meth:`chi2` takes a parameter set (the
     plant's parameters are an input), so a profile costs one pass per value.
+    ``holdout``: the identification settings whose held-out segments
+    (:func:`~thsa_control.fit.shooting.segment_layout`) the screen leaves out
+    of its sum (the one-step predictions *of* held-out samples; the custom
+    states are carried through them from the measured speeds, as the fits'
+    segment states are), so that a profile chosen on the screen is chosen on
+    the training samples.  None: every sample.
     """
 
-    def __init__(self, runs: Sequence[RigRun], plant, params: ParameterSet, substeps: int = 1):
+    def __init__(self, runs: Sequence[RigRun], plant, params: ParameterSet, substeps: int = 1,
+                 holdout: IdentificationSettings | None = None):
         self.plant = plant
         mech = current_driven_map(plant, substeps)
         self._mech = mech
@@ -249,11 +267,14 @@ class OneStepScreen:
             n = w.size
             sigma = estimate_noise(w) * math.sqrt(2.0)  # the start speed and the compared one both carry noise
             U = np.vstack([X[:, :-1], mech_inputs(run)[:, :n - 1], sample_periods(run)[None, :n - 1]])
+            # the compared samples 1..n-1: all, or those outside the fit's held-out segments
+            keep = (~segment_layout(run.time, holdout)[2][1:n] if holdout is not None and holdout.holdout_every
+                    else np.ones(n - 1, bool))
             self.parts.append((None if self.loop is not None else one_step_map(plant, mech, n - 1),
-                               np.ascontiguousarray(U), w[1:], sigma))
+                               np.ascontiguousarray(U), w[1:], sigma, keep))
         if not self.parts:
             raise ParameterError("<profile>", "no run measures a motor or screw speed: nothing to screen a profile on")
-        self.n = sum(p[2].size for p in self.parts)
+        self.n = sum(int(p[4].sum()) for p in self.parts)
 
     def chi2(self, params: ParameterSet, solve: Sequence[str] = ()) -> float:
         """Sum of squared one-step speed errors over the runs, each weighted by its noise.
@@ -287,7 +308,7 @@ class OneStepScreen:
         idx = custom_state_indices(self.plant)
         C0 = np.array([self.plant.initial_state(ps)[idx] for ps in psets], float).reshape(len(psets), len(idx))
         out = [[] for _ in psets]
-        for F, U, w_next, sigma in self.parts:
+        for F, U, w_next, sigma, keep in self.parts:
             if F is None:
                 Y, _, bad = self.loop.batch(C0, [U] * len(psets), P, 1)
                 Ws = list(Y[:, -1, :])  # the predicted speed (the rows before: the custom states)
@@ -299,7 +320,7 @@ class OneStepScreen:
             else:
                 Ws = [np.asarray(F(c0, U, p)[1]).ravel() for c0, p in zip(C0, P)]
             for k, W in enumerate(Ws):
-                out[k].append((np.asarray(W, float) - w_next) / sigma)
+                out[k].append(((np.asarray(W, float) - w_next) / sigma)[keep])
         return [np.concatenate(e) for e in out]
 
     def chi2_many(self, psets: Sequence[ParameterSet]) -> np.ndarray:
@@ -533,7 +554,7 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
     from scipy.stats import chi2 as chi2_dist
 
     q = float(chi2_dist.ppf(ps.level, 1))
-    screen = OneStepScreen(runs, plant, params, st.substeps)
+    screen = OneStepScreen(runs, plant, params, st.substeps, holdout=st if ps.screen_samples == "training" else None)
     names = list(profile)
     main = names[0]
     fractions = dict(fractions or {})
