@@ -441,7 +441,7 @@ def why_held(d: Mapping) -> str:
                                                                                    d.get("chosen_by") or "score")
     if d.get("file_in_set") and d.get("held_at") == d.get("file_value"):
         return "the parameter file's value, inside the profile set" + (
-            f" (its fit's {by} within {d['score_gap']:.4g} of the best: +{d['file_score_above_best']:.4g})"
+            f" (its fit's {by} within {d['score_gap']:.4g} of the best: {d['file_score_above_best']:+.4g})"
             if "file_score_above_best" in d and math.isfinite(d.get("score_gap", math.inf)) else "")
     if d.get("file_in_set") and "file_score_above_best" in d:
         return (f"the best profile fit's (by {by}), one of the set; the parameter file's value is inside the screen's "
