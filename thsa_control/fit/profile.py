@@ -63,7 +63,6 @@ from .identify import (
     estimate_noise,
 )
 from .replay import current_driven_map, mech_inputs, sample_periods
-from .shooting import segment_layout
 from .segment_states import (
     custom_state_indices,
     measured_speed,
@@ -71,6 +70,7 @@ from .segment_states import (
     one_step_loop,
     one_step_map,
 )
+from .shooting import segment_layout
 
 __all__ = ["OneStepScreen", "ProfileResult", "ProfileSettings", "chi2_by_channel", "holdout_chi2", "profile_identify",
            "profile_set", "training_chi2"]
