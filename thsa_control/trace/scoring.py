@@ -51,7 +51,8 @@ def _fit_job(job: dict) -> dict:
             prof = profile_identify(job["runs"], params, job["free"], job["profile"], effects=job["effects"],
                                     settings=job["settings"], fractions=job.get("profile_fractions"),
                                     iact=lambda e: e.size / max(_effective_n_iact(e), 1.0),
-                                    holdout_gap=_profile_holdout_gap(job["settings"].noise, job.get("alpha", 1e-3)))
+                                    holdout_gap=_profile_holdout_gap(job["settings"].noise, job.get("alpha", 1e-3)),
+                                    grids=job.get("profile_grid"))
             res = prof.result
             for n, d in prof.determination.items():
                 if not d["determined"]:  # identifiability before plausibility: the profile says it

@@ -136,7 +136,7 @@ register(Effect("cogging_torque", "motor cogging torque, periodic in the mechani
                 # the cogging acts where the record resolves its period (4 samples or more): an aliased one fits
                 # noise (a 0.07 N m cogging was invented on a 15 mm/s trim run logged at 500 Hz).  The period
                 # count is the motor's (slots and poles), not the parameter file's placeholder: it is profiled
-                # over the whole counts the record resolves (trace.candidates.PROFILE_LIMITS)
+                # over the multiples of the pole count whose harmonic the record resolves (trace.candidates.PROFILE_GRIDS)
                 candidate=CandidateSpec("cogging_torque", ("drive.cogging_torque_cos", "drive.cogging_torque_sin"),
                                         {"drive.cogging_torque_cos": 0.005, "drive.cogging_torque_sin": 0.005},
                                         "resolved_cogging",
