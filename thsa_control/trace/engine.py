@@ -523,7 +523,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             else:
                 # a profiled parameter searched over the values the runs resolve (the cogging's period counts:
                 # multiples of the pole count whose harmonic the record resolves outside the base's transients)
-                grids = {n: PROFILE_GRIDS[n](cur_params, runs, *r, st.signature.transient_time)
+                grids = {n: PROFILE_GRIDS[n](cur_params, runs, *r, transient_time=st.signature.transient_time,
+                                             segment_duration=st.segment_duration)
                          for n, r in spec.profile.items() if n in PROFILE_GRIDS}
                 unresolved = [why for vals, why in grids.values() if not vals]
                 prof = {n: ((min(grids[n][0]), max(grids[n][0])) if grids.get(n, ([], None))[0] else r)
