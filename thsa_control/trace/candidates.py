@@ -263,6 +263,10 @@ def cogging_counts(params: ParameterSet, runs, lo: float, hi: float, transient_t
                 "faster, the harmonic is aliased")
 
 
+#: Profiled parameters whose search starts at a physical floor, not at an assumed edge: a value there is no sign of a
+#: search range too narrow (the cogging's count is searched from the pole count up, and lcm(slots, 2 p) >= 2 p).
+PROFILE_FLOORS: tuple[str, ...] = ("drive.cogging_periods",)
+
 #: The values a profiled parameter is searched over where the record limits them (name -> function(params, runs, lo,
 #: hi) -> (values, reason when there is none)): the cogging's period counts the record resolves.
 PROFILE_GRIDS: dict[str, Callable] = {"drive.cogging_periods": cogging_counts}

@@ -28,6 +28,7 @@ from .candidates import (
     EFFICIENCY_EXPLAINER,
     INERTIA_DATASHEET_TOLERANCE,
     INERTIA_EXPLAINER,
+    PROFILE_FLOORS,
 )
 from .periodicity import run_segment_drops
 from .signature import split_remainder
@@ -410,7 +411,7 @@ def _plausibility(fit: dict, spec: CandidateSpec, plaus: Mapping | None = None) 
         e = fit["estimates"].get(n)
         if e is None or not e.get("mattered"):
             continue
-        if e["at_bound"]:
+        if e["at_bound"] and not (e["at_bound"] == "min" and n in PROFILE_FLOORS):
             why.append(f"{n} at the {e['at_bound']} end of its profile range")
         elif e["interval"] is not None and e.get("determined", True):  # a profile set that does not determine it
             determined += 1
