@@ -61,7 +61,10 @@ def row(folder: Path) -> dict | None:
         wr = e.get("window_reduction") or {}
         if wr and not e.get("implied_by"):
             tag += f" [{max(wr.values()):.0%}]"
+        if e.get("round_added") and (doc.get("order") or {}).get("changed"):
+            tag += f" (round {e['round_added']})"
         added.append(tag)
+    added += [f"~~{r['name']}~~ (removed after round {r['removed_after_round']})" for r in doc.get("effects_removed") or []]
     held = [f"{h['parameter']}" for e in doc["effects_added"] for h in e.get("not_determined", [])]
     found = [e["name"] for e in doc["effects_added"] if not e.get("implied_by")]
     phys = [e["name"] for e in doc["effects_added"] if not e.get("implied_by") and not e.get("refines_declared")

@@ -76,6 +76,9 @@ def conclusion_table_html(doc: dict) -> str:
         wtxt = ", ".join(f"{c} {100 * v:+.0f} %" for c, v in win.items())
         rows.append((kind, e["name"], pars, _errors_cell(e["error_before"], e["error_after"]), esc(wtxt),
                      nd or "-"))
+    for r in doc.get("effects_removed") or []:
+        rows.append(("removed (backward check)", r["name"],
+                     esc(_removed_sentence(r)), "-", "-", "-"))
     if not rows:
         return "<p>Nothing added: no base correction and no candidate effect is significant.</p>"
     head = ("<table><tr><th>kind</th><th>effect</th><th>parameters (95 % interval)</th>"
@@ -88,7 +91,22 @@ def conclusion_table_html(doc: dict) -> str:
             + (f"<br><small>left as a declared model of another rig's base leaves it (starts, stops, reversals, "
                f"quadrant; not counted as unexplained): {esc('; '.join(base_like))}</small>" if base_like else "")
             + "</p>")
-    return head + body + "</table>" + tail
+    order = doc.get("order")
+    otxt = (f"<p><small>Found effects in the order of what each explains given the others ({esc(order['measure'])}): "
+            + esc(", ".join(f"{c['name']} {_num(c['holdout_chi2_drop_given_others'], '.4g')} (added in round "
+                            f"{c['round_added']} with {_num(c['holdout_chi2_drop_when_added'], '.4g')})"
+                            for c in order["contributions"]))
+            + "</small></p>") if order else ""
+    return head + body + "</table>" + otxt + tail
+
+
+def _removed_sentence(r: dict) -> str:
+    """One removal by the backward check, in words with its numbers."""
+    return (f"{r['name']} removed after round {r['removed_after_round']} (added in round {r['round_added']}): what it "
+            f"explained is explained by {', '.join(r['explained_by']) or 'the others'}; held-out chi2 drop "
+            f"{_num(r['holdout_chi2_drop_when_added'], '.4g')} when added, {_num(r['holdout_chi2_drop_given_others'], '.4g')}"
+            f" given the others (threshold {_num(r['chi2_threshold'], '.3g')}, null {_num(r.get('null_chi2_drop'), '.3g')}): "
+            + "; ".join(r["why"]))
 
 
 def separability_table_html(doc: dict) -> str:
@@ -351,7 +369,8 @@ def format_trace_summary(doc: dict) -> str:
                " (base step: declared component detailed, counted as what the base contains)" if e.get("base_step")
                else "")
         lines.append(f"step {step}: added {e['name']}{how}"
-                     f" (score {_num(e['score'], '.3f')}, AIC drop {_num(e['aic_drop'], '.1f')}, "
+                     + (f" in round {e['round_added']}" if e.get("round_added") and doc.get("order") else "")
+                     + f" (score {_num(e['score'], '.3f')}, AIC drop {_num(e['aic_drop'], '.1f')}, "
                      f"BIC drop {_num(e['bic_drop'], '.1f')})")
         for n, p in e["parameters"].items():
             ci = p["ci95"]
@@ -363,6 +382,14 @@ def format_trace_summary(doc: dict) -> str:
         for c, red in e["error_reduction"].items():
             b, a = e["error_before"].get(c, {}), e["error_after"].get(c, {})
             lines.append(f"    {c}: RMS {_num(b.get('rms'))} -> {_num(a.get('rms'))} ({100 * red:+.1f} % drop)")
+    order = doc.get("order")
+    if order:
+        lines.append("order of the found effects: " + ", ".join(
+            f"{c['name']} (given the others {_num(c['holdout_chi2_drop_given_others'], '.4g')}, when added in round "
+            f"{c['round_added']} {_num(c['holdout_chi2_drop_when_added'], '.4g')})" for c in order["contributions"])
+            + f"; measure: {order['measure']}" + (" (not the order of addition)" if order.get("changed") else ""))
+    for r in doc.get("effects_removed") or []:
+        lines.append("backward check: " + _removed_sentence(r))
     for a in doc.get("ambiguous", []):
         drops = ", ".join(f"{n} {_num(v, '.4g')}" for n, v in a["holdout_chi2_drop"].items())
         lines.append(f"not named (round {a['round']}): {', '.join(a['candidates'])} explain the same part of the "

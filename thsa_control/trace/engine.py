@@ -66,6 +66,7 @@ from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, MI
                          PROFILE_GRIDS, RESOLVES, STARTS, WINDOWS, reference_not_determined,
                          _window,
                          candidate_specs, not_candidates, nut_travel)
+from . import backward as bw
 from . import periodicity
 from .residual import _regime_errors, _signature
 from .scoring import (_base_correction, _window_beyond_noise, _channel_errors, _chi2_by_channel, _explainers_at_bound, _held_out,
@@ -246,6 +247,10 @@ class TraceSettings:
     #: the others and a candidate's parameters absorb that error, docs/trace_notes.md, rig_drivetrain_compliance).
     #: The residual-to-noise flags of the signature keep the sensor noise.
     channel_weights: str = "sensor_noise"
+    #: after each round that adds an effect, judge every earlier found effect again given the later ones and remove
+    #: one that no longer earns its place (:mod:`thsa_control.trace.backward`); report the kept ones in the order of
+    #: their leave-one-out held-out drops
+    backward: bool = True
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad field."""
@@ -499,6 +504,106 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     win_scored = {w: (windows_cache[w] if score_mask(w) is None else
                       {r: windows_cache[w][r] & steady[r] for r in windows_cache[w]}) for w in WINDOWS}
     hurt: set[str] = set()
+    # the backward check (:mod:`thsa_control.trace.backward`): the found effects' bookkeeping, the fits of every
+    # model met (a model without an effect is often one fitted before), what was removed and why
+    found_info: dict[str, bw.Added] = {}
+    fit_memo: dict[tuple, dict] = {bw.model_key(cur_effects, cur_free, cur_params): current}
+    removed: list[dict] = []
+    backward_cpu: list[float] = []
+
+    def fit_jobs(jbs):
+        out = _run_jobs(jbs, st.workers, say)
+        backward_cpu.extend(f.get("cpu_s", 0.0) for f in out)
+        return out
+
+    def leave_one_out(test: list) -> dict:
+        """name -> (fit without it, its job, the record of its admission criterion given the others)"""
+        todo, out = [], {}
+        for a in test:
+            effs, free, pset = bw.reduced_model(a, cur_effects, cur_free, cur_params)
+            jb = job(f"without {a.name}", effs, free, pset, fit_runs)
+            key = bw.model_key(effs, free, pset)
+            if key in fit_memo:
+                out[a.name] = [fit_memo[key], jb]
+            else:
+                todo.append((a, key, jb))
+        if todo:
+            say(f"backward check: refitting without {', '.join(a.name for a, _, _ in todo)}")
+        for (a, key, jb), f in zip(todo, fit_jobs([t[2] for t in todo])):
+            if "error" not in f:
+                fit_memo[key] = f
+            out[a.name] = [f, jb]
+        for a in test:
+            f, jb = out[a.name]
+            if "error" in f:
+                out[a.name].append({"name": a.name, "round_added": a.round, "fails": [], "prelim": False,
+                                    "error": f"the model without it cannot be fitted: {f['error']}"})
+                continue
+            constant = CANDIDATES.get(a.name) is not None and CANDIDATES[a.name].base_correction
+            out[a.name].append(bw.judge_removal(
+                a, current, f, noise=noise, mask=score_mask(a.spec.window), window_mask=win_scored[a.spec.window],
+                alpha=st.alpha, min_window_reduction=st.min_window_reduction,
+                max_channel_increase=st.max_channel_increase, z=st.determination_z,
+                robust=bool(use_base and st.robust_constant_torque and constant)))
+        return out
+
+    def backward_check(after_round: int) -> list[dict]:
+        """Judge the earlier found effects given the later ones; remove the weakest that fails, then judge all
+        the others again; returns the records."""
+        nonlocal current, cur_effects, cur_params, cur_free, base_bounds, at_plausible_bound, cur_sig
+        records, everyone = [], False
+        while True:
+            subj = [found_info[e["name"]] for e in added if e["name"] in found_info and not e.get("implied_by")]
+            if len(subj) < 2:
+                break
+            test = subj if everyone else subj[:-1]
+            loo = leave_one_out(test)
+            recs = [loo[a.name][2] for a in test]
+            cands = [r for r in recs if r["prelim"]]
+            if cands:
+                say(f"backward check: calibrating {', '.join(r['name'] for r in cands)} on null runs")
+                jobs_of = {}
+                for r in cands:
+                    red, jr = loo[r["name"]][:2]
+                    jobs_of[r["name"]] = ({**jr, "params_toml": red["params_toml"], "free": tuple(red["free"])},
+                                          job(f"with {r['name']}", cur_effects, cur_free, cur_params, fit_runs))
+                bw.null_calibrate(cands, {r["name"]: loo[r["name"]][0] for r in cands}, jobs_of, fit_runs, noise,
+                                  {r["name"]: score_mask(found_info[r["name"]].spec.window) for r in cands},
+                                  st.seed + 2000 + 10 * after_round, st.null_factor, fit_jobs)
+            for r in recs:
+                r["kept"] = not r["fails"]  # a model without it that cannot be fitted: kept, said so
+                r["after_round"] = after_round
+                records.append({k: v for k, v in r.items() if k != "prelim"})
+            failing = [r for r in recs if not r["kept"]]
+            if not failing:
+                break
+            worst = min(failing, key=lambda r: r["holdout_chi2_drop"])
+            a = found_info.pop(worst["name"])
+            f = loo[a.name][0]
+            later = [e["name"] for e in added if e["name"] in found_info and found_info[e["name"]].round > a.round]
+            step = next(e for e in added if e["name"] == a.name and not e.get("implied_by"))
+            gone_implied = [e for e in added if e.get("implied_by") == a.name and e["name"] not in f["effects"]]
+            added[:] = [e for e in added if e is not step and not any(e is g for g in gone_implied)]
+            removed.append({"name": a.name, "round_added": a.round, "removed_after_round": after_round,
+                            "explained_by": later, "implied_removed": [e["name"] for e in gone_implied],
+                            "holdout_chi2_drop_when_added": a.drop_when_added,
+                            "holdout_chi2_drop_given_others": worst["holdout_chi2_drop"],
+                            "chi2_threshold": worst["chi2_threshold"], "null_chi2_drop": worst.get("null_chi2_drop"),
+                            "window_reduction_given_others": worst["window_reduction"], "why": worst["fails"],
+                            "step": step})
+            say(f"removed {a.name} after round {after_round}: what it explained is explained by "
+                f"{', '.join(later) or 'the others'} (held-out chi2 drop {a.drop_when_added:.4g} when added, "
+                f"{worst['holdout_chi2_drop']:.4g} given the others: {'; '.join(worst['fails'])})")
+            current, cur_effects = f, tuple(f["effects"])
+            cur_params, cur_free = ParameterSet.from_toml(f["params_toml"]), tuple(f["free"])
+            if a.beyond_base:
+                base_bounds.update({n: (*b, a.name) for n, b in a.rebound.items()})
+            at_plausible_bound = _explainers_at_bound(current, base_bounds)
+            cur_sig = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature,
+                                 sensor_noise)
+            everyone = True
+        return records
+
     while sum(1 for e in added if "implied_by" not in e) < st.max_effects:
         specs = candidate_specs(cur_effects, cur_params, st.candidates)
         # a base correction that ran to its plausible bound: the same effect, larger than a rig's base can be,
@@ -518,6 +623,11 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 # with the base step only: a declared model of another rig's base leaves drags that vary along
                 # the stroke (Stribeck at the reversals of a short stroke), which a short record's ripple fits
                 skipped.append({"name": spec.name, "reason": RESOLVES[spec.name](params, runs)})
+            elif spec.name in {r["name"] for r in removed}:
+                r = next(r for r in removed if r["name"] == spec.name)
+                skipped.append({"name": spec.name, "reason": f"removed after round {r['removed_after_round']} by the "
+                                                             "backward check: no longer earns its place given "
+                                                             f"{', '.join(r['explained_by']) or 'the others'}"})
             elif spec.name in hurt:
                 skipped.append({"name": spec.name, "reason": f"made the held-out error worse in round {len(rounds)}"})
             else:
@@ -572,6 +682,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         say(f"round {len(rounds) + 1}: scoring {len(jobs)} candidates ({', '.join(s.name for s in scorable)})")
         fits = _run_jobs(jobs, st.workers, say)
         base_holds = {w: _chi2_by_channel(current, noise, "holdout", score_mask(w)) for w in WINDOWS}
+        base_hold_all = sum(_chi2_by_channel(current, noise, "holdout").values())  # one sample set for every candidate
         scored = []
         for spec, f, jb in zip(scorable, fits, jobs):
             if "error" in f:
@@ -628,6 +739,9 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             prelim = prelim and repeats
             scored.append({
                 "name": spec.name, "score": drop / max(sum(base_hold.values()), 1e-300), "holdout_chi2_drop": drop,
+                # reported beside it: the drop over all held-out samples (the candidates' scored samples differ by
+                # window; the order of what is explained compares this one, trace/backward.py)
+                "holdout_chi2_drop_all_samples": base_hold_all - sum(_chi2_by_channel(f, noise, "holdout").values()),
                 "chi2_threshold": thr, "error_reduction": err_red, "window": spec.window, "window_reduction": win_red,
                 "window_reduction_beyond_noise": win_sys, "aic_drop": aic_drop, "bic_drop": current["bic"] - f["bic"],
                 "plausible": plausible, "implausible_because": why, "parameters": _params_out(f, spec),
@@ -761,15 +875,35 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                               "window_reduction": best["window_reduction"],
                               "error_before": step["error_before"], "error_after": step["error_after"],
                               "not_determined": [], "aic_drop": None, "bic_drop": None, "score": None})
-        current, cur_effects = f, tuple(best["_job"]["effects"])
+        step["round_added"] = len(rounds)
+        new_effects = tuple(best["_job"]["effects"])
+        lifted = set(best["_spec"].free) if best.get("beyond_base_correction") else set()
+        found_info[best["name"]] = bw.Added(
+            name=best["name"], spec=best["_spec"], round=len(rounds), job=best["_job"],
+            k=len(best["_spec"].free) + len(best["_spec"].profile), drop_when_added=best["holdout_chi2_drop"],
+            drop_when_added_all=(sum(_chi2_by_channel(current, noise, "holdout").values())
+                                 - sum(_chi2_by_channel(f, noise, "holdout").values())),
+            replaced=tuple(e for e in cur_effects if e not in new_effects),
+            implied=tuple(r for r in new_effects if r not in cur_effects and r != best["name"]),
+            rebound={n: base_bounds[n][:2] for n in lifted if n in base_bounds}, beyond_base=bool(lifted),
+            freed=tuple(n for n in f["free"] if n not in cur_free))
+        current, cur_effects = f, new_effects
         cur_params = ParameterSet.from_toml(f["params_toml"])
         cur_free = tuple(f["free"])
+        fit_memo[bw.model_key(cur_effects, cur_free, cur_params)] = current
         # the explainers still bounded are re-judged on the new fit: one at its bound is offered beyond it
-        lifted = set(best["_spec"].free) if best.get("beyond_base_correction") else set()
         base_bounds = {n: b for n, b in base_bounds.items() if n not in lifted}
         at_plausible_bound = _explainers_at_bound(f, base_bounds)
         cur_sig = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, sensor_noise)
+        if st.backward:
+            checked = backward_check(len(rounds))
+            if checked:
+                rounds[-1]["backward"] = checked
+                if any(not r["kept"] for r in checked):
+                    cur_sig = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature,
+                                         sensor_noise)
         rounds[-1]["signature_after"] = _signature_brief(cur_sig)
+    order = _order_by_contribution(added, found_info, leave_one_out) if st.backward else None
     sig_before = _signature(first, runs, ParameterSet.from_toml(first["params_toml"]), base_plant, st.signature, sensor_noise)
     sig_after = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, sensor_noise)
     if rounds and "signature_after" not in rounds[-1]:  # a round that added nothing leaves the model as it was
@@ -797,6 +931,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         "base_parameters": {n: v for n, v in first["estimates"].items()},
         "effects_added": added,
         "found_effects": [e["name"] for e in added],
+        "effects_removed": removed,
+        "order": order,
         "base_corrections": base_doc,
         "error_before": _channel_errors(first),
         "error_after": _channel_errors(current),
@@ -813,9 +949,44 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         "noise_rms": sensor_noise, "channel_weights": {"rule": st.channel_weights, "rms": dict(noise)},
         "settings": _settings_dict(st),
         "timing": {"base_fit_s": base_fit_time, "candidate_fit_s": (float(np.median(cand_times)) if cand_times else None),
-                   "total_s": time.perf_counter() - t_start},
+                   "total_s": time.perf_counter() - t_start,
+                   "backward_fits": len(backward_cpu), "backward_cpu_s": float(sum(backward_cpu))},
     }
     return TraceResult(doc, {"before": first, "after": current})
+
+
+def _order_by_contribution(added: list, found_info: dict, leave_one_out) -> dict | None:
+    """Reorder ``added`` in place: the base step's entries first, then the kept found effects by their leave-one-out
+    held-out chi2 drop (largest first), each followed by the effects it implied; each found step gets
+    ``leave_one_out``.  None when fewer than two found effects are kept (nothing to order)."""
+    subj = [found_info[e["name"]] for e in added if e["name"] in found_info and not e.get("implied_by")]
+    if len(subj) < 2:
+        return None
+    loo = leave_one_out(subj)
+    contrib = {a.name: loo[a.name][2].get("holdout_chi2_drop_all_samples", -math.inf) for a in subj}
+    steps = {e["name"]: e for e in added if e["name"] in found_info and not e.get("implied_by")}
+    for a in subj:
+        r = loo[a.name][2]
+        steps[a.name]["leave_one_out"] = {k: r[k] for k in ("holdout_chi2_drop", "holdout_chi2_drop_all_samples", "chi2_threshold", "window_reduction",
+                                                            "error_reduction", "aic_drop", "fails", "error")
+                                          if k in r}
+    ranked = sorted(subj, key=lambda a: -contrib[a.name])
+    head = [e for e in added if not (e["name"] in found_info and not e.get("implied_by"))
+            and e.get("implied_by") not in found_info]
+    body = []
+    for a in ranked:
+        body.append(steps[a.name])
+        body += [e for e in added if e.get("implied_by") == a.name]
+    before = [a.name for a in subj]
+    added[:] = head + body
+    return {"measure": bw.ORDER_MEASURE, "order": [a.name for a in ranked], "order_of_addition": before,
+            "changed": [a.name for a in ranked] != before,
+            "contributions": [{"name": a.name, "round_added": a.round, "holdout_chi2_drop_given_others": contrib[a.name],
+                               "holdout_chi2_drop_given_others_where_scored": loo[a.name][2].get("holdout_chi2_drop"),
+                               "holdout_chi2_drop_when_added": a.drop_when_added_all,
+                               "holdout_chi2_drop_when_added_where_scored": a.drop_when_added,
+                               "window_reduction_given_others": loo[a.name][2].get("window_reduction")}
+                              for a in ranked]}
 
 
 def _separability_doc(runs, cur_effects, cur_params: ParameterSet, base_doc: dict, added: list, rounds: list,
