@@ -502,7 +502,16 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         return steady_sustained if window in SUSTAINED_WINDOWS else steady
 
     win_scored = {w: (windows_cache[w] if score_mask(w) is None else
-                      {r: windows_cache[w][r] & steady[r] for r in windows_cache[w]}) for w in WINDOWS}
+                      {r: windows_cache[w][r] & score_mask(w)[r] for r in windows_cache[w]}) for w in WINDOWS}
+
+    def window_of(window: str, fitted: ParameterSet) -> dict:
+        """A candidate's scored window; one that depends on the fitted parameters (the cogging's resolved samples at
+        its count) at ``fitted``."""
+        if window not in FITTED_WINDOWS:
+            return win_scored[window]
+        mask = score_mask(window)
+        return {r.name: _window(window, r, fitted) & (mask[r.name] if mask is not None else True) for r in runs}
+
     hurt: set[str] = set()
     # the backward check (:mod:`thsa_control.trace.backward`): the found effects' bookkeeping, the fits of every
     # model met (a model without an effect is often one fitted before), what was removed and why
@@ -541,7 +550,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 continue
             constant = CANDIDATES.get(a.name) is not None and CANDIDATES[a.name].base_correction
             out[a.name].append(bw.judge_removal(
-                a, current, f, noise=noise, mask=score_mask(a.spec.window), window_mask=win_scored[a.spec.window],
+                a, current, f, noise=noise, mask=score_mask(a.spec.window), window_mask=window_of(a.spec.window, cur_params),
                 alpha=st.alpha, min_window_reduction=st.min_window_reduction,
                 max_channel_increase=st.max_channel_increase, z=st.determination_z,
                 robust=bool(use_base and st.robust_constant_torque and constant)))
@@ -697,11 +706,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             from scipy.stats import chi2
 
             thr = float(chi2.ppf(1 - st.alpha, k))
-            win = win_scored[spec.window]
-            if spec.window in FITTED_WINDOWS:  # at the fit's own values (the cogging's count)
-                fp = ParameterSet.from_toml(f["params_toml"])
-                mask = score_mask(spec.window)
-                win = {r.name: _window(spec.window, r, fp) & (mask[r.name] if mask is not None else True) for r in runs}
+            # at the fit's own values where the window depends on them (the cogging's count)
+            win = window_of(spec.window, ParameterSet.from_toml(f["params_toml"]))
             wb = _chi2_by_channel(current, noise, "holdout", win)
             wc = _chi2_by_channel(f, noise, "holdout", win)
             win_red = {c: (1 - math.sqrt(wc[c] / wb[c])) if wb.get(c, 0) > 0 else 0.0 for c in wc}
