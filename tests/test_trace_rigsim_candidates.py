@@ -124,6 +124,9 @@ def test_cogging_counts_are_what_the_record_resolves(params):
     the slow check run resolves 18 per revolution on every turning sample; the position loop at 500 Hz resolves it
     in its creep only (its fast travel aliases it: 82 rev/s x 18 = 1.5 kHz), and far fewer counts; a 15 mm/s trim
     run at 500 Hz resolves none (not even 6 per revolution), which is said rather than tested."""
+    import numpy as np
+
+    from thsa_control.data.rigdata import measured_motor_speed
     from thsa_control.trace.candidates import MIN_WINDOW_SAMPLES, cogging_counts, cogging_resolved
 
     slow, _ = cogging_counts(params, [_run("rig_cogging", params)], 2.0, 200.0)
@@ -134,12 +137,6 @@ def test_cogging_counts_are_what_the_record_resolves(params):
     assert max(steps) < max(slow)
     assert trim == [] and "cannot be resolved on this record" in why_trim
     # the resolved samples at 18: the slow part of the record only, and more than the window minimum
-    import math
-
-    import numpy as np
-
-    from thsa_control.data.rigdata import measured_motor_speed
-
     res = cogging_resolved(steps_run, 18.0)
     w = np.abs(measured_motor_speed(steps_run))
     fs = 1.0 / float(np.median(np.diff(steps_run.time)))

@@ -196,7 +196,7 @@ def cogging_pole_count(params: ParameterSet) -> int:
     """The motor's pole count 2 p: a cogging's period count per revolution is the least common multiple of the slot
     count and the pole count (Zhu and Howe, IEEE Trans. Energy Convers. 15 (2000) 407; the parameter file's
     ``drive.cogging_periods`` description), hence a multiple of 2 p.  1 where the parameter set has no pole pairs."""
-    return int(round(2 * params.value("motor.pole_pairs"))) if "motor.pole_pairs" in params else 1
+    return round(2 * params.value("motor.pole_pairs")) if "motor.pole_pairs" in params else 1
 
 
 #: the largest phase uncertainty [rad] of a shooting segment's motor angle at which a cogging count is still fitted
@@ -249,7 +249,7 @@ def cogging_counts(params: ParameterSet, runs, lo: float, hi: float, transient_t
                         f"count of {anchored:.3g} per revolution at most, below the lowest one ({first}, a multiple "
                         f"of the {step} poles)")
     counts = []
-    for n in range(first, int(math.floor(hi)) + 1, step):
+    for n in range(first, math.floor(hi) + 1, step):
         k = sum(int(cogging_resolved(r, n, transient_time=transient_time).sum()) for r in runs)
         if k < MIN_WINDOW_SAMPLES:
             break  # fewer at every larger count
