@@ -127,7 +127,11 @@ def test_cogging_counts_are_what_the_record_resolves(params):
     import numpy as np
 
     from thsa_control.data.rigdata import measured_motor_speed
-    from thsa_control.trace.candidates import MIN_WINDOW_SAMPLES, cogging_counts, cogging_resolved
+    from thsa_control.trace.candidates import (
+        MIN_WINDOW_SAMPLES,
+        cogging_counts,
+        cogging_resolved,
+    )
 
     slow, _ = cogging_counts(params, [_run("rig_cogging", params)], 2.0, 200.0)
     steps_run = _run("rig_cogging_steps", params)
