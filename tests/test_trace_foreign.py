@@ -321,7 +321,8 @@ def test_a_pitch_one_loaded_stop_cannot_fix_is_reported_not_determined(traced, p
     stop's depth, the extension's travel modulo the pitch (a comb of pitches).  The backlash is added (its window
     drop is the library test's), and its pitch is reported not determined with the profile's set (several
     ranges), the interval shown being that set's hull, not a local one; held at the file value where the set and
-    the held-out fits keep it, else at the best profile fit's."""
+    the profile fits' training errors keep it, else at the best profile fit's (chosen by its training error: the
+    held-out samples judge the candidate)."""
     doc = traced("rig_ratchet_backlash")
     step = next((e for e in doc["effects_added"] if e["name"] == "noback_backlash"), None)
     assert step is not None, doc["rounds"]
@@ -356,8 +357,9 @@ def test_out_of_library_effect_is_unexplained_with_its_signature(traced, name):
 def test_no_ratchet_backlash_invented_beside_a_load_path_backlash(traced):
     """rig base + load-path backlash on an elastic surface (spring_load_ramp): the load path is found; no other
     physical effect is added, and every effect added lowers the error on the samples it was fitted to (its AIC
-    drop is positive: a pitch screened on the held-out segments once bought a ratchet backlash whose training
-    error was higher than without it)."""
+    drop is positive: a pitch chosen on the held-out segments once bought a ratchet backlash whose training
+    error was higher than without it; the profile fits are now chosen on their training error, the AIC rule
+    stays as the guard)."""
     name = "rig_loadpath_backlash_spring"
     assert _truth_effects(name) == ["loadpath_backlash"]
     doc = traced(name)

@@ -725,9 +725,10 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 why.append(f"{spec.channel} error over the whole record grows by {-err_red[spec.channel]:.0%}")
             aic_drop = current["aic"] - f["aic"]
             if aic_drop <= 0:
-                # the training samples prefer the model without it (Akaike): a fit of nested physics cannot rise
-                # there unless its profiled values were chosen on the held-out segments (the pitch screen scores
-                # held-out chi2), and then its held-out drop is no longer out of sample
+                # the training samples prefer the model without it (Akaike): a fit of nested physics rises there
+                # only where a value was not fitted on them (a profiled value from the one-step screen's minima,
+                # the file value held within the training gap, an unconverged fit); the profile fits are chosen on
+                # the training error (fit.profile), so the held-out drop stays out of sample
                 plausible = False
                 why.append(f"not supported by the samples it was fitted to (AIC drop {aic_drop:.3g} <= 0)")
             prelim = drop > thr and max(win_red.values(), default=0.0) >= st.min_window_reduction and plausible
