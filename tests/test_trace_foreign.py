@@ -16,6 +16,7 @@ every real one, the detailed no-back friction are what the base itself contains.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import pytest
@@ -208,6 +209,26 @@ def test_library_effect_on_the_rig_base_is_found_first(traced, name, expected):
     if bc and bc["accepted"]:  # base corrections stay within their plausible bounds
         for c in bc["corrections"]:
             assert c["bound"][0] - 1e-9 <= c["value"] <= c["bound"][1] + 1e-9, c
+
+
+@pytest.mark.campaign
+@pytest.mark.slow
+def test_cogging_on_a_position_loop_record_is_found_first(traced):
+    """rig base + cogging on a closed position loop logged at 500 Hz (rig_cogging_steps): its 18th harmonic is
+    resolved only in the approach and the creep (a fifth of the record), aliased in the 15 mm/s travel.  The cogging
+    is found first among the physical effects, with its count and its amplitude within 20 %.  (The 50 % bar of the
+    library test is not asked here: the window's RMS is mostly the resolver's noise at creep; measured 28 % of the
+    RMS, 34 % of the error beyond the noise, docs/trace_notes.md "Cogging on records with little low-speed
+    motion".)"""
+    doc = traced("rig_cogging_steps")
+    assert _truth_effects("rig_cogging_steps") == ["cogging"]
+    phys = [e["name"] for e in _physical(doc)]
+    assert phys and phys[0] == "cogging_torque", doc["rounds"]
+    step = next(e for e in doc["effects_added"] if e["name"] == "cogging_torque")
+    assert step["parameters"]["drive.cogging_periods"]["value"] == 18, step["parameters"]
+    p = step["parameters"]
+    amp = math.hypot(p["drive.cogging_torque_cos"]["value"], p["drive.cogging_torque_sin"]["value"])
+    assert amp == pytest.approx(_truth("rig_cogging_steps")["effects"]["cogging"]["params"]["A_Nm"]["si"], rel=0.2), p
 
 
 @pytest.mark.campaign

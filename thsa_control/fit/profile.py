@@ -460,7 +460,8 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
                      progress: Callable[[str], None] | None = None,
                      fractions: Mapping[str, str] | None = None,
                      iact: Callable[[np.ndarray], float] | None = None,
-                     gap: Callable[[IdentificationResult], float] | None = None) -> ProfileResult:
+                     gap: Callable[[IdentificationResult], float] | None = None,
+                     grids: Mapping[str, Sequence[float]] | None = None) -> ProfileResult:
     """Identify ``free`` with the ``profile`` parameters searched over their ranges (see the module doc).
 
     Parameters
@@ -526,6 +527,11 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
         and a value both do not reject is the one to hold).  Without it the
         file value is held whenever the screen's set holds it.
 
+    grids : mapping name -> values, optional
+        The values the first profiled parameter is screened at, instead of the grid over its range (the cogging's
+        period counts the record resolves, multiples of the pole count); they must lie in its range, which may then
+        be a single value (``lo == hi``: the one value is fitted).
+
     Raises
     ------
     ParameterError
@@ -546,7 +552,8 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
         if name in free:
             raise ParameterError(name, "cannot be both free and profiled")
         par = params[name]
-        if not (par.min <= lo < hi <= par.max):
+        single = grids is not None and name in grids and lo == hi
+        if not (par.min <= lo and (lo < hi or single) and hi <= par.max):
             raise ParameterError(name, f"profile range {lo:g}..{hi:g} {par.unit} must lie inside its bounds "
                                        f"{par.min:g}..{par.max:g} and be increasing")
     if score is None or score == "training":
@@ -590,7 +597,10 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
     integer = bool(params[main].integer)
     # solved in the screen: the effect being tried (the free parameters without a prior), else every free one
     solve = (tuple(n for n in free if n in st.no_prior) or tuple(free)) if integer else ()
-    x = _grid(lo, hi, ps.screen_points, integer)
+    if grids is not None and main in grids:
+        x = np.array(sorted(float(v) for v in grids[main] if lo <= v <= hi))
+    else:
+        x = _grid(lo, hi, ps.screen_points, integer)
     if x.size == 0:
         raise ParameterError(main, f"profile range {lo:g}..{hi:g} holds no whole value")
 

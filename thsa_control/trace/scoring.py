@@ -28,6 +28,7 @@ from .candidates import (
     EFFICIENCY_EXPLAINER,
     INERTIA_DATASHEET_TOLERANCE,
     INERTIA_EXPLAINER,
+    PROFILE_FLOORS,
 )
 from .periodicity import run_segment_drops
 from .signature import split_remainder
@@ -53,7 +54,8 @@ def _fit_job(job: dict) -> dict:
             prof = profile_identify(job["runs"], params, job["free"], job["profile"], effects=job["effects"],
                                     settings=job["settings"], fractions=job.get("profile_fractions"),
                                     iact=lambda e: e.size / max(_effective_n_iact(e), 1.0), score="training",
-                                    gap=_profile_gap(job["settings"].noise, job.get("alpha", 1e-3), "training"))
+                                    gap=_profile_gap(job["settings"].noise, job.get("alpha", 1e-3), "training"),
+                                    grids=job.get("profile_grid"))
             res = prof.result
             for n, d in prof.determination.items():
                 if not d["determined"]:  # identifiability before plausibility: the profile says it
@@ -419,7 +421,7 @@ def _plausibility(fit: dict, spec: CandidateSpec, plaus: Mapping | None = None) 
         e = fit["estimates"].get(n)
         if e is None or not e.get("mattered"):
             continue
-        if e["at_bound"]:
+        if e["at_bound"] and not (e["at_bound"] == "min" and n in PROFILE_FLOORS):
             why.append(f"{n} at the {e['at_bound']} end of its profile range")
         elif e["interval"] is not None and e.get("determined", True):  # a profile set that does not determine it
             determined += 1
