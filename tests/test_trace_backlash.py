@@ -145,6 +145,9 @@ def test_profiled_parameter_cannot_also_be_free(stops_record, params):
         profile_identify(stops_record("C"), params, (PITCH,), {PITCH: (0.03, 0.3)}, level="C")
     with pytest.raises(ParameterError, match="inside its bounds"):
         profile_identify(stops_record("C"), params, ("gear.viscous_friction",), {PITCH: (0.03, 5.0)}, level="C")
+    with pytest.raises(ParameterError, match="holdout"):  # a held-out choice without held-out samples or noise
+        profile_identify(stops_record("C"), params, ("gear.viscous_friction",), {PITCH: (0.03, 0.3)}, level="C",
+                         score="holdout")
 
 
 @pytest.mark.slow
@@ -171,6 +174,9 @@ def test_backlash_is_found_first_with_its_pitch(stops_record, params, capsys):
     assert len(prof["screen"][PITCH]) > 100 and prof["fits"]
     best = min((f for f in prof["fits"] if "score" in f), key=lambda f: f["score"])
     assert best["values"][PITCH] == pitch["value"]
+    # chosen on the training error (the fits' own objective); the held-out error is kept for the judgement only
+    assert prof["chosen_by"] == "training_chi2" and pitch["chosen_by"] == "training_chi2", prof["chosen_by"]
+    assert all(f["score"] == f["training_chi2"] and "holdout_chi2" in f for f in prof["fits"] if "score" in f)
     cand = next(c for c in doc["candidates"] if c["name"] == "noback_backlash")
     assert cand["window"] == "clearance" and cand["window_reduction"]["motor_speed"] >= 0.5
     with capsys.disabled():
@@ -231,16 +237,16 @@ def test_compiled_screen_and_track_equal_the_interpreter(stops_record, params):
         pytest.skip("no working C compiler: the screen runs in casadi's interpreter only")
     sets = [params.replace({PITCH: float(v), "noback.pawl_initial_clearance": c})
             for v in (0.05, 0.1, 0.1496, 0.25) for c in (0.0, 0.5)]
-    _, U, w_next, sigma = screen.parts[0]
+    _, U, w_next, sigma, keep = screen.parts[0]
     interpreted = OneStepScreen([run], plant, params)
-    interpreted.parts = [(one_step_map(plant, interpreted._mech, U.shape[1]), U, w_next, sigma)]
+    interpreted.parts = [(one_step_map(plant, interpreted._mech, U.shape[1]), U, w_next, sigma, keep)]
     compiled = screen.chi2_many(sets)
     assert np.all(np.isfinite(compiled)) and np.ptp(compiled) > 0  # the pitch matters on this record
     np.testing.assert_array_equal(compiled, interpreted.chi2_many(sets))
     gap = U.copy()
     gap[0, U.shape[1] // 2] = np.nan  # a missing measured state: its prediction is not finite
-    screen.parts = [(None, gap, w_next, sigma)]
-    interpreted.parts = [(one_step_map(plant, interpreted._mech, U.shape[1]), gap, w_next, sigma)]
+    screen.parts = [(None, gap, w_next, sigma, keep)]
+    interpreted.parts = [(one_step_map(plant, interpreted._mech, U.shape[1]), gap, w_next, sigma, keep)]
     np.testing.assert_array_equal(screen.chi2_many(sets), interpreted.chi2_many(sets))
     # the custom-state track through the compiled loop, against the interpreter's map
     mech = current_driven_map(plant)
@@ -252,3 +258,25 @@ def test_compiled_screen_and_track_equal_the_interpreter(stops_record, params):
     Ufull = np.vstack([X[:, :-1], V[:, :n - 1], np.asarray(H, float)[None, :n - 1]])
     ref = np.asarray(one_step_map(plant, mech, n - 1)(X[idx, 0], Ufull, p)[0])
     np.testing.assert_array_equal(track[:, 1:], ref)
+
+
+def test_the_screen_sums_the_training_samples_only(stops_record, params):
+    """With the fit's hold-out, the one-step screen leaves the held-out segments' samples out of its sum (the pitch
+    is then chosen where the fits are, and the held-out samples judge it): the same per-sample errors as the screen
+    over every sample, restricted to the samples the fit trains on; the clearances are carried through the held-out
+    segments from the measured speeds, so the kept samples' errors do not change."""
+    from thsa_control.fit.identify import IdentificationSettings
+    from thsa_control.fit.shooting import segment_layout
+
+    run = dataclasses.replace(stops_record("C"), controller=None)
+    plant = build_plant("C", params=params)
+    st = IdentificationSettings(segment_duration=0.05, holdout_every=3)
+    every, training = OneStepScreen([run], plant, params), OneStepScreen([run], plant, params, holdout=st)
+    _, _, hold = segment_layout(run.time, st)
+    kept = ~hold[1:run.time.size]
+    assert 0 < training.n == int(kept.sum()) < every.n == run.time.size - 1
+    sets = [params.replace({PITCH: float(v)}) for v in (0.05, 0.1, 0.1496)]
+    for e_all, e_tr in zip(every._errors_many(sets), training._errors_many(sets)):
+        np.testing.assert_array_equal(e_tr, e_all[kept])
+    # the pitch still matters on the training samples of this record (five stops, some in training segments)
+    assert np.ptp(training.chi2_many(sets)) > 0

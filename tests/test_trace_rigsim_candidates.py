@@ -8,7 +8,9 @@
   within 0.1 mm of the truth.  The contact stiffnesses of rig-sim are the papers' (5.32e7 and 6.65e7 N/m) in
   series with its ball-screw contact (3e8 N/m): 4.5e7 and 5.5e7 N/m at the LVDT.
 * ``cogging_torque``: rig-sim's cogging has 18 periods per motor revolution; the count is profiled over the
-  whole counts the record resolves (4 samples or more per period at the median moving speed).
+  multiples of the motor's pole count (6) whose harmonic the record resolves: 4 samples or more per period where
+  the motor turns, outside the base's transients, on 50 samples at least (``trace.candidates.cogging_counts``).
+  On a position loop's record (rig_cogging_steps, 500 Hz) that is its approach and creep only.
 
 The truth files are read by these tests only.
 """
@@ -16,6 +18,7 @@ The truth files are read by these tests only.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import pytest
@@ -114,6 +117,59 @@ def test_cogging_period_count_is_profiled(params):
     step = next((e for e in doc["effects_added"] if e["name"] == "cogging_torque"), None)
     assert step is not None, doc["rounds"]
     assert step["parameters"]["drive.cogging_periods"]["value"] == 18, step["parameters"]
+
+
+def test_cogging_counts_are_what_the_record_resolves(params):
+    """Multiples of the pole count, up to the largest one resolved on enough samples outside the base's transients:
+    the slow check run resolves 18 per revolution on every turning sample; the position loop at 500 Hz resolves it
+    in its creep only (its fast travel aliases it: 82 rev/s x 18 = 1.5 kHz), and far fewer counts; a 15 mm/s trim
+    run at 500 Hz resolves none (not even 6 per revolution), which is said rather than tested."""
+    import numpy as np
+
+    from thsa_control.data.rigdata import measured_motor_speed
+    from thsa_control.trace.candidates import (
+        MIN_WINDOW_SAMPLES,
+        cogging_counts,
+        cogging_resolved,
+    )
+
+    slow, _ = cogging_counts(params, [_run("rig_cogging", params)], 2.0, 200.0)
+    steps_run = _run("rig_cogging_steps", params)
+    steps, why = cogging_counts(params, [steps_run], 2.0, 200.0)
+    trim, why_trim = cogging_counts(params, [_run("null_papers_trim_s1", params)], 2.0, 200.0)
+    assert why is None and 18.0 in slow and 18.0 in steps and all(n % 6 == 0 for n in slow + steps)
+    assert max(steps) < max(slow)
+    assert trim == [] and "cannot be resolved on this record" in why_trim
+    # the resolved samples at 18: the slow part of the record only, and more than the window minimum
+    res = cogging_resolved(steps_run, 18.0)
+    w = np.abs(measured_motor_speed(steps_run))
+    fs = 1.0 / float(np.median(np.diff(steps_run.time)))
+    assert res.sum() >= MIN_WINDOW_SAMPLES and np.all(18.0 * w[res] / (2 * math.pi) <= fs / 4)
+    assert res.sum() < 0.5 * (w > 0.05 * w.max()).sum()  # most of the motion is fast
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name, planted", [("rig_cogging_steps", True), ("null_rig_steps_s252", False)])
+def test_cogging_on_a_position_loop_record(params, name, planted):
+    """rig-sim's cogging (0.05 N m, 18 per revolution) on a closed position loop logged at 500 Hz: found with its
+    count and its amplitude within 20 % (the step averages the torque over the angle it sweeps, so the fast travel
+    where the harmonic is aliased does not pull the amplitude down), its window error falls; on the same scenario's
+    null (the counts are scored there too) no cogging is added."""
+    st = TraceSettings(workers=1, candidates=("cogging_torque", "noback_quadrant_friction"), base_corrections=True,
+                       max_effects=2)
+    doc = trace(_run(name, params), "A", params=params, settings=st).to_dict()
+    step = next((e for e in doc["effects_added"] if e["name"] == "cogging_torque"), None)
+    scored = [c for r in doc["rounds"] for c in r["candidates"] if c["name"] == "cogging_torque"]
+    assert scored, doc["rounds"]  # scored, not skipped: the record resolves counts
+    if not planted:
+        assert step is None, doc["effects_added"]
+        return
+    assert step is not None, scored
+    p = step["parameters"]
+    assert p["drive.cogging_periods"]["value"] == 18, p
+    amp = math.hypot(p["drive.cogging_torque_cos"]["value"], p["drive.cogging_torque_sin"]["value"])
+    assert amp == pytest.approx(_truth_params(name, "cogging")["A_Nm"], rel=0.2), p
+    assert step["window_reduction"]["motor_speed"] >= 0.05, step["window_reduction"]
 
 
 @pytest.mark.slow

@@ -42,7 +42,7 @@ from .segment_states import drivetrain_segment_guess
 if TYPE_CHECKING:
     from .identify import IdentificationSettings
 
-__all__ = ["MECH_CHANNELS", "FREE_STATE_KINDS", "RunProblem", "estimate_noise"]
+__all__ = ["MECH_CHANNELS", "FREE_STATE_KINDS", "RunProblem", "estimate_noise", "segment_layout"]
 
 #: Channels the mechanics are fitted on (RigRun signals, compared with the plant
 #: outputs of :data:`~thsa_control.fit.replay.COMPARED_OUTPUT`: the LVDT with the surface position).
@@ -76,6 +76,21 @@ def estimate_noise(y: np.ndarray) -> float:
 
 
 # ----------------------------------------------------------------------------- problem per run
+def segment_layout(time: np.ndarray, settings: IdentificationSettings) -> tuple[int, int, np.ndarray]:
+    """``(L, M, holdout)``: samples per segment, segments, and which of the ``L * M`` (padded) samples lie in a
+    held-out segment (every ``holdout_every``-th, none when 0 or fewer segments than that) of a run sampled at
+    ``time``: the one layout of the multiple-shooting fit, used by whoever must leave its held-out samples out."""
+    t = np.asarray(time, float)
+    n = t.size
+    dt = float(np.median(np.diff(t)))
+    L = max(2, int(round(settings.segment_duration / dt)))
+    M = int(math.ceil(n / L))
+    k_hold = settings.holdout_every
+    seg_of = np.arange(L * M) // L
+    holdout = (seg_of % k_hold == k_hold - 1) if k_hold and M >= k_hold else np.zeros(L * M, bool)
+    return L, M, holdout
+
+
 class RunProblem:
     """Residuals and Jacobian of one run: casadi map over segments of the current-driven map."""
 
@@ -91,8 +106,7 @@ class RunProblem:
         if not self.channels:
             raise RigDataError(str(run.csv_path), [(None, None, f"no fitted channel measured; need one of {channels}")])
         dt = float(np.median(np.diff(t)))
-        L = max(2, int(round(settings.segment_duration / dt)))
-        M = int(math.ceil(n / L))
+        L, M, holdout = segment_layout(t, settings)
         self.L, self.M = L, M
         npad = L * M - n
         V = mech_inputs(run)
@@ -107,9 +121,7 @@ class RunProblem:
         self.sigma0 = np.array([float(noise[c]) if c in noise else estimate_noise(run.signals[c])
                                 for c in self.channels])
         self.mask = np.isfinite(Ymeas)
-        k_hold = settings.holdout_every
-        seg_of = np.arange(L * M) // L
-        self.holdout_samples = (seg_of % k_hold == k_hold - 1) if k_hold and M >= k_hold else np.zeros(L * M, bool)
+        self.holdout_samples = holdout
         # channel-major residual rows: weight 0 on held-out samples in the parameter fit
         self.train_weight = np.tile((~self.holdout_samples).astype(float), len(self.channels))
         # states: which are free per segment, initial guesses

@@ -257,7 +257,8 @@ def _build(chosen: tuple[str, ...], names) -> Plant:
     usym = ca.SX.sym("u", len(INPUTS))
     u = {name: usym[i] for i, (name, _, _) in enumerate(INPUTS)}
 
-    a = Assembly(states=states, x=x, u=u, p=p, effects=chosen)
+    h_place = ca.SX.sym("h_step")  # Assembly.step: 0 in the continuous form, the step h in the discrete one
+    a = Assembly(states=states, x=x, u=u, p=p, effects=chosen, step=h_place)
     apply_structure(a)
     for e in order:
         if e in chosen:
@@ -304,7 +305,9 @@ def _build(chosen: tuple[str, ...], names) -> Plant:
         else:
             xdot.append(a.rates[s.name])
     out_names, out_units, y_c = outputs(res_c)
-    f = ca.Function("f", [xsym, usym, psym], [ca.vertcat(*xdot), y_c], ["x", "u", "p"], ["xdot", "y"])
+    y_c = ca.substitute(y_c, h_place, ca.SX(0.0))
+    f = ca.Function("f", [xsym, usym, psym], [ca.substitute(ca.vertcat(*xdot), h_place, ca.SX(0.0)), y_c],
+                    ["x", "u", "p"], ["xdot", "y"])
 
     # ---- discrete form
     h = ca.SX.sym("h")
@@ -352,7 +355,9 @@ def _build(chosen: tuple[str, ...], names) -> Plant:
         else:  # pragma: no cover - StateInfo kinds are fixed above
             raise ModelError(f"state {s.name!r} has unknown kind {s.kind!r}")
     _, _, y_d = outputs(res_d)
-    step = ca.Function("step", [xsym, usym, psym, h], [ca.vertcat(*x_next), y_d], ["x", "u", "p", "h"], ["x_next", "y"])
+    step = ca.Function("step", [xsym, usym, psym, h], [ca.substitute(ca.vertcat(*x_next), h_place, h),
+                                                       ca.substitute(y_d, h_place, h)],
+                       ["x", "u", "p", "h"], ["x_next", "y"])
 
     # ---- initial state
     x_nut0, f0 = ca.SX.sym("nut_position"), ca.SX.sym("load_force")
@@ -360,7 +365,8 @@ def _build(chosen: tuple[str, ...], names) -> Plant:
     x0["nut_position"] = x_nut0
     for name, fn in a.initial.items():
         x0[name] = fn(x0, f0)
-    init = ca.Function("init", [x_nut0, f0, psym], [ca.vertcat(*(x0[s.name] for s in states))],
+    init = ca.Function("init", [x_nut0, f0, psym], [ca.substitute(ca.vertcat(*(x0[s.name] for s in states)), h_place,
+                                                                   ca.SX(0.0))],
                        ["nut_position", "load_force", "p"], ["x0"])
 
     # ---- what the model knows beyond f and step, from the same assembly
@@ -385,7 +391,8 @@ def _build(chosen: tuple[str, ...], names) -> Plant:
 
     qs_states = tuple(st.name for st in states if st.name in a.quasi_static)
     qs_x = [a.quasi_static[st.name] if st.name in a.quasi_static else x[st.name] for st in states]
-    quasi_static = ca.Function("quasi_static", [xsym, usym, psym], [ca.vertcat(*qs_x)], ["x", "u", "p"], ["x_qs"])
+    quasi_static = ca.Function("quasi_static", [xsym, usym, psym], [ca.substitute(ca.vertcat(*qs_x), h_place, ca.SX(0.0))],
+                               ["x", "u", "p"], ["x_qs"])
 
     return Plant(
         quasi_static_states=qs_states, quasi_static=quasi_static,

@@ -476,9 +476,17 @@ def format_trace_summary(doc: dict) -> str:
                 f", {t['law']}" if t.get("law") else "")
         elif t["kind"] == "drift":
             extra = ", slope per pass " + ", ".join(f"{v:.2g}+-{e:.1g}" for v, e in zip(t["slopes"], t["slope_stderr"])) \
-                + f" N m/s over {t['segments']} segments"
+                + f" N m/s over {t['segments']} segments" + (
+                    f"; not a drift: {t['superseded_by']}" if t.get("superseded_by") else "") + (
+                    f"; flagged by the {t['flagged_by']} (p {_num(t['time_or_position']['time_beyond_position']['p_value'], '.2g')})"
+                    if t.get("flagged_by") else "")
         elif t["kind"] == "redundant_sensors":
-            extra = f", gain {t['gain']:.4f}, lag {1e3 * t['lag_s']:.1f} ms"
+            extra = f", gain {t['gain']:.4f} +- {t['gain_stderr']:.1g}, lag {1e3 * t['lag_s']:.1f} ms" + (
+                f" (the odd sensor: {t['odd_sensor']})" if t.get("odd_sensor") else "")
+        elif t["kind"] == "time_or_position":
+            extra = (f", position beyond time p {_num(t['position_beyond_time']['p_value'], '.2g')}, time beyond position"
+                     f" p {_num(t['time_beyond_position']['p_value'], '.2g')} over {t['passes_per_direction']['extending']}"
+                     f" + {t['passes_per_direction']['retracting']} passes: {t['verdict']}")
         elif t["kind"] == "sensor_offset":
             extra = f", offset {t['offset']:.3f} A over {t['samples']} samples"
         elif t["kind"] == "sensor_drift":

@@ -155,23 +155,121 @@ def _start_loadpath(params: ParameterSet, runs) -> dict[str, float]:
     return loadpath_static_screen(runs, params)
 
 
-def _resolved_periods(params: ParameterSet, runs, lo: float, hi: float) -> tuple[float, float]:
-    """Cogging periods per motor revolution the record resolves: 4 samples or more per period at the median
-    moving motor speed (half the moving samples or more resolve it)."""
+#: samples per cogging period for the period to count as resolved: the Nyquist limit is 2; 4 keeps the harmonic below
+#: half the Nyquist frequency, where the model's one step per sample still follows it (its torque is evaluated once
+#: per step: at 2 samples per period the steps alternate between two angles) and the speed sensor's difference
+#: quotient over one sample keeps 90 % of its amplitude (sinc(1/4))
+COGGING_SAMPLES_PER_PERIOD = 4.0
+
+
+def motor_turning(run: RigRun) -> np.ndarray:
+    """Samples where the motor turns: the measured motor speed beyond ``MOTION_SIGMA`` noise standard deviations (a
+    cogging torque is periodic in the motor angle, so it shows wherever the angle advances, however slowly: a
+    position loop's creep at 2 % of the top speed is the motion that resolves it best; the ``moving`` window's 5 % of
+    the largest speed leaves it out)."""
+    from ..fit.identify import estimate_noise
+
+    w = np.nan_to_num(np.asarray(measured_motor_speed(run), float))
+    return np.abs(w) > MOTION_SIGMA * estimate_noise(w)
+
+
+def cogging_resolved(run: RigRun, count: float, steady: bool = True, transient_time: float = 0.3) -> np.ndarray:
+    """Samples where a cogging of ``count`` periods per motor revolution is resolved: the motor turns and the period
+    spans ``COGGING_SAMPLES_PER_PERIOD`` samples or more (above it the record aliases the harmonic: at 15 mm/s the
+    18th harmonic of rig-sim's motor speed is at 1.5 kHz); ``steady``: outside the base's transients, judged on the
+    speed averaged over the transient time (:func:`~thsa_control.trace.signature.base_transients` with
+    ``sustained``: the cogging ripples the speed itself, and its own ripple is no transient)."""
+    from .signature import base_transients
+
+    t = np.asarray(run.time, float)
+    if t.size < 2:
+        return np.zeros(t.shape, bool)
+    fs = 1.0 / float(np.median(np.diff(t)))
+    w = np.nan_to_num(np.asarray(measured_motor_speed(run), float))
+    out = motor_turning(run) & (count * np.abs(w) / (2 * math.pi) * COGGING_SAMPLES_PER_PERIOD < fs)
+    if steady:
+        out &= ~base_transients(t, w, run.signals["load_force"], transient_time, sustained=True)
+    return out
+
+
+def cogging_pole_count(params: ParameterSet) -> int:
+    """The motor's pole count 2 p: a cogging's period count per revolution is the least common multiple of the slot
+    count and the pole count (Zhu and Howe, IEEE Trans. Energy Convers. 15 (2000) 407; the parameter file's
+    ``drive.cogging_periods`` description), hence a multiple of 2 p.  1 where the parameter set has no pole pairs."""
+    return round(2 * params.value("motor.pole_pairs")) if "motor.pole_pairs" in params else 1
+
+
+#: the largest phase uncertainty [rad] of a shooting segment's motor angle at which a cogging count is still fitted
+#: as one torque of the motor angle: a sinusoid fitted over segments whose phases scatter by s keeps exp(-s^2 / 2) of
+#: its amplitude (61 % at 1 rad); beyond it each segment picks its own phase through its free start position, and the
+#: candidate is a free sinusoid per segment (measured on a position-loop null, 500 Hz: 78 per revolution, whose
+#: period is 2.3 um of nut travel against the LVDT's 2 um noise, lowered the training error by an AIC of 347 and
+#: raised the held-out error)
+COGGING_PHASE_SCATTER = 1.0
+
+
+def cogging_anchored_count(params: ParameterSet, runs, segment_duration: float) -> float:
+    """The largest cogging count whose phase the record anchors in each shooting segment.  A segment's motor angle
+    starts from its fitted nut position (``x / r``), which the LVDT determines to ``sigma / sqrt(m)`` over the
+    segment's ``m`` samples; the count's period in nut travel, ``lead / (N n)``, must be at least ``2 pi / s`` times
+    that (``s`` = :data:`COGGING_PHASE_SCATTER`).  Infinite without an LVDT reading (nothing to bound it by)."""
+    from ..fit.identify import estimate_noise
+
     best = 0.0
-    for run in runs:
-        t = np.asarray(run.time, float)
-        w = np.abs(np.nan_to_num(measured_motor_speed(run)))
-        moving = w > 0.05 * max(float(np.max(w)), 1e-9)
-        if t.size < 2 or not moving.any():
-            continue
-        fs = 1.0 / float(np.median(np.diff(t)))
-        best = max(best, (fs / 4) / (float(np.median(w[moving])) / (2 * math.pi)))
-    return lo, max(lo, min(hi, math.floor(best)))
+    for r in runs:
+        if not r.has("nut_position"):
+            return math.inf
+        x = np.asarray(r.signals["nut_position"], float)
+        t = np.asarray(r.time, float)
+        if not np.isfinite(x).any() or t.size < 2:
+            return math.inf
+        m = max(segment_duration * (1.0 / float(np.median(np.diff(t)))), 1.0)
+        sigma = estimate_noise(x[np.isfinite(x)]) / math.sqrt(m)
+        if not sigma > 0:
+            return math.inf
+        best = max(best, params.value("screw.lead") / params.value("gear.ratio") * COGGING_PHASE_SCATTER
+                   / (2 * math.pi * sigma))
+    return best
 
 
-#: Narrowing of a profiled parameter's range to what the runs resolve (name -> function(params, runs, lo, hi)).
-PROFILE_LIMITS: dict[str, Callable] = {"drive.cogging_periods": _resolved_periods}
+def cogging_counts(params: ParameterSet, runs, lo: float, hi: float, transient_time: float = 0.3,
+                   segment_duration: float | None = None) -> tuple[list[float], str | None]:
+    """The cogging period counts a record can resolve: the multiples of the pole count (:func:`cogging_pole_count`)
+    within ``lo..hi`` whose resolved samples outside the base's transients (:func:`cogging_resolved`), over all runs,
+    number ``MIN_WINDOW_SAMPLES`` or more (the fewest a candidate's window is scored on), and, with the fits'
+    ``segment_duration``, whose phase the record anchors (:func:`cogging_anchored_count`).  Returns the counts and,
+    where there is none, why the cogging cannot be resolved on this record."""
+    step = cogging_pole_count(params)
+    first = step * max(math.ceil(lo / step), 1)
+    if segment_duration is not None:
+        anchored = cogging_anchored_count(params, runs, segment_duration)
+        hi = min(hi, anchored)
+        if first > hi:
+            return [], (f"cannot be resolved on this record: the LVDT anchors a segment's motor angle to a cogging "
+                        f"count of {anchored:.3g} per revolution at most, below the lowest one ({first}, a multiple "
+                        f"of the {step} poles)")
+    counts = []
+    for n in range(first, math.floor(hi) + 1, step):
+        k = sum(int(cogging_resolved(r, n, transient_time=transient_time).sum()) for r in runs)
+        if k < MIN_WINDOW_SAMPLES:
+            break  # fewer at every larger count
+        counts.append(float(n))
+    if counts:
+        return counts, None
+    k = sum(int(cogging_resolved(r, first, transient_time=transient_time).sum()) for r in runs)
+    return [], (f"cannot be resolved on this record: even the lowest cogging count ({first} per motor revolution, a "
+                f"multiple of the {step} poles) spans {COGGING_SAMPLES_PER_PERIOD:g} samples per period on only {k} "
+                f"samples where the motor turns outside the base's transients (fewer than {MIN_WINDOW_SAMPLES}): "
+                "faster, the harmonic is aliased")
+
+
+#: Profiled parameters whose search starts at a physical floor, not at an assumed edge: a value there is no sign of a
+#: search range too narrow (the cogging's count is searched from the pole count up, and lcm(slots, 2 p) >= 2 p).
+PROFILE_FLOORS: tuple[str, ...] = ("drive.cogging_periods",)
+
+#: The values a profiled parameter is searched over where the record limits them (name -> function(params, runs, lo,
+#: hi) -> (values, reason when there is none)): the cogging's period counts the record resolves.
+PROFILE_GRIDS: dict[str, Callable] = {"drive.cogging_periods": cogging_counts}
 
 
 def nut_travel(run: RigRun, params: ParameterSet) -> np.ndarray:
@@ -365,11 +463,11 @@ def _window(kind: str, run: RigRun, params: ParameterSet | None = None) -> np.nd
         return moving & (reversal_proximity(run.time, w, deadband=0.05 * float(np.max(np.abs(w)))) < 0.3)
     if kind == "clearance":  # the first pitch of screw travel after each change of direction
         return clearance_window(run, _largest_clearance())
-    if kind == "resolved_cogging":  # moving slowly enough that the cogging's period spans 4 samples or more
-        t = np.asarray(run.time, float)
-        fs = 1.0 / float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    if kind == "resolved_cogging":  # the motor turns slowly enough that the cogging's period spans 4 samples or
+        # more, at the count of ``params`` (the engine evaluates it at a fit's count; the base's transients are left
+        # out by the scoring mask)
         n = params.value("drive.cogging_periods") if params is not None and "drive.cogging_periods" in params else 6.0
-        return moving & (n * np.abs(w) / (2 * math.pi) < fs / 4)
+        return cogging_resolved(run, n, steady=False)
     if kind == "load_change":  # within 0.3 s of a load change of 5 % of the run's range (500 N at least): where
         # a compliant load path shows in the LVDT (the segments start at the static deflection of the load)
         t = np.asarray(run.time, float)

@@ -36,6 +36,7 @@ from .signature import (
     sg_derivative,
     signature_tests,
     still_band,
+    time_or_position_test,
 )
 
 
@@ -80,6 +81,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     local_in: dict[str, list] = {"e": [], "x": [], "d": []}
     steady: list = []  # outside the base's transients, per run
     drift_in: list = []  # (time, segment torque, direction)
+    drift_at: list = []  # (nut position, run number) of each drift segment: time told from position
     accel: list = []  # J x the measured motor acceleration, per run
     t_offset = 0.0
     for run in runs:
@@ -152,6 +154,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         for a, b, tm, tq in segment_torques(t, e, starts, inertia):
             if sgn[a] != 0 and steady[-1][a:b].all() and np.all(sgn[a:b] == sgn[a]):
                 drift_in.append((t_offset + tm, tq, float(sgn[a])))
+                drift_at.append((float(np.mean(cols["nut_position"][1][a:b])), float(len(torque))))  # position, run
         t_offset += float(t[-1] - t[0]) + 1.0  # runs one after another, separated by more than a pass gap
         local_in["d"] += [cols["speed_sign"][1], np.zeros(100)]
     if not torque:
@@ -171,11 +174,13 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         dr = drift_test(*(np.asarray(v) for v in zip(*drift_in)), alpha=s.local_alpha, min_r2=s.min_r2)
         if dr is not None:
             tests.insert(0, dr) if dr["significant"] else tests.append(dr)
+            _time_or_position(dr, drift_in, drift_at, tests, s)
     sensors = []
     for run in runs:
-        for d in sensor_consistency(run.time, {c: run.signals[c] for c in ("motor_speed", "screw_speed", "nut_position")
-                                               if c in run.source_columns},
-                                    gear_ratio=run.gear_ratio, lead=run.screw_lead, alpha=s.alpha):
+        measured = {c: run.signals[c] for c in ("motor_speed", "screw_speed", "nut_position") if c in run.source_columns}
+        for d in sensor_consistency(run.time, {**measured, "load_force": run.signals["load_force"]},
+                                    gear_ratio=run.gear_ratio, lead=run.screw_lead, alpha=s.alpha,
+                                    transient_time=s.transient_time):
             d["run"] = run.name
             sensors.append(d)
         on = (np.asarray(run.signals["primary_enable"]) > 0.5) | (np.asarray(run.signals["standby_enable"]) > 0.5)
@@ -218,9 +223,41 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             "curves": {**_signature_curves(e_all, variables, runs, s, np.concatenate(steady)),
                        # the drift test's data: one torque per steady segment (runs one after another in time)
                        "segment_torque": {"time": [d[0] for d in drift_in], "torque": [d[1] for d in drift_in],
-                                          "direction": [d[2] for d in drift_in]},
+                                          "direction": [d[2] for d in drift_in],
+                                          "nut_position": [d[0] for d in drift_at]},
                        # the load-cell drift test's data: the load reading and the LVDT in the holds
                        "hold_load": hold_curve}}
+
+
+def _time_or_position(dr: dict, drift_in: list, drift_at: list, tests: list, s: SignatureSettings) -> None:
+    """A significant per-pass drift on a record whose passes revisit positions: told from a dependence on the nut
+    position (:func:`~thsa_control.trace.signature.time_or_position_test`).  Where position explains it and time
+    does not, the drift is not significant (``superseded_by``) and the position test is reported instead: a
+    stationary drag along the stroke is never a slow drift.  Where time explains it beyond position (the levels of
+    same-direction passes at the same positions grow), the drift is significant even when the per-pass slopes are
+    not (``flagged_by``): each test at the replicate-based level, so the drift's family-wise level is at most twice
+    it.  Otherwise the separation is reported with the drift test (``time_or_position``) and changes nothing."""
+    if len(drift_at) != len(drift_in):
+        return
+    tm, tq, dirn = (np.asarray(v) for v in zip(*drift_in))
+    pos, grp = (np.asarray(v) for v in zip(*drift_at))
+    sep = time_or_position_test(tm, tq, dirn, pos, grp, alpha=s.local_alpha)
+    if sep is None:
+        return
+    dr["time_or_position"] = {k: v for k, v in sep.items() if k not in ("variable", "kind", "unit", "significant")}
+    if sep["verdict"] == "position" and dr["significant"]:
+        dr["significant"] = False
+        dr["superseded_by"] = sep["variable"]
+        tests.remove(dr)
+        tests.append(dr)
+        tests.insert(0, sep)
+    elif sep["verdict"] == "time" and not dr["significant"]:
+        # the passes' levels at the same positions grow with time: a drift the per-pass slopes alone miss (a pass
+        # of a reversal record is 0.6 s outside the transients; its slope's error falls as the duration^1.5)
+        dr["significant"] = True
+        dr["flagged_by"] = "time beyond position over revisited passes"
+        tests.remove(dr)
+        tests.insert(0, dr)
 
 
 def _holdout_chi2_and_count(fit: dict, noise: Mapping[str, float]) -> dict:

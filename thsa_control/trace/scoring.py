@@ -28,6 +28,7 @@ from .candidates import (
     EFFICIENCY_EXPLAINER,
     INERTIA_DATASHEET_TOLERANCE,
     INERTIA_EXPLAINER,
+    PROFILE_FLOORS,
 )
 from .periodicity import run_segment_drops
 from .signature import split_remainder
@@ -47,11 +48,14 @@ def _fit_job(job: dict) -> dict:
             from ..fit.profile import profile_identify, why_held
             from .signature import _effective_n_iact
 
-            # the profile set's threshold scaled as the ambiguity gap's (engine._rivals: reduced chi2 x IACT)
+            # the profile set's threshold scaled as the ambiguity gap's (engine._rivals: reduced chi2 x IACT); the
+            # profile fits chosen by their training error, the file value held within the training gap: the
+            # held-out samples stay for the candidate's judgement (engine: its held-out drop, window, channel)
             prof = profile_identify(job["runs"], params, job["free"], job["profile"], effects=job["effects"],
                                     settings=job["settings"], fractions=job.get("profile_fractions"),
-                                    iact=lambda e: e.size / max(_effective_n_iact(e), 1.0),
-                                    holdout_gap=_profile_holdout_gap(job["settings"].noise, job.get("alpha", 1e-3)))
+                                    iact=lambda e: e.size / max(_effective_n_iact(e), 1.0), score="training",
+                                    gap=_profile_gap(job["settings"].noise, job.get("alpha", 1e-3), "training"),
+                                    grids=job.get("profile_grid"))
             res = prof.result
             for n, d in prof.determination.items():
                 if not d["determined"]:  # identifiability before plausibility: the profile says it
@@ -90,7 +94,7 @@ def _fit_job(job: dict) -> dict:
         for n, (lo, hi) in job["profile"].items():
             est[n] = {"value": prof.values[n], "stderr": None, "init": params.value(n), "at_bound": prof.at_bound[n],
                       "min": lo, "max": hi, "unit": params[n].unit, "interval": prof.interval[n],
-                      "profiled": True, "mattered": prof.mattered[n],
+                      "profiled": True, "mattered": prof.mattered[n], "chosen_by": prof.chosen_by,
                       **({"determined": False, "held": prof.determination[n]["held_at"] == params.value(n)}
                          if n in held else {})}
     preds = {r: {"time": p["time"], "measured": dict(p["measured"]), "simulated": dict(p["simulated"]),
@@ -116,19 +120,27 @@ def _fit_job(job: dict) -> dict:
             "params_toml": res.to_parameter_set().to_toml(), "profile": prof.to_dict() if prof is not None else None}
 
 
-def _profile_holdout_gap(noise, alpha: float):
-    """``gap(result)``: the held-out chi2 difference the data resolve at a profile fit, scaled as the ambiguity gap
-    (:func:`thsa_control.trace.engine._rivals`: the ``chi2(1)`` quantile at ``alpha`` x the reduced held-out chi2 x
-    the held-out residual's IACT); infinite without a noise level (nothing to scale by)."""
+def _profile_gap(noise, alpha: float, samples: str = "training"):
+    """``gap(result)``: the chi2 difference the data resolve at a profile fit, scaled as the ambiguity gap
+    (:func:`thsa_control.trace.engine._rivals`: the ``chi2(1)`` quantile at ``alpha`` x the reduced chi2 x the
+    residual's IACT), computed on the ``samples`` the profile's score sums: ``"training"`` (the samples the fit
+    was fitted to, its default score :func:`~thsa_control.fit.profile.training_chi2`) or ``"holdout"``; infinite
+    without a noise level (nothing to scale by)."""
     from scipy.stats import chi2
+
+    if samples not in ("training", "holdout"):
+        raise ValueError(f"samples = {samples!r} must be 'training' or 'holdout'")
 
     def gap(res) -> float:
         if not noise:
             return math.inf
-        fit = {"predictions": res.predictions}
-        hold = sum(chi2_by_channel(res.predictions, noise, "holdout").values())
+        preds = res.predictions
+        if samples == "training":  # the same statistics over the complement of the held-out samples
+            preds = {r: {**p, "holdout": ~np.asarray(p["holdout"], bool)} for r, p in preds.items()}
+        fit = {"predictions": preds}
+        chi = sum(chi2_by_channel(preds, noise, "holdout").values())
         n = _holdout_samples(fit)
-        return float(chi2.ppf(1 - alpha, 1)) * max(1.0, hold / max(n, 1)) * _holdout_iact(fit, noise)
+        return float(chi2.ppf(1 - alpha, 1)) * max(1.0, chi / max(n, 1)) * _holdout_iact(fit, noise)
 
     return gap
 
@@ -409,7 +421,7 @@ def _plausibility(fit: dict, spec: CandidateSpec, plaus: Mapping | None = None) 
         e = fit["estimates"].get(n)
         if e is None or not e.get("mattered"):
             continue
-        if e["at_bound"]:
+        if e["at_bound"] and not (e["at_bound"] == "min" and n in PROFILE_FLOORS):
             why.append(f"{n} at the {e['at_bound']} end of its profile range")
         elif e["interval"] is not None and e.get("determined", True):  # a profile set that does not determine it
             determined += 1
@@ -464,7 +476,9 @@ def _param_entry(e: dict) -> dict:
         ci = e.get("interval")
     return {"value": e["value"], "stderr": sd, "unit": e["unit"], "ci95": list(ci) if ci else None,
             **({"ci95_scale": scale} if scale else {}),
-            "at_bound": e["at_bound"], **({"profiled": True} if e.get("profiled") else {}),
+            "at_bound": e["at_bound"],
+            **({"profiled": True, **({"chosen_by": e["chosen_by"]} if "chosen_by" in e else {})}
+               if e.get("profiled") else {}),
             **({"held": True} if e.get("held") else {}),
             **({"stderr_data": e["stderr_data"]} if "stderr_data" in e and not e.get("held") else {})}
 

@@ -41,12 +41,14 @@ from ..model.laws import kinematic_ratio
 
 __all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missing_torque", "current_offset_test",
            "binned_mean", "cross_correlation", "position_local_test", "base_transients", "remainder_kind",
-           "STRUCTURED_VARIABLES", "split_remainder", "segment_torques", "drift_test", "hold_samples", "still_band",
+           "STRUCTURED_VARIABLES", "split_remainder", "segment_torques", "drift_test",
+           "time_or_position_test", "hold_samples", "still_band",
            "hold_drift_test"]
 
 #: signature variables whose structure an unmodelled-but-declared base does not leave: a feature repeated at a nut
 #: position over passes, periodic in motor or screw angle, a slow drift, a torque proportional to the current
-STRUCTURED_VARIABLES = ("nut_position (repeated over passes)", "motor_angle", "screw_angle", "time (slow drift)",
+STRUCTURED_VARIABLES = ("nut_position (repeated over passes)", "nut_position (revisited, not a drift in time)",
+                        "motor_angle", "screw_angle", "time (slow drift)",
                         "motor_current (torque constant)")
 
 
@@ -378,39 +380,207 @@ def _gain_lag(a: np.ndarray, b: np.ndarray, dt: float, max_lag: int = 20) -> dic
     return {"gain": g, "gain_stderr": se, "lag_s": best_lag * dt, "z": (g - 1.0) / se if se > 0 else math.inf}
 
 
-def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, alpha: float = 1e-6) -> list[dict]:
-    """Gain and lag between redundant sensors (motor speed vs ratio x screw speed, LVDT rate vs r x motor speed)."""
+#: a redundant-sensor gain within this of 1 is a calibration detail, not a structure: the tolerance of a calibrated
+#: position or speed chain (an LVDT's linearity class is 0.25-0.5 % of its span) and of the declared lead and ratio.
+#: The travel test below tests it as its null hypothesis (``|gain - 1| <= GAIN_TOLERANCE``), so a gain resolved to
+#: 1e-5 (the LVDT over a 7 mm pass) is not flagged for a physically meaningless 1e-4
+GAIN_TOLERANCE = 0.005
+#: knots of the load-deflection curve no closer than this [N]: 40 x rig-sim's load-cell noise (25 N rms), so that
+#: a knot never splits the noise of one load level; the sharpest feature of a load path's curve in the library, a
+#: clearance's soft zone (2 x 2 kds x0 = 4 kN wide, Table 1), still gets knots inside it
+LOAD_KNOT_GAP = 1000.0
+
+
+def travel_gain_test(time, position, speed, load, *, ratio: float, transient_time: float = 0.3,
+                     alpha: float = 1e-6, tolerance: float = GAIN_TOLERANCE, steady_speed=None) -> dict | None:
+    """Gain of a position sensor against the travel a redundant speed sensor integrates (the LVDT against the
+    motor angle times ``ratio = lead / (2 pi N)``), over the steady passes of a record.
+
+    Within a pass of steady motion the drive train's and the load path's deflections are constant where the load
+    is, so the position's increments are the integrated speed's times the gain: ``x = a_pass + g ratio theta +
+    h(F)``, one intercept per pass (the deflection at that pass's load, direction and speed, the sensors' offsets
+    and lags: a lag at constant speed is an offset) and ``h`` a piecewise-linear load-deflection curve (knots at
+    the load's quantiles, no closer than :data:`LOAD_KNOT_GAP`) where the load changes by more than one knot gap:
+    a compliance is real, not a sensor error.  Differentiating the position instead (a rate against a speed) turns
+    the LVDT's 2 um noise into a rate noise that the Savitzky-Golay window makes smooth, and a residual
+    correlated over the window leaves a few effective samples (the former test's standard error of 0.8 on a
+    reversal record); the travel keeps the position's own noise over the pass's whole stroke (standard error
+    4e-5 over seven 7 mm passes).
+
+    Passes: stretches of one direction of motion outside ``transient_time`` of a start, stop or reversal and of a
+    fast speed change (:func:`base_transients` without its load rule: the load is conditioned on), at least
+    ``transient_time`` long, judged on ``steady_speed`` where given (the motor speed: the screw speed, an RVDT
+    angle differenced over one logged sample, is noisy enough that its speed-change rule fires on noise on a
+    slow record).  Standard error from the residual's integrated autocorrelation time per pass, scaled
+    by the Birge ratio of the per-pass gains where they scatter more than their errors (a gain is the sensor's,
+    the same over every pass; a larger scatter is structure the error does not cover).  The gain is *not
+    determined* where the load curve reproduces the travel (variance inflation of the travel beyond the passes'
+    intercepts above :data:`~thsa_control.trace.separability.VIF_LIMIT`: an elastic load, whose force follows
+    the position, makes a load path's compliance a gain).  The test: ``H0: |g - 1| <= tolerance`` (one-sided
+    against the nearer bound), significant at ``alpha``.  None when no pass qualifies.
+    """
+    from scipy.stats import norm
+
+    from .separability import VIF_LIMIT
+
+    t = np.asarray(time, float)
+    x = np.asarray(position, float)
+    w = np.nan_to_num(np.asarray(speed, float))
+    f = np.asarray(load, float)
+    if t.size < 50:
+        return None
+    from ..data.rigformat import speed_integral
+
+    travel = ratio * speed_integral(t, w)
+    ws = w if steady_speed is None else np.nan_to_num(np.asarray(steady_speed, float))
+    dv = 0.05 * max(float(np.max(np.abs(ws))), 1e-9)
+    sgn = np.where(ws > dv, 1, np.where(ws < -dv, -1, 0))
+    # a sustained speed change only: a torque ripple's own speed ripple (cogging at a slow speed) deflects nothing
+    steady = (~base_transients(t, ws, np.zeros_like(ws), transient_time, sustained=True) & (sgn != 0) & np.isfinite(x)
+              & np.isfinite(f))
+    idx = np.flatnonzero(steady)
+    if idx.size < 50:
+        return None
+    dt = float(np.median(np.diff(t)))
+    brk = np.flatnonzero((np.diff(idx) > 1) | (np.diff(sgn[idx]) != 0)) + 1
+    passes = [q for q in np.split(idx, brk) if q.size * dt >= transient_time and q.size >= 20]
+    if not passes:
+        return None
+    rows = np.concatenate(passes)
+    n, m = rows.size, len(passes)
+    P = np.zeros((n, m))
+    r0 = 0
+    for j, q in enumerate(passes):
+        P[r0:r0 + q.size, j] = 1.0
+        r0 += q.size
+    fl = f[rows]
+    cols = []
+    if np.ptp(fl) > LOAD_KNOT_GAP:
+        knots: list[float] = []
+        for q in np.quantile(fl, np.linspace(0.05, 0.95, 19)):
+            if not knots or q - knots[-1] >= LOAD_KNOT_GAP:
+                knots.append(float(q))
+        cols = [fl - fl.mean()] + [np.maximum(fl - q, 0.0) for q in knots[1:]]
+    nuis = np.column_stack([P, *cols]) if cols else P
+    th, y = travel[rows], x[rows]
+    X = np.column_stack([th, nuis])
+    coef, *_ = np.linalg.lstsq(X, y, rcond=None)
+    res = y - X @ coef
+    rank = int(np.linalg.matrix_rank(X))
+    th_p = th - P @ np.linalg.lstsq(P, th, rcond=None)[0]  # the travel within passes
+    th_r = th - nuis @ np.linalg.lstsq(nuis, th, rcond=None)[0]  # ... and beyond the load curve
+    sxx = float(th_r @ th_r)
+    vif = float(th_p @ th_p) / max(sxx, 1e-300)
+    g = float(coef[0])
+    # the residual's integrated autocorrelation time, per pass (the passes are separated by transients)
+    tau = max(n / sum(_effective_n_iact(res[r0:r0 + q.size]) for r0, q in zip(np.cumsum([0] + [q.size for q in passes]),
+                                                                               passes)), 1.0)
+    se = math.sqrt(float(res @ res) / max(n - rank, 1) * tau / sxx) if sxx > 0 else math.inf
+    # per-pass gains (the pass's own travel, no load curve) and their scatter
+    gj, sej = [], []
+    for q in passes:
+        tt = travel[q] - travel[q].mean()
+        den = float(tt @ tt)
+        if den <= 0:
+            continue
+        b = float(tt @ (x[q] - x[q].mean())) / den
+        rr = x[q] - x[q].mean() - b * tt
+        tj = max(q.size / _effective_n_iact(rr), 1.0)
+        gj.append(b)
+        sej.append(math.sqrt(float(rr @ rr) / max(q.size - 2, 1) * tj / den))
+    birge = 1.0
+    if len(gj) > 1 and all(v > 0 for v in sej):
+        wj = 1.0 / np.asarray(sej) ** 2
+        gm = float(np.sum(wj * np.asarray(gj)) / np.sum(wj))
+        birge = math.sqrt(float(np.sum(wj * (np.asarray(gj) - gm) ** 2)) / (len(gj) - 1))
+    se *= max(birge, 1.0)
+    determined = vif <= VIF_LIMIT and math.isfinite(se)
+    z = (abs(g - 1.0) - tolerance) / se if se > 0 else math.inf
+    p = float(norm.sf(z)) if determined else 1.0
+    out = {"gain": g, "gain_stderr": se, "p_value": p, "significant": bool(determined and p < alpha),
+           "tolerance": tolerance, "method": "travel over steady passes", "passes": m, "samples": int(n),
+           "iact": tau, "birge_ratio": birge, "pass_gains": [float(v) for v in gj],
+           "pass_gain_stderr": [float(v) for v in sej], "load_curve_knots": len(cols), "travel_vif": vif,
+           "residual_rms": float(np.sqrt(np.mean(res ** 2))), "determined": bool(determined)}
+    if not determined:
+        out["why_not_determined"] = (f"the load reproduces the travel (variance inflation {vif:.3g} > {VIF_LIMIT:g}): "
+                                     "a load that changes with the travel (an elastic load, or a sweep in step "
+                                     "with the passes) makes a compliance of the load path read as a gain")
+    return out
+
+
+def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, alpha: float = 1e-6,
+                       transient_time: float = 0.3) -> list[dict]:
+    """Gain and lag between redundant sensors: motor speed vs ratio x screw speed, LVDT vs the lead-scaled motor
+    angle, and LVDT vs the lead-scaled screw angle where the screw speed is measured.
+
+    ``signals``: ``motor_speed``, ``screw_speed``, ``nut_position`` (those measured) and ``load_force`` (the LVDT's
+    tests condition on it, :func:`travel_gain_test`).  The speeds' gain is the regression of one on the other; the
+    LVDT's gain is its travel over the steady passes against the integrated speed (the rate of a differentiated
+    position has few effective samples); every pair's lag is the peak of the cross-correlation of the sample
+    differences (rates for the LVDT).  With all three pairs, a sensor in both pairs that disagree while the pair
+    without it agrees is named (``odd_sensor``): one sensor's gain or lag reads in the two pairs that hold it.
+    """
+    from scipy.signal import savgol_filter
     from scipy.stats import norm
 
     t = np.asarray(time, float)
     dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
     out = []
     w = signals.get("motor_speed")
-    pairs = []
-    if w is not None and signals.get("screw_speed") is not None:
-        pairs.append(("motor_speed vs gear_ratio x screw_speed", np.asarray(w, float),
-                      gear_ratio * np.asarray(signals["screw_speed"], float)))
-    if w is not None and signals.get("nut_position") is not None:
-        from scipy.signal import savgol_filter
-
-        x = np.asarray(signals["nut_position"], float)
+    ws = signals.get("screw_speed")
+    load = signals.get("load_force")
+    load = np.zeros(t.size) if load is None else np.asarray(load, float)
+    if w is not None and ws is not None:
+        d = _gain_lag(np.asarray(w, float), gear_ratio * np.asarray(ws, float), dt)
+        if d:
+            p = float(2 * norm.sf(abs(d["z"]))) if math.isfinite(d["z"]) else 0.0
+            # a gain within the tolerance is a calibration detail, not a structure
+            sig_gain = bool(p < alpha and abs(d["gain"] - 1) > GAIN_TOLERANCE)
+            out.append({"variable": "motor_speed vs gear_ratio x screw_speed", "kind": "redundant_sensors",
+                        "sensors": ["motor_speed", "screw_speed"], "gain": d["gain"], "gain_stderr": d["gain_stderr"],
+                        "lag_s": d["lag_s"], "p_value": p, "significant": sig_gain or abs(d["lag_s"]) > 2.5 * dt,
+                        "gain_significant": sig_gain,
+                        "size": abs(d["gain"] - 1.0), "unit": "-"})
+    x = signals.get("nut_position")
+    if x is not None:
+        x = np.asarray(x, float)
         if x.size < 31 or not np.all(np.isfinite(x)):
             x = np.interp(t, t[np.isfinite(x)], x[np.isfinite(x)]) if np.isfinite(x).sum() > 2 else None
-        rate = savgol_filter(x, 31, 2, deriv=1, delta=dt) if x is not None and x.size >= 31 else None
-        if rate is not None:
-            r = kinematic_ratio({"screw.lead": lead, "gear.ratio": gear_ratio})  # the run's own kinematics
-            pairs.append(("lvdt rate vs lead/(2 pi N) x motor_speed", rate, r
-                          * savgol_filter(np.nan_to_num(np.asarray(w, float)), 31, 2, delta=dt)))
-    for name, a, b in pairs:
-        d = _gain_lag(a, b, dt)
-        if not d:
-            continue
-        p = float(2 * norm.sf(abs(d["z"]))) if math.isfinite(d["z"]) else 0.0
-        # a gain off by less than 0.5 % is a calibration detail, not a structure
-        significant = bool(p < alpha and abs(d["gain"] - 1) > 0.005) or abs(d["lag_s"]) > 2.5 * dt
-        out.append({"variable": name, "kind": "redundant_sensors", "gain": d["gain"], "gain_stderr": d["gain_stderr"],
-                    "lag_s": d["lag_s"], "p_value": p, "significant": significant,
-                    "size": abs(d["gain"] - 1.0), "unit": "-"})
+    rate = savgol_filter(x, 31, 2, deriv=1, delta=dt) if x is not None and x.size >= 31 else None
+    if rate is not None:
+        pairs = []
+        if w is not None:
+            pairs.append(("lvdt rate vs lead/(2 pi N) x motor_speed", "motor_speed", np.nan_to_num(np.asarray(w, float)),
+                          kinematic_ratio({"screw.lead": lead, "gear.ratio": gear_ratio})))
+        if ws is not None:
+            pairs.append(("lvdt rate vs lead/(2 pi) x screw_speed", "screw_speed", np.nan_to_num(np.asarray(ws, float)),
+                          lead / (2 * math.pi)))
+        for name, other, v, r in pairs:
+            d = _gain_lag(rate, r * savgol_filter(v, 31, 2, delta=dt), dt)  # the lag (and the rate's gain, a fallback)
+            if not d:
+                continue
+            tg = travel_gain_test(t, x, v, load, ratio=r, transient_time=transient_time, alpha=alpha,
+                                  steady_speed=None if w is None else np.asarray(w, float))
+            if tg is not None:
+                gain, se, p, sig_gain = tg["gain"], tg["gain_stderr"], tg["p_value"], tg["significant"]
+            else:  # no steady pass: the rates' regression
+                gain, se = d["gain"], d["gain_stderr"]
+                p = float(2 * norm.sf(abs(d["z"]))) if math.isfinite(d["z"]) else 0.0
+                sig_gain = bool(p < alpha and abs(gain - 1) > GAIN_TOLERANCE)
+            out.append({"variable": name, "kind": "redundant_sensors", "sensors": ["nut_position", other],
+                        "gain": gain, "gain_stderr": se, "lag_s": d["lag_s"], "p_value": p,
+                        "significant": bool(sig_gain or abs(d["lag_s"]) > 2.5 * dt), "gain_significant": sig_gain,
+                        "size": abs(gain - 1.0), "unit": "-", **({"travel_test": tg} if tg is not None else {})})
+    # the odd sensor out: in every pair that disagrees (gain or lag), absent from the pair that agrees
+    if len(out) == 3:
+        bad = [d for d in out if d["significant"]]
+        if len(bad) == 2:
+            common = set(bad[0]["sensors"]) & set(bad[1]["sensors"])
+            good = next(d for d in out if d not in bad)
+            if len(common) == 1 and not common & set(good["sensors"]):
+                for d in bad:
+                    d["odd_sensor"] = next(iter(common))
     return out
 
 
@@ -818,3 +988,98 @@ def _compliance(t, f, x, samples, min_z: float = 20.0) -> tuple[float, float] | 
     if c >= 0 or abs(c) < min_z * se:
         return None
     return c, se
+
+
+def time_or_position_test(mid_time, torque, direction, position, group=None, *, degree: int = 3,
+                          max_gap: float = 0.2, min_segments: int = 4, alpha: float = 1e-4) -> dict | None:
+    """A drift in time told from a dependence on the nut position, on records whose passes revisit positions.
+
+    Within one pass time and position are the same variable: a drag ``T(x)`` that opposes the motion gives per-pass
+    slopes of one sign in both directions (``d(-T(x))/dt = -T'(x) v``, and on the way back both factors change
+    sign), which :func:`drift_test` reads as a drift.  Passes of one direction over the same positions at different
+    times separate them: a position dependence repeats at the same position, a drift grows from pass to pass.
+    Per-segment torques (as :func:`drift_test`), two nested linear models with one level per run and direction:
+    a position curve per direction (Legendre polynomial of degree ``degree`` over the record's span: a drag smooth
+    over one stroke, a bump or part of a ripple period; the stroke is what one pass covers) and a time trend per
+    direction (a drift's rate; linear over a record of seconds: a thermal time constant of tens of seconds, a
+    load-cell zero drift).  F tests, each at ``alpha``, sample count corrected by the full model's IACT: *time
+    beyond position* and *position beyond time*.  Within a pass the time trend's part is linear in position, so
+    what the time columns carry beyond the curve is the passes' order: a position dependence the curve misses is
+    the same in every pass and does not load on it.
+
+    ``verdict``: ``"time"`` (a drift: time beyond position significant, with or without position), ``"position"``
+    (position beyond time significant, time beyond it not: report a position dependence, never a drift), ``"not
+    told apart"`` (neither beyond the other) or ``"not separable"`` (the time trend's variance inflation against the
+    position curves above :data:`~thsa_control.trace.separability.VIF_LIMIT`: each position crossed once per
+    direction, a trim or a there-and-back record).  None with fewer than two passes in some direction.
+    """
+    from .separability import VIF_LIMIT
+
+    tm = np.asarray(mid_time, float)
+    y = np.asarray(torque, float)
+    d = np.asarray(direction, float)
+    x = np.asarray(position, float)
+    g = np.zeros(tm.size) if group is None else np.asarray(group, float)
+    ok = np.isfinite(tm) & np.isfinite(y) & (d != 0) & np.isfinite(x)
+    tm, y, d, x, g = tm[ok], y[ok], d[ok], x[ok], g[ok]
+    if y.size < 2 * min_segments:
+        return None
+    brk = np.flatnonzero((np.diff(tm) > max_gap) | (np.diff(d) != 0)) + 1
+    passes = [q for q in np.split(np.arange(y.size), brk) if q.size >= min_segments]
+    if not passes:
+        return None
+    per_dir = {s_: sum(1 for q in passes if d[q[0]] == s_) for s_ in (1.0, -1.0)}
+    if max(per_dir.values()) < 2:
+        return None
+    idx = np.concatenate(passes)
+    tm, y, d, x, g = tm[idx], y[idx], d[idx], x[idx], g[idx]
+    n = y.size
+    levels = [((g == a) & (d == b)).astype(float) for a in np.unique(g) for b in (1.0, -1.0) if np.any((g == a) & (d == b))]
+    L = np.column_stack(levels)
+    xs = 2 * (x - x.min()) / max(float(np.ptp(x)), 1e-12) - 1
+    leg = np.polynomial.legendre.legvander(xs, degree)[:, 1:]
+    ts = (tm - tm.mean()) / max(float(np.ptp(tm)), 1e-12)
+    Xp = np.column_stack([leg * (d == b)[:, None] for b in (1.0, -1.0) if np.any(d == b)])
+    Xt = np.column_stack([ts * (d == b) for b in (1.0, -1.0) if np.any(d == b)])
+    # separable: each time column's variance inflation against the levels and the position curves
+    base = np.column_stack([L, Xp])
+    vif = 0.0
+    for j in range(Xt.shape[1]):
+        c = Xt[:, j]
+        cc = c - base @ np.linalg.lstsq(base, c, rcond=None)[0]
+        cl = c - L @ np.linalg.lstsq(L, c, rcond=None)[0]
+        vif = max(vif, float(cl @ cl) / max(float(cc @ cc), 1e-300))
+    full = np.column_stack([L, Xp, Xt])
+    c1, *_ = np.linalg.lstsq(full, y, rcond=None)
+    r1 = y - full @ c1
+    tau = max(n / _effective_n_iact(r1), 1.0)
+
+    def nested(x0, x1):
+        F, _p, df_n, df_d, _c = _nested_f(y, x0, x1)
+        df_e = (df_n + df_d) / tau - df_n
+        if df_n < 1 or df_e < 1:
+            return 0.0, 1.0, df_n
+        from scipy.stats import f as f_dist
+
+        F /= tau
+        return float(F), float(f_dist.sf(F, df_n, df_e)), df_n
+
+    F_t, p_t, k_t = nested(np.column_stack([L, Xp]), Xt)
+    F_x, p_x, k_x = nested(np.column_stack([L, Xt]), Xp)
+    if vif > VIF_LIMIT:
+        verdict = "not separable"
+    elif p_t < alpha:
+        verdict = "time"
+    elif p_x < alpha:
+        verdict = "position"
+    else:
+        verdict = "not told apart"
+    rss_t = float(np.sum((y - np.column_stack([L, Xt]) @ np.linalg.lstsq(np.column_stack([L, Xt]), y, rcond=None)[0]) ** 2))
+    return {"variable": "nut_position (revisited, not a drift in time)", "kind": "time_or_position", "unit": "N m",
+            "verdict": verdict, "time_beyond_position": {"F": F_t, "p_value": p_t, "dof": k_t},
+            "position_beyond_time": {"F": F_x, "p_value": p_x, "dof": k_x}, "time_vif": vif,
+            "passes_per_direction": {"extending": per_dir[1.0], "retracting": per_dir[-1.0]},
+            "segments": int(n), "iact": tau, "degree": degree, "p_value": p_x, "r2": None,
+            "size": float(math.sqrt(max(rss_t - float(r1 @ r1), 0.0) / n)),
+            "significant": bool(verdict == "position"),
+            "position_span": [float(x.min()), float(x.max())]}

@@ -45,6 +45,9 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     "rig_axial_offset": ("trim_ramp_compressive", "rig", "axial_offset", 19, None, "library"),
     "rig_screw_ripple": ("trim_ramp_compressive", "rig", "screw_ripple", 20, None, "library"),
     "rig_cogging": ("check_slow", "rig", "cogging", 21, None, "library"),
+    # the cogging on a closed position loop (15 mm/s, creep at 0.3 mm/s near the targets): at 500 Hz its 18th harmonic
+    # is resolved only in the approach and the creep (a fifth of the record), aliased in the fast travel
+    "rig_cogging_steps": ("position_steps", "rig", "cogging", 251, None, "library"),
     # --- nothing planted: the bases alone, several scenarios and noise seeds
     "null_rig_trim_s1": ("trim_ramp_compressive", "rig", "", 1, None, "null"),
     "null_rig_reversals_s2": ("reversals_under_load", "rig", "", 2, 5.0, "null"),
@@ -57,6 +60,8 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     # angle): the transient each reversal leaves once read as a motor-angle harmonic (`unexplained`; the 5 s cut of
     # seed 2 above has too few passes to show it; docs/trace_notes.md "The motor-angle flag on reversal nulls")
     "null_rig_reversals_s303": ("reversals_under_load", "rig", "", 303, None, "null"),
+    # the position loop's null: its creep resolves cogging counts up to about 60 per revolution (the cogging is scored)
+    "null_rig_steps_s252": ("position_steps", "rig", "", 252, None, "null"),
     "null_papers_trim_s1": ("trim_ramp_compressive", "papers", "", 1, None, "null"),
     "null_papers_reversals_s2": ("reversals_under_load", "papers", "", 2, 5.0, "null"),
     "null_papers_bipolar_s3": ("bipolar_ramp_tensile", "papers", "", 3, 9.0, "null"),
@@ -68,6 +73,9 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     "rig_current_offset": ("trim_ramp_compressive", "rig", "current_offset", 35, None, "foreign"),
     "rig_kt_temperature": ("trim_ramp_compressive", "rig", "kt_temperature", 36, None, "foreign"),
     "rig_worn_spot_stiction": ("reversals_under_load", "rig", "worn_spot_stiction", 37, 5.0, "foreign"),
+    # rig-sim's default sensor gain, on the LVDT (the committed rig_sensor_gain plants it on the screw speed): the
+    # LVDT's redundancy test once read it as a gain of 1.019 +- 0.79 from the differentiated position
+    "rig_sensor_gain_lvdt": ("reversals_under_load", "rig", "sensor_gain=channel:nut_position", 451, 5.0, "foreign"),
     # --- a pair of library effects
     "rig_pair_coulomb_ripple": ("trim_ramp_compressive", "rig", "coulomb,screw_ripple", 41, None, "pair"),
     # a second load-path backlash record (an elastic surface): a ratchet backlash whose pitch was screened on the

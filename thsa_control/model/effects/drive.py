@@ -42,7 +42,11 @@ identification and the tracer consume them like the papers' effects.  Every para
     with ``n = drive.cogging_periods`` periods per motor revolution (the least
     common multiple of slots and poles for a real motor).  It acts on the
     rotors (motor side of the gearbox); the angle is the rigid one (with
-    ``drivetrain_compliance`` the twist is neglected in the angle).
+    ``drivetrain_compliance`` the twist is neglected in the angle).  The
+    discrete form averages it over each step along the angle the step sweeps
+    (:func:`~thsa_control.model.structure.step_mean_of_harmonic`): the step's
+    torque impulse, where one value per step would sample a harmonic far
+    faster than the step at arbitrary phases.
 
 The friction terms act on the gear-output body (the screw side), so the
 structure's gearbox efficiency applies to them like to the load: the motor
@@ -57,7 +61,7 @@ import casadi as ca
 
 from ..effect import EFFECTS, CandidateSpec, Effect, Phase, register
 from ..laws import drive_coulomb_terms, motor_angle, screw_angle
-from ..structure import Assembly, FrictionChannel
+from ..structure import Assembly, FrictionChannel, step_mean_of_harmonic
 
 __all__ = ["DRIVE_EFFECTS"]
 
@@ -93,9 +97,11 @@ def _cogging_torque(a: Assembly) -> None:
     p = a.p
     n = p["drive.cogging_periods"]
     th = n * motor_angle(p, a.x["nut_position"])
+    # in the discrete form averaged over the step (the angle its speed sweeps: at speed the harmonic is far above the
+    # step rate, and the rig's torque averages out over a step where one value per step would kick the speed)
+    c, s = step_mean_of_harmonic(th, n * a.x["motor_speed"], a.step)
     # a torque on the rotors (the motor side of the gearbox), like the motor's own
-    a.rotor_torques.append(("cogging", p["drive.cogging_torque_cos"] * ca.cos(th)
-                            + p["drive.cogging_torque_sin"] * ca.sin(th)))
+    a.rotor_torques.append(("cogging", p["drive.cogging_torque_cos"] * c + p["drive.cogging_torque_sin"] * s))
 
 
 register(Effect("coulomb_friction", "plain Coulomb and static friction of the drive, at the motor shaft", (),
@@ -136,7 +142,7 @@ register(Effect("cogging_torque", "motor cogging torque, periodic in the mechani
                 # the cogging acts where the record resolves its period (4 samples or more): an aliased one fits
                 # noise (a 0.07 N m cogging was invented on a 15 mm/s trim run logged at 500 Hz).  The period
                 # count is the motor's (slots and poles), not the parameter file's placeholder: it is profiled
-                # over the whole counts the record resolves (trace.candidates.PROFILE_LIMITS)
+                # over the multiples of the pole count whose harmonic the record resolves (trace.candidates.PROFILE_GRIDS)
                 candidate=CandidateSpec("cogging_torque", ("drive.cogging_torque_cos", "drive.cogging_torque_sin"),
                                         {"drive.cogging_torque_cos": 0.005, "drive.cogging_torque_sin": 0.005},
                                         "resolved_cogging",

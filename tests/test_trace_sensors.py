@@ -1,0 +1,261 @@
+"""The redundant sensors' test (the LVDT against the integrated motor and screw angles) and time told from position
+in the per-pass drift test (issue #21: an LVDT gain error not flagged; a position-dependent drag read as a drift).
+
+Analytic cases on synthetic records, and the sensors' test on the committed rig-sim runs (it reads the signals
+only: fast).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from thsa_control.data.rigdata import read_run
+from thsa_control.trace.signature import (
+    GAIN_TOLERANCE,
+    drift_test,
+    sensor_consistency,
+    time_or_position_test,
+    travel_gain_test,
+)
+
+DATA = Path(__file__).resolve().parent / "data" / "rigsim"
+LEAD, RATIO = 0.012, 65.61
+R = LEAD / (2 * math.pi * RATIO)  # nut travel per motor radian
+
+
+def _reversals(seed, gain=1.0, lag=0.0, load=None, dt=2e-3, T=10.0, compliance=1 / 1.2e8):
+    """A reversal record: +-6 mm/s every 1.2 s (motor speed [rad/s]), the LVDT reading the nut (2 um noise, 0.5 um
+    steps) with the load path's deflection at the load (25 kN unless given), times ``gain``, lagged by ``lag`` [s]."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, T, dt)
+    v = np.where(np.floor(t / 1.2) % 2 == 0, 6e-3, -6e-3)
+    v = np.convolve(v, np.ones(50) / 50, mode="same")  # 0.1 s reversals
+    w = v / R
+    f = np.full(t.size, 25e3) if load is None else load(t, np.cumsum(v) * dt)
+    x = np.cumsum(v) * dt - compliance * f
+    if lag > 0:
+        a = dt / lag
+        y = np.empty_like(x)
+        y[0] = x[0]
+        for i in range(1, x.size):
+            y[i] = y[i - 1] + a * (x[i] - y[i - 1])
+        x = y
+    x = gain * x + 2e-6 * rng.standard_normal(t.size)
+    x = np.round(x / 0.5e-6) * 0.5e-6
+    w_meas = w + 0.3 * rng.standard_normal(t.size)  # the resolver's speed noise [rad/s]
+    return t, x, w_meas, f + 25.0 * rng.standard_normal(t.size)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_lvdt_gain_is_resolved_from_its_travel(seed):
+    """A 2 % LVDT gain on reversals: the travel test reads it to 1e-4 and flags it; the same record with a right
+    LVDT is within the tolerance and not flagged.  The differentiated position could not (standard error ~0.8)."""
+    t, x, w, f = _reversals(seed, gain=1.02)
+    d = travel_gain_test(t, x, w, f, ratio=R)
+    assert d["gain"] == pytest.approx(1.02, abs=2e-4) and d["gain_stderr"] < 2e-4
+    assert d["significant"] and d["p_value"] < 1e-12 and d["passes"] >= 6
+    t, x, w, f = _reversals(seed)
+    d = travel_gain_test(t, x, w, f, ratio=R)
+    assert d["gain"] == pytest.approx(1.0, abs=2e-4)
+    assert not d["significant"] and d["p_value"] > 0.5
+
+
+def test_a_gain_within_the_tolerance_is_not_flagged_however_well_resolved():
+    t, x, w, f = _reversals(4, gain=1.0 + 0.5 * GAIN_TOLERANCE)
+    d = travel_gain_test(t, x, w, f, ratio=R)
+    assert abs(d["gain"] - 1) < GAIN_TOLERANCE and d["gain_stderr"] < 1e-4 and not d["significant"]
+
+
+def _sweep(seed, gain=1.0, dt=2e-3, T=12.0, soft=False):
+    """rig-sim's triangular load sweep: -10 mm/s from 0.5 s to 11.5 s while the load follows a +-29 kN triangle of
+    10 s; the load path 1.2e8 N/m, with ``soft`` a clearance of +-0.67 mm held by 2.96e6 N/m around zero load."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, T, dt)
+    v = np.where((t > 0.5) & (t < 11.5), -10e-3, 0.0)
+    v = np.convolve(v, np.ones(50) / 50, mode="same")
+    f = 29e3 * (1 - 4 * np.abs((t / 10.0 + 0.25) % 1.0 - 0.5))
+    defl = f / 1.2e8
+    if soft:
+        k0, x0 = 2.96e6, 0.67e-3
+        defl = np.where(np.abs(f) < k0 * x0, f / k0, np.sign(f) * x0 + (f - np.sign(f) * k0 * x0) / 1.2e8)
+    x = gain * (np.cumsum(v) * dt - defl) + 2e-6 * rng.standard_normal(t.size)
+    return t, np.round(x / 0.5e-6) * 0.5e-6, v / R + 0.3 * rng.standard_normal(t.size), f + 25 * rng.standard_normal(t.size)
+
+
+@pytest.mark.parametrize("soft", [False, True])
+def test_the_load_path_deflection_under_a_changing_load_is_not_a_gain(soft):
+    """rig-sim's load sweep: the load path's deflection (0.5 mm over the sweep, 1.3 mm more through a clearance's
+    soft zone) is conditioned on by the load curve, the LVDT's gain stays 1; a 2 % LVDT gain is still flagged."""
+    t, x, w, f = _sweep(5, soft=soft)
+    d = travel_gain_test(t, x, w, f, ratio=R)
+    assert d["determined"] and d["load_curve_knots"] > 3
+    assert d["gain"] == pytest.approx(1.0, abs=5e-4) and not d["significant"], d
+    # without the load curve the pass's own gain is off by the deflection's share
+    assert max(abs(g - 1) for g in d["pass_gains"]) > 2e-3
+    t, x, w, f = _sweep(5, soft=soft, gain=1.02)
+    d = travel_gain_test(t, x, w, f, ratio=R)
+    assert d["significant"] and d["gain"] == pytest.approx(1.02, abs=1e-3)
+
+
+def test_a_sweep_in_step_with_the_reversals_leaves_the_gain_not_determined():
+    """Reversals while the load sweeps monotonically over several passes: within the sweep's half period every
+    function of time is a function of the load, so the load curve reproduces the travel: not determined, never
+    flagged (the passes' own gains are 1 -+ 1.6 % from the deflection)."""
+    sweep = lambda t, x: 29e3 * (2 * np.abs((t / 10.0) % 1.0 - 0.5) * 2 - 1)
+    t, x, w, f = _reversals(5, load=sweep)
+    d = travel_gain_test(t, x, w, f, ratio=R)
+    assert not d["determined"] and not d["significant"] and d["travel_vif"] > 10
+
+
+def test_an_elastic_load_leaves_the_gain_not_determined():
+    """The load follows the position (a spring on the surface): a compliance of the load path is then a gain;
+    the test says not determined instead of flagging the LVDT."""
+    spring = lambda t, x: 5e3 + 2.5e6 * x
+    t, x, w, f = _reversals(6, load=spring, compliance=1 / 3e6)  # a soft path: 0.83 of the travel
+    d = travel_gain_test(t, x, w, f, ratio=R)
+    assert not d["determined"] and not d["significant"] and d["travel_vif"] > 10
+    assert "elastic load" in d["why_not_determined"]
+
+
+def test_a_lagging_lvdt_is_still_named_and_its_gain_is_right():
+    t, x, w, f = _reversals(7, lag=0.02)
+    ws = w / RATIO
+    out = {d["variable"]: d for d in sensor_consistency(t, {"motor_speed": w, "screw_speed": ws, "nut_position": x,
+                                                            "load_force": f}, gear_ratio=RATIO, lead=LEAD)}
+    lv = out["lvdt rate vs lead/(2 pi N) x motor_speed"]
+    assert lv["significant"] and lv["lag_s"] == pytest.approx(0.02, abs=0.005)
+    assert not lv["gain_significant"] and lv["gain"] == pytest.approx(1.0, abs=5e-4)
+    assert lv["odd_sensor"] == "nut_position"
+    assert not out["motor_speed vs gear_ratio x screw_speed"]["significant"]
+
+
+def _sensors(name):
+    run = read_run(DATA / f"{name}.csv")
+    sig = {c: run.signals[c] for c in ("motor_speed", "screw_speed", "nut_position") if c in run.source_columns}
+    return {d["variable"]: d for d in sensor_consistency(run.time, {**sig, "load_force": run.signals["load_force"]},
+                                                         gear_ratio=run.gear_ratio, lead=run.screw_lead)}
+
+
+def _truth_gain(name):
+    eff = json.loads((DATA / f"{name}.truth.json").read_text())["effects"]["sensor_gain"]["params"]
+    return eff["channel"]["value"], eff["gain"]["value"]
+
+
+@pytest.mark.parametrize("name, odd", [("rig_sensor_gain_lvdt", "nut_position"), ("rig_sensor_gain", "screw_speed")])
+def test_rigsim_sensor_gain_names_its_sensor(name, odd):
+    """rig-sim's gain on the LVDT (reversals) and on the screw speed (trim): the two pairs holding that sensor read
+    the gain (or its inverse), the third pair agrees, and the sensor is named."""
+    channel, gain = _truth_gain(name)
+    assert channel == odd
+    out = _sensors(name)
+    bad = {k: d for k, d in out.items() if d["significant"]}
+    assert len(bad) == 2 and all(d["odd_sensor"] == odd for d in bad.values()), out
+    for k, d in bad.items():
+        expect = gain if k.startswith("lvdt") and odd == "nut_position" else 1 / gain
+        assert d["gain"] == pytest.approx(expect, abs=1e-3), (k, d["gain"])
+
+
+@pytest.mark.parametrize("name", sorted(p.stem for p in DATA.glob("null_*.csv")))
+def test_rigsim_nulls_keep_their_sensors_consistent(name):
+    """Nothing planted: every pair agrees; the LVDT's gain is within 1e-3 of 1 wherever the travel test runs."""
+    for k, d in _sensors(name).items():
+        assert not d["significant"], (k, d)
+        if "travel_test" in d and d["travel_test"]["determined"]:
+            assert abs(d["gain"] - 1) < 1e-3 and d["p_value"] > 1e-3, (k, d["gain"], d["p_value"])
+
+
+def _segments(kind, seed, passes=8, per_pass=12, T_pass=1.2, stroke=7e-3, noise=0.003):
+    """Per-segment torques of a reversal record: passes alternate direction over the same stroke.  ``kind``:
+    "position" (a drag T(x) opposing the motion, 0.05 N m over the stroke), "time" (a drift of 0.01 N m/s,
+    the same sign in both directions), or "none"."""
+    rng = np.random.default_rng(seed)
+    tm, y, d, x = [], [], [], []
+    for j in range(passes):
+        sgn = 1.0 if j % 2 == 0 else -1.0
+        s = np.linspace(0.1, 0.9, per_pass)
+        xx = stroke * (s if sgn > 0 else 1 - s)
+        tt = j * T_pass + 0.3 + s * (T_pass - 0.6)
+        base = 0.02 * sgn  # a declared base's direction-dependent constant
+        if kind == "position":
+            eff = -sgn * 0.05 * np.sin(math.pi * xx / stroke * 0.8)
+        elif kind == "time":
+            eff = 0.01 * tt
+        else:
+            eff = 0.0 * tt
+        tm.append(tt)
+        y.append(base + eff + noise * rng.standard_normal(per_pass))
+        d.append(np.full(per_pass, sgn))
+        x.append(xx)
+    return (np.concatenate(a) for a in (tm, y, d, x))
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_position_drag_on_reversals_is_not_a_drift(seed):
+    """A drag along the stroke opposing the motion: the per-pass drift test sees slopes of one sign in both
+    directions (significant); passes over the same positions at other times say position, not time."""
+    tm, y, d, x = _segments("position", seed)
+    dr = drift_test(tm, y, d, alpha=1e-4)
+    assert dr["significant"] and min(dr["slopes"]) > 0 or max(dr["slopes"]) < 0
+    sep = time_or_position_test(tm, y, d, x)
+    assert sep["verdict"] == "position" and sep["significant"], sep
+    assert sep["time_beyond_position"]["p_value"] > 1e-3
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_drift_on_reversals_stays_a_drift(seed):
+    tm, y, d, x = _segments("time", seed)
+    assert drift_test(tm, y, d, alpha=1e-4)["significant"]
+    sep = time_or_position_test(tm, y, d, x)
+    assert sep["verdict"] == "time" and not sep["significant"], sep
+
+
+def test_a_there_and_back_record_cannot_tell_time_from_position():
+    """One pass each way (a trim): each position is crossed once per direction, time and position are one
+    variable: not separable (the drift test's verdict stands)."""
+    tm, y, d, x = _segments("position", 4, passes=2)
+    sep = time_or_position_test(tm, y, d, x)
+    assert sep is None or sep["verdict"] == "not separable"
+
+
+def test_time_or_position_level_on_noise():
+    """Nothing but noise and a direction constant: both tests at their nominal level (200 seeds; 10 expected below
+    0.05, binomial 99.9 % bound 21)."""
+    res = [time_or_position_test(*_segments("none", s)) for s in range(200)]
+    for key in ("position_beyond_time", "time_beyond_position"):
+        ps = np.asarray([r[key]["p_value"] for r in res])
+        assert np.sum(ps < 0.05) <= 21 and np.sum(ps < 0.01) <= 7, (key, np.sum(ps < 0.05))
+
+
+def _drift_entry(tm, y, d):
+    dr = drift_test(tm, y, d, alpha=1e-4)
+    return dr, [dr]
+
+
+@pytest.mark.parametrize("kind", ["position", "time_weak"])
+def test_the_signature_reports_what_the_revisits_say(kind):
+    """In the signature (residual._time_or_position): a significant per-pass drift that the revisits call a
+    position dependence is replaced by the position test; a drift too weak for the per-pass slopes (a pass of a
+    reversal record is short) that the revisits call time is flagged as a drift."""
+    from thsa_control.trace.residual import _time_or_position
+    from thsa_control.trace.signature import SignatureSettings
+
+    if kind == "position":
+        tm, y, d, x = _segments("position", 5)
+    else:  # 0.002 N m/s: the per-pass slopes over 0.6 s do not see it, the levels over 10 s do
+        tm, y, d, x = _segments("none", 5)
+        y = y + 0.002 * tm
+    dr, tests = _drift_entry(tm, y, d)
+    drift_in = list(zip(tm, y, d))
+    drift_at = [(float(v), 1.0) for v in x]
+    was = dr["significant"]
+    _time_or_position(dr, drift_in, drift_at, tests, SignatureSettings())
+    if kind == "position":
+        assert was and not dr["significant"] and dr["superseded_by"] == tests[0]["variable"]
+        assert tests[0]["significant"] and "nut_position" in tests[0]["variable"]
+    else:
+        assert not was and dr["significant"] and dr["flagged_by"] and tests[0] is dr
