@@ -162,11 +162,16 @@ def test_rigsim_sensor_gain_names_its_sensor(name, odd):
 
 @pytest.mark.parametrize("name", sorted(p.stem for p in DATA.glob("null_*.csv")))
 def test_rigsim_nulls_keep_their_sensors_consistent(name):
-    """Nothing planted: every pair agrees; the LVDT's gain is within 1e-3 of 1 wherever the travel test runs."""
+    """Nothing planted: every pair agrees; the LVDT's gain is inside the calibration tolerance the test's null
+    hypothesis allows (``GAIN_TOLERANCE``, 0.5 %) wherever the travel test runs, and the test does not reject it.
+    (The rig base's own LVDT-vs-screw-angle gain is not exactly 1: 0.9984 +- 0.0003 on the position-loop null
+    null_rig_steps_s252, 0.9987-1.0001 on the others; a bound of 1e-3 fitted to those failed on that one.)"""
+    from thsa_control.trace.signature import GAIN_TOLERANCE
+
     for k, d in _sensors(name).items():
         assert not d["significant"], (k, d)
         if "travel_test" in d and d["travel_test"]["determined"]:
-            assert abs(d["gain"] - 1) < 1e-3 and d["p_value"] > 1e-3, (k, d["gain"], d["p_value"])
+            assert abs(d["gain"] - 1) < GAIN_TOLERANCE and d["p_value"] > 1e-3, (k, d["gain"], d["p_value"])
 
 
 def _segments(kind, seed, passes=8, per_pass=12, T_pass=1.2, stroke=7e-3, noise=0.003):

@@ -762,6 +762,13 @@ def segment_torques(time, e_speed, segment_starts, inertia: float, min_samples: 
     return out
 
 
+
+def _segment_passes(mid_time, direction, max_gap: float, min_segments: int) -> list:
+    """The passes of a record's segments (index arrays, in time order): a new pass where the direction of motion
+    changes or the time to the next segment exceeds ``max_gap``; passes of fewer than ``min_segments`` left out."""
+    brk = np.flatnonzero((np.diff(mid_time) > max_gap) | (np.diff(direction) != 0)) + 1
+    return [q for q in np.split(np.arange(len(mid_time)), brk) if q.size >= min_segments]
+
 def drift_test(mid_time, torque, direction, *, max_gap: float = 0.2, min_segments: int = 4,
                alpha: float = 1e-6, min_r2: float = 0.01) -> dict | None:
     """A slow drift of the missing torque in time under unchanged conditions (a load-cell zero drifting, a warming
@@ -786,8 +793,7 @@ def drift_test(mid_time, torque, direction, *, max_gap: float = 0.2, min_segment
     tm, y, d = tm[ok], y[ok], d[ok]
     if y.size < 2 * min_segments:
         return None
-    brk = np.flatnonzero((np.diff(tm) > max_gap) | (np.diff(d) != 0)) + 1
-    passes = [q for q in np.split(np.arange(y.size), brk) if q.size >= min_segments]
+    passes = _segment_passes(tm, d, max_gap, min_segments)
     if not passes:
         return None
     idx = np.concatenate(passes)
@@ -1024,8 +1030,7 @@ def time_or_position_test(mid_time, torque, direction, position, group=None, *, 
     tm, y, d, x, g = tm[ok], y[ok], d[ok], x[ok], g[ok]
     if y.size < 2 * min_segments:
         return None
-    brk = np.flatnonzero((np.diff(tm) > max_gap) | (np.diff(d) != 0)) + 1
-    passes = [q for q in np.split(np.arange(y.size), brk) if q.size >= min_segments]
+    passes = _segment_passes(tm, d, max_gap, min_segments)
     if not passes:
         return None
     per_dir = {s_: sum(1 for q in passes if d[q[0]] == s_) for s_ in (1.0, -1.0)}
