@@ -37,6 +37,7 @@ from thsa_control.data.rigformat import (
     _add_rows,
     _number,
     true_runs,
+    speed_integral,
 )
 
 def _fit_scale(measured: np.ndarray, expected: np.ndarray) -> tuple[float, float]:
@@ -349,7 +350,7 @@ def _check_units(columns, clean, label_of, meta, lead_mm, ratio, problems, warni
     if "nut_position_mm" in clean and time_ok and t.size >= _MIN_FIT_SAMPLES:
         pos = columns["nut_position_mm"]
         ok = np.isfinite(pos)
-        travel = np.concatenate(([0.0], np.cumsum(0.5 * (cmd[1:] + cmd[:-1]) * dt)))
+        travel = speed_integral(t, cmd)
         x, y = travel[ok] - travel[ok].mean(), pos[ok] - pos[ok].mean()
         k, r2 = _fit_scale(y, x)
         verdicts["nut_position_mm"] = (_verdict(k, r2, 0.3), k, np.flatnonzero(ok))

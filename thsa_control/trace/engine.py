@@ -574,7 +574,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     def backward_check(after_round: int) -> list[dict]:
         """Judge the earlier found effects given the later ones; remove the weakest that fails, then judge all
         the others again; returns the records."""
-        nonlocal current, cur_effects, cur_params, cur_free, base_bounds, at_plausible_bound, cur_sig
+        nonlocal current, cur_effects, cur_params, cur_free, base_bounds, at_plausible_bound
         records, everyone = [], False
         while True:
             subj = [found_info[e["name"]] for e in added if e["name"] in found_info and not e.get("implied_by")]
@@ -623,8 +623,6 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             if a.beyond_base:
                 base_bounds.update({n: (*b, a.name) for n, b in a.rebound.items()})
             at_plausible_bound = _explainers_at_bound(current, base_bounds)
-            cur_sig = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature,
-                                 sensor_noise)
             everyone = True
         return records
 
@@ -902,7 +900,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         if best is None:
             say("no candidate is significant: stop")
             break
-        best, yielded = _physical_first(best, scored, st.window_tolerance, current, noise, win_scored)
+        best, yielded = _physical_first(best, scored, st.window_tolerance, current, noise)
         if yielded:
             rounds[-1]["physical_first"] = {"chosen": best["name"], "over": yielded}
             say(f"{best['name']} explains as much inside its window as the constant-torque "
@@ -957,8 +955,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         found_info[best["name"]] = bw.Added(
             name=best["name"], spec=best["_spec"], round=len(rounds), job=best["_job"],
             k=len(best["_spec"].free) + len(best["_spec"].profile), drop_when_added=best["holdout_chi2_drop"],
-            drop_when_added_all=(sum(_chi2_by_channel(current, noise, "holdout").values())
-                                 - sum(_chi2_by_channel(f, noise, "holdout").values())),
+            drop_when_added_all=best["holdout_chi2_drop_all_samples"],
             replaced=tuple(e for e in cur_effects if e not in new_effects),
             implied=tuple(r for r in new_effects if r not in cur_effects and r != best["name"]),
             rebound={n: base_bounds[n][:2] for n in lifted if n in base_bounds}, beyond_base=bool(lifted),
@@ -970,18 +967,19 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         # the explainers still bounded are re-judged on the new fit: one at its bound is offered beyond it
         base_bounds = {n: b for n, b in base_bounds.items() if n not in lifted}
         at_plausible_bound = _explainers_at_bound(f, base_bounds)
-        cur_sig = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, sensor_noise)
         if st.backward:
             checked = backward_check(len(rounds))
             if checked:
                 rounds[-1]["backward"] = checked
-                if any(not r["kept"] for r in checked):
-                    cur_sig = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature,
-                                         sensor_noise)
+        # once per round, on the model the backward check left
+        cur_sig = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, sensor_noise)
         rounds[-1]["signature_after"] = _signature_brief(cur_sig)
     order = _order_by_contribution(added, found_info, leave_one_out) if st.backward else None
     sig_before = _signature(first, runs, ParameterSet.from_toml(first["params_toml"]), base_plant, st.signature, sensor_noise)
-    sig_after = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, sensor_noise)
+    # every change of ``current`` (the base step, an added effect, a removal) is followed by its signature
+    sig_after = cur_sig if cur_sig is not None else _signature(current, runs, cur_params,
+                                                               plant_of(cur_effects, cur_params), st.signature,
+                                                               sensor_noise)
     if rounds and "signature_after" not in rounds[-1]:  # a round that added nothing leaves the model as it was
         rounds[-1]["signature_after"] = _signature_brief(sig_after)
     # unexplained: structure an unmodelled-but-declared base does not leave; a residual above noise with only the
@@ -1270,8 +1268,7 @@ def _is_explainer(s: dict) -> bool:
                 and CANDIDATES[s["name"]].base_correction)
 
 
-def _physical_first(best: dict, scored: list[dict], tol: float, current: dict, noise, windows_cache: dict
-                    ) -> tuple[dict, list[str]]:
+def _physical_first(best: dict, scored: list[dict], tol: float, current: dict, noise) -> tuple[dict, list[str]]:
     """Order by what is explained: when the best held-out drop is a constant-torque explainer's (a Coulomb or
     direction drag, an axial force) and a significant physical effect explains as much of the residual inside
     its own window, on its own channel (held-out RMS drop there at least the explainer's there, less ``tol``),
@@ -1285,7 +1282,7 @@ def _physical_first(best: dict, scored: list[dict], tol: float, current: dict, n
         return best, []
     p = max(phys, key=lambda s: s["holdout_chi2_drop"])
     spec = p["_spec"]
-    win = p.get("_win", windows_cache[spec.window])
+    win = p["_win"]  # every scored candidate carries the window it was scored on
     base = _chi2_by_channel(current, noise, "holdout", win).get(spec.channel, 0.0)
     if not base > 0:
         return best, []
