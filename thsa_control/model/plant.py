@@ -257,8 +257,12 @@ def _build(chosen: tuple[str, ...], names) -> Plant:
     usym = ca.SX.sym("u", len(INPUTS))
     u = {name: usym[i] for i, (name, _, _) in enumerate(INPUTS)}
 
-    h_place = ca.SX.sym("h_step")  # Assembly.step: 0 in the continuous form, the step h in the discrete one
-    a = Assembly(states=states, x=x, u=u, p=p, effects=chosen, step=h_place)
+    h = ca.SX.sym("h")  # the discrete form's step; Assembly.step, 0 in the continuous forms (:func:`continuous`)
+    a = Assembly(states=states, x=x, u=u, p=p, effects=chosen, step=h)
+
+    def continuous(e):
+        """``e`` with the step at 0, where an effect used it (a torque averaged over a step)."""
+        return ca.substitute(e, h, ca.SX(0.0)) if ca.depends_on(e, h) else e
     apply_structure(a)
     for e in order:
         if e in chosen:
@@ -305,12 +309,11 @@ def _build(chosen: tuple[str, ...], names) -> Plant:
         else:
             xdot.append(a.rates[s.name])
     out_names, out_units, y_c = outputs(res_c)
-    y_c = ca.substitute(y_c, h_place, ca.SX(0.0))
-    f = ca.Function("f", [xsym, usym, psym], [ca.substitute(ca.vertcat(*xdot), h_place, ca.SX(0.0)), y_c],
+    y_c = continuous(y_c)
+    f = ca.Function("f", [xsym, usym, psym], [continuous(ca.vertcat(*xdot)), y_c],
                     ["x", "u", "p"], ["xdot", "y"])
 
-    # ---- discrete form
-    h = ca.SX.sym("h")
+    # ---- discrete form (in the step ``h``)
     s_pos = sum_terms(c.static_pos for c in channels)
     s_neg = sum_terms(c.static_neg for c in channels)
     k_pos = sum_terms(ca.fmin(c.kinetic_pos, c.static_pos) for c in channels)
@@ -355,9 +358,7 @@ def _build(chosen: tuple[str, ...], names) -> Plant:
         else:  # pragma: no cover - StateInfo kinds are fixed above
             raise ModelError(f"state {s.name!r} has unknown kind {s.kind!r}")
     _, _, y_d = outputs(res_d)
-    step = ca.Function("step", [xsym, usym, psym, h], [ca.substitute(ca.vertcat(*x_next), h_place, h),
-                                                       ca.substitute(y_d, h_place, h)],
-                       ["x", "u", "p", "h"], ["x_next", "y"])
+    step = ca.Function("step", [xsym, usym, psym, h], [ca.vertcat(*x_next), y_d], ["x", "u", "p", "h"], ["x_next", "y"])
 
     # ---- initial state
     x_nut0, f0 = ca.SX.sym("nut_position"), ca.SX.sym("load_force")
@@ -365,8 +366,7 @@ def _build(chosen: tuple[str, ...], names) -> Plant:
     x0["nut_position"] = x_nut0
     for name, fn in a.initial.items():
         x0[name] = fn(x0, f0)
-    init = ca.Function("init", [x_nut0, f0, psym], [ca.substitute(ca.vertcat(*(x0[s.name] for s in states)), h_place,
-                                                                   ca.SX(0.0))],
+    init = ca.Function("init", [x_nut0, f0, psym], [continuous(ca.vertcat(*(x0[s.name] for s in states)))],
                        ["nut_position", "load_force", "p"], ["x0"])
 
     # ---- what the model knows beyond f and step, from the same assembly
@@ -391,7 +391,7 @@ def _build(chosen: tuple[str, ...], names) -> Plant:
 
     qs_states = tuple(st.name for st in states if st.name in a.quasi_static)
     qs_x = [a.quasi_static[st.name] if st.name in a.quasi_static else x[st.name] for st in states]
-    quasi_static = ca.Function("quasi_static", [xsym, usym, psym], [ca.substitute(ca.vertcat(*qs_x), h_place, ca.SX(0.0))],
+    quasi_static = ca.Function("quasi_static", [xsym, usym, psym], [continuous(ca.vertcat(*qs_x))],
                                ["x", "u", "p"], ["x_qs"])
 
     return Plant(
