@@ -65,7 +65,7 @@ from ..model.params import ParameterSet, default_parameters
 from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, INERTIA_EXPLAINER, MIN_WINDOW_SAMPLES,
                          PERIODS, PLAUSIBLE,
                          PROFILE_GRIDS, RESOLVES, STARTS, WINDOWS, reference_not_determined,
-                         _window,
+                         _window, turning_band,
                          candidate_specs, not_candidates, nut_travel)
 from . import backward as bw
 from . import periodicity
@@ -507,8 +507,13 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
 
     # a periodic torque ripples the speed itself: where a candidate's window is its resolved harmonic (the cogging),
     # the base's transients are judged on the speed averaged over the transient time (its own ripple is none)
+    # and its starts and stops at the band its window calls motion (the cogging's: the motor turning beyond its sensor
+    # noise), not at 5 % of the top speed: the end of a position loop's creep (2 % of the top speed) is a stop, where
+    # the base's stiction acts (rig_cogging_steps: the same seed without the cogging left 2.85 x the noise variance in
+    # the window with the creep's stops in it, 1.31 x without them)
     steady_sustained = ({r.name: ~base_transients(r.time, measured_motor_speed(r), r.signals["load_force"],
-                                                  st.signature.transient_time, sustained=True) for r in runs}
+                                                  st.signature.transient_time, sustained=True,
+                                                  stop_band=turning_band(r)) for r in runs}
                         if steady is not None else None)
 
     def score_mask(window: str):

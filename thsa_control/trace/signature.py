@@ -71,7 +71,7 @@ def split_remainder(sig: dict) -> tuple[list[dict], list[dict]]:
 
 
 def base_transients(time, speed, load, duration: float = 0.3, sustained: bool = False,
-                    load_steps: bool = False) -> np.ndarray:
+                    load_steps: bool = False, stop_band: float | None = None) -> np.ndarray:
     """Samples within ``duration`` of a start, stop, reversal or load change, or while the speed changes fast
     (a speed step taking less than 2 s over the record's speed range): where a declared model of another rig's
     base leaves structure (its stiction, Stribeck curve and loop settling).
@@ -87,7 +87,13 @@ def base_transients(time, speed, load, duration: float = 0.3, sustained: bool = 
     changes the load by more than the threshold in every ``duration``, so with the plain test every moving sample of
     such a record is a transient and a candidate scored outside the transients is scored on nothing (measured: a
     held-out chi2 drop of exactly 0 for every constant torque on both scenarios).  Its loop and no-back settle as
-    in steady motion; only where the rate changes does a base's stiction or loop settling show."""
+    in steady motion; only where the rate changes does a base's stiction or loop settling show.
+
+    ``stop_band``: the speed [rad/s] below which the motor counts as stopped for the starts and stops (default: 5 %
+    of the record's largest speed, the ``moving`` window's band).  A window that takes motion below that band (the
+    cogging's: the motor turning beyond its sensor noise, ``candidates.motor_turning``) must call a stop where it
+    calls motion, else the end of a position loop's creep (0.3 mm/s, 2 % of the 15 mm/s top speed), where the
+    base's stiction and Stribeck drags act, is no stop and lies in the window."""
     t = np.asarray(time, float)
     w = np.nan_to_num(np.asarray(speed, float))
     f = np.nan_to_num(np.asarray(load, float))
@@ -96,7 +102,7 @@ def base_transients(time, speed, load, duration: float = 0.3, sustained: bool = 
     if n < 3:
         return out
     wmax = max(float(np.max(np.abs(w))), 1e-9)
-    dv = 0.05 * wmax
+    dv = 0.05 * wmax if stop_band is None else float(stop_band)
     state = np.where(w > dv, 1, np.where(w < -dv, -1, 0))
     ev = list(t[1:][state[1:] != state[:-1]])
     dt = float(np.median(np.diff(t)))
