@@ -89,11 +89,11 @@ def base_transients(time, speed, load, duration: float = 0.3, sustained: bool = 
     held-out chi2 drop of exactly 0 for every constant torque on both scenarios).  Its loop and no-back settle as
     in steady motion; only where the rate changes does a base's stiction or loop settling show.
 
-    ``stop_band``: the speed [rad/s] below which the motor counts as stopped for the starts and stops (default: 5 %
-    of the record's largest speed, the ``moving`` window's band).  A window that takes motion below that band (the
-    cogging's: the motor turning beyond its sensor noise, ``candidates.motor_turning``) must call a stop where it
-    calls motion, else the end of a position loop's creep (0.3 mm/s, 2 % of the 15 mm/s top speed), where the
-    base's stiction and Stribeck drags act, is no stop and lies in the window."""
+    ``stop_band``: a further speed [rad/s] whose crossings are starts and stops too, besides those of 5 % of the
+    record's largest speed (the ``moving`` window's band, where the operating point changes).  A window that takes
+    motion below 5 % (the cogging's: the motor turning beyond its sensor noise, ``candidates.motor_turning``) must
+    call a stop where it stops calling motion, else the end of a position loop's creep (0.3 mm/s, 2 % of the 15 mm/s
+    top speed), where the base's stiction and Stribeck drags act, is no stop and lies in the window."""
     t = np.asarray(time, float)
     w = np.nan_to_num(np.asarray(speed, float))
     f = np.nan_to_num(np.asarray(load, float))
@@ -102,9 +102,10 @@ def base_transients(time, speed, load, duration: float = 0.3, sustained: bool = 
     if n < 3:
         return out
     wmax = max(float(np.max(np.abs(w))), 1e-9)
-    dv = 0.05 * wmax if stop_band is None else float(stop_band)
-    state = np.where(w > dv, 1, np.where(w < -dv, -1, 0))
-    ev = list(t[1:][state[1:] != state[:-1]])
+    ev = []
+    for dv in (0.05 * wmax,) + (() if stop_band is None else (float(stop_band),)):
+        state = np.where(w > dv, 1, np.where(w < -dv, -1, 0))
+        ev += list(t[1:][state[1:] != state[:-1]])
     dt = float(np.median(np.diff(t)))
     k = max(round(duration / dt), 1)
     frange = max(float(np.ptp(f)), 1.0)
