@@ -184,8 +184,9 @@ def cogging_resolved(run: RigRun, count: float, steady: bool = True, transient_t
     spans ``COGGING_SAMPLES_PER_PERIOD`` samples or more (above it the record aliases the harmonic: at 15 mm/s the
     18th harmonic of rig-sim's motor speed is at 1.5 kHz); ``steady``: outside the base's transients, judged on the
     speed averaged over the transient time (:func:`~thsa_control.trace.signature.base_transients` with
-    ``sustained``: the cogging ripples the speed itself, and its own ripple is no transient), its starts and stops at
-    the band the window calls motion (:func:`turning_band`: the end of a position loop's creep is a stop)."""
+    ``sustained``: the cogging ripples the speed itself, and its own ripple is no transient), its starts and stops also
+    where the speed crosses the band the window calls motion (:func:`turning_band`: the end of a position loop's creep
+    is a stop)."""
     from .signature import base_transients
 
     t = np.asarray(run.time, float)

@@ -322,9 +322,10 @@ def score_masks(runs: Sequence[RigRun], transient_time: float) -> dict[str, dict
 
     A periodic torque ripples the speed itself: where a candidate's window is its resolved harmonic
     (:data:`SUSTAINED_WINDOWS`, the cogging) the base's transients are judged on the speed averaged over the
-    transient time (its own ripple is none), and its starts and stops at the band its window calls motion (the motor
-    turning beyond its sensor noise, :func:`~thsa_control.trace.candidates.turning_band`), not at 5 % of the top
-    speed: the end of a position loop's creep (2 % of the top speed) is a stop, where the base's stiction acts
+    transient time (its own ripple is none), and its starts and stops are also where the speed crosses the band its
+    window calls motion (the motor turning beyond its sensor noise, :func:`~thsa_control.trace.candidates.turning_band`),
+    not only 5 % of the top speed: the end of a position loop's creep (2 % of the top speed) is a stop, where the
+    base's stiction acts
     (rig_cogging_steps: the same seed without the cogging left 2.85 x the noise variance in the window with the
     creep's stops in it, 1.31 x without them; ``bench/window_ceiling.py``)."""
     steady = {r.name: ~base_transients(r.time, measured_motor_speed(r), r.signals["load_force"], transient_time,
