@@ -237,8 +237,6 @@ def _time_or_position(dr: dict, drift_in: list, drift_at: list, tests: list, s: 
     same-direction passes at the same positions grow), the drift is significant even when the per-pass slopes are
     not (``flagged_by``): each test at the replicate-based level, so the drift's family-wise level is at most twice
     it.  Otherwise the separation is reported with the drift test (``time_or_position``) and changes nothing."""
-    if len(drift_at) != len(drift_in):
-        return
     tm, tq, dirn = (np.asarray(v) for v in zip(*drift_in))
     pos, grp = (np.asarray(v) for v in zip(*drift_at))
     sep = time_or_position_test(tm, tq, dirn, pos, grp, alpha=s.local_alpha)
