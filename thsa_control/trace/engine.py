@@ -72,9 +72,9 @@ from . import periodicity
 from .residual import _regime_errors, _signature
 from .scoring import (_at_edge, _base_correction, _window_beyond_noise, _channel_errors, _chi2_by_channel, _explainers_at_bound, _held_out,
                       _holdout_segment_changes,
-                      _held_params, _holdout_iact, _holdout_samples, _null_runs, _param_entry, _plausibility,
+                      _held_params, _null_runs, _param_entry, _plausibility,
                       _rms_by_channel, _run_jobs,
-                      _signature_brief, zero_is_absent)
+                      _signature_brief, scaled_threshold, zero_is_absent)
 from .lift import better, contribution, interior, joint_verdict, lift_names, lifted as lifted_bounds
 from .signature import SignatureSettings, base_transients, split_remainder
 from .threads import limit_blas_threads
@@ -1306,13 +1306,8 @@ def _rivals(best: dict, scored: list[dict], alpha: float) -> list[dict]:
     one load, for example, a constant force offset, a Coulomb friction and a
     direction-dependent friction are the same constant torque.
     """
-    from scipy.stats import chi2
-
     mask = best.get("_mask")  # the samples the drops were scored on
-    hold = sum(_chi2_by_channel(best["_fit"], best["_noise"], "holdout", mask).values())
-    n = _holdout_samples(best["_fit"], mask)
-    tau = _holdout_iact(best["_fit"], best["_noise"], mask)
-    gap = float(chi2.ppf(1 - alpha, 1)) * max(1.0, hold / max(n, 1)) * tau
+    gap, _, tau = scaled_threshold(best["_fit"], best["_noise"], mask, alpha, 1)
     best["_indistinct_below"] = gap
     best["_holdout_iact"] = tau
     # a constant torque whose drop a few held-out segments carry (``not_robust``) is no measure of what it explains;
@@ -1373,8 +1368,6 @@ def _repetition(current: dict, fit: dict, spec: CandidateSpec, k: int, runs, noi
     6 % for s = 1.5 mm at 4 mm, nothing at a cogging's 0.01 mm), and leaving out one such period leaves out one
     held-out segment: it would test a segment, not a repetition (measured: a planted 18/rev cogging on a 2 s,
     0.15 mm/s rig-sim run, 6 steady held-out segments, lost: rest 9.4 against 17.7)."""
-    from scipy.stats import chi2
-
     params = ParameterSet.from_toml(fit["params_toml"])
     period = PERIODS[spec.name](params)
     if period < min_period:
@@ -1382,13 +1375,10 @@ def _repetition(current: dict, fit: dict, spec: CandidateSpec, k: int, runs, noi
                 "reason": f"period {period * 1e3:.3g} mm of nut travel, shorter than two bins of the nut-position "
                           f"test ({min_period * 1e3:.3g} mm): a drag local at the scale the tracer resolves has no "
                           "component at it; repetition not tested"}
-    hold = sum(_chi2_by_channel(fit, noise, "holdout", mask).values())
-    n = _holdout_samples(fit, mask)
-    tau = _holdout_iact(fit, noise, mask)
-    thr = float(chi2.ppf(1 - alpha, k)) * max(1.0, hold / max(n, 1)) * tau
+    thr, red, tau = scaled_threshold(fit, noise, mask, alpha, k)
     segs = periodicity.segment_drops(current, fit, noise, {r.name: nut_travel(r, params) for r in runs}, mask)
     out = periodicity.repetition_test(segs, period, thr)
-    out.update(reduced_chi2=hold / max(n, 1), iact=tau)
+    out.update(reduced_chi2=red, iact=tau)
     return out
 
 

@@ -29,7 +29,7 @@ from collections.abc import Mapping, Sequence
 
 from ..model.params import ParameterSet
 from .candidates import INERTIA_EXPLAINER
-from .scoring import _chi2_by_channel, _holdout_iact, _holdout_samples
+from .scoring import _chi2_by_channel, threshold_scale
 
 
 def lift_names(base_priors: Mapping[str, tuple[float, float]], free: Sequence[str]) -> list[str]:
@@ -89,9 +89,8 @@ def joint_verdict(current: dict, joint: dict, scored: Sequence[dict], noise: Map
     if best_nested is not None and singles[best_nested] > drop:
         drop, joint_from = singles[best_nested], best_nested
     thr = float(chi2.ppf(1 - alpha, k))
-    n = _holdout_samples(joint, mask)
-    tau = _holdout_iact(joint, noise, mask)
-    scale = max(1.0, b1 / max(n, 1)) * tau
+    red, tau = threshold_scale(joint, noise, mask)
+    scale = max(1.0, red) * tau
     gap = float(chi2.ppf(1 - alpha, max(k - 1, 1))) * scale
     carriers = sorted((nm for nm, d in singles.items() if drop - d < gap), key=lambda nm: -singles[nm])
     significant = bool(drop > thr * scale)

@@ -126,8 +126,6 @@ def _profile_gap(noise, alpha: float, samples: str = "training"):
     residual's IACT), computed on the ``samples`` the profile's score sums: ``"training"`` (the samples the fit
     was fitted to, its default score :func:`~thsa_control.fit.profile.training_chi2`) or ``"holdout"``; infinite
     without a noise level (nothing to scale by)."""
-    from scipy.stats import chi2
-
     if samples not in ("training", "holdout"):
         raise ValueError(f"samples = {samples!r} must be 'training' or 'holdout'")
 
@@ -137,12 +135,31 @@ def _profile_gap(noise, alpha: float, samples: str = "training"):
         preds = res.predictions
         if samples == "training":  # the same statistics over the complement of the held-out samples
             preds = {r: {**p, "holdout": ~np.asarray(p["holdout"], bool)} for r, p in preds.items()}
-        fit = {"predictions": preds}
-        chi = sum(chi2_by_channel(preds, noise, "holdout").values())
-        n = _holdout_samples(fit)
-        return float(chi2.ppf(1 - alpha, 1)) * max(1.0, chi / max(n, 1)) * _holdout_iact(fit, noise)
+        return scaled_threshold({"predictions": preds}, noise, None, alpha, 1)[0]
 
     return gap
+
+
+def threshold_scale(fit: dict, noise, mask: dict | None = None) -> tuple[float, float]:
+    """``(reduced chi2, IACT)`` of a fit's held-out residual (inside ``mask[run]`` when given): the noise-weighted
+    held-out chi2 over its finite sample count (:func:`_holdout_samples`) and the residual's integrated
+    autocorrelation time (:func:`_holdout_iact`), the two factors by which a chi2 difference between two fits
+    is scaled when the residual is structure, not white noise (:func:`scaled_threshold`)."""
+    hold = sum(_chi2_by_channel(fit, noise, "holdout", mask).values())
+    return hold / max(_holdout_samples(fit, mask), 1), _holdout_iact(fit, noise, mask)
+
+
+def scaled_threshold(fit: dict, noise, mask: dict | None, alpha: float, k: int) -> tuple[float, float, float]:
+    """``(threshold, reduced chi2, IACT)``: the ``chi2(k)`` quantile at ``alpha`` scaled by the fit's reduced held-out
+    chi2 where it exceeds 1 (the unmodelled part of the residual inflates every difference: a quasi-likelihood
+    scaling) and by its held-out residual's IACT (an autocorrelated residual multiplies the variance of a chi2
+    difference by it), :func:`threshold_scale`.  The one rule of the tracer's scaled tests: the ambiguity gap
+    (:func:`thsa_control.trace.engine._rivals`), the repetition test, the joint lift (:mod:`~thsa_control.trace.lift`)
+    and a profile's resolved gap (:func:`_profile_gap`)."""
+    from scipy.stats import chi2
+
+    red, tau = threshold_scale(fit, noise, mask)
+    return float(chi2.ppf(1 - alpha, k)) * max(1.0, red) * tau, red, tau
 
 
 def _holdout_iact(fit: dict, noise, mask: dict | None = None) -> float:
