@@ -479,15 +479,11 @@ def travel_gain_test(time, position, speed, load, *, ratio: float, transient_tim
     # per-pass gains (the pass's own travel, no load curve) and their scatter
     gj, sej = [], []
     for q in passes:
-        tt = travel[q] - travel[q].mean()
-        den = float(tt @ tt)
-        if den <= 0:
+        pg = _pooled_slope(travel, x, [q])
+        if pg is None:
             continue
-        b = float(tt @ (x[q] - x[q].mean())) / den
-        rr = x[q] - x[q].mean() - b * tt
-        tj = max(q.size / _effective_n_iact(rr), 1.0)
-        gj.append(b)
-        sej.append(math.sqrt(float(rr @ rr) / max(q.size - 2, 1) * tj / den))
+        gj.append(pg["slope"])
+        sej.append(pg["stderr"])
     birge = 1.0
     if len(gj) > 1 and all(v > 0 for v in sej):
         wj = 1.0 / np.asarray(sej) ** 2
@@ -874,25 +870,33 @@ def _hold_slopes(t: np.ndarray, y: np.ndarray, holds: list[np.ndarray]) -> dict:
     samples of a hold correlated), and each hold's own slope and standard error."""
     from scipy.stats import t as t_dist
 
-    tc = np.concatenate([t[q] - t[q].mean() for q in holds])
-    yc = np.concatenate([y[q] - y[q].mean() for q in holds])
-    sxx = float(tc @ tc)
-    b = float(tc @ yc) / sxx
-    r = yc - b * tc
-    n, k = yc.size, len(holds)
-    tau = max(n / _effective_n_iact(r), 1.0)
-    s2 = float(r @ r) / max(n - k - 1, 1)
-    se = math.sqrt(s2 * tau / sxx)
+    fit = _pooled_slope(t, y, holds)
+    b, se, tau, s2, n = fit["slope"], fit["stderr"], fit["iact"], fit["s2"], fit["n"]
+    k = len(holds)
     dof = n / tau - k - 1
     p = float(2 * t_dist.sf(abs(b) / se, dof)) if dof >= 1 and se > 0 else 1.0
-    per = []
-    for q in holds:
-        tq = t[q] - t[q].mean()
-        yq = y[q] - y[q].mean()
-        bq = float(tq @ yq) / float(tq @ tq)
-        rq = yq - bq * tq
-        per.append((bq, math.sqrt(float(rq @ rq) / max(q.size - 2, 1) * tau / float(tq @ tq))))
+    per = [(f["slope"], f["stderr"]) for f in (_pooled_slope(t, y, [q], tau) for q in holds)]
     return {"slope": b, "stderr": se, "p": p, "iact": tau, "dof": dof, "sd": math.sqrt(s2), "per_hold": per}
+
+
+def _pooled_slope(x: np.ndarray, y: np.ndarray, groups: list[np.ndarray], tau: float | None = None) -> dict | None:
+    """Least squares of ``y`` on ``x`` with one level per group (index arrays: both centred within each group) and one
+    slope shared by the groups; its standard error counts the samples by ``tau``, the residual's integrated
+    autocorrelation time (computed from the residual, at least 1, unless given).  Returns ``slope``, ``stderr``,
+    ``iact``, ``s2`` (the residual variance, ``n - groups - 1`` degrees of freedom), ``sxx`` and ``n``; None where
+    ``x`` does not vary within the groups."""
+    xc = np.concatenate([x[q] - x[q].mean() for q in groups])
+    yc = np.concatenate([y[q] - y[q].mean() for q in groups])
+    sxx = float(xc @ xc)
+    if sxx <= 0:
+        return None
+    b = float(xc @ yc) / sxx
+    r = yc - b * xc
+    n = yc.size
+    if tau is None:
+        tau = max(n / _effective_n_iact(r), 1.0)
+    s2 = float(r @ r) / max(n - len(groups) - 1, 1)
+    return {"slope": b, "stderr": math.sqrt(s2 * tau / sxx), "iact": tau, "s2": s2, "sxx": sxx, "n": n}
 
 
 def hold_drift_test(time, load, position, held, *, alpha: float = 1e-6, min_hold: float = 0.2,
@@ -982,15 +986,10 @@ def _compliance(t, f, x, samples, min_z: float = 20.0) -> tuple[float, float] | 
     parts = [q for q in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1) if q.size >= 10]
     if not parts:
         return None
-    fc = np.concatenate([f[q] - f[q].mean() for q in parts])
-    xc = np.concatenate([x[q] - x[q].mean() for q in parts])
-    sff = float(fc @ fc)
-    if sff <= 0:
+    fit = _pooled_slope(f, x, parts)
+    if fit is None:
         return None
-    c = float(fc @ xc) / sff
-    r = xc - c * fc
-    tau = max(r.size / _effective_n_iact(r), 1.0)
-    se = math.sqrt(float(r @ r) / max(r.size - len(parts) - 1, 1) * tau / sff)
+    c, se = fit["slope"], fit["stderr"]
     if c >= 0 or abs(c) < min_z * se:
         return None
     return c, se
