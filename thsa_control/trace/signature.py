@@ -438,12 +438,10 @@ def travel_gain_test(time, position, speed, load, *, ratio: float, transient_tim
     # a sustained speed change only: a torque ripple's own speed ripple (cogging at a slow speed) deflects nothing
     steady = (~base_transients(t, ws, np.zeros_like(ws), transient_time, sustained=True) & (sgn != 0) & np.isfinite(x)
               & np.isfinite(f))
-    idx = np.flatnonzero(steady)
-    if idx.size < 50:
+    if np.count_nonzero(steady) < 50:
         return None
     dt = float(np.median(np.diff(t)))
-    brk = np.flatnonzero((np.diff(idx) > 1) | (np.diff(sgn[idx]) != 0)) + 1
-    passes = [q for q in np.split(idx, brk) if q.size * dt >= transient_time and q.size >= 20]
+    passes = [q for q in stretches(steady, sgn) if q.size * dt >= transient_time and q.size >= 20]
     if not passes:
         return None
     rows = np.concatenate(passes)
@@ -686,9 +684,7 @@ def position_local_test(residual, position, direction, *, bin_width: float = 2e-
     if ok.sum() < 50:
         return None
     # passes: maximal stretches of one sign of motion
-    idx = np.flatnonzero(ok)
-    brk = np.flatnonzero((np.diff(idx) > 50) | (np.diff(d[idx]) != 0)) + 1
-    passes = np.split(idx, brk)
+    passes = stretches(ok, d, max_gap=50)
     x0 = float(np.nanmin(x[ok])) if origin is None else float(origin)
     rows = []  # (pass, bin, bin centre, mean residual, direction)
     for j, p in enumerate(passes):
@@ -757,6 +753,17 @@ def segment_torques(time, e_speed, segment_starts, inertia: float, min_samples: 
             out.append((a, b, float(t[a:b].mean()), inertia * float(tt @ e[a:b]) / den))
     return out
 
+
+
+def stretches(mask, labels=None, max_gap: int = 1) -> list[np.ndarray]:
+    """The index arrays of the stretches of ``mask`` (bool per sample): a new stretch where the next True sample is
+    more than ``max_gap`` samples on (1: contiguous) or, with ``labels`` (per sample), where its label changes (a
+    direction of motion)."""
+    idx = np.flatnonzero(mask)
+    brk = np.diff(idx) > max_gap
+    if labels is not None:
+        brk |= np.diff(np.asarray(labels)[idx]) != 0
+    return np.split(idx, np.flatnonzero(brk) + 1)
 
 
 def _segment_passes(mid_time, direction, max_gap: float, min_segments: int) -> list:
@@ -928,11 +935,9 @@ def hold_drift_test(time, load, position, held, *, alpha: float = 1e-6, min_hold
     t = np.asarray(time, float)
     f = np.asarray(load, float)
     h = np.asarray(held, bool) & np.isfinite(f) & np.isfinite(t)
-    idx = np.flatnonzero(h)
-    if idx.size < min_samples:
+    if np.count_nonzero(h) < min_samples:
         return None
-    stretches = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
-    holds = [q for q in stretches if q.size >= min_samples and t[q[-1]] - t[q[0]] >= min_hold]
+    holds = [q for q in stretches(h) if q.size >= min_samples and t[q[-1]] - t[q[0]] >= min_hold]
     if not holds:
         return None
     fit = _hold_slopes(t, f, holds)
@@ -980,10 +985,9 @@ def _compliance(t, f, x, samples, min_z: float = 20.0) -> tuple[float, float] | 
     if samples is None:
         return None
     m = np.asarray(samples, bool) & np.isfinite(f) & np.isfinite(x)
-    idx = np.flatnonzero(m)
-    if idx.size < 50:
+    if np.count_nonzero(m) < 50:
         return None
-    parts = [q for q in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1) if q.size >= 10]
+    parts = [q for q in stretches(m) if q.size >= 10]
     if not parts:
         return None
     fit = _pooled_slope(f, x, parts)
