@@ -42,7 +42,7 @@ from ..model.laws import kinematic_ratio
 __all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missing_torque", "current_offset_test",
            "binned_mean", "cross_correlation", "position_local_test", "base_transients", "remainder_kind",
            "STRUCTURED_VARIABLES", "split_remainder", "segment_torques", "drift_test",
-           "time_or_position_test", "hold_samples", "still_band",
+           "time_or_position_test", "hold_samples", "still_band", "stretches", "travel_passes",
            "hold_drift_test"]
 
 #: signature variables whose structure an unmodelled-but-declared base does not leave: a feature repeated at a nut
@@ -392,7 +392,8 @@ LOAD_KNOT_GAP = 1000.0
 
 
 def travel_gain_test(time, position, speed, load, *, ratio: float, transient_time: float = 0.3,
-                     alpha: float = 1e-6, tolerance: float = GAIN_TOLERANCE, steady_speed=None) -> dict | None:
+                     alpha: float = 1e-6, tolerance: float = GAIN_TOLERANCE, steady_speed=None,
+                     passes: list[np.ndarray] | None = None) -> dict | None:
     """Gain of a position sensor against the travel a redundant speed sensor integrates (the LVDT against the
     motor angle times ``ratio = lead / (2 pi N)``), over the steady passes of a record.
 
@@ -417,7 +418,8 @@ def travel_gain_test(time, position, speed, load, *, ratio: float, transient_tim
     determined* where the load curve reproduces the travel (variance inflation of the travel beyond the passes'
     intercepts above :data:`~thsa_control.trace.separability.VIF_LIMIT`: an elastic load, whose force follows
     the position, makes a load path's compliance a gain).  The test: ``H0: |g - 1| <= tolerance`` (one-sided
-    against the nearer bound), significant at ``alpha``.  None when no pass qualifies.
+    against the nearer bound), significant at ``alpha``.  None when no pass qualifies.  ``passes``: the record's
+    :func:`travel_passes` where the caller has them (they depend on the steady speed, not on the sensor pair).
     """
     from scipy.stats import norm
 
@@ -432,16 +434,8 @@ def travel_gain_test(time, position, speed, load, *, ratio: float, transient_tim
     from ..data.rigformat import speed_integral
 
     travel = ratio * speed_integral(t, w)
-    ws = w if steady_speed is None else np.nan_to_num(np.asarray(steady_speed, float))
-    dv = 0.05 * max(float(np.max(np.abs(ws))), 1e-9)
-    sgn = np.where(ws > dv, 1, np.where(ws < -dv, -1, 0))
-    # a sustained speed change only: a torque ripple's own speed ripple (cogging at a slow speed) deflects nothing
-    steady = (~base_transients(t, ws, np.zeros_like(ws), transient_time, sustained=True) & (sgn != 0) & np.isfinite(x)
-              & np.isfinite(f))
-    if np.count_nonzero(steady) < 50:
-        return None
-    dt = float(np.median(np.diff(t)))
-    passes = [q for q in stretches(steady, sgn) if q.size * dt >= transient_time and q.size >= 20]
+    if passes is None:
+        passes = travel_passes(t, x, f, w if steady_speed is None else steady_speed, transient_time)
     if not passes:
         return None
     rows = np.concatenate(passes)
@@ -503,6 +497,26 @@ def travel_gain_test(time, position, speed, load, *, ratio: float, transient_tim
     return out
 
 
+def travel_passes(time, position, load, steady_speed, transient_time: float = 0.3) -> list[np.ndarray]:
+    """The steady passes of :func:`travel_gain_test` (index arrays): stretches of one direction of motion of
+    ``steady_speed`` outside ``transient_time`` of a start, stop or reversal and of a sustained speed change, with a
+    finite position and load, at least ``transient_time`` and 20 samples long; none where fewer than 50 samples
+    qualify."""
+    t = np.asarray(time, float)
+    x = np.asarray(position, float)
+    f = np.asarray(load, float)
+    ws = np.nan_to_num(np.asarray(steady_speed, float))
+    dv = 0.05 * max(float(np.max(np.abs(ws))), 1e-9)
+    sgn = np.where(ws > dv, 1, np.where(ws < -dv, -1, 0))
+    # a sustained speed change only: a torque ripple's own speed ripple (cogging at a slow speed) deflects nothing
+    steady = (~base_transients(t, ws, np.zeros_like(ws), transient_time, sustained=True) & (sgn != 0) & np.isfinite(x)
+              & np.isfinite(f))
+    if np.count_nonzero(steady) < 50:
+        return []
+    dt = float(np.median(np.diff(t)))
+    return [q for q in stretches(steady, sgn) if q.size * dt >= transient_time and q.size >= 20]
+
+
 def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, alpha: float = 1e-6,
                        transient_time: float = 0.3) -> list[dict]:
     """Gain and lag between redundant sensors: motor speed vs ratio x screw speed, LVDT vs the lead-scaled motor
@@ -550,12 +564,14 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
         if ws is not None:
             pairs.append(("lvdt rate vs lead/(2 pi) x screw_speed", "screw_speed", np.nan_to_num(np.asarray(ws, float)),
                           lead / (2 * math.pi)))
+        # judged on the motor speed where measured: the same passes for every pair (built once)
+        passes = travel_passes(t, x, load, np.asarray(w, float), transient_time) if w is not None else None
         for name, other, v, r in pairs:
             d = _gain_lag(rate, r * savgol_filter(v, 31, 2, delta=dt), dt)  # the lag (and the rate's gain, a fallback)
             if not d:
                 continue
             tg = travel_gain_test(t, x, v, load, ratio=r, transient_time=transient_time, alpha=alpha,
-                                  steady_speed=None if w is None else np.asarray(w, float))
+                                  steady_speed=None if w is None else np.asarray(w, float), passes=passes)
             if tg is not None:
                 gain, se, p, sig_gain = tg["gain"], tg["gain_stderr"], tg["p_value"], tg["significant"]
             else:  # no steady pass: the rates' regression
