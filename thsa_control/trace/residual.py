@@ -40,11 +40,13 @@ from .signature import (
 )
 
 
-def hold_drift_of_runs(runs: Sequence[RigRun], s: SignatureSettings | None = None) -> dict | None:
+def hold_drift_of_runs(runs: Sequence[RigRun], s: SignatureSettings | None = None,
+                       transients: Mapping[str, np.ndarray] | None = None) -> dict | None:
     """:func:`~thsa_control.trace.signature.hold_drift_test` over the holds of ``runs`` (one after another in time,
     a gap between runs ending every hold): the load reading where the physics holds the load, the LVDT as the
     structure's witness, the compliance from the held samples where the load changes.  From the records alone (no
-    fit), at the tracer's sample-based level ``s.alpha``; None when no run has a hold."""
+    fit), at the tracer's sample-based level ``s.alpha``; None when no run has a hold.  ``transients``: run name ->
+    its :func:`~thsa_control.trace.signature.base_transients` at ``s.transient_time``, where the caller has them."""
     s = s or SignatureSettings()
     cols: dict[str, list] = {"t": [], "f": [], "x": [], "held": [], "still": []}
     t_offset = 0.0
@@ -55,9 +57,11 @@ def hold_drift_of_runs(runs: Sequence[RigRun], s: SignatureSettings | None = Non
         t = np.asarray(run.time, float)
         f = np.asarray(run.signals["load_force"], float)
         cmd = np.asarray(run.signals["speed_cmd"], float)
-        held = hold_samples(t, w, f, cmd, transient_time=s.transient_time)
+        band = still_band(w, cmd)
+        held = hold_samples(t, w, f, cmd, transient_time=s.transient_time, band=band,
+                            transients=(transients or {}).get(run.name))
         # held with the load changes included: the structure's compliance
-        still = (cmd == 0) & (np.abs(np.nan_to_num(np.asarray(w, float))) <= still_band(w, cmd))
+        still = (cmd == 0) & (np.abs(np.nan_to_num(np.asarray(w, float))) <= band)
         x = np.asarray(run.signals["nut_position"], float) if "nut_position" in run.source_columns \
             else np.full(t.size, np.nan)
         for k, v in (("t", t - t[0] + t_offset), ("f", f), ("x", x), ("held", held), ("still", still)):
@@ -80,6 +84,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     spans: dict[str, float] = {}  # the largest motor and screw angle spanned by one run's steady samples [rad]
     local_in: dict[str, list] = {"e": [], "x": [], "d": []}
     steady: list = []  # outside the base's transients, per run
+    transients: dict = {}  # run name -> the base's transients (the load-cell hold test's too)
     drift_in: list = []  # (time, segment torque, direction)
     drift_at: list = []  # (nut position, run number) of each drift segment: time told from position
     accel: list = []  # J x the measured motor acceleration, per run
@@ -103,7 +108,8 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         # outside the base's transients: the samples the pass-replicated position test uses; the angle tests use
         # the samples outside its starts, stops, reversals, load changes and sustained speed changes (a periodic
         # torque's own speed ripple is not a transient: ``sustained``)
-        steady.append(~base_transients(t, w, load, s.transient_time))
+        transients[run.name] = base_transients(t, w, load, s.transient_time)
+        steady.append(~transients[run.name])
         steady_angle = ~base_transients(t, w, load, s.transient_time, sustained=True)
         # the angle the steady samples span; under two revolutions the harmonics are not told from a dependence on
         # position (below) and a Fourier series on less than a revolution is degenerate: the test then keeps every
@@ -192,7 +198,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             sensors.append(co)
     # the load cell where the physics holds the load (drive stopped, nut held): a reading trending with time, which
     # the structure's deflection (LVDT) does not follow, is a drifting sensor (from the records alone)
-    hd = hold_drift_of_runs(runs, s)
+    hd = hold_drift_of_runs(runs, s, transients)
     hold_curve = None
     if hd is not None:
         hold_curve = {**hd.pop("curve"), "slope": hd["slope"], "p_value": hd["p_value"], "significant": hd["significant"]}

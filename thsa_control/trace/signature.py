@@ -851,17 +851,21 @@ def _slope_se(x1: np.ndarray, rss1: float, n: int, k: int, tau: float) -> list[f
             for j in range(k)]
 
 
-def hold_samples(time, speed, load, speed_cmd, *, transient_time: float = 0.3, max_gap: float = 0.02) -> np.ndarray:
+def hold_samples(time, speed, load, speed_cmd, *, transient_time: float = 0.3, max_gap: float = 0.02,
+                 band: float | None = None, transients=None) -> np.ndarray:
     """Samples where the physics holds the load constant: the speed command is exactly 0 (the drive gated off, the
     no-back holding the nut; or the speed loop holding it), the measured motor speed inside the stop band of
     :func:`base_transients` (5 % of the record's largest speed: the nut is not moving) and outside the base's
     transients (``transient_time`` after a stop, a start or a load change: the surface and the loading actuator
-    settle).  A loading actuator in force mode then holds its force, whatever the actuator does."""
+    settle).  A loading actuator in force mode then holds its force, whatever the actuator does.  ``band`` (the
+    :func:`still_band`) and ``transients`` (:func:`base_transients` at ``transient_time``) where the caller has them."""
     t = np.asarray(time, float)
     w = np.nan_to_num(np.asarray(speed, float))
     f = np.asarray(load, float)
     cmd = np.asarray(speed_cmd, float)
-    still = (np.abs(w) <= still_band(w, cmd)) & np.isfinite(f) & ~base_transients(t, w, f, transient_time)
+    band = still_band(w, cmd) if band is None else band
+    transients = base_transients(t, w, f, transient_time) if transients is None else transients
+    still = (np.abs(w) <= band) & np.isfinite(f) & ~transients
     held = still & (cmd == 0)
     # a position loop holding the nut at its deadband's edge enables the drive for a sample or two (rig-sim's
     # position_steps at 1 kHz: 1 ms creep commands every 10-150 ms): a gap of at most ``max_gap`` [s] in which the nut
