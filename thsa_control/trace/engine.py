@@ -73,8 +73,8 @@ from .residual import _regime_errors, _signature
 from .scoring import (_at_edge, _base_correction, _window_beyond_noise, _channel_errors, _chi2_by_channel, _explainers_at_bound, _held_out,
                       _holdout_segment_changes,
                       _held_params, _null_runs, _param_entry, _plausibility,
-                      _rms_by_channel, _run_jobs,
-                      _signature_brief, scaled_threshold, zero_is_absent)
+                      _run_jobs,
+                      _signature_brief, admission_tests, scaled_threshold, zero_is_absent)
 from .lift import better, contribution, interior, joint_verdict, lift_names, lifted as lifted_bounds
 from .signature import SignatureSettings, base_transients, split_remainder
 from .threads import limit_blas_threads
@@ -733,8 +733,6 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                                         fits[len(jobs) + len(idx_extra):])
         for i, fe in zip(idx_extra, fits_extra):
             fits[i] = better(fits[i], fe)
-        base_holds = {w: _chi2_by_channel(current, noise, "holdout", score_mask(w)) for w in WINDOWS}
-        base_hold_all = sum(_chi2_by_channel(current, noise, "holdout").values())  # one sample set for every candidate
         scored = []
         for spec, f, jb in zip(scorable, fits, jobs):
             if "error" in f:
@@ -742,42 +740,25 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                                "error_reduction": {}})
                 continue
             cand_times.append(f["time_s"])
-            base_hold = base_holds[spec.window]
-            hold = _chi2_by_channel(f, noise, "holdout", score_mask(spec.window))
-            drop = sum(base_hold.values()) - sum(hold.values())
             k = len(spec.free) + len(spec.profile)
-            from scipy.stats import chi2
-
-            thr = float(chi2.ppf(1 - st.alpha, k))
             # at the fit's own values where the window depends on them (the cogging's count)
             win = window_of(spec.window, ParameterSet.from_toml(f["params_toml"]))
-            wb = _chi2_by_channel(current, noise, "holdout", win)
-            wc = _chi2_by_channel(f, noise, "holdout", win)
-            win_red = {c: (1 - math.sqrt(wc[c] / wb[c])) if wb.get(c, 0) > 0 else 0.0 for c in wc}
-            win_sys = _window_beyond_noise(current, f, noise, win)
-            rms_b, rms_c = _rms_by_channel(current), _rms_by_channel(f)
-            err_red = {c: (1 - rms_c[c] / rms_b[c]) if rms_b[c] > 0 else 0.0 for c in rms_c}
-            plausible, why = _plausibility(f, spec, plaus)
-            if win_red.get(spec.channel, 0.0) < -st.max_channel_increase:
-                plausible = False
-                why.append(f"{spec.channel} error grows by {-win_red[spec.channel]:.0%}")
-            elif err_red.get(spec.channel, 0.0) < -st.max_channel_increase:
-                # the same bar on the whole record: the window may be scored on part of it (outside the base's
-                # transients, or a reversal window), where the effect's physics acts too
-                plausible = False
-                why.append(f"{spec.channel} error over the whole record grows by {-err_red[spec.channel]:.0%}")
-            aic_drop = current["aic"] - f["aic"]
-            if aic_drop <= 0:
-                # the training samples prefer the model without it (Akaike): a fit of nested physics rises there
-                # only where a value was not fitted on them (a profiled value from the one-step screen's minima,
-                # the file value held within the training gap, an unconverged fit); the profile fits are chosen on
-                # the training error (fit.profile), so the held-out drop stays out of sample
-                plausible = False
-                why.append(f"not supported by the samples it was fitted to (AIC drop {aic_drop:.3g} <= 0)")
-            prelim = drop > thr and max(win_red.values(), default=0.0) >= st.min_window_reduction and plausible
-            seg_win = _holdout_segment_changes(current, f, noise, win)
             constant = CANDIDATES.get(spec.name) is not None and CANDIDATES[spec.name].base_correction
-            robust = not (use_base and st.robust_constant_torque and constant) or seg_win.get("sign_p", 1.0) < st.alpha
+            adm = admission_tests(current, f, noise, k=k, alpha=st.alpha, mask=score_mask(spec.window), window=win,
+                                  channel=spec.channel, min_window_reduction=st.min_window_reduction,
+                                  max_channel_increase=st.max_channel_increase,
+                                  robust=bool(use_base and st.robust_constant_torque and constant))
+            drop, thr, win_red, err_red, aic_drop, seg_win = (adm[x] for x in (
+                "holdout_chi2_drop", "chi2_threshold", "window_reduction", "error_reduction", "aic_drop",
+                "window_segments"))
+            win_sys = _window_beyond_noise(current, f, noise, win)
+            plausible, why = _plausibility(f, spec, plaus)
+            for fail in (adm["channel_fail"], adm["aic_fail"]):
+                if fail:
+                    plausible = False
+                    why.append(fail)
+            prelim = adm["significant"] and adm["window_ok"] and plausible
+            robust = adm["robust_fail"] is None
             prelim = prelim and robust
             period_test = (_repetition(current, f, spec, k, runs, noise, score_mask(spec.window), st.alpha,
                                        2 * st.signature.position_bin)
@@ -788,10 +769,10 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             repeats = period_test is None or period_test["repeats"] or not prelim
             prelim = prelim and repeats
             scored.append({
-                "name": spec.name, "score": drop / max(sum(base_hold.values()), 1e-300), "holdout_chi2_drop": drop,
+                "name": spec.name, "score": drop / max(adm["holdout_chi2_before"], 1e-300), "holdout_chi2_drop": drop,
                 # reported beside it: the drop over all held-out samples (the candidates' scored samples differ by
                 # window; the order of what is explained compares this one, trace/backward.py)
-                "holdout_chi2_drop_all_samples": base_hold_all - sum(_chi2_by_channel(f, noise, "holdout").values()),
+                "holdout_chi2_drop_all_samples": adm["holdout_chi2_drop_all_samples"],
                 "chi2_threshold": thr, "error_reduction": err_red, "window": spec.window, "window_reduction": win_red,
                 "window_reduction_beyond_noise": win_sys, "aic_drop": aic_drop, "bic_drop": current["bic"] - f["bic"],
                 "plausible": plausible, "implausible_because": why, "parameters": _params_out(f, spec),
@@ -800,9 +781,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "not_determined": _held_out(f),
                 "holdout_segments": _holdout_segment_changes(current, f, noise),
                 "window_segments": seg_win,
-                **({} if robust else {"not_robust": f"a constant torque that improves {seg_win.get('improved', 0)} "
-                                                    f"of {seg_win.get('segments', 0)} held-out segments of its window "
-                                                    f"(sign test p = {seg_win.get('sign_p', 1.0):.2g} >= {st.alpha:g})"}),
+                **({} if robust else {"not_robust": adm["robust_fail"]}),
                 **({"periodicity": period_test} if period_test is not None else {}),
                 **({} if repeats else {"not_periodic": periodicity.describe(period_test)}),
                 **({"scored_outside_transients": True} if score_mask(spec.window) is not None else {}),
@@ -1192,8 +1171,6 @@ def _detail_declared(refinements, current: dict, cur_effects, cur_free, fit_runs
     the rules of a candidate: held-out chi2 drop above the ``chi2(k)`` quantile and ``null_factor`` times the drop
     the same refinement buys on a null run of the corrected base, window RMS drop, own channel not worse,
     plausible on the parameters the run determines (the others held at their file values)."""
-    from scipy.stats import chi2
-
     out = []
     base_hold = sum(_chi2_by_channel(current, noise, "holdout").values())
     todo = []
@@ -1204,22 +1181,21 @@ def _detail_declared(refinements, current: dict, cur_effects, cur_free, fit_runs
             d["reason"] = f"fit failed: {f['error']}"
             out.append({"doc": d})
             continue
-        drop = base_hold - sum(_chi2_by_channel(f, noise, "holdout").values())
-        thr = float(chi2.ppf(1 - st.alpha, len(spec.free)))
-        win = windows_cache[spec.window]
-        wb = _chi2_by_channel(current, noise, "holdout", win)
-        wc = _chi2_by_channel(f, noise, "holdout", win)
-        win_red = {c: (1 - math.sqrt(wc[c] / wb[c])) if wb.get(c, 0) > 0 else 0.0 for c in wc}
+        # the candidates' admission test on every held-out sample, the window's own channel not worse
+        adm = admission_tests(current, f, noise, k=len(spec.free), alpha=st.alpha, mask=None,
+                              window=windows_cache[spec.window], channel=spec.channel,
+                              min_window_reduction=st.min_window_reduction, max_channel_increase=st.max_channel_increase,
+                              whole_record=False, aic=False)
+        drop, thr, win_red = adm["holdout_chi2_drop"], adm["chi2_threshold"], adm["window_reduction"]
         plausible, why = _plausibility(f, spec, plaus)
-        if win_red.get(spec.channel, 0.0) < -st.max_channel_increase:
+        if adm["channel_fail"]:
             plausible = False
-            why.append(f"{spec.channel} error grows by {-win_red[spec.channel]:.0%}")
-        rms_b, rms_c = _rms_by_channel(current), _rms_by_channel(f)
+            why.append(adm["channel_fail"])
         d.update(holdout_chi2_drop=drop, chi2_threshold=thr, window=spec.window, window_reduction=win_red,
                  plausible=plausible, implausible_because=why, parameters=_params_out(f, spec),
                  not_determined=_held_out(f), holdout_segments=_holdout_segment_changes(current, f, noise),
-                 error_reduction={c: (1 - rms_c[c] / rms_b[c]) if rms_b[c] > 0 else 0.0 for c in rms_c})
-        if drop > thr and max(win_red.values(), default=0.0) >= st.min_window_reduction and plausible:
+                 error_reduction=adm["error_reduction"])
+        if adm["significant"] and adm["window_ok"] and plausible:
             todo.append((spec, jb, f, d))
         else:
             d["reason"] = "not significant" if plausible else "implausible: " + "; ".join(why)
