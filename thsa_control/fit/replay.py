@@ -84,6 +84,10 @@ MECH_INPUTS = ("current_start", "current_end", "standby_active", "load_start", "
 #: Plant output each measured channel is compared with: what its sensor reads in the model's measurement
 #: map (:data:`thsa_control.model.plant.SENSOR_OUTPUTS`; the LVDT reads the surface position).
 COMPARED_OUTPUT = SENSOR_OUTPUTS
+#: A plant-step count within this of a whole number is that whole number: a speed sensor's difference-quotient interval
+#: over the plant step is a ratio of two sample periods in floating point (shooting.py snaps it, the
+#: current-driven map splits it into whole steps and a fraction with it).
+STEP_COUNT_TOL = 1e-6
 #: Shaper rate limit that passes a recorded (already shaped) command through [m/s^2].
 PASS_THROUGH_ACCEL = 1e9
 #: Speed cap [m/s] of a run's position loop that states none (the Design needs a finite one).
@@ -617,8 +621,8 @@ def current_driven_map(plant: Plant, substeps: int = 1, quotients: Mapping[str, 
     if quotients:
         q = []
         for c, m in quotients.items():
-            whole = math.floor(m + 1e-9)
-            frac = m - whole if m - whole > 1e-9 else 0.0
+            whole = math.floor(m + STEP_COUNT_TOL)
+            frac = m - whole if m - whole > STEP_COUNT_TOL else 0.0
             total = sum(speeds[c][substeps - whole:]) if whole else ca.SX(0.0)
             if frac:
                 # the step before the whole ones (index j; its predecessor the period's start speed when j = 0)
