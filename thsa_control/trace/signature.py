@@ -221,6 +221,12 @@ def _effective_n_iact(r: np.ndarray, max_lag: int = 500) -> float:
     return float(n / max(tau, 1.0))
 
 
+def _iact(r: np.ndarray) -> float:
+    """The integrated autocorrelation time of a residual: its sample count over its effective one
+    (:func:`_effective_n_iact`), at least 1; the factor by which a regression's variance grows on it."""
+    return max(r.size / _effective_n_iact(r), 1.0)
+
+
 def _f_test(e: np.ndarray, fitted: np.ndarray, k: int) -> tuple[float, float, float]:
     """(size, r2, p) of a regression with ``k`` regressors beyond the mean.
 
@@ -830,7 +836,7 @@ def drift_test(mid_time, torque, direction, *, max_gap: float = 0.2, min_segment
     c1, *_ = np.linalg.lstsq(full, yy, rcond=None)
     r0, r1 = yy - x0 @ c0, yy - full @ c1
     rss0, rss1 = float(r0 @ r0), float(r1 @ r1)
-    tau = max(n / _effective_n_iact(r1), 1.0)
+    tau = _iact(r1)
     df_d = n / tau - 2 * k
     if df_d < 1 or rss1 <= 0:
         return None
@@ -921,7 +927,7 @@ def _pooled_slope(x: np.ndarray, y: np.ndarray, groups: list[np.ndarray], tau: f
     r = yc - b * xc
     n = yc.size
     if tau is None:
-        tau = max(n / _effective_n_iact(r), 1.0)
+        tau = _iact(r)
     s2 = float(r @ r) / max(n - len(groups) - 1, 1)
     return {"slope": b, "stderr": math.sqrt(s2 * tau / sxx), "iact": tau, "s2": s2, "sxx": sxx, "n": n}
 
@@ -1080,7 +1086,7 @@ def time_or_position_test(mid_time, torque, direction, position, group=None, *, 
     full = np.column_stack([L, Xp, Xt])
     c1, *_ = np.linalg.lstsq(full, y, rcond=None)
     r1 = y - full @ c1
-    tau = max(n / _effective_n_iact(r1), 1.0)
+    tau = _iact(r1)
 
     def nested(x0, x1):
         F, _p, df_n, df_d, _c = _nested_f(y, x0, x1)
