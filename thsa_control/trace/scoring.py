@@ -142,11 +142,12 @@ def _profile_gap(noise, alpha: float, samples: str = "training"):
 
 def threshold_scale(fit: dict, noise, mask: dict | None = None) -> tuple[float, float]:
     """``(reduced chi2, IACT)`` of a fit's held-out residual (inside ``mask[run]`` when given): the noise-weighted
-    held-out chi2 over its finite sample count (:func:`_holdout_samples`) and the residual's integrated
-    autocorrelation time (:func:`_holdout_iact`), the two factors by which a chi2 difference between two fits
-    is scaled when the residual is structure, not white noise (:func:`scaled_threshold`)."""
-    hold = sum(_chi2_by_channel(fit, noise, "holdout", mask).values())
-    return hold / max(_holdout_samples(fit, mask), 1), _holdout_iact(fit, noise, mask)
+    held-out chi2 over the finite samples it sums and the residual's integrated autocorrelation time
+    (:func:`_holdout_iact`), the two factors by which a chi2 difference between two fits is scaled when the residual
+    is structure, not white noise (:func:`scaled_threshold`)."""
+    counts: dict[str, int] = {}
+    hold = sum(chi2_by_channel(fit["predictions"], noise, "holdout", mask, counts=counts).values())
+    return hold / max(sum(counts.values()), 1), _holdout_iact(fit, noise, mask)
 
 
 def scaled_threshold(fit: dict, noise, mask: dict | None, alpha: float, k: int) -> tuple[float, float, float]:
@@ -189,18 +190,6 @@ def _holdout_iact(fit: dict, noise, mask: dict | None = None) -> float:
             acc += w * x.size / max(_effective_n_iact(x), 1.0)
             wsum += w
     return max(acc / wsum, 1.0) if wsum > 0 else 1.0
-
-
-def _holdout_samples(fit: dict, mask: dict | None = None) -> int:
-    """Number of finite held-out samples over all channels of a fit (inside ``mask[run]`` when given)."""
-    n = 0
-    for r, p in fit["predictions"].items():
-        hold = np.asarray(p["holdout"], bool)
-        if mask is not None:
-            hold = hold & np.asarray(mask[r], bool)[:hold.size]
-        for c, y in p["measured"].items():
-            n += int(np.sum(hold & np.isfinite(np.asarray(y) - np.asarray(p["simulated"][c]))[:hold.size]))
-    return n
 
 
 def _second_stage(job: dict, res, params: ParameterSet, held: dict):
