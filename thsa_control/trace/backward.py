@@ -36,6 +36,7 @@ from .scoring import (
     _chi2_by_channel,
     _null_runs,
     admission_tests,
+    beats_null,
     determination,
 )
 
@@ -160,6 +161,6 @@ def null_calibrate(recs: list[dict], reduceds: Mapping, jobs_of: Mapping, fit_ru
               - sum(_chi2_by_channel(nf, noise, "holdout", m).values())
               if "error" not in nr and "error" not in nf else math.nan)
         r["null_chi2_drop"] = nd
-        if not (math.isfinite(nd) and r["holdout_chi2_drop"] > null_factor * max(nd, 0.0)):
+        if not beats_null(r["holdout_chi2_drop"], nd, null_factor):
             r["fails"].append(f"held-out chi2 drop {r['holdout_chi2_drop']:.4g} not above {null_factor:g} x its null "
                               f"drop {nd:.3g}")

@@ -74,7 +74,7 @@ from .scoring import (_at_edge, _base_correction, _window_beyond_noise, _channel
                       _holdout_segment_changes,
                       _held_params, _null_runs, _param_entry, _plausibility,
                       _run_jobs,
-                      _signature_brief, admission_tests, scaled_threshold, zero_is_absent)
+                      _signature_brief, admission_tests, beats_null, scaled_threshold, zero_is_absent)
 from .lift import better, contribution, interior, joint_verdict, lift_names, lifted as lifted_bounds
 from .signature import SignatureSettings, base_transients, split_remainder
 from .threads import limit_blas_threads
@@ -821,8 +821,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                     nd = ((nbs[w] - sum(_chi2_by_channel(nf, noise, "holdout", score_mask(w)).values()))
                           if "error" not in nf else math.nan)
                     c["null_chi2_drop"] = nd
-                return [c for c in batch if math.isfinite(c["null_chi2_drop"]) and c["holdout_chi2_drop"]
-                        > st.null_factor * max(c["null_chi2_drop"], 0.0)]
+                return [c for c in batch if beats_null(c["holdout_chi2_drop"], c["null_chi2_drop"], st.null_factor)]
 
             while todo:
                 batch = todo[:max(st.workers, 2)]
@@ -847,9 +846,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         for s in scored:
             if "error" in s:
                 continue
-            nd = s.get("null_chi2_drop")
-            s["significant"] = bool(s["prelim"] and nd is not None and math.isfinite(nd)
-                                    and s["holdout_chi2_drop"] > st.null_factor * max(nd, 0.0))
+            s["significant"] = bool(s["prelim"] and beats_null(s["holdout_chi2_drop"], s.get("null_chi2_drop"),
+                                                               st.null_factor))
         scored.sort(key=lambda s: -(s.get("holdout_chi2_drop") or -math.inf))
         joint = None
         if fits_joint:
@@ -1213,7 +1211,7 @@ def _detail_declared(refinements, current: dict, cur_effects, cur_free, fit_runs
         for (spec, jb, f, d), nf in zip(todo, nfits[1:]):
             nd = (nb - sum(_chi2_by_channel(nf, noise, "holdout").values())) if "error" not in nf else math.nan
             d["null_chi2_drop"] = nd
-            ok = math.isfinite(nd) and d["holdout_chi2_drop"] > st.null_factor * max(nd, 0.0)
+            ok = beats_null(d["holdout_chi2_drop"], nd, st.null_factor)
             d["accepted"] = bool(ok)
             d["reason"] = ("significant: declared component detailed" if ok
                            else f"not significant against its null drop {nd:.3g}")

@@ -383,6 +383,14 @@ def admission_tests(before: dict, after: dict, noise: Mapping[str, float], *, k:
             "robust_fail": robust_fail}
 
 
+def beats_null(drop: float, null_drop: float | None, null_factor: float) -> bool:
+    """The null calibration of an admission: the held-out chi2 drop above ``null_factor`` times what the same change of
+    the model buys on a null run (``null_drop``: the model without the effect's own predictions plus white noise of
+    the measured level, fitted with and without it, :func:`_null_runs`); a null drop that could not be computed
+    (None, NaN: a null fit failed) passes nothing."""
+    return null_drop is not None and math.isfinite(null_drop) and drop > null_factor * max(null_drop, 0.0)
+
+
 def _window_beyond_noise(before: dict, after: dict, noise: Mapping[str, float], windows: dict | None) -> dict:
     """Per channel, the drop of the held-out window error beyond the sensor noise: ``1 - sqrt((chi2_after - n) /
     (chi2_before - n))``, ``n`` the window's held-out sample count (a noise-weighted chi2 of a perfect model is
