@@ -33,11 +33,11 @@ from dataclasses import dataclass, field
 from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
 from ..model.params import ParameterSet
 from .scoring import (
-    _chi2_by_channel,
     _null_runs,
     admission_tests,
     beats_null,
     determination,
+    null_drop,
 )
 
 #: how the kept effects are ordered (trace.json ``order.measure``)
@@ -156,10 +156,7 @@ def null_calibrate(recs: list[dict], reduceds: Mapping, jobs_of: Mapping, fit_ru
     fits = fit_jobs(jobs)
     for k, r in enumerate(owners):
         nr, nf = fits[2 * k], fits[2 * k + 1]
-        m = masks[r["name"]]
-        nd = (sum(_chi2_by_channel(nr, noise, "holdout", m).values())
-              - sum(_chi2_by_channel(nf, noise, "holdout", m).values())
-              if "error" not in nr and "error" not in nf else math.nan)
+        nd = null_drop(nr, nf, noise, masks[r["name"]])
         r["null_chi2_drop"] = nd
         if not beats_null(r["holdout_chi2_drop"], nd, null_factor):
             r["fails"].append(f"held-out chi2 drop {r['holdout_chi2_drop']:.4g} not above {null_factor:g} x its null "

@@ -74,7 +74,7 @@ from .scoring import (_at_edge, _base_correction, _window_beyond_noise, _channel
                       _holdout_segment_changes,
                       _held_params, _null_runs, _param_entry, _plausibility,
                       _run_jobs,
-                      _signature_brief, admission_tests, beats_null, scaled_threshold, zero_is_absent)
+                      _signature_brief, admission_tests, beats_null, null_drop, scaled_threshold, zero_is_absent)
 from .lift import better, contribution, interior, joint_verdict, lift_names, lifted as lifted_bounds
 from .signature import SignatureSettings, base_transients, split_remainder
 from .threads import limit_blas_threads
@@ -812,15 +812,10 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                                                    "params_toml": _held_params(c["_job"]["params_toml"], c["_fit"])}
                                                   for c in batch], st.workers, say)
                 if base_job:
-                    null_base = null_fits.pop(0)
+                    nbs["fit"] = null_fits.pop(0)
                     base_job.clear()
-                    nbs.update({w: (sum(_chi2_by_channel(null_base, noise, "holdout", score_mask(w)).values())
-                                    if "error" not in null_base else math.nan) for w in WINDOWS})
                 for c, nf in zip(batch, null_fits):
-                    w = c["window"]
-                    nd = ((nbs[w] - sum(_chi2_by_channel(nf, noise, "holdout", score_mask(w)).values()))
-                          if "error" not in nf else math.nan)
-                    c["null_chi2_drop"] = nd
+                    c["null_chi2_drop"] = null_drop(nbs["fit"], nf, noise, score_mask(c["window"]))
                 return [c for c in batch if beats_null(c["holdout_chi2_drop"], c["null_chi2_drop"], st.null_factor)]
 
             while todo:
@@ -1207,9 +1202,8 @@ def _detail_declared(refinements, current: dict, cur_effects, cur_free, fit_runs
                           + [{**jb, "label": f"null {spec.name}", "runs": null, "free": tuple(f["free"]), "judge": {},
                               "params_toml": _held_params(jb["params_toml"], f)} for spec, jb, f, _ in todo],
                           st.workers, say)
-        nb = sum(_chi2_by_channel(nfits[0], noise, "holdout").values()) if "error" not in nfits[0] else math.nan
         for (spec, jb, f, d), nf in zip(todo, nfits[1:]):
-            nd = (nb - sum(_chi2_by_channel(nf, noise, "holdout").values())) if "error" not in nf else math.nan
+            nd = null_drop(nfits[0], nf, noise)
             d["null_chi2_drop"] = nd
             ok = beats_null(d["holdout_chi2_drop"], nd, st.null_factor)
             d["accepted"] = bool(ok)

@@ -383,6 +383,19 @@ def admission_tests(before: dict, after: dict, noise: Mapping[str, float], *, k:
             "robust_fail": robust_fail}
 
 
+def holdout_total(fit: dict, noise: Mapping[str, float], mask: dict | None = None) -> float:
+    """A fit's noise-weighted held-out squared error summed over its channels (inside ``mask[run]`` when given)."""
+    return sum(_chi2_by_channel(fit, noise, "holdout", mask).values())
+
+
+def null_drop(without: dict, with_: dict, noise: Mapping[str, float], mask: dict | None = None) -> float:
+    """The held-out chi2 drop an effect buys on a null run: the model without it and the model with it, both fitted to
+    the null run (:func:`_null_runs`); NaN where either fit failed (:func:`beats_null` passes nothing then)."""
+    if "error" in without or "error" in with_:
+        return math.nan
+    return holdout_total(without, noise, mask) - holdout_total(with_, noise, mask)
+
+
 def beats_null(drop: float, null_drop: float | None, null_factor: float) -> bool:
     """The null calibration of an admission: the held-out chi2 drop above ``null_factor`` times what the same change of
     the model buys on a null run (``null_drop``: the model without the effect's own predictions plus white noise of
