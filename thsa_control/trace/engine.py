@@ -74,7 +74,7 @@ from .scoring import (_at_edge, _base_correction, _window_beyond_noise, _channel
                       _holdout_segment_changes,
                       _held_params, _null_runs, _param_entry, _plausibility,
                       _run_jobs,
-                      _signature_brief, admission_tests, beats_null, null_drop, scaled_threshold, zero_is_absent)
+                      _signature_brief, admission_tests, beats_null, holdout_total, null_drop, scaled_threshold, zero_is_absent)
 from .lift import better, contribution, interior, joint_verdict, lift_names, lifted as lifted_bounds
 from .signature import SignatureSettings, base_transients, split_remainder
 from .threads import limit_blas_threads
@@ -853,8 +853,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 ef = better(fits_joint[2], fits_joint[3])
                 if "error" not in ef:
                     singles.append({"name": EFFICIENCY_LIFT, "holdout_chi2_drop": (
-                        sum(_chi2_by_channel(current, noise, "holdout", cmask).values())
-                        - sum(_chi2_by_channel(ef, noise, "holdout", cmask).values()))})
+                        holdout_total(current, noise, cmask) - holdout_total(ef, noise, cmask))})
             if "error" not in jf:
                 jf = {**jf, "_lifted": tuple(lifting)}
                 nested = [x["name"] for x in singles if x.get("beyond_base_correction")] + [EFFICIENCY_LIFT]
@@ -1165,7 +1164,7 @@ def _detail_declared(refinements, current: dict, cur_effects, cur_free, fit_runs
     the same refinement buys on a null run of the corrected base, window RMS drop, own channel not worse,
     plausible on the parameters the run determines (the others held at their file values)."""
     out = []
-    base_hold = sum(_chi2_by_channel(current, noise, "holdout").values())
+    base_hold = holdout_total(current, noise)
     todo = []
     for spec, jb, f in refinements:
         d = {"name": spec.name, "refines": [x for x in EFFECTS[spec.name].supersedes if x in cur_effects],

@@ -345,10 +345,9 @@ def admission_tests(before: dict, after: dict, noise: Mapping[str, float], *, k:
     window and whole-record error reductions, the AIC drop and the window's segment changes."""
     from scipy.stats import chi2
 
-    hb = sum(_chi2_by_channel(before, noise, "holdout", mask).values())
-    drop = hb - sum(_chi2_by_channel(after, noise, "holdout", mask).values())
-    drop_all = (sum(_chi2_by_channel(before, noise, "holdout").values())
-                - sum(_chi2_by_channel(after, noise, "holdout").values()))
+    hb = holdout_total(before, noise, mask)
+    drop = hb - holdout_total(after, noise, mask)
+    drop_all = holdout_total(before, noise) - holdout_total(after, noise)
     thr = float(chi2.ppf(1 - alpha, k))
     wb = _chi2_by_channel(before, noise, "holdout", window)
     wc = _chi2_by_channel(after, noise, "holdout", window)
@@ -662,8 +661,8 @@ def _base_correction(first: dict, declared, uncertain, params: ParameterSet, pla
     if "error" in f:
         doc.update(accepted=False, reason=f"fit failed: {f['error']}")
         return {"accepted": False, "doc": doc, "refinements": []}
-    b0 = sum(_chi2_by_channel(first, noise, "holdout").values())
-    b1 = sum(_chi2_by_channel(f, noise, "holdout").values())
+    b0 = holdout_total(first, noise)
+    b1 = holdout_total(f, noise)
     thr = float(chi2.ppf(1 - st.alpha, len(bounds)))
     corrections = _corrections(f, bounds, owner, sources, priors)
     accepted = b0 - b1 > thr
