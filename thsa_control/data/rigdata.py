@@ -132,6 +132,7 @@ from thsa_control.data.rigformat import (  # noqa: F401  (re-exported: the publi
     _add_rows,
     _number,
     true_runs,
+    drive_on,
     measured_motor_speed,
     speed_integral,
     motor_speed_from,

@@ -47,7 +47,7 @@ from ..loops.design import Design
 from ..errors import RigDataError, ThsaError
 from ..model.plant import SENSOR_OUTPUTS, Plant
 from ..model.params import ParameterSet
-from ..data.rigdata import RigRun, motor_speed_from
+from ..data.rigdata import RigRun, drive_on, motor_speed_from
 from .kinematics import run_kinematics
 from ..sim.simulate import InputSeries, SimulationSettings, Simulator
 
@@ -722,7 +722,6 @@ def replay_open_loop(run: RigRun, plant: Plant, params: ParameterSet, *, setting
         _warnings.warn(msg, stacklevel=2)
     V = mech_inputs(run)
     hs = sample_periods(run)
-    n = V.shape[1]
     p = plant.p_vector(params)
     if x0 is None:
         x0 = plant.initial_state(params, load_force=float(V[3, 0]), nut_position=_initial_nut_position(run))
@@ -784,9 +783,7 @@ def residual_signals(run: RigRun, result: ReplayResult) -> tuple[dict, dict]:
     t = np.asarray(run.time, float)
     cmd = np.asarray(s["speed_cmd"], float)
     load = np.asarray(s["load_force"], float)
-    on = (np.asarray(s["primary_enable"]) > 0.5) | (np.asarray(s["standby_enable"]) > 0.5)
-    if run.motor_disabled_when_cmd_zero:
-        on &= cmd != 0
+    on = drive_on(run)
     sim = result.simulated
     deadband = 0.05 * float(np.max(np.abs(cmd))) if cmd.size and np.any(cmd) else 0.0
     pole_pairs = result.params.value("motor.pole_pairs")

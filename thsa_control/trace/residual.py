@@ -14,7 +14,7 @@ from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..data.rigdata import RigRun, measured_motor_speed, motor_speed_from, speed_integral
+from ..data.rigdata import RigRun, drive_on, measured_motor_speed, motor_speed_from, speed_integral
 from ..fit.residuals import quadrant, reversal_proximity
 from ..model.laws import kinematic_ratio
 from ..model.params import ParameterSet
@@ -120,9 +120,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             span = steady_span / (run.gear_ratio if name == "screw_angle" else 1.0)
             tested[name] = (np.where(steady_angle, a, np.nan) if span >= 4 * math.pi else a, span)
         dv = 0.05 * max(float(np.max(np.abs(w))), 1e-9)
-        on = (np.asarray(run.signals["primary_enable"]) > 0.5) | (np.asarray(run.signals["standby_enable"]) > 0.5)
-        if run.motor_disabled_when_cmd_zero:
-            on &= np.asarray(run.signals["speed_cmd"]) != 0
+        on = drive_on(run)
         cols = {
             "quadrant": ("category", quadrant(w, load, (dv, max(0.02 * float(np.max(np.abs(load))), 1.0)))),
             "motor_on": ("category", on.astype(float)),
@@ -189,9 +187,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
                                     transient_time=s.transient_time):
             d["run"] = run.name
             sensors.append(d)
-        on = (np.asarray(run.signals["primary_enable"]) > 0.5) | (np.asarray(run.signals["standby_enable"]) > 0.5)
-        if run.motor_disabled_when_cmd_zero:
-            on &= np.asarray(run.signals["speed_cmd"]) != 0
+        on = drive_on(run)
         co = current_offset_test(run.signals["motor_current"], ~on, alpha=s.alpha)
         if co is not None:
             co["run"] = run.name
@@ -336,9 +332,7 @@ def _regime_errors(fit: dict, runs: Sequence[RigRun]) -> dict:
     for val, name in ((1, "motor_on"), (0, "motor_off")):
         def on(r, p, val=val):
             run = by_run[r]
-            m = (np.asarray(run.signals["primary_enable"]) > 0.5) | (np.asarray(run.signals["standby_enable"]) > 0.5)
-            if run.motor_disabled_when_cmd_zero:
-                m &= np.asarray(run.signals["speed_cmd"]) != 0
+            m = drive_on(run)
             return (m if val else ~m)[:len(p["holdout"])]
         regimes[name] = on
     for lo, hi in ((-60, 0), (0, 40), (40, 80)):
