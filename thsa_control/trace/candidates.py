@@ -18,6 +18,7 @@ from ..data.rigdata import RigRun, measured_motor_speed, speed_integral
 from ..fit.residuals import reversal_proximity
 from ..model import EFFECTS, CandidateSpec
 from ..model.params import ParameterSet
+from .signature import stop_band
 
 #: The documented default uncertain parameters of each level (fitted before any candidate).
 #: The efficiencies are held at the parameter file's values by default: with a
@@ -458,7 +459,7 @@ def clearance_window(run: RigRun, travel: float) -> np.ndarray:
 def _window(kind: str, run: RigRun, params: ParameterSet | None = None) -> np.ndarray:
     s = run.signals
     w = np.nan_to_num(measured_motor_speed(run))
-    moving = np.abs(w) > 0.05 * max(float(np.max(np.abs(w))), 1e-9)
+    moving = np.abs(w) > stop_band(w)
     load = np.asarray(s["load_force"], float)
     if kind == "all":
         return np.ones(w.shape, bool)

@@ -36,6 +36,7 @@ from .signature import (
     sg_derivative,
     signature_tests,
     still_band,
+    stop_band,
     time_or_position_test,
 )
 
@@ -119,7 +120,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         for name, a in (("motor_angle", angle), ("screw_angle", angle / run.gear_ratio)):
             span = steady_span / (run.gear_ratio if name == "screw_angle" else 1.0)
             tested[name] = (np.where(steady_angle, a, np.nan) if span >= 4 * math.pi else a, span)
-        dv = 0.05 * max(float(np.max(np.abs(w))), 1e-9)
+        dv = stop_band(w)
         on = drive_on(run)
         cols = {
             "quadrant": ("category", quadrant(w, load, (dv, max(0.02 * float(np.max(np.abs(load))), 1.0)))),

@@ -36,6 +36,7 @@ import numpy as np
 from ..data.rigdata import RigRun, measured_motor_speed
 from ..model import EFFECTS, build_plant
 from ..model.params import ParameterSet
+from .signature import stop_band
 
 #: variance inflation above which two explainers are "the same part of the residual" on a record (see above)
 VIF_LIMIT = 10.0
@@ -52,7 +53,7 @@ def _operating_points(runs: Sequence[RigRun], max_points: int = MAX_POINTS) -> d
     cols: dict[str, list] = {k: [] for k in ("speed", "load", "position", "temperature", "current")}
     for r in runs:
         w = np.nan_to_num(np.asarray(measured_motor_speed(r), float))
-        m = np.abs(w) > 0.05 * max(float(np.max(np.abs(w))), 1e-9)
+        m = np.abs(w) > stop_band(w)
         s = r.signals
         x = np.asarray(s["nut_position"], float) if r.has("nut_position") else np.zeros(w.size)
         temp = np.asarray(s["temperature"], float) if r.has("temperature") else np.full(w.size, 25.0)

@@ -42,7 +42,7 @@ from ..model.laws import kinematic_ratio
 __all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missing_torque", "current_offset_test",
            "binned_mean", "cross_correlation", "position_local_test", "base_transients", "remainder_kind",
            "STRUCTURED_VARIABLES", "split_remainder", "segment_torques", "drift_test",
-           "time_or_position_test", "hold_samples", "still_band", "stretches", "travel_passes",
+           "time_or_position_test", "hold_samples", "still_band", "stop_band", "stretches", "travel_passes",
            "hold_drift_test"]
 
 #: signature variables whose structure an unmodelled-but-declared base does not leave: a feature repeated at a nut
@@ -68,6 +68,12 @@ def split_remainder(sig: dict) -> tuple[list[dict], list[dict]]:
     sig_tests = [t for t in sig.get("tests", []) + sig.get("sensors", []) if t["significant"]]
     structured = [t for t in sig_tests if t.get("remainder", "structured") == "structured"]
     return structured, [t for t in sig_tests if t not in structured]
+
+
+def stop_band(speed) -> float:
+    """The speed under which the drive counts as stopped (the starts, stops and reversals of :func:`base_transients`,
+    a run's moving samples): 5 % of the record's largest speed (of at least 1e-9)."""
+    return 0.05 * max(float(np.max(np.abs(speed))), 1e-9)
 
 
 def base_transients(time, speed, load, duration: float = 0.3, sustained: bool = False,
@@ -96,7 +102,7 @@ def base_transients(time, speed, load, duration: float = 0.3, sustained: bool = 
     if n < 3:
         return out
     wmax = max(float(np.max(np.abs(w))), 1e-9)
-    dv = 0.05 * wmax
+    dv = stop_band(w)
     state = np.where(w > dv, 1, np.where(w < -dv, -1, 0))
     ev = list(t[1:][state[1:] != state[:-1]])
     dt = float(np.median(np.diff(t)))
@@ -512,7 +518,7 @@ def travel_passes(time, position, load, steady_speed, transient_time: float = 0.
     x = np.asarray(position, float)
     f = np.asarray(load, float)
     ws = np.nan_to_num(np.asarray(steady_speed, float))
-    dv = 0.05 * max(float(np.max(np.abs(ws))), 1e-9)
+    dv = stop_band(ws)
     sgn = np.where(ws > dv, 1, np.where(ws < -dv, -1, 0))
     # a sustained speed change only: a torque ripple's own speed ripple (cogging at a slow speed) deflects nothing
     steady = (~base_transients(t, ws, np.zeros_like(ws), transient_time, sustained=True) & (sgn != 0) & np.isfinite(x)
