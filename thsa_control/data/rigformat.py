@@ -311,6 +311,12 @@ def measured_motor_speed(run) -> np.ndarray | None:
         lambda c: np.asarray(run.signals[c], float) if c in run.source_columns else None, run.gear_ratio)
 
 
+def stop_band(speed) -> float:
+    """The speed under which the drive counts as stopped (the tracer's starts, stops and reversals, a run's moving
+    samples): 5 % of the record's largest speed (of at least 1e-9)."""
+    return 0.05 * max(float(np.max(np.abs(speed))), 1e-9)
+
+
 def drive_on(run) -> np.ndarray:
     """Per sample of a run, whether the drive is energised: either motor enabled (``primary_enable``,
     ``standby_enable``) and, on a rig whose motors are de-energised while the speed command is exactly 0

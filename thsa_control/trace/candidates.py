@@ -14,11 +14,10 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from ..data.rigdata import RigRun, measured_motor_speed, speed_integral
+from ..data.rigdata import RigRun, measured_motor_speed, speed_integral, stop_band
 from ..fit.residuals import reversal_proximity
 from ..model import EFFECTS, CandidateSpec
 from ..model.params import ParameterSet
-from .signature import stop_band
 
 #: The documented default uncertain parameters of each level (fitted before any candidate).
 #: The efficiencies are held at the parameter file's values by default: with a

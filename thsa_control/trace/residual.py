@@ -14,7 +14,7 @@ from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..data.rigdata import RigRun, drive_on, measured_motor_speed, motor_speed_from, speed_integral
+from ..data.rigdata import RigRun, drive_on, measured_motor_speed, motor_speed_from, speed_integral, stop_band
 from ..fit.residuals import quadrant, reversal_proximity
 from ..model.laws import kinematic_ratio
 from ..model.params import ParameterSet
@@ -36,7 +36,6 @@ from .signature import (
     sg_derivative,
     signature_tests,
     still_band,
-    stop_band,
     time_or_position_test,
 )
 

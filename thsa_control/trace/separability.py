@@ -33,10 +33,9 @@ from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..data.rigdata import RigRun, measured_motor_speed
+from ..data.rigdata import RigRun, measured_motor_speed, stop_band
 from ..model import EFFECTS, build_plant
 from ..model.params import ParameterSet
-from .signature import stop_band
 
 #: variance inflation above which two explainers are "the same part of the residual" on a record (see above)
 VIF_LIMIT = 10.0

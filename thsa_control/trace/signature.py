@@ -37,12 +37,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..data.rigformat import stop_band
 from ..model.laws import kinematic_ratio
 
 __all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missing_torque", "current_offset_test",
            "binned_mean", "cross_correlation", "position_local_test", "base_transients", "remainder_kind",
            "STRUCTURED_VARIABLES", "split_remainder", "segment_torques", "drift_test",
-           "time_or_position_test", "hold_samples", "still_band", "stop_band", "stretches", "travel_passes",
+           "time_or_position_test", "hold_samples", "still_band", "stretches", "travel_passes",
            "hold_drift_test"]
 
 #: signature variables whose structure an unmodelled-but-declared base does not leave: a feature repeated at a nut
@@ -68,12 +69,6 @@ def split_remainder(sig: dict) -> tuple[list[dict], list[dict]]:
     sig_tests = [t for t in sig.get("tests", []) + sig.get("sensors", []) if t["significant"]]
     structured = [t for t in sig_tests if t.get("remainder", "structured") == "structured"]
     return structured, [t for t in sig_tests if t not in structured]
-
-
-def stop_band(speed) -> float:
-    """The speed under which the drive counts as stopped (the starts, stops and reversals of :func:`base_transients`,
-    a run's moving samples): 5 % of the record's largest speed (of at least 1e-9)."""
-    return 0.05 * max(float(np.max(np.abs(speed))), 1e-9)
 
 
 def base_transients(time, speed, load, duration: float = 0.3, sustained: bool = False,
