@@ -127,3 +127,13 @@ def test_records_with_each_kind_of_event_at_one_place_are_not_tested(name):
     no class is seen at two places, so a breakaway at one place is not told from the base's breakaway of that kind
     of event; the test does not run (the committed worn spot on reversals stays not flagged: KNOWN_FAILING)."""
     assert breakaway_of_runs([read_run(DATA / f"{name}.csv")]) is None
+
+
+def test_an_event_without_a_position_reading_is_left_out():
+    """A missing LVDT sample where the nut breaks away gives the event no place: it is left out, not placed at NaN."""
+    t, w, f, cmd, x, i = _starts_record(extra=(0.3, 0.0))
+    k = int(np.argmax(w > 0.05 * np.max(w)))  # the first event's sample
+    x = x.copy()
+    x[k] = np.nan
+    ev = breakaway_events(t, w, f, cmd, x, i)
+    assert len(ev) == 1 and ev[0]["position"] == pytest.approx(0.0278, abs=1e-3)

@@ -1153,8 +1153,8 @@ def breakaway_events(time, speed, load, speed_cmd, position, current, *, transie
         win = np.flatnonzero(np.abs(t - t[k]) <= BREAKAWAY_WINDOW)
         after = np.flatnonzero((t >= t[k] + transient_time) & (t <= t[k] + 2 * transient_time))
         if win.size < BREAKAWAY_PEAK_SAMPLES or after.size < BREAKAWAY_PEAK_SAMPLES or not np.all(np.isfinite(i[win])) \
-                or not np.all(np.isfinite(i[after])):
-            continue
+                or not np.all(np.isfinite(i[after])) or not np.isfinite(x[k]) or not np.isfinite(f[after]).any():
+            continue  # no place or no class for it (a missing LVDT or load sample)
         y = d * i[win]
         j = win[int(np.argmax(y))]
         h = BREAKAWAY_PEAK_SAMPLES // 2
