@@ -25,7 +25,9 @@ nut position in bins ``position_bin`` wide (local features of a few mm),
 mechanical motor angle and screw angle (Fourier series up to ``harmonics``
 per revolution, angles integrated from the measured motor speed), and the
 redundant sensors: gain and lag of the motor speed against ratio x screw
-speed, and of the LVDT rate against the lead-scaled motor speed.
+speed, and of the LVDT rate against the lead-scaled motor speed.  From the
+records alone, the drive's breakaway current at starts and reversals of one
+class at different nut positions (a worn spot: :func:`breakaway_position_test`).
 
 Numerics only (numpy, scipy); no matplotlib.
 """
