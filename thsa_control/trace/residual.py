@@ -22,6 +22,9 @@ from .scoring import _rms_by_channel
 from .signature import (
     SignatureSettings,
     base_transients,
+    breakaway_events,
+    breakaway_position_test,
+    current_noise,
     binned_mean,
     cross_correlation,
     current_offset_test,
@@ -73,6 +76,29 @@ def hold_drift_of_runs(runs: Sequence[RigRun], s: SignatureSettings | None = Non
     c["t"] = np.where(np.isfinite(c["t"]), c["t"], 0.0)
     x = c["x"] if np.isfinite(c["x"][c["held"]]).all() and c["held"].any() else None
     return hold_drift_test(c["t"], c["f"], x, c["held"], alpha=s.alpha, compliance_samples=c["still"])
+
+
+def breakaway_of_runs(runs: Sequence[RigRun], s: SignatureSettings | None = None) -> dict | None:
+    """:func:`~thsa_control.trace.signature.breakaway_position_test` over the starts and reversals of ``runs`` (one
+    rig: the events of all runs are compared by class), each run's events with its own current noise.  From the
+    records alone: the current is the model's input, so the fit leaves no residual in it; the drive's breakaway
+    current at a start against the same kind of start elsewhere is the worn spot's trace.  At the replicate-based
+    level ``s.local_alpha``, places apart by more than the position test's bin.  None where no class of events is
+    seen at two places."""
+    s = s or SignatureSettings()
+    events = []
+    for run in runs:
+        w = measured_motor_speed(run)
+        if w is None or not {"nut_position", "motor_current"} <= set(run.source_columns):
+            continue
+        sig = run.signals
+        cn = current_noise(run.time, w, sig["load_force"], sig["motor_current"], transient_time=s.transient_time)
+        if cn is None:
+            continue
+        for e in breakaway_events(run.time, w, sig["load_force"], sig["speed_cmd"], sig["nut_position"],
+                                  sig["motor_current"], transient_time=s.transient_time):
+            events.append({**e, "run": run.name, "noise": cn[0], "iact": cn[1]})
+    return breakaway_position_test(events, place_gap=s.position_bin, alpha=s.local_alpha)
 
 
 # ----------------------------------------------------------------------------- signature
@@ -179,6 +205,9 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         if dr is not None:
             tests.insert(0, dr) if dr["significant"] else tests.append(dr)
             _time_or_position(dr, drift_in, drift_at, tests, s)
+    bk = breakaway_of_runs(runs, s)
+    if bk is not None:
+        tests.insert(0, bk) if bk["significant"] else tests.append(bk)
     sensors = []
     for run in runs:
         measured = {c: run.signals[c] for c in ("motor_speed", "screw_speed", "nut_position") if c in run.source_columns}
