@@ -200,7 +200,7 @@ def test_progress_heartbeat_fills_silences_and_stops_with_its_block():
     beats = [x for x in buf.getvalue().splitlines() if x.startswith("thsa demo: fitting ... (")]
     assert 2 <= len(beats) <= 4, buf.getvalue()
     # stopped with the block: its thread is gone (nothing can write any more), and nothing came after it over
-    # two of its polling periods (0.05 s at every_s = 0.2)
+    # three of its polling periods (0.05 s at every_s = 0.2)
     assert not [t for t in threading.enumerate() if t.name == "thsa demo heartbeat"]
     n = len(buf.getvalue())
     time.sleep(0.15)
