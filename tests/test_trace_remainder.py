@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from thsa_control.trace.engine import _holdout_iact
+from thsa_control.trace.scoring import _holdout_iact
 from thsa_control.trace.scoring import _holdout_segment_changes
 from thsa_control.trace.signature import (
     SignatureSettings,
@@ -46,7 +46,7 @@ def test_base_transients_cover_starts_stops_and_load_changes_only():
 def test_a_creep_below_five_per_cent_ends_in_a_stop_at_the_motion_band():
     """A position loop's approach: fast travel (500 rad/s), a slow deceleration into a creep at 2 % of it (10 rad/s)
     for 1.2 s, then the stop.  With the default band (5 % of the top speed, 25 rad/s) the creep counts as "stopped",
-    so its end is no event and the samples before and after it are steady; with ``stop_band`` (the band a window
+    so its end is no event and the samples before and after it are steady; with ``motion_band`` (the band a window
     calls motion) the creep's end is a stop (within 0.3 s either side), and the band's crossings of 5 % stay events
     (the operating point changes there)."""
     dt = 2e-3
@@ -59,7 +59,7 @@ def test_a_creep_below_five_per_cent_ends_in_a_stop_at_the_motion_band():
     f = np.full_like(t, 10e3)
     creep_end = np.abs(t - 4.2) < 0.29
     default = base_transients(t, w, f, 0.3, sustained=True)
-    banded = base_transients(t, w, f, 0.3, sustained=True, stop_band=1.0)
+    banded = base_transients(t, w, f, 0.3, sustained=True, motion_band=1.0)
     assert not default[creep_end & (t < 4.0)].any()  # the creep before its end: steady by the 5 % band
     assert banded[creep_end].all()
     crossing = t[np.flatnonzero((w[:-1] > 25.0) & (w[1:] <= 25.0))[0] + 1]  # 5 % of 500 rad/s, in the deceleration
