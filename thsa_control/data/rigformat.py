@@ -447,3 +447,18 @@ def speed_sensor_intervals(run, override=None) -> dict[str, dict]:
         else:
             out[sig] = {"interval": None, "source": "default: instantaneous"}
     return out
+
+
+def speed_sensor_delays(run, override=None) -> dict[str, float]:
+    """The delay [s] each speed sensor of ``run`` reads with (:func:`speed_sensor_intervals`): a difference quotient
+    of an angle over ``T`` is the mean speed over the last ``T``, the instantaneous speed ``T / 2`` earlier (``"sample"``:
+    one logged sample, the run's median sampling interval); 0 for an instantaneous sensor.  What two redundant
+    sensors' relative lag is expected to be when both are healthy."""
+    t = np.asarray(run.time, dtype=float)
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    out = {}
+    for sig, d in speed_sensor_intervals(run, override).items():
+        iv = d["interval"]
+        out[sig] = 0.0 if iv is None else 0.5 * (dt if iv == "sample" else float(iv))
+    return out
+
