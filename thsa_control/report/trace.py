@@ -487,6 +487,9 @@ def format_trace_summary(doc: dict) -> str:
             extra = (f", position beyond time p {_num(t['position_beyond_time']['p_value'], '.2g')}, time beyond position"
                      f" p {_num(t['time_beyond_position']['p_value'], '.2g')} over {t['passes_per_direction']['extending']}"
                      f" + {t['passes_per_direction']['retracting']} passes: {t['verdict']}")
+        elif t["kind"] == "torque_constant_drift":
+            extra = (f", current {1e3 * t['relative_rate']:+.2f}e-3 +- {1e3 * t['stderr']:.2f}e-3 /s of itself over "
+                     f"{t['passes']} comparable passes ({len(t['classes'])} operating points): {t['verdict']}")
         elif t["kind"] == "sensor_offset":
             extra = f", offset {t['offset']:.3f} A over {t['samples']} samples"
         elif t["kind"] == "sensor_drift":
