@@ -82,8 +82,8 @@ def amps_per_newton(params: ParameterSet, lead: float, gear_ratio: float) -> flo
 
 def current_drift_of_runs(runs: Sequence[RigRun], params: ParameterSet, s: SignatureSettings | None = None) -> dict | None:
     """:func:`~thsa_control.trace.signature.current_drift_test` over ``runs`` (each run its own group: passes are
-    compared within a run, whose clock is one), from the records alone, at the replicate-based level
-    ``s.local_alpha``; None when no run has comparable passes."""
+    compared within a run, whose clock is one), from the records alone, at the sample-based level ``s.alpha`` (its
+    errors are IACT-corrected sample counts); None when no run has comparable passes."""
     s = s or SignatureSettings()
     cols: dict[str, list] = {k: [] for k in ("t", "i", "w", "f", "cmd", "x", "temp", "on", "g")}
     t_offset = 0.0
@@ -107,7 +107,7 @@ def current_drift_of_runs(runs: Sequence[RigRun], params: ParameterSet, s: Signa
         return None
     c = {k: np.concatenate(v) for k, v in cols.items()}
     return current_drift_test(c["t"], c["i"], c["w"], c["f"], c["cmd"], c["x"], c["temp"], c["on"] > 0.5, c["g"],
-                              amps_per_newton=apn, transient_time=s.transient_time, alpha=s.local_alpha,
+                              amps_per_newton=apn, transient_time=s.transient_time, alpha=s.alpha,
                               temperature_span=s.temperature_span)
 
 
