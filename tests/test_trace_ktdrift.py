@@ -189,3 +189,19 @@ def test_no_other_committed_run_is_named(name):
     drift, the cold friction, the Kt run of one pass per direction): not named."""
     d = _record_test(name)
     assert d is None or not d["significant"], (d["relative_rate"], d["p_value"], d["verdict"])
+
+
+def test_the_report_panel_draws_the_passes_and_the_shared_rate():
+    """The signature figure's panel: each comparable pass's current relative to its operating point's level against
+    time, per operating point, with the shared rate and the verdict."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from thsa_control.report.trace import plot_signature
+
+    d = _record_test("rig_kt_temperature_reversals")
+    fig = plot_signature({"tests": [d], "curves": {}})
+    ax = next(a for a in fig.get_axes() if "comparable passes" in a.get_title())
+    assert any("torque constant (STRUCTURED)" in t.get_text() for t in ax.texts)
+    labels = ax.get_legend_handles_labels()[1]
+    assert any(lb.startswith("extending") for lb in labels) and any(lb.startswith("retracting") for lb in labels)
