@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from thsa_control.trace.engine import _holdout_iact
+from thsa_control.trace.scoring import _holdout_iact
 from thsa_control.trace.scoring import _holdout_segment_changes
 from thsa_control.trace.signature import (
     SignatureSettings,

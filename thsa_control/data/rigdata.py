@@ -132,7 +132,9 @@ from thsa_control.data.rigformat import (  # noqa: F401  (re-exported: the publi
     _add_rows,
     _number,
     true_runs,
+    drive_on,
     measured_motor_speed,
+    stop_band,
     speed_integral,
     motor_speed_from,
 )

@@ -311,6 +311,22 @@ def measured_motor_speed(run) -> np.ndarray | None:
         lambda c: np.asarray(run.signals[c], float) if c in run.source_columns else None, run.gear_ratio)
 
 
+def stop_band(speed) -> float:
+    """The speed under which the drive counts as stopped (the tracer's starts, stops and reversals, a run's moving
+    samples): 5 % of the record's largest speed (of at least 1e-9)."""
+    return 0.05 * max(float(np.max(np.abs(speed))), 1e-9)
+
+
+def drive_on(run) -> np.ndarray:
+    """Per sample of a run, whether the drive is energised: either motor enabled (``primary_enable``,
+    ``standby_enable``) and, on a rig whose motors are de-energised while the speed command is exactly 0
+    (``motor_disabled_when_cmd_zero``), the command not 0.  The one rule, for every tool that asks."""
+    on = (np.asarray(run.signals["primary_enable"]) > 0.5) | (np.asarray(run.signals["standby_enable"]) > 0.5)
+    if run.motor_disabled_when_cmd_zero:
+        on &= np.asarray(run.signals["speed_cmd"]) != 0
+    return on
+
+
 def speed_integral(time, speed) -> np.ndarray:
     """The angle [rad] (or travel) a speed covers from the first sample: the trapezoid rule over the samples, 0 at
     the first one.  The one integration of a measured speed, for every tool that needs a motor angle or a travel."""

@@ -453,6 +453,11 @@ def why_held(d: Mapping) -> str:
         f" (+{d['file_chi2_above_min']:.4g} above its minimum)" if "file_chi2_above_min" in d else "")
 
 
+def _at_min(x: np.ndarray, y: np.ndarray) -> float:
+    """The screened value ``x`` at which the screen ``y`` is least."""
+    return float(x[int(np.argmin(y))])
+
+
 def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free: Sequence[str],
                      profile: Mapping[str, tuple[float, float]], *, level: str | None = None, effects=(),
                      settings: IdentificationSettings | None = None, psettings: ProfileSettings | None = None,
@@ -619,7 +624,7 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
             xf = np.linspace(a, b, ps.fine_points)
             yf = screen.chi2_many([params.replace({main: float(v), **held(v)}) for v in xf])
             fine_pts.update(zip(xf.tolist(), yf.tolist()))
-            cands.append(float(xf[int(np.argmin(yf))]))
+            cands.append(_at_min(xf, yf))
         allx = np.array(sorted(set(x.tolist()) | set(fine_pts)))
         ally = np.array([fine_pts[v] if v in fine_pts else float(y[np.searchsorted(x, v)]) for v in allx])
         return cands, allx, ally
@@ -644,20 +649,23 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
             products.pop(name, None)
 
     cands, allx, ally = screen_main()
+    x_best = _at_min(allx, ally)  # the first parameter's best screened value
     if fractions:
         # one step of descent in the coordinates the runs see (the first parameter, each fraction's product): the
         # fractions at the first parameter's best value, then the first parameter again with their products held
         for name in fractions:
-            screen_fraction(name, float(allx[int(np.argmin(ally))]))
+            screen_fraction(name, x_best)
         if products:
             cands, allx, ally = screen_main()
+            x_best = _at_min(allx, ally)
             for name in fractions:
-                screen_fraction(name, float(allx[int(np.argmin(ally))]))
-    redchi = float(np.min(ally)) / max(screen.n - 1, 1)
+                screen_fraction(name, x_best)
+    y_min = float(np.min(ally))
+    redchi = y_min / max(screen.n - 1, 1)
     thr = q * max(redchi, 1.0)
     screens = {main: list(zip(allx.tolist(), ally.tolist())), **screens}
     # 4: further parameters, one at a time at the best screened values
-    best_vals = {main: float(allx[int(np.argmin(ally))])}
+    best_vals = {main: x_best}
     mattered[main] = bool(np.ptp(ally) > thr)
     for name in fractions:
         best_vals[name] = held(best_vals[main])[name] if mattered[name] else params.value(name)
@@ -669,7 +677,7 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
         yo = screen.chi2_many([params.replace({**best_vals, name: float(v)}) for v in xo])
         screens[name] = list(zip(xo.tolist(), yo.tolist()))
         mattered[name] = bool(np.ptp(yo) > thr)
-        best_vals[name] = float(xo[int(np.argmin(yo))]) if mattered[name] else params.value(name)
+        best_vals[name] = _at_min(xo, yo) if mattered[name] else params.value(name)
     others = {n: best_vals[n] for n in names[1:]}
 
     def others_at(v: float) -> dict:  # the products held at every profile fit
@@ -712,8 +720,7 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
     # is the first parameter determined?  its profile set at the threshold the tracer uses for held-out differences
     determination: dict = {}
     if mattered[main] and not integer:
-        e_best = screen._errors_many([params.replace({main: float(allx[int(np.argmin(ally))]),
-                                                      **held(float(allx[int(np.argmin(ally))]))})])[0]
+        e_best = screen._errors_many([params.replace({main: x_best, **held(x_best)})])[0]
         e_best = e_best[np.isfinite(e_best)]
         tau = max(float(iact(e_best)), 1.0) if iact is not None and e_best.size >= 8 else 1.0
         d = profile_set(allx, ally, q * max(redchi, 1.0) * tau, (lo, hi), ps.screen_points, best[1],
@@ -725,8 +732,8 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
             d["file_value"] = v_file
             if lo <= v_file <= hi:
                 c_file = float(screen.chi2_many([params.replace({main: v_file, **held(v_file)})])[0])
-                d["file_chi2_above_min"] = c_file - float(np.min(ally))
-                d["file_in_set"] = bool(c_file <= float(np.min(ally)) + d["threshold"])
+                d["file_chi2_above_min"] = c_file - y_min
+                d["file_in_set"] = bool(c_file <= y_min + d["threshold"])
             if d["file_in_set"]:
                 held_fit = fit_at(v_file, keep=False)
                 if held_fit is not None:

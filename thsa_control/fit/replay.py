@@ -47,7 +47,7 @@ from ..loops.design import Design
 from ..errors import RigDataError, ThsaError
 from ..model.plant import SENSOR_OUTPUTS, Plant
 from ..model.params import ParameterSet
-from ..data.rigdata import RigRun, motor_speed_from
+from ..data.rigdata import RigRun, drive_on, motor_speed_from
 from .kinematics import run_kinematics
 from ..sim.simulate import InputSeries, SimulationSettings, Simulator
 
@@ -84,6 +84,10 @@ MECH_INPUTS = ("current_start", "current_end", "standby_active", "load_start", "
 #: Plant output each measured channel is compared with: what its sensor reads in the model's measurement
 #: map (:data:`thsa_control.model.plant.SENSOR_OUTPUTS`; the LVDT reads the surface position).
 COMPARED_OUTPUT = SENSOR_OUTPUTS
+#: A plant-step count within this of a whole number is that whole number: a speed sensor's difference-quotient interval
+#: over the plant step is a ratio of two sample periods in floating point (shooting.py snaps it, the
+#: current-driven map splits it into whole steps and a fraction with it).
+STEP_COUNT_TOL = 1e-6
 #: Shaper rate limit that passes a recorded (already shaped) command through [m/s^2].
 PASS_THROUGH_ACCEL = 1e9
 #: Speed cap [m/s] of a run's position loop that states none (the Design needs a finite one).
@@ -617,8 +621,8 @@ def current_driven_map(plant: Plant, substeps: int = 1, quotients: Mapping[str, 
     if quotients:
         q = []
         for c, m in quotients.items():
-            whole = math.floor(m + 1e-9)
-            frac = m - whole if m - whole > 1e-9 else 0.0
+            whole = math.floor(m + STEP_COUNT_TOL)
+            frac = m - whole if m - whole > STEP_COUNT_TOL else 0.0
             total = sum(speeds[c][substeps - whole:]) if whole else ca.SX(0.0)
             if frac:
                 # the step before the whole ones (index j; its predecessor the period's start speed when j = 0)
@@ -718,7 +722,6 @@ def replay_open_loop(run: RigRun, plant: Plant, params: ParameterSet, *, setting
         _warnings.warn(msg, stacklevel=2)
     V = mech_inputs(run)
     hs = sample_periods(run)
-    n = V.shape[1]
     p = plant.p_vector(params)
     if x0 is None:
         x0 = plant.initial_state(params, load_force=float(V[3, 0]), nut_position=_initial_nut_position(run))
@@ -780,9 +783,7 @@ def residual_signals(run: RigRun, result: ReplayResult) -> tuple[dict, dict]:
     t = np.asarray(run.time, float)
     cmd = np.asarray(s["speed_cmd"], float)
     load = np.asarray(s["load_force"], float)
-    on = (np.asarray(s["primary_enable"]) > 0.5) | (np.asarray(s["standby_enable"]) > 0.5)
-    if run.motor_disabled_when_cmd_zero:
-        on &= cmd != 0
+    on = drive_on(run)
     sim = result.simulated
     deadband = 0.05 * float(np.max(np.abs(cmd))) if cmd.size and np.any(cmd) else 0.0
     pole_pairs = result.params.value("motor.pole_pairs")

@@ -36,7 +36,7 @@ from ..data.rigformat import speed_sensor_intervals
 from ..errors import RigDataError, ThsaError
 from ..model.params import ParameterSet
 from ..model.plant import Plant
-from .replay import COMPARED_OUTPUT, mech_inputs, replay_closed_loop, run_design, sample_periods
+from .replay import COMPARED_OUTPUT, STEP_COUNT_TOL, mech_inputs, replay_closed_loop, run_design, sample_periods
 from .segment_states import drivetrain_segment_guess
 
 if TYPE_CHECKING:
@@ -153,7 +153,7 @@ class RunProblem:
                 # (current_driven_map), not rounded to a whole step (1 ms at 500 Hz was read as 2 ms)
                 m = (settings.substeps if iv == "sample"
                      else min(float(settings.substeps), iv / (dt / settings.substeps)))
-                quot[c] = round(m) if abs(m - round(m)) < 1e-6 and round(m) >= 1 else m
+                quot[c] = round(m) if abs(m - round(m)) < STEP_COUNT_TOL and round(m) >= 1 else m
         self.quotient_steps = quot
         if quot:
             from .replay import current_driven_map

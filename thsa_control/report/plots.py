@@ -10,6 +10,7 @@ from collections.abc import Mapping
 
 import numpy as np  # noqa: E402
 
+from ..data.rigformat import true_runs
 from ..data.units import label, to_display
 from .figure import subplots
 
@@ -26,8 +27,7 @@ def close(fig) -> None:
 def _mark_stops(ax, result):
     t = np.asarray(result.time)
     off = np.asarray(result["energised_primary"]) + np.asarray(result["energised_standby"]) < 0.5
-    edges = np.diff(np.concatenate([[0], off.astype(int), [0]]))
-    for i, j in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
+    for i, j in true_runs(off):
         ax.axvspan(t[i], t[j - 1], color="0.92", zorder=0, lw=0)
 
 

@@ -236,6 +236,15 @@ def plot_signature(sig: dict):
         else:
             ax.text(0.02, 0.97, "repeated over passes: not tested (fewer than three bins crossed by two passes)",
                     transform=ax.transAxes, va="top", fontsize=7, color="0.35")
+        bk = next((t for t in sig.get("tests", []) if t.get("kind") == "breakaway"), None)
+        if bk is not None:  # the breakaway test's places (starts and reversals of one class), the one that stands out
+            for pl in bk["places"]:
+                ax.axvline(1e3 * pl["position"], color="C3" if pl["position"] == bk["peak_position"] and bk["significant"]
+                           else "0.8", lw=0.8, ls=":")
+            ax.text(0.02, 0.90, f"breakaway current at starts/reversals: p {_num(bk['p_value'], '.2g')}"
+                    + (" (STRUCTURED)" if bk["significant"] else "")
+                    + f"\n{bk['peak_deviation']:+.2f} A at {1e3 * bk['peak_position']:.1f} mm against the same kind of "
+                    "event elsewhere", transform=ax.transAxes, va="top", fontsize=7)
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7, loc="best")
     else:  # trace.residual bins the nut position only over a travel of at least two bins
@@ -519,6 +528,11 @@ def format_trace_summary(doc: dict) -> str:
             extra = (f", position beyond time p {_num(t['position_beyond_time']['p_value'], '.2g')}, time beyond position"
                      f" p {_num(t['time_beyond_position']['p_value'], '.2g')} over {t['passes_per_direction']['extending']}"
                      f" + {t['passes_per_direction']['retracting']} passes: {t['verdict']}")
+        elif t["kind"] == "breakaway":
+            extra = (f", at {1e3 * t['peak_position']:.1f} mm {t['peak_deviation']:+.3f} A against the same kind of "
+                     f"event elsewhere ({t['classes']} class(es) of starts/reversals seen at two places or more, "
+                     f"{len(t['places'])} places, {t['replicate_dof']} replicate dof)")
+
         elif t["kind"] == "torque_constant_drift":
             extra = (f", current {1e3 * t['relative_rate']:+.2f}e-3 +- {1e3 * t['stderr']:.2f}e-3 /s of itself over "
                      f"{t['passes']} comparable passes ({len(t['classes'])} operating points): {t['verdict']}")

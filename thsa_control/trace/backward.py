@@ -33,11 +33,11 @@ from dataclasses import dataclass, field
 from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
 from ..model.params import ParameterSet
 from .scoring import (
-    _chi2_by_channel,
-    _holdout_segment_changes,
     _null_runs,
-    _rms_by_channel,
+    admission_tests,
+    beats_null,
     determination,
+    null_drop,
 )
 
 #: how the kept effects are ordered (trace.json ``order.measure``)
@@ -101,33 +101,18 @@ def judge_removal(a: Added, full: dict, reduced: dict, *, noise, mask, window_ma
     """The admission criterion of ``a``, given the others: ``full`` (the current fit) against ``reduced`` (the
     fit without it).  Returns the record (before the null calibration); ``prelim`` says whether it passes the
     tests that need no null run."""
-    from scipy.stats import chi2
-
     spec = a.spec
-    drop_all = (sum(_chi2_by_channel(reduced, noise, "holdout").values())
-                - sum(_chi2_by_channel(full, noise, "holdout").values()))
-    hb = sum(_chi2_by_channel(reduced, noise, "holdout", mask).values())
-    hc = sum(_chi2_by_channel(full, noise, "holdout", mask).values())
-    drop = hb - hc
-    thr = float(chi2.ppf(1 - alpha, a.k))
-    wb = _chi2_by_channel(reduced, noise, "holdout", window_mask)
-    wc = _chi2_by_channel(full, noise, "holdout", window_mask)
-    win_red = {c: (1 - math.sqrt(wc[c] / wb[c])) if wb.get(c, 0) > 0 else 0.0 for c in wc}
-    rms_b, rms_c = _rms_by_channel(reduced), _rms_by_channel(full)
-    err_red = {c: (1 - rms_c[c] / rms_b[c]) if rms_b.get(c, 0) > 0 else 0.0 for c in rms_c}
-    aic_drop = reduced["aic"] - full["aic"]
+    adm = admission_tests(reduced, full, noise, k=a.k, alpha=alpha, mask=mask, window=window_mask,
+                          channel=spec.channel, min_window_reduction=min_window_reduction,
+                          max_channel_increase=max_channel_increase, robust=robust, given_others=True)
+    drop, thr, win_red = adm["holdout_chi2_drop"], adm["chi2_threshold"], adm["window_reduction"]
     why = []
-    if not drop > thr:
+    if not adm["significant"]:
         why.append(f"held-out chi2 drop {drop:.4g} <= chi2({a.k}) quantile {thr:.3g}")
-    if max(win_red.values(), default=0.0) < min_window_reduction:
+    if not adm["window_ok"]:
         why.append(f"window '{spec.window}' error drop {max(win_red.values(), default=0.0):.1%} < "
                    f"{min_window_reduction:.0%}")
-    if win_red.get(spec.channel, 0.0) < -max_channel_increase:
-        why.append(f"{spec.channel} window error grows by {-win_red[spec.channel]:.0%}")
-    elif err_red.get(spec.channel, 0.0) < -max_channel_increase:
-        why.append(f"{spec.channel} error over the whole record grows by {-err_red[spec.channel]:.0%}")
-    if aic_drop <= 0:
-        why.append(f"not supported by the samples it is fitted to (AIC drop {aic_drop:.3g} <= 0)")
+    why += [w for w in (adm["channel_fail"], adm["aic_fail"]) if w]
     # its parameters in the current fit: determined, not collapsing to zero (the candidates' one test, on the runs'
     # own information; a parameter held when it was admitted stays held and is not judged)
     judge, absent = a.job.get("judge") or {}, a.job.get("absent") or {}
@@ -147,15 +132,13 @@ def judge_removal(a: Added, full: dict, reduced: dict, *, noise, mask, window_ma
     # effect whose part another explains fails on the drop and its null calibration.
     why += [f"{n} = {full['estimates'][n]['value']:.3g} collapses to zero given the others"
             for n, v in verdicts.items() if v == "zero"]
-    seg = _holdout_segment_changes(reduced, full, noise, window_mask)
-    if robust and seg.get("sign_p", 1.0) >= alpha:
-        why.append(f"a constant torque that improves {seg.get('improved', 0)} of {seg.get('segments', 0)} held-out "
-                   f"segments of its window (sign test p = {seg.get('sign_p', 1.0):.2g} >= {alpha:g})")
+    if adm["robust_fail"]:
+        why.append(adm["robust_fail"])
     return {"name": a.name, "round_added": a.round, "holdout_chi2_drop_when_added": a.drop_when_added,
-            "holdout_chi2_drop": drop, "holdout_chi2_drop_all_samples": drop_all,
+            "holdout_chi2_drop": drop, "holdout_chi2_drop_all_samples": adm["holdout_chi2_drop_all_samples"],
             "scored_outside_transients": mask is not None, "chi2_threshold": thr, "window": spec.window, "window_reduction": win_red,
-            "error_reduction": err_red, "aic_drop": aic_drop, "determination": verdicts, "window_segments": seg,
-            "fails": why, "prelim": not why}
+            "error_reduction": adm["error_reduction"], "aic_drop": adm["aic_drop"], "determination": verdicts,
+            "window_segments": adm["window_segments"], "fails": why, "prelim": not why}
 
 
 def null_calibrate(recs: list[dict], reduceds: Mapping, jobs_of: Mapping, fit_runs, noise,
@@ -173,11 +156,8 @@ def null_calibrate(recs: list[dict], reduceds: Mapping, jobs_of: Mapping, fit_ru
     fits = fit_jobs(jobs)
     for k, r in enumerate(owners):
         nr, nf = fits[2 * k], fits[2 * k + 1]
-        m = masks[r["name"]]
-        nd = (sum(_chi2_by_channel(nr, noise, "holdout", m).values())
-              - sum(_chi2_by_channel(nf, noise, "holdout", m).values())
-              if "error" not in nr and "error" not in nf else math.nan)
+        nd = null_drop(nr, nf, noise, masks[r["name"]])
         r["null_chi2_drop"] = nd
-        if not (math.isfinite(nd) and r["holdout_chi2_drop"] > null_factor * max(nd, 0.0)):
+        if not beats_null(r["holdout_chi2_drop"], nd, null_factor):
             r["fails"].append(f"held-out chi2 drop {r['holdout_chi2_drop']:.4g} not above {null_factor:g} x its null "
                               f"drop {nd:.3g}")

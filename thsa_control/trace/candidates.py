@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from ..data.rigdata import RigRun, measured_motor_speed, speed_integral
+from ..data.rigdata import RigRun, measured_motor_speed, speed_integral, stop_band
 from ..fit.residuals import reversal_proximity
 from ..model import EFFECTS, CandidateSpec
 from ..model.params import ParameterSet
@@ -179,17 +179,23 @@ def cogging_resolved(run: RigRun, count: float, steady: bool = True, transient_t
     18th harmonic of rig-sim's motor speed is at 1.5 kHz); ``steady``: outside the base's transients, judged on the
     speed averaged over the transient time (:func:`~thsa_control.trace.signature.base_transients` with
     ``sustained``: the cogging ripples the speed itself, and its own ripple is no transient)."""
+    return _cogging_resolver(run, steady, transient_time)(count)
+
+
+def _cogging_resolver(run: RigRun, steady: bool = True, transient_time: float = 0.3) -> Callable:
+    """``count -> `` :func:`cogging_resolved` ``(run, count, steady, transient_time)``: what does not depend on the
+    count (the turning motor, the base's transients, the sample rate) computed once."""
     from .signature import base_transients
 
     t = np.asarray(run.time, float)
     if t.size < 2:
-        return np.zeros(t.shape, bool)
+        return lambda count: np.zeros(t.shape, bool)
     fs = 1.0 / float(np.median(np.diff(t)))
     w = np.nan_to_num(np.asarray(measured_motor_speed(run), float))
-    out = motor_turning(run) & (count * np.abs(w) / (2 * math.pi) * COGGING_SAMPLES_PER_PERIOD < fs)
+    where = motor_turning(run)
     if steady:
-        out &= ~base_transients(t, w, run.signals["load_force"], transient_time, sustained=True)
-    return out
+        where &= ~base_transients(t, w, run.signals["load_force"], transient_time, sustained=True)
+    return lambda count: where & (count * np.abs(w) / (2 * math.pi) * COGGING_SAMPLES_PER_PERIOD < fs)
 
 
 def cogging_pole_count(params: ParameterSet) -> int:
@@ -248,15 +254,16 @@ def cogging_counts(params: ParameterSet, runs, lo: float, hi: float, transient_t
             return [], (f"cannot be resolved on this record: the LVDT anchors a segment's motor angle to a cogging "
                         f"count of {anchored:.3g} per revolution at most, below the lowest one ({first}, a multiple "
                         f"of the {step} poles)")
+    resolved = [_cogging_resolver(r, transient_time=transient_time) for r in runs]  # the masks' parts, once a run
     counts = []
     for n in range(first, math.floor(hi) + 1, step):
-        k = sum(int(cogging_resolved(r, n, transient_time=transient_time).sum()) for r in runs)
+        k = sum(int(res(n).sum()) for res in resolved)
         if k < MIN_WINDOW_SAMPLES:
             break  # fewer at every larger count
         counts.append(float(n))
     if counts:
         return counts, None
-    k = sum(int(cogging_resolved(r, first, transient_time=transient_time).sum()) for r in runs)
+    k = sum(int(res(first).sum()) for res in resolved)
     return [], (f"cannot be resolved on this record: even the lowest cogging count ({first} per motor revolution, a "
                 f"multiple of the {step} poles) spans {COGGING_SAMPLES_PER_PERIOD:g} samples per period on only {k} "
                 f"samples where the motor turns outside the base's transients (fewer than {MIN_WINDOW_SAMPLES}): "
@@ -451,7 +458,7 @@ def clearance_window(run: RigRun, travel: float) -> np.ndarray:
 def _window(kind: str, run: RigRun, params: ParameterSet | None = None) -> np.ndarray:
     s = run.signals
     w = np.nan_to_num(measured_motor_speed(run))
-    moving = np.abs(w) > 0.05 * max(float(np.max(np.abs(w))), 1e-9)
+    moving = np.abs(w) > stop_band(w)
     load = np.asarray(s["load_force"], float)
     if kind == "all":
         return np.ones(w.shape, bool)

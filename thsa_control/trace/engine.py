@@ -72,9 +72,9 @@ from . import periodicity
 from .residual import _regime_errors, _signature
 from .scoring import (_at_edge, _base_correction, _window_beyond_noise, _channel_errors, _chi2_by_channel, _explainers_at_bound, _held_out,
                       _holdout_segment_changes,
-                      _held_params, _holdout_iact, _holdout_samples, _null_runs, _param_entry, _plausibility,
-                      _rms_by_channel, _run_jobs,
-                      _signature_brief, zero_is_absent)
+                      _held_params, _null_runs, _param_entry, _plausibility,
+                      _run_jobs,
+                      _signature_brief, admission_tests, beats_null, holdout_total, null_drop, scaled_threshold, zero_is_absent)
 from .lift import better, contribution, interior, joint_verdict, lift_names, lifted as lifted_bounds
 from .signature import SignatureSettings, base_transients, split_remainder
 from .threads import limit_blas_threads
@@ -733,8 +733,6 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                                         fits[len(jobs) + len(idx_extra):])
         for i, fe in zip(idx_extra, fits_extra):
             fits[i] = better(fits[i], fe)
-        base_holds = {w: _chi2_by_channel(current, noise, "holdout", score_mask(w)) for w in WINDOWS}
-        base_hold_all = sum(_chi2_by_channel(current, noise, "holdout").values())  # one sample set for every candidate
         scored = []
         for spec, f, jb in zip(scorable, fits, jobs):
             if "error" in f:
@@ -742,42 +740,25 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                                "error_reduction": {}})
                 continue
             cand_times.append(f["time_s"])
-            base_hold = base_holds[spec.window]
-            hold = _chi2_by_channel(f, noise, "holdout", score_mask(spec.window))
-            drop = sum(base_hold.values()) - sum(hold.values())
             k = len(spec.free) + len(spec.profile)
-            from scipy.stats import chi2
-
-            thr = float(chi2.ppf(1 - st.alpha, k))
             # at the fit's own values where the window depends on them (the cogging's count)
             win = window_of(spec.window, ParameterSet.from_toml(f["params_toml"]))
-            wb = _chi2_by_channel(current, noise, "holdout", win)
-            wc = _chi2_by_channel(f, noise, "holdout", win)
-            win_red = {c: (1 - math.sqrt(wc[c] / wb[c])) if wb.get(c, 0) > 0 else 0.0 for c in wc}
-            win_sys = _window_beyond_noise(current, f, noise, win)
-            rms_b, rms_c = _rms_by_channel(current), _rms_by_channel(f)
-            err_red = {c: (1 - rms_c[c] / rms_b[c]) if rms_b[c] > 0 else 0.0 for c in rms_c}
-            plausible, why = _plausibility(f, spec, plaus)
-            if win_red.get(spec.channel, 0.0) < -st.max_channel_increase:
-                plausible = False
-                why.append(f"{spec.channel} error grows by {-win_red[spec.channel]:.0%}")
-            elif err_red.get(spec.channel, 0.0) < -st.max_channel_increase:
-                # the same bar on the whole record: the window may be scored on part of it (outside the base's
-                # transients, or a reversal window), where the effect's physics acts too
-                plausible = False
-                why.append(f"{spec.channel} error over the whole record grows by {-err_red[spec.channel]:.0%}")
-            aic_drop = current["aic"] - f["aic"]
-            if aic_drop <= 0:
-                # the training samples prefer the model without it (Akaike): a fit of nested physics rises there
-                # only where a value was not fitted on them (a profiled value from the one-step screen's minima,
-                # the file value held within the training gap, an unconverged fit); the profile fits are chosen on
-                # the training error (fit.profile), so the held-out drop stays out of sample
-                plausible = False
-                why.append(f"not supported by the samples it was fitted to (AIC drop {aic_drop:.3g} <= 0)")
-            prelim = drop > thr and max(win_red.values(), default=0.0) >= st.min_window_reduction and plausible
-            seg_win = _holdout_segment_changes(current, f, noise, win)
             constant = CANDIDATES.get(spec.name) is not None and CANDIDATES[spec.name].base_correction
-            robust = not (use_base and st.robust_constant_torque and constant) or seg_win.get("sign_p", 1.0) < st.alpha
+            adm = admission_tests(current, f, noise, k=k, alpha=st.alpha, mask=score_mask(spec.window), window=win,
+                                  channel=spec.channel, min_window_reduction=st.min_window_reduction,
+                                  max_channel_increase=st.max_channel_increase,
+                                  robust=bool(use_base and st.robust_constant_torque and constant))
+            drop, thr, win_red, err_red, aic_drop, seg_win = (adm[x] for x in (
+                "holdout_chi2_drop", "chi2_threshold", "window_reduction", "error_reduction", "aic_drop",
+                "window_segments"))
+            win_sys = _window_beyond_noise(current, f, noise, win)
+            plausible, why = _plausibility(f, spec, plaus)
+            for fail in (adm["channel_fail"], adm["aic_fail"]):
+                if fail:
+                    plausible = False
+                    why.append(fail)
+            prelim = adm["significant"] and adm["window_ok"] and plausible
+            robust = adm["robust_fail"] is None
             prelim = prelim and robust
             period_test = (_repetition(current, f, spec, k, runs, noise, score_mask(spec.window), st.alpha,
                                        2 * st.signature.position_bin)
@@ -788,10 +769,10 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             repeats = period_test is None or period_test["repeats"] or not prelim
             prelim = prelim and repeats
             scored.append({
-                "name": spec.name, "score": drop / max(sum(base_hold.values()), 1e-300), "holdout_chi2_drop": drop,
+                "name": spec.name, "score": drop / max(adm["holdout_chi2_before"], 1e-300), "holdout_chi2_drop": drop,
                 # reported beside it: the drop over all held-out samples (the candidates' scored samples differ by
                 # window; the order of what is explained compares this one, trace/backward.py)
-                "holdout_chi2_drop_all_samples": base_hold_all - sum(_chi2_by_channel(f, noise, "holdout").values()),
+                "holdout_chi2_drop_all_samples": adm["holdout_chi2_drop_all_samples"],
                 "chi2_threshold": thr, "error_reduction": err_red, "window": spec.window, "window_reduction": win_red,
                 "window_reduction_beyond_noise": win_sys, "aic_drop": aic_drop, "bic_drop": current["bic"] - f["bic"],
                 "plausible": plausible, "implausible_because": why, "parameters": _params_out(f, spec),
@@ -800,9 +781,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "not_determined": _held_out(f),
                 "holdout_segments": _holdout_segment_changes(current, f, noise),
                 "window_segments": seg_win,
-                **({} if robust else {"not_robust": f"a constant torque that improves {seg_win.get('improved', 0)} "
-                                                    f"of {seg_win.get('segments', 0)} held-out segments of its window "
-                                                    f"(sign test p = {seg_win.get('sign_p', 1.0):.2g} >= {st.alpha:g})"}),
+                **({} if robust else {"not_robust": adm["robust_fail"]}),
                 **({"periodicity": period_test} if period_test is not None else {}),
                 **({} if repeats else {"not_periodic": periodicity.describe(period_test)}),
                 **({"scored_outside_transients": True} if score_mask(spec.window) is not None else {}),
@@ -833,17 +812,11 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                                                    "params_toml": _held_params(c["_job"]["params_toml"], c["_fit"])}
                                                   for c in batch], st.workers, say)
                 if base_job:
-                    null_base = null_fits.pop(0)
+                    nbs["fit"] = null_fits.pop(0)
                     base_job.clear()
-                    nbs.update({w: (sum(_chi2_by_channel(null_base, noise, "holdout", score_mask(w)).values())
-                                    if "error" not in null_base else math.nan) for w in WINDOWS})
                 for c, nf in zip(batch, null_fits):
-                    w = c["window"]
-                    nd = ((nbs[w] - sum(_chi2_by_channel(nf, noise, "holdout", score_mask(w)).values()))
-                          if "error" not in nf else math.nan)
-                    c["null_chi2_drop"] = nd
-                return [c for c in batch if math.isfinite(c["null_chi2_drop"]) and c["holdout_chi2_drop"]
-                        > st.null_factor * max(c["null_chi2_drop"], 0.0)]
+                    c["null_chi2_drop"] = null_drop(nbs["fit"], nf, noise, score_mask(c["window"]))
+                return [c for c in batch if beats_null(c["holdout_chi2_drop"], c["null_chi2_drop"], st.null_factor)]
 
             while todo:
                 batch = todo[:max(st.workers, 2)]
@@ -868,9 +841,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         for s in scored:
             if "error" in s:
                 continue
-            nd = s.get("null_chi2_drop")
-            s["significant"] = bool(s["prelim"] and nd is not None and math.isfinite(nd)
-                                    and s["holdout_chi2_drop"] > st.null_factor * max(nd, 0.0))
+            s["significant"] = bool(s["prelim"] and beats_null(s["holdout_chi2_drop"], s.get("null_chi2_drop"),
+                                                               st.null_factor))
         scored.sort(key=lambda s: -(s.get("holdout_chi2_drop") or -math.inf))
         joint = None
         if fits_joint:
@@ -881,8 +853,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 ef = better(fits_joint[2], fits_joint[3])
                 if "error" not in ef:
                     singles.append({"name": EFFICIENCY_LIFT, "holdout_chi2_drop": (
-                        sum(_chi2_by_channel(current, noise, "holdout", cmask).values())
-                        - sum(_chi2_by_channel(ef, noise, "holdout", cmask).values()))})
+                        holdout_total(current, noise, cmask) - holdout_total(ef, noise, cmask))})
             if "error" not in jf:
                 jf = {**jf, "_lifted": tuple(lifting)}
                 nested = [x["name"] for x in singles if x.get("beyond_base_correction")] + [EFFICIENCY_LIFT]
@@ -1192,10 +1163,8 @@ def _detail_declared(refinements, current: dict, cur_effects, cur_free, fit_runs
     the rules of a candidate: held-out chi2 drop above the ``chi2(k)`` quantile and ``null_factor`` times the drop
     the same refinement buys on a null run of the corrected base, window RMS drop, own channel not worse,
     plausible on the parameters the run determines (the others held at their file values)."""
-    from scipy.stats import chi2
-
     out = []
-    base_hold = sum(_chi2_by_channel(current, noise, "holdout").values())
+    base_hold = holdout_total(current, noise)
     todo = []
     for spec, jb, f in refinements:
         d = {"name": spec.name, "refines": [x for x in EFFECTS[spec.name].supersedes if x in cur_effects],
@@ -1204,22 +1173,21 @@ def _detail_declared(refinements, current: dict, cur_effects, cur_free, fit_runs
             d["reason"] = f"fit failed: {f['error']}"
             out.append({"doc": d})
             continue
-        drop = base_hold - sum(_chi2_by_channel(f, noise, "holdout").values())
-        thr = float(chi2.ppf(1 - st.alpha, len(spec.free)))
-        win = windows_cache[spec.window]
-        wb = _chi2_by_channel(current, noise, "holdout", win)
-        wc = _chi2_by_channel(f, noise, "holdout", win)
-        win_red = {c: (1 - math.sqrt(wc[c] / wb[c])) if wb.get(c, 0) > 0 else 0.0 for c in wc}
+        # the candidates' admission test on every held-out sample, the window's own channel not worse
+        adm = admission_tests(current, f, noise, k=len(spec.free), alpha=st.alpha, mask=None,
+                              window=windows_cache[spec.window], channel=spec.channel,
+                              min_window_reduction=st.min_window_reduction, max_channel_increase=st.max_channel_increase,
+                              whole_record=False, aic=False)
+        drop, thr, win_red = adm["holdout_chi2_drop"], adm["chi2_threshold"], adm["window_reduction"]
         plausible, why = _plausibility(f, spec, plaus)
-        if win_red.get(spec.channel, 0.0) < -st.max_channel_increase:
+        if adm["channel_fail"]:
             plausible = False
-            why.append(f"{spec.channel} error grows by {-win_red[spec.channel]:.0%}")
-        rms_b, rms_c = _rms_by_channel(current), _rms_by_channel(f)
+            why.append(adm["channel_fail"])
         d.update(holdout_chi2_drop=drop, chi2_threshold=thr, window=spec.window, window_reduction=win_red,
                  plausible=plausible, implausible_because=why, parameters=_params_out(f, spec),
                  not_determined=_held_out(f), holdout_segments=_holdout_segment_changes(current, f, noise),
-                 error_reduction={c: (1 - rms_c[c] / rms_b[c]) if rms_b[c] > 0 else 0.0 for c in rms_c})
-        if drop > thr and max(win_red.values(), default=0.0) >= st.min_window_reduction and plausible:
+                 error_reduction=adm["error_reduction"])
+        if adm["significant"] and adm["window_ok"] and plausible:
             todo.append((spec, jb, f, d))
         else:
             d["reason"] = "not significant" if plausible else "implausible: " + "; ".join(why)
@@ -1233,11 +1201,10 @@ def _detail_declared(refinements, current: dict, cur_effects, cur_free, fit_runs
                           + [{**jb, "label": f"null {spec.name}", "runs": null, "free": tuple(f["free"]), "judge": {},
                               "params_toml": _held_params(jb["params_toml"], f)} for spec, jb, f, _ in todo],
                           st.workers, say)
-        nb = sum(_chi2_by_channel(nfits[0], noise, "holdout").values()) if "error" not in nfits[0] else math.nan
         for (spec, jb, f, d), nf in zip(todo, nfits[1:]):
-            nd = (nb - sum(_chi2_by_channel(nf, noise, "holdout").values())) if "error" not in nf else math.nan
+            nd = null_drop(nfits[0], nf, noise)
             d["null_chi2_drop"] = nd
-            ok = math.isfinite(nd) and d["holdout_chi2_drop"] > st.null_factor * max(nd, 0.0)
+            ok = beats_null(d["holdout_chi2_drop"], nd, st.null_factor)
             d["accepted"] = bool(ok)
             d["reason"] = ("significant: declared component detailed" if ok
                            else f"not significant against its null drop {nd:.3g}")
@@ -1306,13 +1273,8 @@ def _rivals(best: dict, scored: list[dict], alpha: float) -> list[dict]:
     one load, for example, a constant force offset, a Coulomb friction and a
     direction-dependent friction are the same constant torque.
     """
-    from scipy.stats import chi2
-
     mask = best.get("_mask")  # the samples the drops were scored on
-    hold = sum(_chi2_by_channel(best["_fit"], best["_noise"], "holdout", mask).values())
-    n = _holdout_samples(best["_fit"], mask)
-    tau = _holdout_iact(best["_fit"], best["_noise"], mask)
-    gap = float(chi2.ppf(1 - alpha, 1)) * max(1.0, hold / max(n, 1)) * tau
+    gap, _, tau = scaled_threshold(best["_fit"], best["_noise"], mask, alpha, 1)
     best["_indistinct_below"] = gap
     best["_holdout_iact"] = tau
     # a constant torque whose drop a few held-out segments carry (``not_robust``) is no measure of what it explains;
@@ -1373,8 +1335,6 @@ def _repetition(current: dict, fit: dict, spec: CandidateSpec, k: int, runs, noi
     6 % for s = 1.5 mm at 4 mm, nothing at a cogging's 0.01 mm), and leaving out one such period leaves out one
     held-out segment: it would test a segment, not a repetition (measured: a planted 18/rev cogging on a 2 s,
     0.15 mm/s rig-sim run, 6 steady held-out segments, lost: rest 9.4 against 17.7)."""
-    from scipy.stats import chi2
-
     params = ParameterSet.from_toml(fit["params_toml"])
     period = PERIODS[spec.name](params)
     if period < min_period:
@@ -1382,13 +1342,10 @@ def _repetition(current: dict, fit: dict, spec: CandidateSpec, k: int, runs, noi
                 "reason": f"period {period * 1e3:.3g} mm of nut travel, shorter than two bins of the nut-position "
                           f"test ({min_period * 1e3:.3g} mm): a drag local at the scale the tracer resolves has no "
                           "component at it; repetition not tested"}
-    hold = sum(_chi2_by_channel(fit, noise, "holdout", mask).values())
-    n = _holdout_samples(fit, mask)
-    tau = _holdout_iact(fit, noise, mask)
-    thr = float(chi2.ppf(1 - alpha, k)) * max(1.0, hold / max(n, 1)) * tau
+    thr, red, tau = scaled_threshold(fit, noise, mask, alpha, k)
     segs = periodicity.segment_drops(current, fit, noise, {r.name: nut_travel(r, params) for r in runs}, mask)
     out = periodicity.repetition_test(segs, period, thr)
-    out.update(reduced_chi2=hold / max(n, 1), iact=tau)
+    out.update(reduced_chi2=red, iact=tau)
     return out
 
 

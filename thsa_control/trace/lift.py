@@ -29,7 +29,7 @@ from collections.abc import Mapping, Sequence
 
 from ..model.params import ParameterSet
 from .candidates import INERTIA_EXPLAINER
-from .scoring import _chi2_by_channel, _holdout_iact, _holdout_samples
+from .scoring import _chi2_by_channel, holdout_total, threshold_scale
 
 
 def lift_names(base_priors: Mapping[str, tuple[float, float]], free: Sequence[str]) -> list[str]:
@@ -79,8 +79,8 @@ def joint_verdict(current: dict, joint: dict, scored: Sequence[dict], noise: Map
     """
     from scipy.stats import chi2
 
-    b0 = sum(_chi2_by_channel(current, noise, "holdout", mask).values())
-    b1 = sum(_chi2_by_channel(joint, noise, "holdout", mask).values())
+    b0 = holdout_total(current, noise, mask)
+    b1 = holdout_total(joint, noise, mask)
     drop = b0 - b1
     singles = {s["name"]: s["holdout_chi2_drop"] for s in scored
                if "error" not in s and s.get("holdout_chi2_drop") is not None}
@@ -89,9 +89,8 @@ def joint_verdict(current: dict, joint: dict, scored: Sequence[dict], noise: Map
     if best_nested is not None and singles[best_nested] > drop:
         drop, joint_from = singles[best_nested], best_nested
     thr = float(chi2.ppf(1 - alpha, k))
-    n = _holdout_samples(joint, mask)
-    tau = _holdout_iact(joint, noise, mask)
-    scale = max(1.0, b1 / max(n, 1)) * tau
+    red, tau = threshold_scale(joint, noise, mask)
+    scale = max(1.0, red) * tau
     gap = float(chi2.ppf(1 - alpha, max(k - 1, 1))) * scale
     carriers = sorted((nm for nm, d in singles.items() if drop - d < gap), key=lambda nm: -singles[nm])
     significant = bool(drop > thr * scale)

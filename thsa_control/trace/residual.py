@@ -14,7 +14,7 @@ from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..data.rigdata import RigRun, measured_motor_speed, motor_speed_from, speed_integral
+from ..data.rigdata import RigRun, drive_on, measured_motor_speed, motor_speed_from, speed_integral, stop_band
 from ..fit.residuals import quadrant, reversal_proximity
 from ..model.laws import kinematic_ratio
 from ..model.params import ParameterSet
@@ -22,6 +22,9 @@ from .scoring import _rms_by_channel
 from .signature import (
     SignatureSettings,
     base_transients,
+    breakaway_events,
+    breakaway_position_test,
+    current_noise,
     binned_mean,
     cross_correlation,
     current_drift_test,
@@ -41,11 +44,13 @@ from .signature import (
 )
 
 
-def hold_drift_of_runs(runs: Sequence[RigRun], s: SignatureSettings | None = None) -> dict | None:
+def hold_drift_of_runs(runs: Sequence[RigRun], s: SignatureSettings | None = None,
+                       transients: Mapping[str, np.ndarray] | None = None) -> dict | None:
     """:func:`~thsa_control.trace.signature.hold_drift_test` over the holds of ``runs`` (one after another in time,
     a gap between runs ending every hold): the load reading where the physics holds the load, the LVDT as the
     structure's witness, the compliance from the held samples where the load changes.  From the records alone (no
-    fit), at the tracer's sample-based level ``s.alpha``; None when no run has a hold."""
+    fit), at the tracer's sample-based level ``s.alpha``; None when no run has a hold.  ``transients``: run name ->
+    its :func:`~thsa_control.trace.signature.base_transients` at ``s.transient_time``, where the caller has them."""
     s = s or SignatureSettings()
     cols: dict[str, list] = {"t": [], "f": [], "x": [], "held": [], "still": []}
     t_offset = 0.0
@@ -56,9 +61,11 @@ def hold_drift_of_runs(runs: Sequence[RigRun], s: SignatureSettings | None = Non
         t = np.asarray(run.time, float)
         f = np.asarray(run.signals["load_force"], float)
         cmd = np.asarray(run.signals["speed_cmd"], float)
-        held = hold_samples(t, w, f, cmd, transient_time=s.transient_time)
+        band = still_band(w, cmd)
+        held = hold_samples(t, w, f, cmd, transient_time=s.transient_time, band=band,
+                            transients=(transients or {}).get(run.name))
         # held with the load changes included: the structure's compliance
-        still = (cmd == 0) & (np.abs(np.nan_to_num(np.asarray(w, float))) <= still_band(w, cmd))
+        still = (cmd == 0) & (np.abs(np.nan_to_num(np.asarray(w, float))) <= band)
         x = np.asarray(run.signals["nut_position"], float) if "nut_position" in run.source_columns \
             else np.full(t.size, np.nan)
         for k, v in (("t", t - t[0] + t_offset), ("f", f), ("x", x), ("held", held), ("still", still)):
@@ -71,6 +78,28 @@ def hold_drift_of_runs(runs: Sequence[RigRun], s: SignatureSettings | None = Non
     x = c["x"] if np.isfinite(c["x"][c["held"]]).all() and c["held"].any() else None
     return hold_drift_test(c["t"], c["f"], x, c["held"], alpha=s.alpha, compliance_samples=c["still"])
 
+
+def breakaway_of_runs(runs: Sequence[RigRun], s: SignatureSettings | None = None) -> dict | None:
+    """:func:`~thsa_control.trace.signature.breakaway_position_test` over the starts and reversals of ``runs`` (one
+    rig: the events of all runs are compared by class), each run's events with its own current noise.  From the
+    records alone: the current is the model's input, so the fit leaves no residual in it; the drive's breakaway
+    current at a start against the same kind of start elsewhere is the worn spot's trace.  At the replicate-based
+    level ``s.local_alpha``, places apart by more than the position test's bin.  None where no class of events is
+    seen at two places."""
+    s = s or SignatureSettings()
+    events = []
+    for run in runs:
+        w = measured_motor_speed(run)
+        if w is None or not {"nut_position", "motor_current"} <= set(run.source_columns):
+            continue
+        sig = run.signals
+        cn = current_noise(run.time, w, sig["load_force"], sig["motor_current"], transient_time=s.transient_time)
+        if cn is None:
+            continue
+        for e in breakaway_events(run.time, w, sig["load_force"], sig["speed_cmd"], sig["nut_position"],
+                                  sig["motor_current"], transient_time=s.transient_time):
+            events.append({**e, "run": run.name, "noise": cn[0], "iact": cn[1]})
+    return breakaway_position_test(events, place_gap=s.position_bin, alpha=s.local_alpha)
 
 def amps_per_newton(params: ParameterSet, lead: float, gear_ratio: float) -> float:
     """The motor current one newton of nut load needs through a lossless drive: ``lead / (2 pi N Kt)``, ``Kt = 1.5
@@ -94,9 +123,7 @@ def current_drift_of_runs(runs: Sequence[RigRun], params: ParameterSet, s: Signa
             continue
         t = np.asarray(run.time, float)
         cmd = np.asarray(run.signals["speed_cmd"], float)
-        on = (np.asarray(run.signals["primary_enable"]) > 0.5) | (np.asarray(run.signals["standby_enable"]) > 0.5)
-        if run.motor_disabled_when_cmd_zero:
-            on &= cmd != 0
+        on = drive_on(run)
         apn = amps_per_newton(params, run.screw_lead, run.gear_ratio)
         for key, v in (("t", t - t[0] + t_offset), ("i", run.signals["motor_current"]), ("w", w),
                        ("f", run.signals["load_force"]), ("cmd", cmd), ("x", run.signals["nut_position"]),
@@ -120,6 +147,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     spans: dict[str, float] = {}  # the largest motor and screw angle spanned by one run's steady samples [rad]
     local_in: dict[str, list] = {"e": [], "x": [], "d": []}
     steady: list = []  # outside the base's transients, per run
+    transients: dict = {}  # run name -> the base's transients (the load-cell hold test's too)
     drift_in: list = []  # (time, segment torque, direction)
     drift_at: list = []  # (nut position, run number) of each drift segment: time told from position
     accel: list = []  # J x the measured motor acceleration, per run
@@ -143,7 +171,8 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         # outside the base's transients: the samples the pass-replicated position test uses; the angle tests use
         # the samples outside its starts, stops, reversals, load changes and sustained speed changes (a periodic
         # torque's own speed ripple is not a transient: ``sustained``)
-        steady.append(~base_transients(t, w, load, s.transient_time))
+        transients[run.name] = base_transients(t, w, load, s.transient_time)
+        steady.append(~transients[run.name])
         steady_angle = ~base_transients(t, w, load, s.transient_time, sustained=True)
         # the angle the steady samples span; under two revolutions the harmonics are not told from a dependence on
         # position (below) and a Fourier series on less than a revolution is degenerate: the test then keeps every
@@ -153,10 +182,8 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         for name, a in (("motor_angle", angle), ("screw_angle", angle / run.gear_ratio)):
             span = steady_span / (run.gear_ratio if name == "screw_angle" else 1.0)
             tested[name] = (np.where(steady_angle, a, np.nan) if span >= 4 * math.pi else a, span)
-        dv = 0.05 * max(float(np.max(np.abs(w))), 1e-9)
-        on = (np.asarray(run.signals["primary_enable"]) > 0.5) | (np.asarray(run.signals["standby_enable"]) > 0.5)
-        if run.motor_disabled_when_cmd_zero:
-            on &= np.asarray(run.signals["speed_cmd"]) != 0
+        dv = stop_band(w)
+        on = drive_on(run)
         cols = {
             "quadrant": ("category", quadrant(w, load, (dv, max(0.02 * float(np.max(np.abs(load))), 1.0)))),
             "motor_on": ("category", on.astype(float)),
@@ -215,6 +242,9 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         if dr is not None:
             tests.insert(0, dr) if dr["significant"] else tests.append(dr)
             _time_or_position(dr, drift_in, drift_at, tests, s)
+    bk = breakaway_of_runs(runs, s)
+    if bk is not None:
+        tests.insert(0, bk) if bk["significant"] else tests.append(bk)
     sensors = []
     for run in runs:
         measured = {c: run.signals[c] for c in ("motor_speed", "screw_speed", "nut_position") if c in run.source_columns}
@@ -223,16 +253,14 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
                                     transient_time=s.transient_time):
             d["run"] = run.name
             sensors.append(d)
-        on = (np.asarray(run.signals["primary_enable"]) > 0.5) | (np.asarray(run.signals["standby_enable"]) > 0.5)
-        if run.motor_disabled_when_cmd_zero:
-            on &= np.asarray(run.signals["speed_cmd"]) != 0
+        on = drive_on(run)
         co = current_offset_test(run.signals["motor_current"], ~on, alpha=s.alpha)
         if co is not None:
             co["run"] = run.name
             sensors.append(co)
     # the load cell where the physics holds the load (drive stopped, nut held): a reading trending with time, which
     # the structure's deflection (LVDT) does not follow, is a drifting sensor (from the records alone)
-    hd = hold_drift_of_runs(runs, s)
+    hd = hold_drift_of_runs(runs, s, transients)
     hold_curve = None
     if hd is not None:
         hold_curve = {**hd.pop("curve"), "slope": hd["slope"], "p_value": hd["p_value"], "significant": hd["significant"]}
@@ -283,8 +311,6 @@ def _time_or_position(dr: dict, drift_in: list, drift_at: list, tests: list, s: 
     same-direction passes at the same positions grow), the drift is significant even when the per-pass slopes are
     not (``flagged_by``): each test at the replicate-based level, so the drift's family-wise level is at most twice
     it.  Otherwise the separation is reported with the drift test (``time_or_position``) and changes nothing."""
-    if len(drift_at) != len(drift_in):
-        return
     tm, tq, dirn = (np.asarray(v) for v in zip(*drift_in))
     pos, grp = (np.asarray(v) for v in zip(*drift_at))
     sep = time_or_position_test(tm, tq, dirn, pos, grp, alpha=s.local_alpha)
@@ -378,9 +404,7 @@ def _regime_errors(fit: dict, runs: Sequence[RigRun]) -> dict:
     for val, name in ((1, "motor_on"), (0, "motor_off")):
         def on(r, p, val=val):
             run = by_run[r]
-            m = (np.asarray(run.signals["primary_enable"]) > 0.5) | (np.asarray(run.signals["standby_enable"]) > 0.5)
-            if run.motor_disabled_when_cmd_zero:
-                m &= np.asarray(run.signals["speed_cmd"]) != 0
+            m = drive_on(run)
             return (m if val else ~m)[:len(p["holdout"])]
         regimes[name] = on
     for lo, hi in ((-60, 0), (0, 40), (40, 80)):

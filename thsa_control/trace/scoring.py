@@ -126,8 +126,6 @@ def _profile_gap(noise, alpha: float, samples: str = "training"):
     residual's IACT), computed on the ``samples`` the profile's score sums: ``"training"`` (the samples the fit
     was fitted to, its default score :func:`~thsa_control.fit.profile.training_chi2`) or ``"holdout"``; infinite
     without a noise level (nothing to scale by)."""
-    from scipy.stats import chi2
-
     if samples not in ("training", "holdout"):
         raise ValueError(f"samples = {samples!r} must be 'training' or 'holdout'")
 
@@ -137,12 +135,32 @@ def _profile_gap(noise, alpha: float, samples: str = "training"):
         preds = res.predictions
         if samples == "training":  # the same statistics over the complement of the held-out samples
             preds = {r: {**p, "holdout": ~np.asarray(p["holdout"], bool)} for r, p in preds.items()}
-        fit = {"predictions": preds}
-        chi = sum(chi2_by_channel(preds, noise, "holdout").values())
-        n = _holdout_samples(fit)
-        return float(chi2.ppf(1 - alpha, 1)) * max(1.0, chi / max(n, 1)) * _holdout_iact(fit, noise)
+        return scaled_threshold({"predictions": preds}, noise, None, alpha, 1)[0]
 
     return gap
+
+
+def threshold_scale(fit: dict, noise, mask: dict | None = None) -> tuple[float, float]:
+    """``(reduced chi2, IACT)`` of a fit's held-out residual (inside ``mask[run]`` when given): the noise-weighted
+    held-out chi2 over the finite samples it sums and the residual's integrated autocorrelation time
+    (:func:`_holdout_iact`), the two factors by which a chi2 difference between two fits is scaled when the residual
+    is structure, not white noise (:func:`scaled_threshold`)."""
+    counts: dict[str, int] = {}
+    hold = sum(chi2_by_channel(fit["predictions"], noise, "holdout", mask, counts=counts).values())
+    return hold / max(sum(counts.values()), 1), _holdout_iact(fit, noise, mask)
+
+
+def scaled_threshold(fit: dict, noise, mask: dict | None, alpha: float, k: int) -> tuple[float, float, float]:
+    """``(threshold, reduced chi2, IACT)``: the ``chi2(k)`` quantile at ``alpha`` scaled by the fit's reduced held-out
+    chi2 where it exceeds 1 (the unmodelled part of the residual inflates every difference: a quasi-likelihood
+    scaling) and by its held-out residual's IACT (an autocorrelated residual multiplies the variance of a chi2
+    difference by it), :func:`threshold_scale`.  The one rule of the tracer's scaled tests: the ambiguity gap
+    (:func:`thsa_control.trace.engine._rivals`), the repetition test, the joint lift (:mod:`~thsa_control.trace.lift`)
+    and a profile's resolved gap (:func:`_profile_gap`)."""
+    from scipy.stats import chi2
+
+    red, tau = threshold_scale(fit, noise, mask)
+    return float(chi2.ppf(1 - alpha, k)) * max(1.0, red) * tau, red, tau
 
 
 def _holdout_iact(fit: dict, noise, mask: dict | None = None) -> float:
@@ -172,18 +190,6 @@ def _holdout_iact(fit: dict, noise, mask: dict | None = None) -> float:
             acc += w * x.size / max(_effective_n_iact(x), 1.0)
             wsum += w
     return max(acc / wsum, 1.0) if wsum > 0 else 1.0
-
-
-def _holdout_samples(fit: dict, mask: dict | None = None) -> int:
-    """Number of finite held-out samples over all channels of a fit (inside ``mask[run]`` when given)."""
-    n = 0
-    for r, p in fit["predictions"].items():
-        hold = np.asarray(p["holdout"], bool)
-        if mask is not None:
-            hold = hold & np.asarray(mask[r], bool)[:hold.size]
-        for c, y in p["measured"].items():
-            n += int(np.sum(hold & np.isfinite(np.asarray(y) - np.asarray(p["simulated"][c]))[:hold.size]))
-    return n
 
 
 def _second_stage(job: dict, res, params: ParameterSet, held: dict):
@@ -318,6 +324,83 @@ def _cpu(fit: dict) -> str:
 def _chi2_by_channel(fit: dict, noise: Mapping[str, float], select: str, windows: dict | None = None) -> dict:
     """Noise-weighted squared error per channel of a fit over held-out (``select="holdout"``) or all samples."""
     return chi2_by_channel(fit["predictions"], noise, select, windows)
+
+
+def admission_tests(before: dict, after: dict, noise: Mapping[str, float], *, k: int, alpha: float, mask: dict | None,
+                    window: dict, channel: str, min_window_reduction: float, max_channel_increase: float,
+                    robust: bool = False, whole_record: bool = True, aic: bool = True,
+                    given_others: bool = False) -> dict:
+    """The admission test of an effect: ``after`` (the model with it) against ``before`` (the model without it), the
+    one rule of the forward selection (engine: a candidate, a declared component detailed) and of the backward check
+    (:func:`thsa_control.trace.backward.judge_removal`: a kept effect given the later ones).
+
+    ``significant``: the held-out chi2 drop over ``mask`` (run -> bool per sample, None: every held-out sample) above
+    the ``chi2(k)`` quantile at ``alpha``.  ``window_ok``: the largest window RMS drop (noise-weighted held-out error
+    inside ``window``) at least ``min_window_reduction``.  ``channel_fail``: the effect's own ``channel`` worse in
+    the window by more than ``max_channel_increase`` or (``whole_record``) over the whole record.  ``aic_fail``
+    (``aic``): the training samples prefer the model without it (AIC drop <= 0).  ``robust_fail`` (``robust``, a
+    constant torque on a record whose base differs): the one-sided sign test over the window's held-out segments
+    (:func:`_holdout_segment_changes`) not below ``alpha``.  A failure is its reason (text), else None;
+    ``given_others`` words it for an effect judged given the others.  Also returned: the drops, the threshold, the
+    window and whole-record error reductions, the AIC drop and the window's segment changes."""
+    from scipy.stats import chi2
+
+    hb = holdout_total(before, noise, mask)
+    drop = hb - holdout_total(after, noise, mask)
+    drop_all = holdout_total(before, noise) - holdout_total(after, noise)
+    thr = float(chi2.ppf(1 - alpha, k))
+    wb = _chi2_by_channel(before, noise, "holdout", window)
+    wc = _chi2_by_channel(after, noise, "holdout", window)
+    win_red = {c: (1 - math.sqrt(wc[c] / wb[c])) if wb.get(c, 0) > 0 else 0.0 for c in wc}
+    rms_b, rms_c = _rms_by_channel(before), _rms_by_channel(after)
+    err_red = {c: (1 - rms_c[c] / rms_b[c]) if rms_b.get(c, 0) > 0 else 0.0 for c in rms_c}
+    aic_drop = before["aic"] - after["aic"]
+    channel_fail = None
+    if win_red.get(channel, 0.0) < -max_channel_increase:
+        channel_fail = f"{channel}{' window' if given_others else ''} error grows by {-win_red[channel]:.0%}"
+    elif whole_record and err_red.get(channel, 0.0) < -max_channel_increase:
+        # the same bar on the whole record: the window may be scored on part of it (outside the base's transients,
+        # or a reversal window), where the effect's physics acts too
+        channel_fail = f"{channel} error over the whole record grows by {-err_red[channel]:.0%}"
+    aic_fail = None
+    if aic and aic_drop <= 0:
+        # the training samples prefer the model without it (Akaike): a fit of nested physics rises there only where a
+        # value was not fitted on them (a profiled value from the one-step screen's minima, the file value held within
+        # the training gap, an unconverged fit); the profile fits are chosen on the training error (fit.profile), so
+        # the held-out drop stays out of sample
+        aic_fail = (f"not supported by the samples it {'is' if given_others else 'was'} fitted to (AIC drop "
+                    f"{aic_drop:.3g} <= 0)")
+    seg = _holdout_segment_changes(before, after, noise, window)
+    robust_fail = None
+    if robust and seg.get("sign_p", 1.0) >= alpha:
+        robust_fail = (f"a constant torque that improves {seg.get('improved', 0)} of {seg.get('segments', 0)} held-out "
+                       f"segments of its window (sign test p = {seg.get('sign_p', 1.0):.2g} >= {alpha:g})")
+    return {"holdout_chi2_before": hb, "holdout_chi2_drop": drop, "holdout_chi2_drop_all_samples": drop_all,
+            "chi2_threshold": thr, "significant": drop > thr, "window_reduction": win_red,
+            "window_ok": max(win_red.values(), default=0.0) >= min_window_reduction, "error_reduction": err_red,
+            "aic_drop": aic_drop, "window_segments": seg, "channel_fail": channel_fail, "aic_fail": aic_fail,
+            "robust_fail": robust_fail}
+
+
+def holdout_total(fit: dict, noise: Mapping[str, float], mask: dict | None = None) -> float:
+    """A fit's noise-weighted held-out squared error summed over its channels (inside ``mask[run]`` when given)."""
+    return sum(_chi2_by_channel(fit, noise, "holdout", mask).values())
+
+
+def null_drop(without: dict, with_: dict, noise: Mapping[str, float], mask: dict | None = None) -> float:
+    """The held-out chi2 drop an effect buys on a null run: the model without it and the model with it, both fitted to
+    the null run (:func:`_null_runs`); NaN where either fit failed (:func:`beats_null` passes nothing then)."""
+    if "error" in without or "error" in with_:
+        return math.nan
+    return holdout_total(without, noise, mask) - holdout_total(with_, noise, mask)
+
+
+def beats_null(drop: float, null_drop: float | None, null_factor: float) -> bool:
+    """The null calibration of an admission: the held-out chi2 drop above ``null_factor`` times what the same change of
+    the model buys on a null run (``null_drop``: the model without the effect's own predictions plus white noise of
+    the measured level, fitted with and without it, :func:`_null_runs`); a null drop that could not be computed
+    (None, NaN: a null fit failed) passes nothing."""
+    return null_drop is not None and math.isfinite(null_drop) and drop > null_factor * max(null_drop, 0.0)
 
 
 def _window_beyond_noise(before: dict, after: dict, noise: Mapping[str, float], windows: dict | None) -> dict:
@@ -578,8 +661,8 @@ def _base_correction(first: dict, declared, uncertain, params: ParameterSet, pla
     if "error" in f:
         doc.update(accepted=False, reason=f"fit failed: {f['error']}")
         return {"accepted": False, "doc": doc, "refinements": []}
-    b0 = sum(_chi2_by_channel(first, noise, "holdout").values())
-    b1 = sum(_chi2_by_channel(f, noise, "holdout").values())
+    b0 = holdout_total(first, noise)
+    b1 = holdout_total(f, noise)
     thr = float(chi2.ppf(1 - st.alpha, len(bounds)))
     corrections = _corrections(f, bounds, owner, sources, priors)
     accepted = b0 - b1 > thr

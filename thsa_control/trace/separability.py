@@ -33,7 +33,7 @@ from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..data.rigdata import RigRun, measured_motor_speed
+from ..data.rigdata import RigRun, measured_motor_speed, stop_band
 from ..model import EFFECTS, build_plant
 from ..model.params import ParameterSet
 
@@ -52,7 +52,7 @@ def _operating_points(runs: Sequence[RigRun], max_points: int = MAX_POINTS) -> d
     cols: dict[str, list] = {k: [] for k in ("speed", "load", "position", "temperature", "current")}
     for r in runs:
         w = np.nan_to_num(np.asarray(measured_motor_speed(r), float))
-        m = np.abs(w) > 0.05 * max(float(np.max(np.abs(w))), 1e-9)
+        m = np.abs(w) > stop_band(w)
         s = r.signals
         x = np.asarray(s["nut_position"], float) if r.has("nut_position") else np.zeros(w.size)
         temp = np.asarray(s["temperature"], float) if r.has("temperature") else np.full(w.size, 25.0)
@@ -75,15 +75,16 @@ def steady_effects(effects: Sequence[str]) -> tuple[str, ...]:
 
 
 def torque_sensitivities(effects: Sequence[str], params: ParameterSet, names: Sequence[str],
-                         points: Mapping[str, np.ndarray], steps: Mapping[str, float]) -> np.ndarray:
+                         points: Mapping[str, np.ndarray], steps: Mapping[str, float], plant=None) -> np.ndarray:
     """``S[i, k]``: change of the resisting torque at the motor shaft [N m] per unit of ``names[k]`` at operating
     point ``i`` (``points``: arrays ``speed`` [rad/s at the motor], ``load`` [N, compressive positive],
     ``position`` [m], ``temperature`` [degC], ``current`` [A]).
 
     A forward step ``steps[name]`` (signed: a direction drag acts one way only, so its sign is the one the fit
-    found) of each parameter through the plant's right-hand side, times the main body's inertia.
+    found) of each parameter through the plant's right-hand side, times the main body's inertia.  ``plant``: the plant
+    of ``effects`` at ``params`` where the caller has built it.
     """
-    plant = build_plant(None, list(effects), params=params)
+    plant = build_plant(None, list(effects), params=params) if plant is None else plant
     p0 = plant.p_vector(params)
     n = points["speed"].size
     if n == 0:
@@ -198,11 +199,12 @@ def separability(runs: Sequence[RigRun], effects: Sequence[str], params: Paramet
     eff = steady_effects(effects) + tuple(e for e in dict.fromkeys(owner.values()) if e in EFFECTS)
     eff = tuple(resolve_effects(None, add=list(steady_effects(list(dict.fromkeys(eff))))))
     # a parameter of an effect left out (one with dynamic states) changes no steady torque: not an explainer here
-    have = set(build_plant(None, list(eff), params=params).parameters)
+    plant = build_plant(None, list(eff), params=params)  # built once: the record's points and every kind's
+    have = set(plant.parameters)
     names = [n for n in names if n in have]
     pts = _operating_points(runs)
-    S = torque_sensitivities(eff, params, names, pts, steps)
-    extra = {k: torque_sensitivities(eff, params, names, fn(pts), steps) for k, (_, fn) in RECORD_KINDS.items()}
+    S = torque_sensitivities(eff, params, names, pts, steps, plant)
+    extra = {k: torque_sensitivities(eff, params, names, fn(pts), steps, plant) for k, (_, fn) in RECORD_KINDS.items()}
     kinds = dict(RECORD_KINDS)
     doc = {"vif_limit": VIF_LIMIT, "points": int(pts["speed"].size), "effects": list(eff),
            "record_kinds": {k: v[0] for k, v in kinds.items()}, "explainers": {}}
