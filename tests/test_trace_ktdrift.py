@@ -18,7 +18,11 @@ from scipy.stats import binom
 from thsa_control.data.rigdata import read_run
 from thsa_control.model.params import default_parameters
 from thsa_control.trace.residual import amps_per_newton, current_drift_of_runs
-from thsa_control.trace.signature import STRUCTURED_VARIABLES, TORQUE_CONSTANT_DRIFT, current_drift_test
+from thsa_control.trace.signature import (
+    STRUCTURED_VARIABLES,
+    TORQUE_CONSTANT_DRIFT,
+    current_drift_test,
+)
 
 DATA = Path(__file__).resolve().parent / "data" / "rigsim"
 #: current per newton of nut load through a lossless drive with the file's kinematics and torque constant
