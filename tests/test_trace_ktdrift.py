@@ -53,9 +53,10 @@ def _reversals(seed: int, *, rate=0.0, drag_rate=0.0, levels=(3.0, -3.9), load_d
     d = np.sign(cmd)
     lev = np.where(d > 0, levels[0], np.where(d < 0, levels[1], 0.0))
     e = rng.standard_normal(t.size)
-    if ar:
-        for k in range(1, t.size):
-            e[k] = ar * e[k - 1] + math.sqrt(1 - ar**2) * e[k]
+    if ar:  # AR(1) of unit variance: e_k = ar e_(k-1) + sqrt(1 - ar^2) u_k
+        from scipy.signal import lfilter
+
+        e = lfilter([math.sqrt(1 - ar**2)], [1.0, -ar], e)
     i = lev * (1 + rate * t) + drag_rate * t * d + drag_slope * x * d + sd_i * e
     f = 25e3 + load_drift * t + 25.0 * rng.standard_normal(t.size)
     temp = 25.0 + temp_rise * t / t[-1]
@@ -137,6 +138,7 @@ def test_a_drift_of_one_operating_point_only_is_not_a_torque_constant():
     assert not d["significant"] and d["verdict"] != "torque constant", (d["verdict"], d["per_class"])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("ar", [0.0, 0.8])
 def test_level_over_seeds(ar):
     """No drift, white or AR(1) 0.8 current noise: the rate's p is uniform enough that the rejection rate at 0.05
