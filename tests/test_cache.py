@@ -168,15 +168,25 @@ def test_inline_min_max_return_libm_bits():
 def test_two_processes_needing_the_same_library_build_it_once(tmp_path, reference):
     """On a fresh machine two processes (pytest-xdist workers, fit processes) that need the same library at the
     same time: one compiles, the other waits for it and loads the published file (verified like any cached
-    one); both give the clean run's numbers.  The compiler here is a wrapper that logs each call and takes
-    a few seconds, so that the second process asks while the first one builds."""
+    one); both give the clean run's numbers.  The compiler here is a wrapper that logs each call and holds
+    the build until the second process waits for it: where the kernel lists its file locks (``/proc/locks``,
+    Linux), until a process is blocked on the build's lock file (logged, and asserted: the waiting path is
+    the one taken), else for 4 s."""
     real = shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
     log = tmp_path / "cc.log"
     slow = tmp_path / "bin" / "slowcc"
     slow.parent.mkdir()
-    slow.write_text(f'#!/bin/sh\necho build >> "{log}"\nsleep 4\nexec "{real}" "$@"\n')
-    slow.chmod(0o755)
     cache = tmp_path / "c"
+    locks = Path("/proc/locks")
+    watch = locks.is_file() and os.access(locks, os.R_OK) and shutil.which("stat") and shutil.which("find")
+    hold = (  # a blocked flock reads "N: -> FLOCK ... MAJ:MIN:INODE ..." in /proc/locks; at most 30 s
+        f'i=0\nwhile [ $i -lt 600 ]; do\n'
+        f'  for f in $(find "{cache}" -name ".*.lock" 2>/dev/null); do\n'
+        f'    if grep -q -- "-> FLOCK .*:$(stat -c %i "$f") " /proc/locks; then echo waiter >> "{log}"; '
+        f'exec "{real}" "$@"; fi\n'
+        f'  done\n  sleep 0.05; i=$((i+1))\ndone\n') if watch else "sleep 4\n"
+    slow.write_text(f'#!/bin/sh\necho build >> "{log}"\n{hold}exec "{real}" "$@"\n')
+    slow.chmod(0o755)
     e = {**os.environ, "THSA_CACHE_DIR": str(cache), "CC": str(slow),
          "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
     procs = [subprocess.Popen([sys.executable, "-c", _PROBE, "A"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -185,5 +195,7 @@ def test_two_processes_needing_the_same_library_build_it_once(tmp_path, referenc
     assert all(p.returncode == 0 for p in procs), [o[1][-2000:] for o in outs]
     res = [json.loads(o[0].strip().splitlines()[-1]) for o in outs]
     assert log.read_text().count("build") == 1, log.read_text()
+    if watch:
+        assert "waiter" in log.read_text(), "the second process never waited for the build's lock"
     assert sorted(r["cached"] for r in res) == [False, True] and all(r["compiled"] for r in res)
     assert all(_same(r, reference["A"]) for r in res)

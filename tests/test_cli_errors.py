@@ -187,6 +187,7 @@ def test_progress_on_stderr_and_quiet(tmp_path, capsys):
 
 def test_progress_heartbeat_fills_silences_and_stops_with_its_block():
     import io
+    import threading
     import time
 
     from thsa_control.progress import Progress
@@ -198,9 +199,12 @@ def test_progress_heartbeat_fills_silences_and_stops_with_its_block():
         time.sleep(0.75)
     beats = [x for x in buf.getvalue().splitlines() if x.startswith("thsa demo: fitting ... (")]
     assert 2 <= len(beats) <= 4, buf.getvalue()
+    # stopped with the block: its thread is gone (nothing can write any more), and nothing came after it over
+    # three of its polling periods (0.05 s at every_s = 0.2)
+    assert not [t for t in threading.enumerate() if t.name == "thsa demo heartbeat"]
     n = len(buf.getvalue())
-    time.sleep(0.5)
-    assert len(buf.getvalue()) == n  # stopped with the block
+    time.sleep(0.15)
+    assert len(buf.getvalue()) == n
     cb = p.fit_callback(every_s=0.0)
     cb(7, 1.5, 0.1)
     assert buf.getvalue().splitlines()[-1] == "thsa demo: 7 evaluations, best cost 1.5, 0.1 s"
