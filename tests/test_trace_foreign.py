@@ -155,7 +155,18 @@ KNOWN_FAILING = {
                                  "sets) and the backward check keeps it (given the compliance its drop is 3026, null "
                                  "-463), but given each other, on all held-out samples, the compliance explains 5446 "
                                  "and the load path 3026 (docs/trace_notes.md, 'Backward check and the order of what "
-                                 "is explained'); only the 50 % window bar fails",
+                                 "is explained'); only the 50 % window bar fails.  trace-window "
+                                 "(bench/window_ceiling.py): the bar is beyond this record.  The compliance at "
+                                 "rig-sim's own values (gear 1e4, series 8e3 N m/rad, damping 2) drops the window by "
+                                 "the same 46 % (motor speed) / 41 % (screw speed) as the fit: the fit is at the "
+                                 "ceiling.  The screw speed is at its sensor noise after it (0.58 x the weight's "
+                                 "variance; the RVDT's specified 3e-5 rad over 2 ms, 0.021 rad/s, gives 0.62): a model "
+                                 "leaving only that noise drops its window by 39 %.  The motor speed keeps 1.47 x: "
+                                 "0.87 the resolver's noise, about 0.17 the logged current's 0.03 A noise the replay "
+                                 "integrates, about 0.21 the one plant step per sample (1.26 at 4 steps, still 45 % "
+                                 "against the model before it at 4 steps), 0.22 not identified; over all held-out "
+                                 "samples (the window 'all' is scored outside the base's transients, 204 of 901) the "
+                                 "true values give 48 % / 49 %",
     # the out-of-library effects (docs/trace_notes.md, "Out-of-library effects: what the remainder shows")
     "rig_kt_temperature": "not flagged, the run cannot tell it: housing temperature spans 0.7 K, the rotor's is not "
                           "measured, the voltage is not recorded; its 13 K cooling raises Kt 1.6 % in 10 s: per-pass drift "
@@ -165,7 +176,17 @@ KNOWN_FAILING = {
                           "p 0.019; a rate shared by the passes p 0.012; the level 1e-4 needs about 3.9 standard errors. "
                           "Two fresh runs of the same effect (seeds 412, 413) give p 2e-4 / 4.5e-4 (shared rate 8e-5 / 1e-4): "
                           "at the level's edge. "
-                          "A constant Kt error at one load is what the efficiency corrections absorb",
+                          "A constant Kt error at one load is what the efficiency corrections absorb" +
+                          ".  trace-kt: from the truth's thermal model (rotor rise integrated from the true current) the "
+                          "rotor cools 40 -> 30.3 K, the flux rises 1.20 % over the record, 0.27 % / 0.13 % inside the "
+                          "two constant-speed passes (-1.25e-3 / -0.62e-3 /s of the current): 4.7 and 3.6 mA/s against a "
+                          "slope standard error of 2.1 mA/s per pass (43 mA of current noise at 500 Hz), so at most "
+                          "about 3 standard errors in one record; and one pass per direction never revisits an "
+                          "operating point, so that slope is also what a drag along the stroke gives (a pass's time is "
+                          "its position).  The torque constant's own test (current_drift_test: comparable passes at one "
+                          "load, speed, direction and nut positions) needs two passes of one operating point and does "
+                          "not run here; on 10 s of reversals (rig_kt_temperature_reversals) it names the torque "
+                          "constant (p 1e-27, -1.38e-3 +- 0.13e-3 /s, the thermal model's -1.2e-3)",
     "rig_worn_spot_stiction": "not flagged, not separable on this run: the spot adds 0.25-0.47 A at the two events near "
                               "it where the declared model leaves up to 0.54 N m at every reversal, and each kind of "
                               "event (start, reversal to extension, to retraction) happens at one position only; "
@@ -233,9 +254,10 @@ def test_cogging_on_a_position_loop_record_is_found_first(traced):
     """rig base + cogging on a closed position loop logged at 500 Hz (rig_cogging_steps): its 18th harmonic is
     resolved only in the approach and the creep (a fifth of the record), aliased in the 15 mm/s travel.  The cogging
     is found first among the physical effects, with its count and its amplitude within 20 %.  (The 50 % bar of the
-    library test is not asked here: the window's RMS is mostly the resolver's noise at creep; measured 28 % of the
-    RMS, 34 % of the error beyond the noise, docs/trace_notes.md "Cogging on records with little low-speed
-    motion".)"""
+    library test is not asked here: measured 44 % of the window's RMS since its scoring mask leaves out the creep's
+    stops (28 % before), where the same seed without the cogging leaves 45 %: the record's ceiling, the resolver's
+    noise and what the rig base leaves at creep; docs/trace_notes.md "Cogging on records with little low-speed
+    motion" and "What limits the window drop".)"""
     doc = traced("rig_cogging_steps")
     assert _truth_effects("rig_cogging_steps") == ["cogging"]
     phys = [e["name"] for e in _physical(doc)]
@@ -359,6 +381,9 @@ FOREIGN["rig_sensor_gain_lvdt"] = tuple(CATALOGUE["foreign_sensor_channel"]["nut
 #: the worn spot where the scenario starts twice in one direction under one load (cold_ramp): the same signatures
 FOREIGN["rig_worn_spot_stiction_cold"] = FOREIGN["rig_worn_spot_stiction"]
 
+#: the torque constant drifting with the rotor's temperature on a record of comparable passes (10 s of reversals)
+FOREIGN["rig_kt_temperature_reversals"] = tuple(CATALOGUE["foreign"]["kt_temperature"])
+
 
 @pytest.mark.campaign
 @pytest.mark.slow
@@ -394,6 +419,35 @@ def test_a_library_effect_leaves_the_redundant_sensors_consistent(traced, name):
     assert not bad, [d for d in doc["residual_signature"]["sensors"] if d.get("kind") == "redundant_sensors"]
     if name == "rig_cogging":  # nothing else was left on it
         assert not doc["unexplained"], doc["residual_signature"]["structured"]
+
+
+@pytest.mark.campaign
+@pytest.mark.slow
+def test_a_torque_constant_drifting_with_the_rotor_temperature_is_named(traced):
+    """rig base + kt_temperature on 10 s of reversals (4 extending and 3 retracting passes at one load, speed and
+    stroke): the current of each operating point falls in proportion to itself as the rotor cools, and the trace
+    names it by the torque constant's own test (not only as a slow drift), with the current falling."""
+    from thsa_control.trace.signature import TORQUE_CONSTANT_DRIFT
+
+    doc = traced("rig_kt_temperature_reversals")
+    assert doc["unexplained"] and TORQUE_CONSTANT_DRIFT in doc["residual_signature"]["structured"], \
+        doc["residual_signature"]["structured"]
+    t = next(x for x in doc["residual_signature"]["tests"] if x["variable"] == TORQUE_CONSTANT_DRIFT)
+    assert t["relative_rate"] < 0 and t["verdict"] == "torque constant", t
+    assert not set(_found(doc)) & INVENTED, doc["rounds"]
+
+
+@pytest.mark.campaign
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["rig_loadcell_drift", "rig_temp_friction", "rig_current_offset", "null_rig_cold_s52",
+                                  "null_rig_reversals_s303", "rig_worn_spot_stiction"])
+def test_no_torque_constant_drift_where_the_current_does_not_scale(traced, name):
+    """A load reading that drifts (the current does not), a friction that changes with the cold (one pass), a current
+    sensor's offset, the reversal and cold nulls: the torque-constant drift is not named."""
+    from thsa_control.trace.signature import TORQUE_CONSTANT_DRIFT
+
+    doc = traced(name)
+    assert TORQUE_CONSTANT_DRIFT not in doc["residual_signature"]["structured"], doc["residual_signature"]["structured"]
 
 
 @pytest.mark.campaign
