@@ -957,8 +957,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                              st.speed_sensors)
         rounds[-1]["signature_after"] = _signature_brief(cur_sig)
     order = _order_by_contribution(added, found_info, leave_one_out) if st.backward else None
-    sig_before = _signature(first, runs, ParameterSet.from_toml(first["params_toml"]), base_plant, st.signature, sensor_noise,
-                            st.speed_sensors)
+    sig_before = _signature(first, runs, ParameterSet.from_toml(first["params_toml"]), base_plant, st.signature,
+                            sensor_noise, st.speed_sensors)
     # every change of ``current`` (the base step, an added effect, a removal) is followed by its signature
     sig_after = cur_sig if cur_sig is not None else _signature(current, runs, cur_params,
                                                                plant_of(cur_effects, cur_params), st.signature,

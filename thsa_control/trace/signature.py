@@ -448,7 +448,7 @@ def _weighted_sum_variance(e: np.ndarray, c: np.ndarray, *, local: int = 125,
     s = np.sqrt(np.maximum(s2, 1e-300))
     u = e / s
     sc = s * c
-    m = 1 << int(math.ceil(math.log2(2 * n)))
+    m = 1 << math.ceil(math.log2(2 * n))
     fu, fsc, fe, fc = (np.fft.rfft(v, m) for v in (u, sc, e, c))
     K = min(max_lag, n - 2)
     acov = np.fft.irfft(fu * np.conj(fu), m)[:K + 2] / n
@@ -532,7 +532,8 @@ def lag_test(a, b, dt: float, *, known: float = 0.0, tolerance: float | None = N
     zs = (abs(d) - tol) / se if se > 0 else math.inf
     p = float(t_dist.sf(zs, dof))
     return {"lag_s": d, "lag_stderr": se, "lag_tolerance_s": tol, "known_delay_s": known, "lag_p_value": p,
-            "lag_significant": bool(p < alpha), "lag_alpha": alpha, "lag_iact": tau, "lag_dof": dof, "lag_noise_lags": k_max,
+            "lag_significant": bool(p < alpha), "lag_alpha": alpha, "lag_iact": float(tau), "lag_dof": float(dof),
+            "lag_noise_lags": int(k_max),
             "lag_method": "antisymmetric cross-covariance (W), noise from the lag model's residual"}
 
 
