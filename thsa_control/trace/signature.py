@@ -494,11 +494,11 @@ def lag_test(a, b, dt: float, *, known: float = 0.0, tolerance: float | None = N
     declare, a difference quotient over ``T`` lags by ``T / 2``).  Noise: by parts ``W = sum e c`` with ``e = a - g
     b`` and ``c = 2 h b' + h' b``, so its variance is that of a weighted sum of the pair's residual; the residual is
     the lag model's own (the leading signal through a first-order lag of the estimate, ``a - g L_d(b)`` for ``d > 0``,
-    ``L_|d|(a) - g b`` for ``d < 0``; the residual of ``a - g b`` would count the lag itself as noise), the
-    variance ``sum (e c)^2`` times the integrated autocorrelation time ``tau`` of ``e c`` (Geyer), with ``(sum (e
-    c)^2)^2 / sum (e c)^4 / tau - 1`` degrees of freedom (Student t): the independent stretches that carry the sum,
-    a few on a record whose motion changes only at two short starts.  Test ``H0: |d| <= tolerance`` (one logged sample unless
-    given: :data:`LAG_TOLERANCE_SAMPLES`), one-sided against the nearer bound, significant at ``alpha``.
+    ``L_|d|(a) - g b`` for ``d < 0``; the residual of ``a - g b`` would count the lag itself as noise); its variance
+    from the residual's local level and whole-record autocorrelation (:func:`_weighted_sum_variance`), with the
+    record's samples over their autocorrelation time as degrees of freedom (Student t).  Test ``H0: |d| <=
+    tolerance`` (one logged sample unless given: :data:`LAG_TOLERANCE_SAMPLES`), one-sided against the nearer
+    bound, significant at ``alpha``.
     None when fewer than 50 finite samples or no motion.
     """
     from scipy.stats import t as t_dist
@@ -692,9 +692,10 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
     other attenuates the gain by the regressor's noise share (0.92 on a 0.15 mm/s record whose screw speed, an RVDT
     angle differenced over one sample, carries 13 rpm of noise at the motor against 49 rpm of motion).  Every
     pair's lag is :func:`lag_test` on the two rates filtered alike (the speeds by a 31-sample quadratic
-    Savitzky-Golay smoother, the LVDT and the integrated speed by the same filter's differentiator), its known part ``delays`` (signal -> the delay its chain declares [s], a difference
-    quotient over ``T`` lags by ``T / 2``) compensated, at ``lag_alpha``; the cross-correlation peak of the rates
-    (the former lag, noise on a slow record) is kept as ``xcorr_peak_s``.
+    Savitzky-Golay smoother, the LVDT and the integrated speed by the same filter's differentiator), its known
+    part ``delays`` (signal -> the delay its chain declares [s], a difference quotient over ``T`` lags by ``T / 2``)
+    compensated, at ``lag_alpha``; the cross-correlation peak of the rates (the former lag, noise on a slow record)
+    is kept as ``xcorr_peak_s``.
     """
     from scipy.signal import savgol_filter
     from scipy.stats import norm
