@@ -317,6 +317,12 @@ def stop_band(speed) -> float:
     return 0.05 * max(float(np.max(np.abs(speed))), 1e-9)
 
 
+def motion_sign(speed) -> np.ndarray:
+    """Per sample, the direction of motion: +1 / -1 beyond the :func:`stop_band`, 0 inside it (stopped)."""
+    dv = stop_band(speed)
+    return np.where(speed > dv, 1, np.where(speed < -dv, -1, 0))
+
+
 def drive_on(run) -> np.ndarray:
     """Per sample of a run, whether the drive is energised: either motor enabled (``primary_enable``,
     ``standby_enable``) and, on a rig whose motors are de-energised while the speed command is exactly 0
