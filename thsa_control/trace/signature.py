@@ -230,6 +230,13 @@ def _iact(r: np.ndarray) -> float:
     return max(r.size / _effective_n_iact(r), 1.0)
 
 
+def _pooled_iact(parts: list[np.ndarray]) -> float:
+    """The integrated autocorrelation time of a residual cut into stretches (passes separated by transients): its
+    sample count over the stretches' effective counts summed (each stretch's own, :func:`_effective_n_iact`), at
+    least 1."""
+    return max(sum(p.size for p in parts) / sum(_effective_n_iact(p) for p in parts), 1.0)
+
+
 def _f_test(e: np.ndarray, fitted: np.ndarray, k: int) -> tuple[float, float, float]:
     """(size, r2, p) of a regression with ``k`` regressors beyond the mean.
 
@@ -474,8 +481,7 @@ def travel_gain_test(time, position, speed, load, *, ratio: float, transient_tim
     vif = float(th_p @ th_p) / max(sxx, 1e-300)
     g = float(coef[0])
     # the residual's integrated autocorrelation time, per pass (the passes are separated by transients)
-    tau = max(n / sum(_effective_n_iact(res[r0:r0 + q.size]) for r0, q in zip(np.cumsum([0] + [q.size for q in passes]),
-                                                                               passes)), 1.0)
+    tau = _pooled_iact([res[r0:r0 + q.size] for r0, q in zip(np.cumsum([0] + [q.size for q in passes]), passes)])
     se = math.sqrt(float(res @ res) / max(n - rank, 1) * tau / sxx) if sxx > 0 else math.inf
     # per-pass gains (the pass's own travel, no load curve) and their scatter
     gj, sej = [], []
@@ -1326,13 +1332,11 @@ def current_noise(time, speed, load, current, *, transient_time: float = 0.3, mi
     parts = [q for q in stretches(steady, sgn) if q.size >= 20]
     if not parts:
         return None
-    res, neff = [], 0.0
+    res = []
     for q in parts:
         A = np.column_stack([np.ones(q.size), t[q] - t[q].mean()])
-        r = i[q] - A @ np.linalg.lstsq(A, i[q], rcond=None)[0]
-        res.append(r)
-        neff += _effective_n_iact(r)
+        res.append(i[q] - A @ np.linalg.lstsq(A, i[q], rcond=None)[0])
     r = np.concatenate(res)
     if r.size < min_samples:
         return None
-    return float(math.sqrt(float(r @ r) / max(r.size - 2 * len(parts), 1))), float(max(r.size / neff, 1.0))
+    return float(math.sqrt(float(r @ r) / max(r.size - 2 * len(parts), 1))), float(_pooled_iact(res))
