@@ -43,6 +43,33 @@ def test_base_transients_cover_starts_stops_and_load_changes_only():
     assert tr2[np.abs(t - 3.0) < 0.29].all() and not tr2[(t > 1.4) & (t < 2.6)].any()
 
 
+def test_a_creep_below_five_per_cent_ends_in_a_stop_at_the_motion_band():
+    """A position loop's approach: fast travel (500 rad/s), a slow deceleration into a creep at 2 % of it (10 rad/s)
+    for 1.2 s, then the stop.  With the default band (5 % of the top speed, 25 rad/s) the creep counts as "stopped",
+    so its end is no event and the samples before and after it are steady; with ``motion_band`` (the band a window
+    calls motion) the creep's end is a stop (within 0.3 s either side), and the band's crossings of 5 % stay events
+    (the operating point changes there)."""
+    dt = 2e-3
+    t = np.arange(0, 6.0, dt)
+    w = np.zeros_like(t)
+    w[(t >= 0.5) & (t < 2.0)] = 500.0
+    dec = (t >= 2.0) & (t < 3.0)  # 490 rad/s over 1 s: below the fast-change rule's 0.5 x 500 rad/s per s
+    w[dec] = 500.0 - 490.0 * (t[dec] - 2.0)
+    w[(t >= 3.0) & (t < 4.2)] = 10.0
+    f = np.full_like(t, 10e3)
+    creep_end = np.abs(t - 4.2) < 0.29
+    default = base_transients(t, w, f, 0.3, sustained=True)
+    banded = base_transients(t, w, f, 0.3, sustained=True, motion_band=1.0)
+    assert not default[creep_end & (t < 4.0)].any()  # the creep before its end: steady by the 5 % band
+    assert banded[creep_end].all()
+    crossing = t[np.flatnonzero((w[:-1] > 25.0) & (w[1:] <= 25.0))[0] + 1]  # 5 % of 500 rad/s, in the deceleration
+    near = np.abs(t - crossing) < 0.29
+    assert default[near].all() and banded[near].all()
+    assert (banded | ~default).all()  # the band adds events, it removes none
+    mid_creep = (t > 3.35) & (t < 3.85)
+    assert not banded[mid_creep].any()
+
+
 def test_position_feature_at_the_start_position_is_not_local_once_transients_are_masked():
     """A trim run starts and stops at the same position: a start/stop transient repeats there over passes and the
     pass-replicated test takes it for a position feature; outside the base's transients it does not, while a bump

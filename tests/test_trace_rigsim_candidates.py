@@ -148,6 +148,34 @@ def test_cogging_counts_are_what_the_record_resolves(params):
     assert res.sum() < 0.5 * (w > 0.05 * w.max()).sum()  # most of the motion is fast
 
 
+def test_cogging_window_leaves_out_the_creeps_stops(params):
+    """The cogging's window on a position loop (rig_cogging_steps) takes the motor turning beyond 4 noise standard
+    deviations, the creep included; its scoring mask (``engine.score_masks``) calls the creep's end a stop where the
+    motion rule stops calling motion, so no resolved sample within the transient time of a stop from the creep is
+    scored (with 5 % of the top speed as the only stop band such samples were, and the same seed without the
+    cogging left 2.85 x the noise variance there; docs/trace_notes.md "What limits the window drop")."""
+    import numpy as np
+
+    from thsa_control.data.rigdata import measured_motor_speed
+    from thsa_control.trace.candidates import _window, turning_band
+    from thsa_control.trace.engine import TRANSIENT_WINDOWS, WINDOWS, score_masks
+
+    run = _run("rig_cogging_steps", params)
+    masks = score_masks([run], 0.3)
+    assert set(masks) == set(WINDOWS) - set(TRANSIENT_WINDOWS)
+    p18 = params.replace({"drive.cogging_periods": 18.0})
+    scored = _window("resolved_cogging", run, p18) & masks["resolved_cogging"][run.name]
+    w = np.abs(np.nan_to_num(measured_motor_speed(run)))
+    t = np.asarray(run.time)
+    band = turning_band(run)
+    ends = t[1:][(w[:-1] > band) & (w[1:] <= band)]  # the motor stops turning
+    assert ends.size >= 2
+    near_end = np.min(np.abs(t[:, None] - ends[None, :]), axis=1) <= 0.3
+    assert scored.sum() >= 100 and not (scored & near_end).any()
+    # the other windows keep the plain rule (their motion is 5 % of the top speed)
+    assert np.array_equal(masks["moving"][run.name], masks["all"][run.name])
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name, planted", [("rig_cogging_steps", True), ("null_rig_steps_s252", False)])
 def test_cogging_on_a_position_loop_record(params, name, planted):

@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from ..data.rigdata import RigRun, measured_motor_speed, speed_integral, stop_band
+from ..data.rigdata import RigRun, measured_motor_speed, motion_sign, speed_integral, stop_band
 from ..fit.residuals import reversal_proximity
 from ..model import EFFECTS, CandidateSpec
 from ..model.params import ParameterSet
@@ -162,15 +162,21 @@ def _start_loadpath(params: ParameterSet, runs) -> dict[str, float]:
 COGGING_SAMPLES_PER_PERIOD = 4.0
 
 
+def turning_band(run: RigRun) -> float:
+    """The motor speed [rad/s] beyond which the motor turns: ``MOTION_SIGMA`` noise standard deviations of the
+    measured motor speed (:func:`motor_turning`)."""
+    from ..fit.identify import estimate_noise
+
+    return MOTION_SIGMA * estimate_noise(np.nan_to_num(np.asarray(measured_motor_speed(run), float)))
+
+
 def motor_turning(run: RigRun) -> np.ndarray:
     """Samples where the motor turns: the measured motor speed beyond ``MOTION_SIGMA`` noise standard deviations (a
     cogging torque is periodic in the motor angle, so it shows wherever the angle advances, however slowly: a
     position loop's creep at 2 % of the top speed is the motion that resolves it best; the ``moving`` window's 5 % of
     the largest speed leaves it out)."""
-    from ..fit.identify import estimate_noise
-
     w = np.nan_to_num(np.asarray(measured_motor_speed(run), float))
-    return np.abs(w) > MOTION_SIGMA * estimate_noise(w)
+    return np.abs(w) > turning_band(run)
 
 
 def cogging_resolved(run: RigRun, count: float, steady: bool = True, transient_time: float = 0.3) -> np.ndarray:
@@ -178,7 +184,9 @@ def cogging_resolved(run: RigRun, count: float, steady: bool = True, transient_t
     spans ``COGGING_SAMPLES_PER_PERIOD`` samples or more (above it the record aliases the harmonic: at 15 mm/s the
     18th harmonic of rig-sim's motor speed is at 1.5 kHz); ``steady``: outside the base's transients, judged on the
     speed averaged over the transient time (:func:`~thsa_control.trace.signature.base_transients` with
-    ``sustained``: the cogging ripples the speed itself, and its own ripple is no transient)."""
+    ``sustained``: the cogging ripples the speed itself, and its own ripple is no transient), its starts and stops also
+    where the speed crosses the band the window calls motion (:func:`turning_band`: the end of a position loop's creep
+    is a stop)."""
     return _cogging_resolver(run, steady, transient_time)(count)
 
 
@@ -194,7 +202,8 @@ def _cogging_resolver(run: RigRun, steady: bool = True, transient_time: float = 
     w = np.nan_to_num(np.asarray(measured_motor_speed(run), float))
     where = motor_turning(run)
     if steady:
-        where &= ~base_transients(t, w, run.signals["load_force"], transient_time, sustained=True)
+        where &= ~base_transients(t, w, run.signals["load_force"], transient_time, sustained=True,
+                                  motion_band=turning_band(run))
     return lambda count: where & (count * np.abs(w) / (2 * math.pi) * COGGING_SAMPLES_PER_PERIOD < fs)
 
 
@@ -441,7 +450,7 @@ def clearance_window(run: RigRun, travel: float) -> np.ndarray:
     from ..fit.identify import estimate_noise
 
     band = MOTION_SIGMA * estimate_noise(ws)
-    sign = np.where(ws > band, 1, np.where(ws < -band, -1, 0))
+    sign = motion_sign(ws, band)
     dt = np.diff(t, prepend=t[0] - (t[1] - t[0]))
     out = np.zeros(t.size, bool)
     last, turned = 0, 0.0

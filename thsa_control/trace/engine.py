@@ -65,7 +65,7 @@ from ..model.params import ParameterSet, default_parameters
 from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, INERTIA_EXPLAINER, MIN_WINDOW_SAMPLES,
                          PERIODS, PLAUSIBLE,
                          PROFILE_GRIDS, RESOLVES, STARTS, WINDOWS, reference_not_determined,
-                         _window,
+                         _window, turning_band,
                          candidate_specs, not_candidates, nut_travel)
 from . import backward as bw
 from . import periodicity
@@ -80,7 +80,7 @@ from .signature import SignatureSettings, base_transients, split_remainder
 from .threads import limit_blas_threads
 
 __all__ = ["TraceSettings", "CandidateSpec", "CANDIDATES", "DEFAULT_UNCERTAIN", "TraceResult", "trace",
-           "candidate_specs", "TRACE_FORMAT", "not_candidates", "PLAUSIBLE", "EFFICIENCY_EXPLAINER", "WINDOWS"]
+           "candidate_specs", "TRACE_FORMAT", "not_candidates", "PLAUSIBLE", "EFFICIENCY_EXPLAINER", "WINDOWS", "score_masks"]
 
 TRACE_FORMAT = "thsa-trace/1"
 
@@ -315,6 +315,26 @@ class TraceResult:
         return bool(self.doc["unexplained"])
 
 
+def score_masks(runs: Sequence[RigRun], transient_time: float) -> dict[str, dict[str, np.ndarray]]:
+    """Window -> run name -> the samples a candidate of that window is scored on (True) when the base step runs:
+    outside the base's transients (:func:`~thsa_control.trace.signature.base_transients`), except the windows at the
+    transients themselves (:data:`TRANSIENT_WINDOWS`: absent, scored on every sample of the window).
+
+    A periodic torque ripples the speed itself: where a candidate's window is its resolved harmonic
+    (:data:`SUSTAINED_WINDOWS`, the cogging) the base's transients are judged on the speed averaged over the
+    transient time (its own ripple is none), and its starts and stops are also where the speed crosses the band its
+    window calls motion (the motor turning beyond its sensor noise, :func:`~thsa_control.trace.candidates.turning_band`),
+    not only 5 % of the top speed: the end of a position loop's creep (2 % of the top speed) is a stop, where the
+    base's stiction acts
+    (rig_cogging_steps: the same seed without the cogging left 2.85 x the noise variance in the window with the
+    creep's stops in it, 1.31 x without them; ``bench/window_ceiling.py``)."""
+    steady = {r.name: ~base_transients(r.time, measured_motor_speed(r), r.signals["load_force"], transient_time,
+                                       load_steps=True) for r in runs}
+    sustained = {r.name: ~base_transients(r.time, measured_motor_speed(r), r.signals["load_force"], transient_time,
+                                          sustained=True, motion_band=turning_band(r)) for r in runs}
+    return {w: (sustained if w in SUSTAINED_WINDOWS else steady) for w in WINDOWS if w not in TRANSIENT_WINDOWS}
+
+
 # ----------------------------------------------------------------------------- the tracer
 def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Iterable[str] = (), *,
           remove: Iterable[str] = (), params: ParameterSet | None = None, settings: TraceSettings | None = None,
@@ -501,20 +521,10 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             base_doc["signature_after"] = _signature_brief(cur_sig)
     windows_cache = {spec: {r.name: _window(spec, r, params) for r in runs} for spec in WINDOWS}
     # where the candidates are scored: outside the base's transients on data the declared model may not describe
-    steady = ({r.name: ~base_transients(r.time, measured_motor_speed(r), r.signals["load_force"],
-                                        st.signature.transient_time, load_steps=True) for r in runs}
-              if use_base and st.score_outside_transients else None)
-
-    # a periodic torque ripples the speed itself: where a candidate's window is its resolved harmonic (the cogging),
-    # the base's transients are judged on the speed averaged over the transient time (its own ripple is none)
-    steady_sustained = ({r.name: ~base_transients(r.time, measured_motor_speed(r), r.signals["load_force"],
-                                                  st.signature.transient_time, sustained=True) for r in runs}
-                        if steady is not None else None)
+    masks = score_masks(runs, st.signature.transient_time) if use_base and st.score_outside_transients else None
 
     def score_mask(window: str):
-        if steady is None or window in TRANSIENT_WINDOWS:
-            return None
-        return steady_sustained if window in SUSTAINED_WINDOWS else steady
+        return None if masks is None else masks.get(window)
 
     win_scored = {w: (windows_cache[w] if score_mask(w) is None else
                       {r: windows_cache[w][r] & score_mask(w)[r] for r in windows_cache[w]}) for w in WINDOWS}

@@ -75,7 +75,7 @@ def split_remainder(sig: dict) -> tuple[list[dict], list[dict]]:
 
 
 def base_transients(time, speed, load, duration: float = 0.3, sustained: bool = False,
-                    load_steps: bool = False) -> np.ndarray:
+                    load_steps: bool = False, motion_band: float | None = None) -> np.ndarray:
     """Samples within ``duration`` of a start, stop, reversal or load change, or while the speed changes fast
     (a speed step taking less than 2 s over the record's speed range): where a declared model of another rig's
     base leaves structure (its stiction, Stribeck curve and loop settling).
@@ -91,7 +91,14 @@ def base_transients(time, speed, load, duration: float = 0.3, sustained: bool = 
     changes the load by more than the threshold in every ``duration``, so with the plain test every moving sample of
     such a record is a transient and a candidate scored outside the transients is scored on nothing (measured: a
     held-out chi2 drop of exactly 0 for every constant torque on both scenarios).  Its loop and no-back settle as
-    in steady motion; only where the rate changes does a base's stiction or loop settling show."""
+    in steady motion; only where the rate changes does a base's stiction or loop settling show.
+
+    ``motion_band``: a further speed [rad/s] whose crossings are starts and stops too, besides those of
+    :func:`~thsa_control.data.rigformat.stop_band` (5 % of the record's largest speed, the ``moving`` window's band,
+    where the operating point changes).  A window that takes
+    motion below 5 % (the cogging's: the motor turning beyond its sensor noise, ``candidates.motor_turning``) must
+    call a stop where it stops calling motion, else the end of a position loop's creep (0.3 mm/s, 2 % of the 15 mm/s
+    top speed), where the base's stiction and Stribeck drags act, is no stop and lies in the window."""
     t = np.asarray(time, float)
     w = np.nan_to_num(np.asarray(speed, float))
     f = np.nan_to_num(np.asarray(load, float))
@@ -100,8 +107,10 @@ def base_transients(time, speed, load, duration: float = 0.3, sustained: bool = 
     if n < 3:
         return out
     wmax = max(float(np.max(np.abs(w))), 1e-9)
-    state = motion_sign(w)
-    ev = list(t[1:][state[1:] != state[:-1]])
+    ev = []
+    for band in (None,) + (() if motion_band is None else (float(motion_band),)):  # None: the stop band
+        state = motion_sign(w, band)
+        ev += list(t[1:][state[1:] != state[:-1]])
     dt = float(np.median(np.diff(t)))
     k = max(round(duration / dt), 1)
     frange = max(float(np.ptp(f)), 1.0)
