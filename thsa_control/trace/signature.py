@@ -39,21 +39,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..data.rigformat import motion_sign
+from ..data.rigformat import motion_sign, stop_band
 from ..model.laws import kinematic_ratio
 
 __all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missing_torque", "current_offset_test",
            "binned_mean", "cross_correlation", "position_local_test", "base_transients", "remainder_kind",
            "STRUCTURED_VARIABLES", "split_remainder", "segment_torques", "drift_test",
            "time_or_position_test", "hold_samples", "still_band", "stretches", "travel_passes",
-           "hold_drift_test", "breakaway_events", "breakaway_position_test", "current_noise"]
+           "hold_drift_test", "breakaway_events", "breakaway_position_test", "current_noise",
+           "current_drift_test", "TORQUE_CONSTANT_DRIFT"]
 
 #: signature variables whose structure an unmodelled-but-declared base does not leave: a feature repeated at a nut
 #: position over passes, periodic in motor or screw angle, a slow drift, a torque proportional to the current
 STRUCTURED_VARIABLES = ("nut_position (repeated over passes)", "nut_position (revisited, not a drift in time)",
                         "nut_position (breakaway at starts/reversals)",
                         "motor_angle", "screw_angle", "time (slow drift)",
-                        "motor_current (torque constant)")
+                        "motor_current (torque constant)", "motor_current (torque constant) drifting in time")
 
 
 def remainder_kind(test: dict, temperature_span: float, s: SignatureSettings) -> str:
@@ -1349,3 +1350,225 @@ def current_noise(time, speed, load, current, *, transient_time: float = 0.3, mi
     if r.size < min_samples:
         return None
     return float(math.sqrt(float(r @ r) / max(r.size - 2 * len(parts), 1))), float(_pooled_iact(res))
+
+#: the variable of :func:`current_drift_test`: the current at one operating point drifting in time, in proportion
+TORQUE_CONSTANT_DRIFT = "motor_current (torque constant) drifting in time"
+
+
+def _steady_passes(t, w, f, cmd, on, ok, transient_time: float, min_pass: float, min_samples: int, group):
+    """Stretches of steady motion at one constant, non-zero speed command: moving (outside the stop band of
+    :func:`base_transients`), outside the base's transients (``sustained``: a ripple is no transient), the drive on,
+    the command unchanged from the previous sample; cut at a gap, a change of direction, command or ``group``."""
+    steady = ~base_transients(t, w, f, transient_time, sustained=True)
+    sgn = np.sign(np.where(np.abs(w) > stop_band(w), w, 0.0))
+    same_cmd = np.r_[False, cmd[1:] == cmd[:-1]]
+    idx = np.flatnonzero(steady & (sgn != 0) & same_cmd & (cmd != 0) & on & ok)
+    if idx.size < min_samples:
+        return [], sgn
+    cut = (np.diff(idx) > 1) | (np.diff(sgn[idx]) != 0) | (np.diff(cmd[idx]) != 0) | (np.diff(group[idx]) != 0)
+    parts = np.split(idx, np.flatnonzero(cut) + 1)
+    return [q for q in parts if q.size >= min_samples and t[q[-1]] - t[q[0]] >= min_pass], sgn
+
+
+def _level(t: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
+    """(mean time, mean, standard error of the mean) of one pass: the scatter about the pass's own level and slope
+    (a drift inside the pass is not noise), counted by its integrated autocorrelation time."""
+    tc = t - t.mean()
+    yc = y - y.mean()
+    sxx = float(tc @ tc)
+    r = yc - (float(tc @ yc) / sxx) * tc if sxx > 0 else yc
+    return float(t.mean()), float(y.mean()), math.sqrt(float(r @ r) / max(y.size - 2, 1) * _iact(r) / y.size)
+
+
+def current_drift_test(time, current, speed, load, speed_cmd, position, temperature=None, drive_on=None, group=None,
+                       *, amps_per_newton: float, transient_time: float = 0.3, alpha: float = 1e-6,
+                       min_pass: float = 0.2, min_samples: int = 20, temperature_span: float = 5.0,
+                       overdispersion_level: float = 0.05, replication_level: float = 0.01) -> dict | None:
+    """The measured current at one operating point drifting in time, in proportion to itself: a torque constant
+    that changes while the record runs (the rotor's magnets warm or cool with the copper losses, a time constant
+    of tens of seconds; the rotor's temperature is not measured, the housing's hardly moves).
+
+    From the records alone (no fit): a load-cell drift moves the load reading, not the current, so it cannot show
+    here.  *Comparable passes*: steady stretches at one constant speed command (:func:`_steady_passes`) of the same
+    direction and ``group`` (a run of a set) whose mean load readings differ by less than the load whose current
+    (``amps_per_newton``, the file's kinematics and torque constant) is half a standard error of a pass's mean current
+    (so a load difference moves a level by at most half its noise; rig-sim's reversals hold their load within 3 N,
+    the threshold is about 12 N; a drifting load cell splits the class).  Each class's passes are compared over
+    the nut positions every one of them covers (a drag along the stroke is the same in every pass there; passes
+    that leave less than ``min_pass`` of common travel are dropped, the shortest first).  One level per pass (its
+    mean current there, at its mean time; standard error from its scatter about its own level and slope, counted by
+    the integrated autocorrelation time).
+
+    The torque constant's law: ``I_p = L_c (1 + r (t_p - tbar_c))``, one level ``L_c`` per class and one relative
+    rate ``r`` shared by all (every current is scaled by the same factor at one time), weighted least squares with
+    the levels' standard errors, two-sided normal test at ``alpha``: the errors are sample counts corrected by the
+    integrated autocorrelation time, so the level is the tracer's sample-based one (1e-6), not the replicate-based
+    one.  The scatter of the levels about the law checks those errors: where ``chi2`` exceeds its ``dof`` quantile at
+    ``overdispersion_level`` (passes of one operating point differ by more than their noise: a loading actuator's
+    repeatability, a base transient), the rate's error is scaled by ``sqrt(chi2 / dof)`` and judged on Student's t
+    with ``dof`` (the random-effects rule of Hartung and Knapp).  At least one pass beyond the law's parameters is
+    required (``dof >= 1``), so that this check exists; two passes of one class are not compared.  Limit: seven
+    passes cannot rule out a pass-to-pass scatter of about the levels' noise that the check misses (measured in
+    docs/trace_notes.md "The torque constant drifting in time").
+
+    Told from: a drag drifting in time (one absolute rate per direction, a friction running in) by fitting both and
+    testing each beyond the other at ``alpha`` (``drag_alternative``): where the drag explains the drift and the
+    current-proportional law does not, it is no torque constant; on records whose classes carry nearly one current
+    magnitude per direction the two are collinear and the torque constant is named (the physics that changes a
+    current at fixed load, speed and position within seconds while the housing's temperature stands is the
+    rotor's); a drag following the housing temperature: where the housing's temperature changes by more than
+    ``temperature_span`` [K] over the compared passes (the signature's rule for a temperature dependence), the drift
+    is not named a torque constant (``verdict`` ``"housing temperature"``).  A drift the current-proportional law does
+    not fit (a drag's, on operating points of different currents) leaves a scatter that the overdispersion rule
+    charges to the rate: ``"no current-proportional drift"`` (the per-pass drift tests of the missing torque see it).
+    None when no class has enough passes.
+    """
+    from scipy.stats import chi2 as chi2_dist
+    from scipy.stats import norm
+    from scipy.stats import t as t_dist
+
+    t = np.asarray(time, float)
+    i = np.asarray(current, float)
+    w = np.nan_to_num(np.asarray(speed, float))
+    f = np.asarray(load, float)
+    cmd = np.asarray(speed_cmd, float)
+    x = np.asarray(position, float)
+    n = t.size
+    temp = np.full(n, np.nan) if temperature is None else np.asarray(temperature, float)
+    on = np.ones(n, bool) if drive_on is None else np.asarray(drive_on, bool)
+    g = np.zeros(n) if group is None else np.asarray(group, float)
+    ok = np.isfinite(i) & np.isfinite(f) & np.isfinite(x) & np.isfinite(t)
+    passes, sgn = _steady_passes(t, w, np.nan_to_num(f), cmd, on, ok, transient_time, min_pass, min_samples, g)
+    if len(passes) < 2:
+        return None
+    info = []
+    for q in passes:
+        _tm, _lv, se = _level(t[q], i[q])
+        info.append({"q": q, "dir": float(sgn[q[0]]), "cmd": float(cmd[q[0]]), "group": float(g[q[0]]),
+                     "load": float(np.mean(f[q])), "se": se})
+    classes: list[list[dict]] = []
+    for p in info:  # in time order: each pass joins the first class it is comparable with
+        for c in classes:
+            ref = c[0]
+            tol = 0.5 * min(ref["se"], p["se"]) / max(abs(amps_per_newton), 1e-300)
+            if (ref["dir"], ref["cmd"], ref["group"]) == (p["dir"], p["cmd"], p["group"]) and abs(p["load"] - ref["load"]) <= tol:
+                c.append(p)
+                break
+        else:
+            classes.append([p])
+    rows = []  # (class number, pass record)
+    out_classes = []
+    for c in classes:
+        members = list(c)
+        while len(members) >= 2:
+            lo = max(float(np.min(x[p["q"]])) for p in members)
+            hi = min(float(np.max(x[p["q"]])) for p in members)
+            sel = [p["q"][(x[p["q"]] >= lo) & (x[p["q"]] <= hi)] for p in members]
+            bad = [j for j, s_ in enumerate(sel) if s_.size < min_samples or (s_.size and t[s_[-1]] - t[s_[0]] < min_pass)]
+            if not bad:
+                break
+            # drop the pass with the least travel and compare the rest again
+            members.pop(int(np.argmin([np.ptp(x[p["q"]]) for p in members])))
+        if len(members) < 2:
+            continue
+        k = len(out_classes)
+        recs = []
+        for p, s_ in zip(members, sel):
+            tm, lv, se = _level(t[s_], i[s_])
+            tt = temp[s_]
+            recs.append({"start": float(t[s_[0]]), "end": float(t[s_[-1]]), "time": tm, "level": lv, "stderr": se,
+                         "samples": int(s_.size), "load": float(np.mean(f[s_])),
+                         "temperature": float(np.nanmean(tt)) if np.isfinite(tt).any() else None})
+            rows.append((k, recs[-1]))
+        out_classes.append({"direction": members[0]["dir"], "speed_cmd": members[0]["cmd"], "group": members[0]["group"],
+                            "position_range": [lo, hi], "passes": recs})
+    n_cls, n_p = len(out_classes), len(rows)
+    dof = n_p - n_cls - 1
+    if not out_classes or dof < 1:
+        return None
+    y = np.array([r["level"] for _, r in rows])
+    se = np.array([r["stderr"] for _, r in rows])
+    wt = 1.0 / np.maximum(se, 1e-12) ** 2
+    cls = np.array([k for k, _ in rows])
+    tp = np.array([r["time"] for _, r in rows])
+    L = np.column_stack([(cls == k).astype(float) for k in range(n_cls)])
+    lev = np.array([float(np.sum(wt[cls == k] * y[cls == k]) / np.sum(wt[cls == k])) for k in range(n_cls)])
+    tbar = np.array([float(np.sum(wt[cls == k] * tp[cls == k]) / np.sum(wt[cls == k])) for k in range(n_cls)])
+    dt_ = tp - tbar[cls]
+    x_kt = lev[cls] * dt_  # the torque constant's law: every current scaled by one factor in time
+    dirs = np.array([out_classes[k]["direction"] for k in cls])
+    x_drag = dirs * dt_  # a drag drifting in time: one absolute rate, its sign the direction's
+
+    def wls(X):
+        sw = np.sqrt(wt)
+        c, *_ = np.linalg.lstsq(X * sw[:, None], y * sw, rcond=None)
+        res = y - X @ c
+        cov = np.linalg.pinv((X * wt[:, None]).T @ X)
+        return c, cov, float(np.sum(wt * res**2))
+
+    def judged(X, j, d):
+        """(estimate, standard error scaled by the overdispersion, p) of column ``j`` of ``X`` with ``d`` dof left."""
+        c, cov, chi2 = wls(X)
+        scale = chi2 / d if d >= 1 else 1.0
+        e = math.sqrt(max(cov[j, j], 0.0))
+        if d >= 1 and chi2_dist.sf(chi2, d) < overdispersion_level:  # the levels scatter beyond their noise
+            e *= math.sqrt(scale)
+            p = float(2 * t_dist.sf(abs(c[j]) / e, d)) if e > 0 else 1.0
+        else:
+            p = float(2 * norm.sf(abs(c[j]) / e)) if e > 0 else 1.0
+        return float(c[j]), e, p, chi2, scale
+
+    r, r_se, p, chi2, scale = judged(np.column_stack([L, x_kt]), n_cls, dof)
+    # replicated over the operating points: the law scales every current alike, so every operating point whose passes
+    # resolve the shared rate on their own shows it (one-sided in its sign, at ``replication_level``); a drift of one
+    # operating point only (a drag of one quadrant, the rig base's no-back drag while driving) is no torque constant.
+    # "Resolve": the shared rate is at least z(1 - replication_level) + z(0.95) of the point's own standard errors (it
+    # would pass with 95 % power if the rate were shared); a point at a small current does not resolve a relative rate
+    per_class = []
+    for k in range(n_cls):
+        m = cls == k
+        if m.sum() < 2:
+            continue
+        xk = x_kt[m] - np.sum(wt[m] * x_kt[m]) / np.sum(wt[m])
+        sxx = float(np.sum(wt[m] * xk**2))
+        rk = float(np.sum(wt[m] * xk * y[m]) / sxx) if sxx > 0 else 0.0
+        ek = 1.0 / math.sqrt(sxx) if sxx > 0 else math.inf
+        per_class.append({"class": k, "rate": rk, "stderr": ek,
+                          "p_same_sign": float(norm.sf(math.copysign(1.0, r) * rk / ek)) if ek < math.inf else 1.0})
+    z_need = float(norm.isf(replication_level) + norm.isf(0.05))
+    for c in per_class:
+        c["resolves_shared_rate"] = bool(abs(r) >= z_need * c["stderr"])
+    replicated = all(c["p_same_sign"] < replication_level for c in per_class if c["resolves_shared_rate"])
+    a, a_se, p_a, _c, _s = judged(np.column_stack([L, x_drag]), n_cls, dof)
+    # each law beyond the other (where the record separates them)
+    Xb = np.column_stack([L, x_kt, x_drag])
+    sep_ = np.column_stack([L, x_drag])
+    cc = x_kt - sep_ @ np.linalg.lstsq(sep_, x_kt, rcond=None)[0]
+    cl = x_kt - L @ np.linalg.lstsq(L, x_kt, rcond=None)[0]
+    vif = float(cl @ cl) / max(float(cc @ cc), 1e-300)
+    from .separability import VIF_LIMIT
+
+    both = {"vif": vif}
+    if dof - 1 >= 1 and vif <= VIF_LIMIT:
+        _r2, _e2, p_kt_beyond, _x, _s2 = judged(Xb, n_cls, dof - 1)
+        _a2, _e3, p_drag_beyond, _x3, _s3 = judged(Xb, n_cls + 1, dof - 1)
+        both.update({"torque_constant_beyond_drag_p": p_kt_beyond, "drag_beyond_torque_constant_p": p_drag_beyond})
+    temps = [rec["temperature"] for _, rec in rows if rec["temperature"] is not None]
+    t_span = float(max(temps) - min(temps)) if temps else 0.0
+    if p >= alpha:
+        verdict = "no current-proportional drift"
+    elif not replicated:
+        verdict = "not replicated over the operating points"
+    elif both.get("drag_beyond_torque_constant_p", 1.0) < alpha and both.get("torque_constant_beyond_drag_p", 0.0) >= alpha:
+        verdict = "drag drifting in time"
+    elif t_span > temperature_span:
+        verdict = "housing temperature"
+    else:
+        verdict = "torque constant"
+    return {"variable": TORQUE_CONSTANT_DRIFT, "kind": "torque_constant_drift", "unit": "1/s",
+            "size": abs(r), "relative_rate": r, "stderr": r_se, "p_value": p, "r2": None,
+            "chi2": chi2, "dof": dof, "overdispersion": scale, "classes": out_classes, "passes": n_p,
+            "per_class": per_class, "replicated": bool(replicated), "replication_level": replication_level,
+            "drag_alternative": {"rate": a, "stderr": a_se, "p_value": p_a, "unit": "A/s", **both},
+            "housing_temperature_span": t_span, "temperature_span_limit": temperature_span,
+            "verdict": verdict, "significant": bool(verdict == "torque constant")}
