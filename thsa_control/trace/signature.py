@@ -797,12 +797,12 @@ def segment_torques(time, e_speed, segment_starts, inertia: float, min_samples: 
 
 def stretches(mask, labels=None, max_gap: int = 1) -> list[np.ndarray]:
     """The index arrays of the stretches of ``mask`` (bool per sample): a new stretch where the next True sample is
-    more than ``max_gap`` samples on (1: contiguous) or, with ``labels`` (per sample), where its label changes (a
-    direction of motion)."""
+    more than ``max_gap`` samples on (1: contiguous) or, with ``labels`` (per sample, or a tuple of such arrays),
+    where a label changes (a direction of motion, a speed command)."""
     idx = np.flatnonzero(mask)
     brk = np.diff(idx) > max_gap
-    if labels is not None:
-        brk |= np.diff(np.asarray(labels)[idx]) != 0
+    for lab in (() if labels is None else labels if isinstance(labels, tuple) else (labels,)):
+        brk |= np.diff(np.asarray(lab)[idx]) != 0
     return np.split(idx, np.flatnonzero(brk) + 1)
 
 
@@ -1362,11 +1362,10 @@ def _steady_passes(t, w, f, cmd, on, ok, transient_time: float, min_pass: float,
     steady = ~base_transients(t, w, f, transient_time, sustained=True)
     sgn = np.sign(np.where(np.abs(w) > stop_band(w), w, 0.0))
     same_cmd = np.r_[False, cmd[1:] == cmd[:-1]]
-    idx = np.flatnonzero(steady & (sgn != 0) & same_cmd & (cmd != 0) & on & ok)
-    if idx.size < min_samples:
+    keep = steady & (sgn != 0) & same_cmd & (cmd != 0) & on & ok
+    if np.count_nonzero(keep) < min_samples:
         return [], sgn
-    cut = (np.diff(idx) > 1) | (np.diff(sgn[idx]) != 0) | (np.diff(cmd[idx]) != 0) | (np.diff(group[idx]) != 0)
-    parts = np.split(idx, np.flatnonzero(cut) + 1)
+    parts = stretches(keep, (sgn, cmd, group))
     return [q for q in parts if q.size >= min_samples and t[q[-1]] - t[q[0]] >= min_pass], sgn
 
 
