@@ -317,6 +317,13 @@ def stop_band(speed) -> float:
     return 0.05 * max(float(np.max(np.abs(speed))), 1e-9)
 
 
+def motion_sign(speed, band: float | None = None) -> np.ndarray:
+    """Per sample, the direction of motion: +1 / -1 beyond ``band`` [the speed's unit] (default the
+    :func:`stop_band`), 0 inside it (stopped)."""
+    dv = stop_band(speed) if band is None else band
+    return np.where(speed > dv, 1, np.where(speed < -dv, -1, 0))
+
+
 def drive_on(run) -> np.ndarray:
     """Per sample of a run, whether the drive is energised: either motor enabled (``primary_enable``,
     ``standby_enable``) and, on a rig whose motors are de-energised while the speed command is exactly 0

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..data.rigformat import stop_band
+from ..data.rigformat import motion_sign, stop_band
 from ..model.laws import kinematic_ratio
 
 __all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missing_torque", "current_offset_test",
@@ -109,8 +109,8 @@ def base_transients(time, speed, load, duration: float = 0.3, sustained: bool = 
         return out
     wmax = max(float(np.max(np.abs(w))), 1e-9)
     ev = []
-    for dv in (stop_band(w),) + (() if motion_band is None else (float(motion_band),)):
-        state = np.where(w > dv, 1, np.where(w < -dv, -1, 0))
+    for band in (None,) + (() if motion_band is None else (float(motion_band),)):  # None: the stop band
+        state = motion_sign(w, band)
         ev += list(t[1:][state[1:] != state[:-1]])
     dt = float(np.median(np.diff(t)))
     k = max(round(duration / dt), 1)
@@ -238,6 +238,13 @@ def _iact(r: np.ndarray) -> float:
     """The integrated autocorrelation time of a residual: its sample count over its effective one
     (:func:`_effective_n_iact`), at least 1; the factor by which a regression's variance grows on it."""
     return max(r.size / _effective_n_iact(r), 1.0)
+
+
+def _pooled_iact(parts: list[np.ndarray]) -> float:
+    """The integrated autocorrelation time of a residual cut into stretches (passes separated by transients): its
+    sample count over the stretches' effective counts summed (each stretch's own, :func:`_effective_n_iact`), at
+    least 1."""
+    return max(sum(p.size for p in parts) / sum(_effective_n_iact(p) for p in parts), 1.0)
 
 
 def _f_test(e: np.ndarray, fitted: np.ndarray, k: int) -> tuple[float, float, float]:
@@ -622,8 +629,7 @@ def travel_gain_test(time, position, speed, load, *, ratio: float, transient_tim
     vif = float(th_p @ th_p) / max(sxx, 1e-300)
     g = float(coef[0])
     # the residual's integrated autocorrelation time, per pass (the passes are separated by transients)
-    tau = max(n / sum(_effective_n_iact(res[r0:r0 + q.size]) for r0, q in zip(np.cumsum([0] + [q.size for q in passes]),
-                                                                               passes)), 1.0)
+    tau = _pooled_iact([res[r0:r0 + q.size] for r0, q in zip(np.cumsum([0] + [q.size for q in passes]), passes)])
     se = math.sqrt(float(res @ res) / max(n - rank, 1) * tau / sxx) if sxx > 0 else math.inf
     # per-pass gains (the pass's own travel, no load curve) and their scatter
     gj, sej = [], []
@@ -663,8 +669,7 @@ def travel_passes(time, position, load, steady_speed, transient_time: float = 0.
     x = np.asarray(position, float)
     f = np.asarray(load, float)
     ws = np.nan_to_num(np.asarray(steady_speed, float))
-    dv = stop_band(ws)
-    sgn = np.where(ws > dv, 1, np.where(ws < -dv, -1, 0))
+    sgn = motion_sign(ws)
     # a sustained speed change only: a torque ripple's own speed ripple (cogging at a slow speed) deflects nothing
     steady = (~base_transients(t, ws, np.zeros_like(ws), transient_time, sustained=True) & (sgn != 0) & np.isfinite(x)
               & np.isfinite(f))
@@ -969,12 +974,12 @@ def segment_torques(time, e_speed, segment_starts, inertia: float, min_samples: 
 
 def stretches(mask, labels=None, max_gap: int = 1) -> list[np.ndarray]:
     """The index arrays of the stretches of ``mask`` (bool per sample): a new stretch where the next True sample is
-    more than ``max_gap`` samples on (1: contiguous) or, with ``labels`` (per sample), where its label changes (a
-    direction of motion)."""
+    more than ``max_gap`` samples on (1: contiguous) or, with ``labels`` (per sample, or a tuple of such arrays),
+    where a label changes (a direction of motion, a speed command)."""
     idx = np.flatnonzero(mask)
     brk = np.diff(idx) > max_gap
-    if labels is not None:
-        brk |= np.diff(np.asarray(labels)[idx]) != 0
+    for lab in (() if labels is None else labels if isinstance(labels, tuple) else (labels,)):
+        brk |= np.diff(np.asarray(lab)[idx]) != 0
     return np.split(idx, np.flatnonzero(brk) + 1)
 
 
@@ -1346,8 +1351,7 @@ def breakaway_events(time, speed, load, speed_cmd, position, current, *, transie
     n = t.size
     if n < 20:
         return []
-    dv = 0.05 * max(float(np.max(np.abs(w))), 1e-9)
-    state = np.where(w > dv, 1, np.where(w < -dv, -1, 0))
+    state = motion_sign(w)
     ch = np.flatnonzero(state[1:] != state[:-1]) + 1
     out = []
     last_moving = {1: -np.inf, -1: -np.inf}  # time each direction was last seen moving
@@ -1508,25 +1512,21 @@ def current_noise(time, speed, load, current, *, transient_time: float = 0.3, mi
     t = np.asarray(time, float)
     w = np.nan_to_num(np.asarray(speed, float))
     i = np.asarray(current, float)
-    dv = 0.05 * max(float(np.max(np.abs(w))), 1e-9)
-    sgn = np.where(w > dv, 1, np.where(w < -dv, -1, 0))
+    sgn = motion_sign(w)
     steady = ~base_transients(t, w, np.asarray(load, float), transient_time) & (sgn != 0) & np.isfinite(i)
-    idx = np.flatnonzero(steady)
-    if idx.size < min_samples:
+    if np.count_nonzero(steady) < min_samples:
         return None
-    parts = [q for q in np.split(idx, np.flatnonzero((np.diff(idx) > 1) | (np.diff(sgn[idx]) != 0)) + 1) if q.size >= 20]
+    parts = [q for q in stretches(steady, sgn) if q.size >= 20]
     if not parts:
         return None
-    res, neff = [], 0.0
+    res = []
     for q in parts:
         A = np.column_stack([np.ones(q.size), t[q] - t[q].mean()])
-        r = i[q] - A @ np.linalg.lstsq(A, i[q], rcond=None)[0]
-        res.append(r)
-        neff += _effective_n_iact(r)
+        res.append(i[q] - A @ np.linalg.lstsq(A, i[q], rcond=None)[0])
     r = np.concatenate(res)
     if r.size < min_samples:
         return None
-    return float(math.sqrt(float(r @ r) / max(r.size - 2 * len(parts), 1))), float(max(r.size / neff, 1.0))
+    return float(math.sqrt(float(r @ r) / max(r.size - 2 * len(parts), 1))), float(_pooled_iact(res))
 
 #: the variable of :func:`current_drift_test`: the current at one operating point drifting in time, in proportion
 TORQUE_CONSTANT_DRIFT = "motor_current (torque constant) drifting in time"
@@ -1539,11 +1539,10 @@ def _steady_passes(t, w, f, cmd, on, ok, transient_time: float, min_pass: float,
     steady = ~base_transients(t, w, f, transient_time, sustained=True)
     sgn = np.sign(np.where(np.abs(w) > stop_band(w), w, 0.0))
     same_cmd = np.r_[False, cmd[1:] == cmd[:-1]]
-    idx = np.flatnonzero(steady & (sgn != 0) & same_cmd & (cmd != 0) & on & ok)
-    if idx.size < min_samples:
+    keep = steady & (sgn != 0) & same_cmd & (cmd != 0) & on & ok
+    if np.count_nonzero(keep) < min_samples:
         return [], sgn
-    cut = (np.diff(idx) > 1) | (np.diff(sgn[idx]) != 0) | (np.diff(cmd[idx]) != 0) | (np.diff(group[idx]) != 0)
-    parts = np.split(idx, np.flatnonzero(cut) + 1)
+    parts = stretches(keep, (sgn, cmd, group))
     return [q for q in parts if q.size >= min_samples and t[q[-1]] - t[q[0]] >= min_pass], sgn
 
 
