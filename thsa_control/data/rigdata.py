@@ -134,6 +134,7 @@ from thsa_control.data.rigformat import (  # noqa: F401  (re-exported: the publi
     true_runs,
     drive_on,
     measured_motor_speed,
+    motion_sign,
     stop_band,
     speed_integral,
     motor_speed_from,

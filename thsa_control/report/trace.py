@@ -214,10 +214,11 @@ def _binned(ax, c: dict, scale: float = 1.0, gap_bins: float = 1.5, **kw):
 
 def plot_signature(sig: dict):
     """The remaining residual's signature: binned by nut position, by motor and screw angle, the redundant
-    sensors' cross-correlation, the per-segment torque against time (the drift test's data) and the residual
-    binned by the motor current (a torque-constant error)."""
+    sensors' cross-correlation, the per-segment torque against time (the drift test's data), the residual
+    binned by the motor current (a torque-constant error), the load cell and the LVDT in the holds, and the current
+    of comparable passes against time (the torque constant drifting)."""
     curves = sig.get("curves") or {}
-    fig, axes = subplots(4, 2, figsize=(11, 13))
+    fig, axes = subplots(5, 2, figsize=(11, 16))
     ax = axes[0, 0]
     if "nut_position" in curves:
         c = curves["nut_position"]
@@ -299,7 +300,38 @@ def plot_signature(sig: dict):
     ax.set_ylabel("missing torque [N m]")
     ax.set_title("residual binned by motor current (torque constant)", fontsize=9)
     _plot_holds(axes[3, 0], axes[3, 1], curves.get("hold_load"))
+    _plot_current_drift(axes[4, 0], next((t for t in sig.get("tests", []) if t.get("kind") == "torque_constant_drift"),
+                                         None))
+    fig.delaxes(axes[4, 1])
     return fig
+
+
+def _plot_current_drift(ax, test: dict | None) -> None:
+    """The torque constant's test: each comparable pass's mean current relative to its operating point's level, against
+    time, with the standard errors and the shared relative rate (the law every operating point follows)."""
+    if not test:
+        ax.text(0.5, 0.5, "no operating point repeated by three passes (or two by two)\nover the same nut positions: "
+                "the torque constant's drift not tested", ha="center", va="center", transform=ax.transAxes, fontsize=8,
+                color="0.35")
+    else:
+        for k, c in enumerate(test["classes"]):
+            tm = np.array([p["time"] for p in c["passes"]])
+            lv = np.array([p["level"] for p in c["passes"]])
+            se = np.array([p["stderr"] for p in c["passes"]])
+            w = 1.0 / np.maximum(se, 1e-12) ** 2
+            lc, tc = float(np.sum(w * lv) / np.sum(w)), float(np.sum(w * tm) / np.sum(w))
+            label = f"{'extending' if c['direction'] > 0 else 'retracting'} at {lc:.2f} A"
+            ax.errorbar(tm, 1e3 * (lv / lc - 1), yerr=1e3 * se / abs(lc), fmt="o", ms=3, color=f"C{k}", label=label)
+            tt = np.array([tm.min(), tm.max()])
+            ax.plot(tt, 1e3 * test["relative_rate"] * (tt - tc), color=f"C{k}", lw=1.0)
+        ax.text(0.02, 0.97, f"shared rate {1e3 * test['relative_rate']:+.2f}e-3 +- {1e3 * test['stderr']:.2f}e-3 /s, "
+                f"p {_num(test['p_value'], '.2g')}: {test['verdict']}" + (" (STRUCTURED)" if test["significant"] else ""),
+                transform=ax.transAxes, va="top", fontsize=7)
+        ax.legend(fontsize=7, loc="lower left")
+    ax.axhline(0, color="0.5", lw=0.5)
+    ax.set_xlabel("time [s] (runs one after another)")
+    ax.set_ylabel("pass current / level - 1 [1e-3]")
+    ax.set_title("current of comparable passes (torque constant drifting)", fontsize=9)
 
 
 def _plot_holds(ax_f, ax_x, hc: dict | None) -> None:
@@ -490,7 +522,9 @@ def format_trace_summary(doc: dict) -> str:
                     f"; flagged by the {t['flagged_by']} (p {_num(t['time_or_position']['time_beyond_position']['p_value'], '.2g')})"
                     if t.get("flagged_by") else "")
         elif t["kind"] == "redundant_sensors":
-            extra = f", gain {t['gain']:.4f} +- {t['gain_stderr']:.1g}, lag {1e3 * t['lag_s']:.1f} ms" + (
+            extra = f", gain {t['gain']:.4f} +- {t['gain_stderr']:.1g}, lag {1e3 * t['lag_s']:.1f}" + (
+                f" +- {1e3 * t['lag_stderr']:.1g} ms (p {_num(t.get('lag_p_value'), '.2g')} against "
+                f"+-{1e3 * t['lag_tolerance_s']:.1g} ms)" if t.get("lag_stderr") is not None else " ms") + (
                 f" (the odd sensor: {t['odd_sensor']})" if t.get("odd_sensor") else "")
         elif t["kind"] == "time_or_position":
             extra = (f", position beyond time p {_num(t['position_beyond_time']['p_value'], '.2g')}, time beyond position"
@@ -500,6 +534,10 @@ def format_trace_summary(doc: dict) -> str:
             extra = (f", at {1e3 * t['peak_position']:.1f} mm {t['peak_deviation']:+.3f} A against the same kind of "
                      f"event elsewhere ({t['classes']} class(es) of starts/reversals seen at two places or more, "
                      f"{len(t['places'])} places, {t['replicate_dof']} replicate dof)")
+
+        elif t["kind"] == "torque_constant_drift":
+            extra = (f", current {1e3 * t['relative_rate']:+.2f}e-3 +- {1e3 * t['stderr']:.2f}e-3 /s of itself over "
+                     f"{t['passes']} comparable passes ({len(t['classes'])} operating points): {t['verdict']}")
         elif t["kind"] == "sensor_offset":
             extra = f", offset {t['offset']:.3f} A over {t['samples']} samples"
         elif t["kind"] == "sensor_drift":

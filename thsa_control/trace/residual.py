@@ -15,6 +15,7 @@ from collections.abc import Callable, Mapping, Sequence
 import numpy as np
 
 from ..data.rigdata import RigRun, drive_on, measured_motor_speed, motor_speed_from, speed_integral, stop_band
+from ..data.rigformat import speed_sensor_delays
 from ..fit.residuals import quadrant, reversal_proximity
 from ..model.laws import kinematic_ratio
 from ..model.params import ParameterSet
@@ -27,6 +28,7 @@ from .signature import (
     current_noise,
     binned_mean,
     cross_correlation,
+    current_drift_test,
     current_offset_test,
     drift_test,
     hold_drift_test,
@@ -100,10 +102,46 @@ def breakaway_of_runs(runs: Sequence[RigRun], s: SignatureSettings | None = None
             events.append({**e, "run": run.name, "noise": cn[0], "iact": cn[1]})
     return breakaway_position_test(events, place_gap=s.position_bin, alpha=s.local_alpha)
 
+def amps_per_newton(params: ParameterSet, lead: float, gear_ratio: float) -> float:
+    """The motor current one newton of nut load needs through a lossless drive: ``lead / (2 pi N Kt)``, ``Kt = 1.5
+    p psi`` the file's torque constant (the scale of a load difference in current; efficiencies change it by tens
+    of per cent, not its order)."""
+    kt = 1.5 * params.value("motor.pole_pairs") * params.value("motor.flux_linkage")
+    return lead / (2 * math.pi * gear_ratio * kt)
+
+
+def current_drift_of_runs(runs: Sequence[RigRun], params: ParameterSet, s: SignatureSettings | None = None) -> dict | None:
+    """:func:`~thsa_control.trace.signature.current_drift_test` over ``runs`` (each run its own group: passes are
+    compared within a run, whose clock is one), from the records alone, at the sample-based level ``s.alpha`` (its
+    errors are IACT-corrected sample counts); None when no run has comparable passes."""
+    s = s or SignatureSettings()
+    cols: dict[str, list] = {k: [] for k in ("t", "i", "w", "f", "cmd", "x", "temp", "on", "g")}
+    t_offset = 0.0
+    apn = None
+    for k, run in enumerate(runs):
+        w = measured_motor_speed(run)
+        if w is None or "motor_current" not in run.source_columns or "nut_position" not in run.source_columns:
+            continue
+        t = np.asarray(run.time, float)
+        cmd = np.asarray(run.signals["speed_cmd"], float)
+        on = drive_on(run)
+        apn = amps_per_newton(params, run.screw_lead, run.gear_ratio)
+        for key, v in (("t", t - t[0] + t_offset), ("i", run.signals["motor_current"]), ("w", w),
+                       ("f", run.signals["load_force"]), ("cmd", cmd), ("x", run.signals["nut_position"]),
+                       ("temp", run.signals["temperature"]), ("on", on), ("g", np.full(t.size, float(k)))):
+            cols[key].append(np.asarray(v, float))
+        t_offset += float(t[-1] - t[0]) + 1.0
+    if apn is None:
+        return None
+    c = {k: np.concatenate(v) for k, v in cols.items()}
+    return current_drift_test(c["t"], c["i"], c["w"], c["f"], c["cmd"], c["x"], c["temp"], c["on"] > 0.5, c["g"],
+                              amps_per_newton=apn, transient_time=s.transient_time, alpha=s.alpha,
+                              temperature_span=s.temperature_span)
+
 
 # ----------------------------------------------------------------------------- signature
 def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s: SignatureSettings,
-               noise: Mapping[str, float] | None = None) -> dict:
+               noise: Mapping[str, float] | None = None, speed_sensors: Mapping[str, object] | None = None) -> dict:
     inertia = plant.inertia(params)[1]  # the signature's missing torque at the motor shaft (what the current drives)
     torque: list = []
     vars_: dict = {}
@@ -211,9 +249,12 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     sensors = []
     for run in runs:
         measured = {c: run.signals[c] for c in ("motor_speed", "screw_speed", "nut_position") if c in run.source_columns}
+        # the redundant sensors' lag at the replicate-based level (signature.LAG_ALPHA), the chains' declared
+        # difference quotients compensated
         for d in sensor_consistency(run.time, {**measured, "load_force": run.signals["load_force"]},
                                     gear_ratio=run.gear_ratio, lead=run.screw_lead, alpha=s.alpha,
-                                    transient_time=s.transient_time):
+                                    transient_time=s.transient_time, lag_alpha=s.local_alpha,
+                                    delays=speed_sensor_delays(run, speed_sensors)):
             d["run"] = run.name
             sensors.append(d)
         on = drive_on(run)
@@ -228,6 +269,12 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     if hd is not None:
         hold_curve = {**hd.pop("curve"), "slope": hd["slope"], "p_value": hd["p_value"], "significant": hd["significant"]}
         sensors.append(hd)
+    # the current at one operating point (same direction, command, load and nut positions) drifting in proportion to
+    # itself over the record: a torque constant that changes with the rotor's temperature (from the records alone; a
+    # load-cell drift moves the load reading, not the current)
+    cd = current_drift_of_runs(runs, params, s)
+    if cd is not None:
+        tests.insert(0, cd) if cd["significant"] else tests.append(cd)
     # which remainder each test describes: structure an unmodelled-but-declared base does not leave (local in
     # position over passes, periodic in angle, a drift, a torque-constant error, the sensors) or the regime
     # dependences such a base leaves (quadrant, motor on/off, time since a reversal, direction, position bins

@@ -82,6 +82,12 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     # told from the base's breakaway of that kind of event (docs/trace_notes.md, "A breakaway localised in nut
     # position"); cut after the second start's steady stretch
     "rig_worn_spot_stiction_cold": ("cold_ramp", "rig", "worn_spot_stiction", 261, 7.0, "foreign"),
+
+    # the torque constant drifting with the rotor's temperature where the record shows it: the whole 10 s of reversals
+    # (4 extending and 3 retracting passes at one load, speed and stroke) compares the current of the same operating
+    # point at different times; the trim run above has one pass per direction, whose slope in time a drag along the
+    # stroke gives as well (docs/trace_notes.md "The torque constant drifting in time")
+    "rig_kt_temperature_reversals": ("reversals_under_load", "rig", "kt_temperature", 38, None, "foreign"),
     # rig-sim's default sensor gain, on the LVDT (the committed rig_sensor_gain plants it on the screw speed): the
     # LVDT's redundancy test once read it as a gain of 1.019 +- 0.79 from the differentiated position
     "rig_sensor_gain_lvdt": ("reversals_under_load", "rig", "sensor_gain=channel:nut_position", 451, 5.0, "foreign"),
