@@ -168,9 +168,45 @@ def test_a_period_shorter_than_two_position_bins_is_not_tested(params):
     two_bins = 2 * SignatureSettings().position_bin
     assert PERIODS["cogging_torque"](params) < two_bins <= PERIODS["screw_friction_ripple"](params)
     cog = _repetition(fit, fit, CANDIDATES["cogging_torque"], 3, [], {}, None, 1e-3, two_bins)
-    assert cog["repeats"] and "not tested" in cog["reason"], cog
+    assert "not tested" in cog["reason"] and cog["scaled_whole_drop"], cog
     rip = _repetition(fit, fit, CANDIDATES["screw_friction_ripple"], 2, [], {}, None, 1e-3, two_bins)
-    assert "not tested" not in rip.get("reason", ""), rip
+    assert "not tested" not in rip.get("reason", "") and "scaled_whole_drop" not in rip, rip
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_an_untestable_period_judges_its_whole_drop_against_the_scaled_threshold(params, seed):
+    """Where no period can be left out (the cogging), the whole held-out drop must pass the threshold scaled for a
+    structured remainder (reduced chi2 x IACT): the same drop (the residual shrunk by 1/1.1) passes on a white
+    residual and is refused on a correlated one (AR(1), rho 0.9: IACT about 19), whose chi2 differences the
+    unscaled chi2(3) quantile (16.3) would take for a finding."""
+    from thsa_control.trace.candidates import CANDIDATES
+    from thsa_control.trace.engine import _repetition
+    from thsa_control.trace.signature import SignatureSettings
+
+    rng = np.random.default_rng(seed)
+    n, seg = 1200, 25
+    starts = np.arange(0, n, seg)
+    hold = np.zeros(n, bool)
+    for s in starts[::3]:
+        hold[s:s + seg] = True
+    white = rng.standard_normal(n)
+    ar = np.zeros(n)
+    for i in range(1, n):
+        ar[i] = 0.9 * ar[i - 1] + math.sqrt(1 - 0.81) * white[i]
+    two_bins = 2 * SignatureSettings().position_bin
+    out = {}
+    for name, e in (("white", white), ("correlated", ar)):
+        e = e / np.sqrt(np.mean(e[hold] ** 2))  # reduced held-out chi2 1 after the candidate
+        pred = lambda r: {"r": {"time": np.arange(n) * 2e-3, "holdout": hold, "segment_starts": starts,  # noqa: E731
+                                "measured": {"motor_speed": np.zeros(n)}, "simulated": {"motor_speed": r}}}
+        before, after = {"predictions": pred(1.1 * e)}, {"params_toml": params.to_toml(), "predictions": pred(e)}
+        out[name] = _repetition(before, after, CANDIDATES["cogging_torque"], 3, [], {"motor_speed": 1.0}, None,
+                                1e-3, two_bins)
+        assert out[name]["total_drop"] == pytest.approx(0.21 * hold.sum(), rel=1e-6)
+    w, c = out["white"], out["correlated"]
+    assert w["repeats"] and w["iact"] < 2 and w["total_drop"] > w["threshold"], w
+    assert not c["repeats"] and c["iact"] > 5 and c["total_drop"] > 16.3 and c["total_drop"] < c["threshold"], c
+    assert periodicity.describe(c).startswith("not shown periodic") and "IACT" in periodicity.describe(c)
 
 
 def test_report_draws_the_drop_per_period_and_says_why():

@@ -124,6 +124,11 @@ def repetition_test(segments: list[dict], period: float, threshold: float) -> di
 
 def describe(test: dict) -> str:
     """The refusal reason of a candidate whose gain does not repeat."""
+    if test.get("scaled_whole_drop"):  # a period too short to leave one out (engine._repetition)
+        return (f"not shown periodic: its period ({test['period'] * 1e3:.3g} mm of nut travel) is too short to test "
+                f"its repetition, and its held-out drop {test['total_drop']:.4g} does not pass the held-out test "
+                f"scaled for a structured remainder ({test['threshold']:.3g}: chi2 quantile x reduced chi2 "
+                f"{test.get('reduced_chi2', 1.0):.3g} x IACT {test.get('iact', 1.0):.3g})")
     a, b = test["left_out"]
     where = f"one period of nut travel, {a * 1e3:.3g} .. {b * 1e3:.3g} mm"
     loc = test.get("local_structure")
