@@ -147,7 +147,9 @@ class TraceSettings:
         (:mod:`~thsa_control.trace.periodicity`; ``periodicity`` and ``not_periodic`` in ``trace.json``).  A
         ripple is the same in every revolution; within one revolution it is any drag that depends on the nut
         position.  Measured on rig-sim's friction bump (8 N m at the screw at 5 mm): the ripple fitted to it
-        gained 4613 in the lead that holds the bump and lost 1884 over the three other leads of travel.
+        gained 4613 in the lead that holds the bump and lost 1884 over the three other leads of travel.  A
+        shorter period (the cogging) cannot leave one out: its held-out drop must pass the same scaled threshold
+        in each half of the travel (:func:`~thsa_control.trace.periodicity.halves_test`).
     workers : int
         Parallel processes for candidate fits (1: in this process).
     seed : int
