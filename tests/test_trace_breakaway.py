@@ -137,3 +137,18 @@ def test_an_event_without_a_position_reading_is_left_out():
     x[k] = np.nan
     ev = breakaway_events(t, w, f, cmd, x, i)
     assert len(ev) == 1 and ev[0]["position"] == pytest.approx(0.0278, abs=1e-3)
+
+
+def test_a_class_spans_no_more_than_its_load_gap():
+    """Starts at loads 0 .. 9.9 kN in 900 N steps (each step under the 1 kN class gap): the classes are cut against
+    their first event, so no class spans more than the gap (chained against the previous event, all twelve were one
+    class and a start at 0 N was compared with one at 9.9 kN)."""
+    from thsa_control.trace.signature import BREAKAWAY_LOAD_GAP, _classes
+
+    ev = [{"kind": "start", "direction": 1, "load": 900.0 * k, "speed_cmd": 0.006, "position": 0.0} for k in range(12)]
+    classes = _classes(ev, BREAKAWAY_LOAD_GAP, 1.1)
+    assert len(classes) >= 2
+    for c in classes:
+        loads = [e["load"] for e in c]
+        assert max(loads) - min(loads) <= BREAKAWAY_LOAD_GAP, loads
+    assert sorted(e["load"] for c in classes for e in c) == [900.0 * k for k in range(12)]

@@ -1211,7 +1211,8 @@ def breakaway_events(time, speed, load, speed_cmd, position, current, *, transie
 
 def _classes(events: list[dict], load_gap: float, speed_ratio: float) -> list[list[dict]]:
     """Events of one kind, direction, load (within ``load_gap``) and commanded speed (within ``speed_ratio``): the
-    base's breakaway repeats within a class.  Greedy chains on the sorted load and speed."""
+    base's breakaway repeats within a class.  Greedy chains on the sorted load and speed, each spanning at most its
+    gap (:func:`_chains`)."""
     groups: dict = {}
     for e in events:
         groups.setdefault((e["kind"], e["direction"]), []).append(e)
@@ -1223,10 +1224,13 @@ def _classes(events: list[dict], load_gap: float, speed_ratio: float) -> list[li
 
 
 def _chains(items: list[dict], key: str, gap) -> list[list[dict]]:
+    """``items`` sorted by ``key`` and cut into chains: a new chain where ``gap(first, value)`` holds against the
+    chain's FIRST item, so that a whole chain spans no more than the gap (against the previous item a chain of
+    steps each under the gap could span any range: 0-9.9 kN in 900 N steps would be one class)."""
     s = sorted(items, key=lambda e: e[key])
     out: list[list[dict]] = []
     for e in s:
-        if out and not gap(out[-1][-1][key], e[key]):
+        if out and not gap(out[-1][0][key], e[key]):
             out[-1].append(e)
         else:
             out.append([e])
