@@ -152,3 +152,18 @@ def test_a_class_spans_no_more_than_its_load_gap():
         loads = [e["load"] for e in c]
         assert max(loads) - min(loads) <= BREAKAWAY_LOAD_GAP, loads
     assert sorted(e["load"] for c in classes for e in c) == [900.0 * k for k in range(12)]
+
+
+def test_a_cold_run_and_a_warm_run_are_not_compared():
+    """A set of two runs of one rig: a cold run (-30 degC) whose extension start at 0 mm breaks away 0.3 A harder (cold
+    grease) than the warm run's (25 degC) at 30 mm.  Same kind, direction, load and speed, but 55 K apart: two classes
+    of one place each, so no worn spot is made of the temperature (pooled, it was flagged at 0 mm)."""
+    cold = _events(_starts_record(seed=1))[:1]
+    warm = _events(_starts_record(seed=2))[1:]
+    cold[0]["excess"] += 0.3
+    ev = [{**cold[0], "run": "cold", "temperature": -30.0}, {**warm[0], "run": "warm", "temperature": 25.0}]
+    assert breakaway_position_test(ev) is None
+    # at one temperature the same pair is compared (and the 0.3 A is a place's)
+    same = [{**e, "temperature": 25.0} for e in ev]
+    b = breakaway_position_test(same)
+    assert b is not None and b["significant"] and b["peak_position"] == pytest.approx(0.0, abs=1e-3)

@@ -1209,17 +1209,28 @@ def breakaway_events(time, speed, load, speed_cmd, position, current, *, transie
     return out
 
 
-def _classes(events: list[dict], load_gap: float, speed_ratio: float) -> list[list[dict]]:
-    """Events of one kind, direction, load (within ``load_gap``) and commanded speed (within ``speed_ratio``): the
-    base's breakaway repeats within a class.  Greedy chains on the sorted load and speed, each spanning at most its
-    gap (:func:`_chains`)."""
+def _classes(events: list[dict], load_gap: float, speed_ratio: float,
+             temperature_gap: float = 5.0) -> list[list[dict]]:
+    """Events of one kind, direction, temperature (within ``temperature_gap``), load (within ``load_gap``) and
+    commanded speed (within ``speed_ratio``): the base's breakaway repeats within a class.  Greedy chains on the
+    sorted temperature, load and speed, each spanning at most its gap (:func:`_chains`).
+
+    Temperature: a friction's breakaway follows the temperature (grease viscosity, rig-sim's cold friction), so a
+    cold start is not compared with a warm one; ``temperature_gap`` is the signature's temperature-span rule
+    (``SignatureSettings.temperature_span``: a temperature dependence counts beyond it).  An event without a
+    temperature reading (``temperature`` absent or NaN) is compared within its own run (``run``) only."""
     groups: dict = {}
     for e in events:
-        groups.setdefault((e["kind"], e["direction"]), []).append(e)
+        temp = e.get("temperature")
+        known = temp is not None and np.isfinite(temp)
+        groups.setdefault((e["kind"], e["direction"], None if known else e.get("run")), []).append(e)
     out = []
-    for g in groups.values():
-        for by_load in _chains(g, "load", lambda a, b: b - a > load_gap):
-            out += _chains(by_load, "speed_cmd", lambda a, b: b > speed_ratio * max(a, 1e-12))
+    for (_k, _d, run), g in groups.items():
+        by_temp = [g] if run is not None or not g or "temperature" not in g[0] else \
+            _chains(g, "temperature", lambda a, b: b - a > temperature_gap)
+        for tg in by_temp:
+            for by_load in _chains(tg, "load", lambda a, b: b - a > load_gap):
+                out += _chains(by_load, "speed_cmd", lambda a, b: b > speed_ratio * max(a, 1e-12))
     return out
 
 
@@ -1238,13 +1249,15 @@ def _chains(items: list[dict], key: str, gap) -> list[list[dict]]:
 
 
 def breakaway_position_test(events: list[dict], *, place_gap: float = 2e-3, alpha: float = 1e-4,
-                            load_gap: float = BREAKAWAY_LOAD_GAP, speed_ratio: float = BREAKAWAY_SPEED_RATIO) -> dict | None:
+                            load_gap: float = BREAKAWAY_LOAD_GAP, speed_ratio: float = BREAKAWAY_SPEED_RATIO,
+                            temperature_gap: float = 5.0) -> dict | None:
     """A breakaway localised in nut position (a worn spot with extra static friction, a contamination): the drive's
     breakaway excess (:func:`breakaway_events`) larger at the starts or reversals at one place than at the same kind
     of event elsewhere.
 
     ``events``: :func:`breakaway_events`' dicts, each with its record's current noise ``noise`` [A] and its
-    integrated autocorrelation time ``iact`` (:func:`current_noise`).  Events are compared within a class only (:func:`_classes`: kind, direction, load, commanded speed): the base's
+    integrated autocorrelation time ``iact`` (:func:`current_noise`).  Events are compared within a class only (:func:`_classes`: kind, direction, temperature, load,
+    commanded speed): the base's
     own breakaway (stiction, a no-back's static disk at every start under an aiding load, the loop's overshoot)
     repeats there.  A class's events are grouped into places (nut positions farther apart than ``place_gap``, the
     position test's bin: a local feature of a few mm).  Noise: each excess is a mean of a few current samples
@@ -1264,7 +1277,7 @@ def breakaway_position_test(events: list[dict], *, place_gap: float = 2e-3, alph
     events = [e for e in events if e.get("noise", 0.0) > 0]
     if not events:
         return None
-    classes = _classes(events, load_gap, speed_ratio)
+    classes = _classes(events, load_gap, speed_ratio, temperature_gap)
     # a mean of n samples of a series with autocorrelation time tau: s^2 min(tau, n) / n
     var = {id(e): e["noise"] ** 2 * sum(min(max(e["iact"], 1.0), m) / m for m in (e["peak_samples"], e["kinetic_samples"]))
            for e in events}
