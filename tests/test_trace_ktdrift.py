@@ -211,3 +211,22 @@ def test_the_report_panel_draws_the_passes_and_the_shared_rate():
     assert any("torque constant (STRUCTURED)" in t.get_text() for t in ax.texts)
     labels = ax.get_legend_handles_labels()[1]
     assert any(lb.startswith("extending") for lb in labels) and any(lb.startswith("retracting") for lb in labels)
+
+
+def test_each_run_of_a_set_has_its_own_passes():
+    """Two runs glued end to end (``group``): a reversal record at 6 mm/s and one 30 x faster.  Each run's passes come
+    from its own samples: the slow run keeps the passes it has alone (glued, its whole motion lay inside the fast
+    run's stop band, 5 % of the largest speed, and it had none)."""
+    slow = _reversals(3)
+    fast = list(_reversals(4))
+    fast[2] = fast[2] * 30.0  # motor speed
+    fast[4] = fast[4] * 30.0  # speed command
+    fast[0] = fast[0] + slow[0][-1] + 1.0
+    glued = [np.concatenate([a, b]) for a, b in zip(slow, fast)]
+    grp = np.r_[np.zeros(slow[0].size), np.ones(fast[0].size)]
+    t, i, w, f, cmd, x, temp = glued
+    both = current_drift_test(t, i, w, f, cmd, x, temp, group=grp, amps_per_newton=APN)
+    alone = _test(slow)
+    got = [[(p["start"], p["end"]) for p in c["passes"]] for c in both["classes"] if c["group"] == 0.0]
+    want = [[(p["start"], p["end"]) for p in c["passes"]] for c in alone["classes"]]
+    assert got and got == want

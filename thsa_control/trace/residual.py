@@ -123,7 +123,8 @@ def amps_per_newton(params: ParameterSet, lead: float, gear_ratio: float) -> flo
 def current_drift_of_runs(runs: Sequence[RigRun], params: ParameterSet, s: SignatureSettings | None = None) -> dict | None:
     """:func:`~thsa_control.trace.signature.current_drift_test` over ``runs`` (each run its own group: passes are
     compared within a run, whose clock is one), from the records alone, at the sample-based level ``s.alpha`` (its
-    errors are IACT-corrected sample counts); None when no run has comparable passes."""
+    errors are IACT-corrected sample counts); None when no run has comparable passes.  The runs are joined end to end
+    (a 1 s gap), each run's passes found on its own samples (``group``)."""
     s = s or SignatureSettings()
     cols: dict[str, list] = {k: [] for k in ("t", "i", "w", "f", "cmd", "x", "temp", "on", "g")}
     t_offset = 0.0

@@ -1455,7 +1455,16 @@ def current_drift_test(time, current, speed, load, speed_cmd, position, temperat
     on = np.ones(n, bool) if drive_on is None else np.asarray(drive_on, bool)
     g = np.zeros(n) if group is None else np.asarray(group, float)
     ok = np.isfinite(i) & np.isfinite(f) & np.isfinite(x) & np.isfinite(t)
-    passes, sgn = _steady_passes(t, w, np.nan_to_num(f), cmd, on, ok, transient_time, min_pass, min_samples, g)
+    # each group's (run's) passes from its own samples: the stop band, the base's transients (median step, moving
+    # averages, the speed range) are a record's, not those of records glued end to end
+    passes, sgn = [], np.zeros(n)
+    for gv in np.unique(g):
+        gi = np.flatnonzero(g == gv)
+        ps, sg = _steady_passes(t[gi], w[gi], np.nan_to_num(f[gi]), cmd[gi], on[gi], ok[gi], transient_time, min_pass,
+                                min_samples, g[gi])
+        passes += [gi[q] for q in ps]
+        sgn[gi] = sg
+    passes.sort(key=lambda q: t[q[0]])
     if len(passes) < 2:
         return None
     info = []
