@@ -230,3 +230,30 @@ def test_each_run_of_a_set_has_its_own_passes():
     got = [[(p["start"], p["end"]) for p in c["passes"]] for c in both["classes"] if c["group"] == 0.0]
     want = [[(p["start"], p["end"]) for p in c["passes"]] for c in alone["classes"]]
     assert got and got == want
+
+
+def test_the_pass_breaking_the_common_range_is_dropped():
+    """Four extensions at one operating point: three over 0-10, 0-10 and 2-6 mm, one long one over 9-30 mm.  The long
+    one breaks the common range; dropping it leaves 2-6 mm for the other three (dropping the shortest first, as
+    before, emptied the class)."""
+    dt, v = 2e-3, 0.006
+    rng = np.random.default_rng(5)
+    cols = {k: [] for k in ("t", "w", "cmd", "x")}
+    t0 = 0.0
+    for a, b in ((0.0, 0.010), (0.0, 0.010), (0.002, 0.006), (0.009, 0.030)):
+        for moving, dur in ((False, 1.0), (True, (b - a) / v + 0.8)):
+            tt = t0 + np.arange(0.0, dur, dt)
+            cols["t"].append(tt)
+            cols["w"].append(np.full(tt.size, v * 2 * np.pi / 0.012 * 65.61 if moving else 0.0))
+            cols["cmd"].append(np.full(tt.size, v if moving else 0.0))
+            cols["x"].append(a + v * (tt - t0 - 0.4) if moving else np.full(tt.size, a))
+            t0 = tt[-1] + dt
+    t, w, cmd, x = (np.concatenate(cols[k]) for k in ("t", "w", "cmd", "x"))
+    i = np.where(cmd > 0, 3.0, 0.0) + 0.043 * rng.standard_normal(t.size)
+    f = 25e3 + 25.0 * rng.standard_normal(t.size)
+    d = current_drift_test(t, i, w, f, cmd, x, amps_per_newton=APN)
+    assert d is not None and len(d["classes"]) == 1
+    c = d["classes"][0]
+    assert len(c["passes"]) == 3
+    lo, hi = c["position_range"]  # the short pass's steady travel (its 0.3 s start transient off): ~1.4-6.6 mm
+    assert 0.001 < lo < hi < 0.007 and hi - lo > 0.004, (lo, hi)

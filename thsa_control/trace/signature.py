@@ -1412,7 +1412,8 @@ def current_drift_test(time, current, speed, load, speed_cmd, position, temperat
     (so a load difference moves a level by at most half its noise; rig-sim's reversals hold their load within 3 N,
     the threshold is about 12 N; a drifting load cell splits the class).  Each class's passes are compared over
     the nut positions every one of them covers (a drag along the stroke is the same in every pass there; passes
-    that leave less than ``min_pass`` of common travel are dropped, the shortest first).  One level per pass (its
+    that leave less than ``min_pass`` of common travel are dropped, first the one whose removal widens the common
+    range most).  One level per pass (its
     mean current there, at its mean time; standard error from its scatter about its own level and slope, counted by
     the integrated autocorrelation time).
 
@@ -1493,8 +1494,11 @@ def current_drift_test(time, current, speed, load, speed_cmd, position, temperat
             bad = [j for j, s_ in enumerate(sel) if s_.size < min_samples or (s_.size and t[s_[-1]] - t[s_[0]] < min_pass)]
             if not bad:
                 break
-            # drop the pass with the least travel and compare the rest again
-            members.pop(int(np.argmin([np.ptp(x[p["q"]]) for p in members])))
+            # drop the pass whose removal widens the common range [lo, hi] most (the one breaking the overlap, not
+            # merely the shortest) and compare the rest again; of equal widenings the earlier pass
+            def common(ms):
+                return (min(float(np.max(x[p["q"]])) for p in ms) - max(float(np.min(x[p["q"]])) for p in ms))
+            members.pop(int(np.argmax([common(members[:j] + members[j + 1:]) for j in range(len(members))])))
         if len(members) < 2:
             continue
         k = len(out_classes)
