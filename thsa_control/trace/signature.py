@@ -1435,7 +1435,7 @@ def current_drift_test(time, current, speed, load, speed_cmd, position, temperat
     magnitude per direction the two are collinear and the torque constant is named (the physics that changes a
     current at fixed load, speed and position within seconds while the housing's temperature stands is the
     rotor's); a drag following the housing temperature: where the housing's temperature changes by more than
-    ``temperature_span`` [K] over the compared passes (the signature's rule for a temperature dependence), the drift
+    ``temperature_span`` [K] over the compared passes of one class (the signature's rule for a temperature dependence), the drift
     is not named a torque constant (``verdict`` ``"housing temperature"``).  A drift the current-proportional law does
     not fit (a drag's, on operating points of different currents) leaves a scatter that the overdispersion rule
     charges to the rate: ``"no current-proportional drift"`` (the per-pass drift tests of the missing torque see it).
@@ -1583,8 +1583,13 @@ def current_drift_test(time, current, speed, load, speed_cmd, position, temperat
         _r2, _e2, p_kt_beyond, _x, _s2 = judged(Xb, n_cls, dof - 1)
         _a2, _e3, p_drag_beyond, _x3, _s3 = judged(Xb, n_cls + 1, dof - 1)
         both.update({"torque_constant_beyond_drag_p": p_kt_beyond, "drag_beyond_torque_constant_p": p_drag_beyond})
-    temps = [rec["temperature"] for _, rec in rows if rec["temperature"] is not None]
-    t_span = float(max(temps) - min(temps)) if temps else 0.0
+    # the housing temperature's change over the passes of one operating point (a drag following the temperature
+    # moves one point's level; a cold run and a warm run at two other points are no change), the largest class's
+    t_span = 0.0
+    for k in range(n_cls):
+        temps = [rec["temperature"] for kk, rec in rows if kk == k and rec["temperature"] is not None]
+        if temps:
+            t_span = max(t_span, float(max(temps) - min(temps)))
     if p >= alpha:
         verdict = "no current-proportional drift"
     elif not replicated:
