@@ -257,3 +257,15 @@ def test_the_pass_breaking_the_common_range_is_dropped():
     assert len(c["passes"]) == 3
     lo, hi = c["position_range"]  # the short pass's steady travel (its 0.3 s start transient off): ~1.4-6.6 mm
     assert 0.001 < lo < hi < 0.007 and hi - lo > 0.004, (lo, hi)
+
+
+def test_a_drift_that_one_operating_point_resolves_is_not_named_without_the_drag_told_apart():
+    """Extending at 3 A, retracting at 0.05 A (a small current does not resolve a relative rate): only the extending
+    passes resolve the -1e-3 /s drift, and a drag of that point drifting in time fits it as well (not told apart
+    at the level): "every resolving point shows it" is then one point, and no torque constant is named.  The same
+    drift on two resolving points is."""
+    d = _test(_reversals(3, rate=-1e-3, levels=(3.0, -0.05)))
+    assert d["p_value"] < 1e-6 and sum(c["resolves_shared_rate"] for c in d["per_class"]) == 1
+    assert not d["significant"] and d["verdict"] == "one operating point, not told from a drag", d["verdict"]
+    d = _test(_reversals(3, rate=-1e-3, levels=(3.0, -3.9)))
+    assert d["significant"] and d["verdict"] == "torque constant"

@@ -1553,7 +1553,11 @@ def current_drift_test(time, current, speed, load, speed_cmd, position, temperat
     # resolve the shared rate on their own shows it (one-sided in its sign, at ``replication_level``); a drift of one
     # operating point only (a drag of one quadrant, the rig base's no-back drag while driving) is no torque constant.
     # "Resolve": the shared rate is at least z(1 - replication_level) + z(0.95) of the point's own standard errors (it
-    # would pass with 95 % power if the rate were shared); a point at a small current does not resolve a relative rate
+    # would pass with 95 % power if the rate were shared); a point at a small current does not resolve a relative rate.
+    # A point's error carries the overdispersion factor where the shared fit found one (the levels scatter beyond
+    # their noise there too).  At least two points must resolve the rate: with one, "every point shows it" is vacuous
+    # and a drag of that point drifting in time is the same column (collinear) - no torque constant is named.
+    od = math.sqrt(scale) if dof >= 1 and chi2_dist.sf(chi2, dof) < overdispersion_level else 1.0
     per_class = []
     for k in range(n_cls):
         m = cls == k
@@ -1562,13 +1566,14 @@ def current_drift_test(time, current, speed, load, speed_cmd, position, temperat
         xk = x_kt[m] - np.sum(wt[m] * x_kt[m]) / np.sum(wt[m])
         sxx = float(np.sum(wt[m] * xk**2))
         rk = float(np.sum(wt[m] * xk * y[m]) / sxx) if sxx > 0 else 0.0
-        ek = 1.0 / math.sqrt(sxx) if sxx > 0 else math.inf
+        ek = od / math.sqrt(sxx) if sxx > 0 else math.inf
         per_class.append({"class": k, "rate": rk, "stderr": ek,
                           "p_same_sign": float(norm.sf(math.copysign(1.0, r) * rk / ek)) if ek < math.inf else 1.0})
     z_need = float(norm.isf(replication_level) + norm.isf(0.05))
     for c in per_class:
         c["resolves_shared_rate"] = bool(abs(r) >= z_need * c["stderr"])
-    replicated = all(c["p_same_sign"] < replication_level for c in per_class if c["resolves_shared_rate"])
+    resolving = [c for c in per_class if c["resolves_shared_rate"]]
+    replicated = bool(resolving) and all(c["p_same_sign"] < replication_level for c in resolving)
     a, a_se, p_a, _c, _s = judged(np.column_stack([L, x_drag]), n_cls, dof)
     # each law beyond the other (where the record separates them)
     Xb = np.column_stack([L, x_kt, x_drag])
@@ -1596,6 +1601,10 @@ def current_drift_test(time, current, speed, load, speed_cmd, position, temperat
         verdict = "not replicated over the operating points"
     elif both.get("drag_beyond_torque_constant_p", 1.0) < alpha and both.get("torque_constant_beyond_drag_p", 0.0) >= alpha:
         verdict = "drag drifting in time"
+    elif len(resolving) < 2 and not both.get("torque_constant_beyond_drag_p", 1.0) < alpha:
+        # one operating point resolves the rate and the drag law is not told apart beyond it: a drag of that point
+        # drifting in time explains it as well
+        verdict = "one operating point, not told from a drag"
     elif t_span > temperature_span:
         verdict = "housing temperature"
     else:
