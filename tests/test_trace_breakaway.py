@@ -167,3 +167,13 @@ def test_a_cold_run_and_a_warm_run_are_not_compared():
     same = [{**e, "temperature": 25.0} for e in ev]
     b = breakaway_position_test(same)
     assert b is not None and b["significant"] and b["peak_position"] == pytest.approx(0.0, abs=1e-3)
+
+
+def test_without_replicates_the_sample_based_level_judges():
+    """No class has two events at one place: the error is the IACT-corrected sample noise alone, judged at the
+    sample-based level (1e-6), not the replicate-based one (1e-4).  A 0.1 A harder start (p 4e-5 on this seed) is
+    significant at 1e-4 and not at 1e-6."""
+    ev = _events(_starts_record(extra=(0.1, 0.0), seed=4))
+    b = breakaway_position_test(ev, alpha=1e-4, sample_alpha=1e-6)
+    assert b["replicate_dof"] == 0 and b["level"] == 1e-6
+    assert 1e-6 < b["p_value"] < 1e-4 and not b["significant"], b["p_value"]

@@ -83,10 +83,10 @@ def breakaway_of_runs(runs: Sequence[RigRun], s: SignatureSettings | None = None
     """:func:`~thsa_control.trace.signature.breakaway_position_test` over the starts and reversals of ``runs`` (one
     rig: the events of all runs are compared by class), each run's events with its own current noise.  From the
     records alone: the current is the model's input, so the fit leaves no residual in it; the drive's breakaway
-    current at a start against the same kind of start elsewhere is the worn spot's trace.  Each event carries the
+    current at a start against the same kind of start elsewhere is the worn spot's trace (at ``s.local_alpha`` where
+    replicate events measured the scatter, ``s.alpha`` where none did).  Each event carries the
     housing temperature at it, so a cold run's starts are not compared with a warm run's (within
-    ``s.temperature_span``).  At the replicate-based
-    level ``s.local_alpha``, places apart by more than the position test's bin.  None where no class of events is
+    ``s.temperature_span``).  Places apart by more than the position test's bin.  None where no class of events is
     seen at two places."""
     s = s or SignatureSettings()
     events = []
@@ -110,7 +110,7 @@ def breakaway_of_runs(runs: Sequence[RigRun], s: SignatureSettings | None = None
                                   sig["motor_current"], transient_time=s.transient_time):
             events.append({**e, "run": run.name, "noise": cn[0], "iact": cn[1], "temperature": temp_at(e["time"])})
     return breakaway_position_test(events, place_gap=s.position_bin, alpha=s.local_alpha,
-                                   temperature_gap=s.temperature_span)
+                                   temperature_gap=s.temperature_span, sample_alpha=s.alpha)
 
 def amps_per_newton(params: ParameterSet, lead: float, gear_ratio: float) -> float:
     """The motor current one newton of nut load needs through a lossless drive: ``lead / (2 pi N Kt)``, ``Kt = 1.5

@@ -1250,7 +1250,7 @@ def _chains(items: list[dict], key: str, gap) -> list[list[dict]]:
 
 def breakaway_position_test(events: list[dict], *, place_gap: float = 2e-3, alpha: float = 1e-4,
                             load_gap: float = BREAKAWAY_LOAD_GAP, speed_ratio: float = BREAKAWAY_SPEED_RATIO,
-                            temperature_gap: float = 5.0) -> dict | None:
+                            temperature_gap: float = 5.0, sample_alpha: float = 1e-6) -> dict | None:
     """A breakaway localised in nut position (a worn spot with extra static friction, a contamination): the drive's
     breakaway excess (:func:`breakaway_events`) larger at the starts or reversals at one place than at the same kind
     of event elsewhere.
@@ -1268,8 +1268,9 @@ def breakaway_position_test(events: list[dict], *, place_gap: float = 2e-3, alph
     places' means about each class's weighted mean, summed over the classes with two places or more (F on the
     replicates' dof where the Birge ratio was estimated; without replicates the base's breakaway is taken to repeat
     to within the current's noise, as rig-sim's does: 0.01-0.07 A between the two starts of cold-ramp nulls), at
-    ``alpha`` (the
-    replicate-based level: events are separate, nearly independent estimates).  None when no class has two places.
+    ``alpha`` (the replicate-based level: events are separate, nearly independent estimates) where replicates
+    measured the scatter, at ``sample_alpha`` (the sample-based level) where none did: the error is then the
+    IACT-corrected sample noise only.  None when no class has two places.
     """
     from scipy.stats import chi2 as chi2_dist
     from scipy.stats import f as f_dist
@@ -1329,9 +1330,14 @@ def breakaway_position_test(events: list[dict], *, place_gap: float = 2e-3, alph
     F = q / df
     # the variances carry the replicates' squared Birge ratio: F on the replicates' dof; without replicates the noise
     # is known from the steady stretches (thousands of samples) and q is chi-square
-    p_val = float(f_dist.sf(F, df, rep_df)) if rep_df and rep_q > 0 else float(chi2_dist.sf(q, df))
+    replicated = bool(rep_df and rep_q > 0)
+    p_val = float(f_dist.sf(F, df, rep_df)) if replicated else float(chi2_dist.sf(q, df))
+    # the level: ``alpha`` (replicate-based) where replicates measured the events' scatter; without replicates the
+    # error is the IACT-corrected sample noise alone, judged at the tracer's sample-based level ``sample_alpha``
+    level = alpha if replicated else sample_alpha
     return {"variable": "nut_position (breakaway at starts/reversals)", "kind": "breakaway", "unit": "A",
-            "size": abs(peak["deviation"]), "r2": None, "p_value": p_val, "significant": bool(p_val < alpha),
+            "size": abs(peak["deviation"]), "r2": None, "p_value": p_val, "significant": bool(p_val < level),
+            "level": level,
             "statistic": q, "dof": df, "F": F, "replicate_dof": rep_df, "birge_ratio": math.sqrt(birge2),
             "current_noise": float(np.median([e["noise"] for e in events])),
             "current_iact": float(np.median([e["iact"] for e in events])),
