@@ -16,7 +16,7 @@ import numpy as np
 
 from ..data.rigdata import RigRun, drive_on, measured_motor_speed, motor_speed_from, speed_integral, stop_band
 from ..fit.residuals import quadrant, reversal_proximity
-from ..model.laws import kinematic_ratio
+from ..model.laws import kinematic_ratio, torque_constant
 from ..model.params import ParameterSet
 from .scoring import _rms_by_channel
 from .signature import (
@@ -113,11 +113,11 @@ def breakaway_of_runs(runs: Sequence[RigRun], s: SignatureSettings | None = None
                                    temperature_gap=s.temperature_span, sample_alpha=s.alpha)
 
 def amps_per_newton(params: ParameterSet, lead: float, gear_ratio: float) -> float:
-    """The motor current one newton of nut load needs through a lossless drive: ``lead / (2 pi N Kt)``, ``Kt = 1.5
-    p psi`` the file's torque constant (the scale of a load difference in current; efficiencies change it by tens
-    of per cent, not its order)."""
-    kt = 1.5 * params.value("motor.pole_pairs") * params.value("motor.flux_linkage")
-    return lead / (2 * math.pi * gear_ratio * kt)
+    """The motor current one newton of nut load needs through a lossless drive: ``lead / (2 pi N Kt)`` (the laws'
+    :func:`~thsa_control.model.laws.kinematic_ratio` of the run's kinematics over the file's
+    :func:`~thsa_control.model.laws.torque_constant`): the scale of a load difference in current; efficiencies change
+    it by tens of per cent, not its order."""
+    return kinematic_ratio({"screw.lead": lead, "gear.ratio": gear_ratio}) / torque_constant(params)
 
 
 def current_drift_of_runs(runs: Sequence[RigRun], params: ParameterSet, s: SignatureSettings | None = None) -> dict | None:
