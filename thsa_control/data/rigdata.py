@@ -135,6 +135,7 @@ from thsa_control.data.rigformat import (  # noqa: F401  (re-exported: the publi
     drive_on,
     measured_motor_speed,
     stop_band,
+    motion_sign,
     speed_integral,
     motor_speed_from,
 )

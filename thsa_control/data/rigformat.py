@@ -317,6 +317,15 @@ def stop_band(speed) -> float:
     return 0.05 * max(float(np.max(np.abs(speed))), 1e-9)
 
 
+def motion_sign(speed, band: float | None = None) -> np.ndarray:
+    """Per sample, the direction of motion: +1 / -1 where the speed exceeds ``band`` in that direction, 0 inside it
+    (``band`` defaults to :func:`stop_band`, 5 % of the record's largest speed).  NaN speeds count as 0.  The one
+    direction-state rule for starts, stops, reversals and steady stretches."""
+    w = np.nan_to_num(np.asarray(speed, float))
+    dv = stop_band(w) if band is None else float(band)
+    return np.where(w > dv, 1, np.where(w < -dv, -1, 0))
+
+
 def drive_on(run) -> np.ndarray:
     """Per sample of a run, whether the drive is energised: either motor enabled (``primary_enable``,
     ``standby_enable``) and, on a rig whose motors are de-energised while the speed command is exactly 0

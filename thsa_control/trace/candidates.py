@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from ..data.rigdata import RigRun, measured_motor_speed, speed_integral, stop_band
+from ..data.rigdata import RigRun, measured_motor_speed, motion_sign, speed_integral, stop_band
 from ..fit.residuals import reversal_proximity
 from ..model import EFFECTS, CandidateSpec
 from ..model.params import ParameterSet
@@ -450,7 +450,7 @@ def clearance_window(run: RigRun, travel: float) -> np.ndarray:
     from ..fit.identify import estimate_noise
 
     band = MOTION_SIGMA * estimate_noise(ws)
-    sign = np.where(ws > band, 1, np.where(ws < -band, -1, 0))
+    sign = motion_sign(ws, band)
     dt = np.diff(t, prepend=t[0] - (t[1] - t[0]))
     out = np.zeros(t.size, bool)
     last, turned = 0, 0.0

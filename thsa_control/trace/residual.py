@@ -14,7 +14,8 @@ from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..data.rigdata import RigRun, drive_on, measured_motor_speed, motor_speed_from, speed_integral, stop_band
+from ..data.rigdata import (RigRun, drive_on, measured_motor_speed, motion_sign, motor_speed_from, speed_integral,
+                            stop_band)
 from ..fit.residuals import quadrant, reversal_proximity
 from ..model.laws import kinematic_ratio, torque_constant
 from ..model.params import ParameterSet
@@ -211,7 +212,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             # reversal, p 4e-8 on all samples, p 1 outside them).  A cogging or ripple acts on every revolution.
             "motor_angle": ("angle", tested["motor_angle"][0]),
             "screw_angle": ("angle", tested["screw_angle"][0]),
-            "speed_sign": ("category", np.sign(np.where(np.abs(w) > dv, w, 0.0))),
+            "speed_sign": ("category", motion_sign(w, dv).astype(float)),
             # a torque-constant error (torque against current); a slow drift is tested per pass below
             "motor_current (torque constant)": ("linear", np.asarray(run.signals["motor_current"], float)),
         }
@@ -408,7 +409,7 @@ def _regime_errors(fit: dict, runs: Sequence[RigRun]) -> dict:
         run = by_run[r]
         w = np.nan_to_num(np.asarray(run.signals["speed_cmd"], float))
         load = np.asarray(run.signals["load_force"], float)
-        q = quadrant(w, load, (0.05 * max(float(np.max(np.abs(w))), 1e-12), max(0.02 * float(np.max(np.abs(load))), 1.0)))
+        q = quadrant(w, load, (stop_band(w), max(0.02 * float(np.max(np.abs(load))), 1.0)))
         return q == label
 
     for label, name in ((1, "opposing"), (-1, "aiding"), (0, "unloaded_or_stopped")):

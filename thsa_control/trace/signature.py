@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..data.rigformat import stop_band
+from ..data.rigformat import motion_sign, stop_band
 from ..model.laws import kinematic_ratio
 
 __all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missing_torque", "current_offset_test",
@@ -110,7 +110,7 @@ def base_transients(time, speed, load, duration: float = 0.3, sustained: bool = 
     wmax = max(float(np.max(np.abs(w))), 1e-9)
     ev = []
     for dv in (stop_band(w),) + (() if motion_band is None else (float(motion_band),)):
-        state = np.where(w > dv, 1, np.where(w < -dv, -1, 0))
+        state = motion_sign(w, dv)
         ev += list(t[1:][state[1:] != state[:-1]])
     dt = float(np.median(np.diff(t)))
     k = max(round(duration / dt), 1)
@@ -525,8 +525,7 @@ def travel_passes(time, position, load, steady_speed, transient_time: float = 0.
     x = np.asarray(position, float)
     f = np.asarray(load, float)
     ws = np.nan_to_num(np.asarray(steady_speed, float))
-    dv = stop_band(ws)
-    sgn = np.where(ws > dv, 1, np.where(ws < -dv, -1, 0))
+    sgn = motion_sign(ws)
     # a sustained speed change only: a torque ripple's own speed ripple (cogging at a slow speed) deflects nothing
     steady = (~base_transients(t, ws, np.zeros_like(ws), transient_time, sustained=True) & (sgn != 0) & np.isfinite(x)
               & np.isfinite(f))
@@ -1169,8 +1168,7 @@ def breakaway_events(time, speed, load, speed_cmd, position, current, *, transie
     n = t.size
     if n < 20:
         return []
-    dv = 0.05 * max(float(np.max(np.abs(w))), 1e-9)
-    state = np.where(w > dv, 1, np.where(w < -dv, -1, 0))
+    state = motion_sign(w)
     ch = np.flatnonzero(state[1:] != state[:-1]) + 1
     out = []
     last_moving = {1: -np.inf, -1: -np.inf}  # time each direction was last seen moving
@@ -1354,8 +1352,7 @@ def current_noise(time, speed, load, current, *, transient_time: float = 0.3, mi
     t = np.asarray(time, float)
     w = np.nan_to_num(np.asarray(speed, float))
     i = np.asarray(current, float)
-    dv = 0.05 * max(float(np.max(np.abs(w))), 1e-9)
-    sgn = np.where(w > dv, 1, np.where(w < -dv, -1, 0))
+    sgn = motion_sign(w)
     steady = ~base_transients(t, w, np.asarray(load, float), transient_time) & (sgn != 0) & np.isfinite(i)
     idx = np.flatnonzero(steady)
     if idx.size < min_samples:
@@ -1383,7 +1380,7 @@ def _steady_passes(t, w, f, cmd, on, ok, transient_time: float, min_pass: float,
     :func:`base_transients`), outside the base's transients (``sustained``: a ripple is no transient), the drive on,
     the command unchanged from the previous sample; cut at a gap, a change of direction, command or ``group``."""
     steady = ~base_transients(t, w, f, transient_time, sustained=True)
-    sgn = np.sign(np.where(np.abs(w) > stop_band(w), w, 0.0))
+    sgn = motion_sign(w).astype(float)
     same_cmd = np.r_[False, cmd[1:] == cmd[:-1]]
     idx = np.flatnonzero(steady & (sgn != 0) & same_cmd & (cmd != 0) & on & ok)
     if idx.size < min_samples:
