@@ -177,3 +177,30 @@ def test_without_replicates_the_sample_based_level_judges():
     b = breakaway_position_test(ev, alpha=1e-4, sample_alpha=1e-6)
     assert b["replicate_dof"] == 0 and b["level"] == 1e-6
     assert 1e-6 < b["p_value"] < 1e-4 and not b["significant"], b["p_value"]
+
+
+def test_an_empty_current_cell_at_the_peak_leaves_the_event_out():
+    """A missing current sample among those averaged at the peak (just outside the window checked for finite
+    currents) gives no excess: the event is left out, not given a NaN excess."""
+    from thsa_control.trace.signature import BREAKAWAY_PEAK_SAMPLES, BREAKAWAY_WINDOW
+
+    t, w, f, cmd, x, i = _starts_record(extra=(0.3, 0.0))
+    k = int(np.argmax(w > 0.05 * np.max(w)))
+    win = np.flatnonzero(np.abs(t - t[k]) <= BREAKAWAY_WINDOW)
+    j = win[int(np.argmax(i[win]))]
+    i = i.copy()
+    # the peak at the window's edge, and the averaged sample beyond it empty
+    i[win[-1]] = 10.0
+    i[win[-1] + 1] = np.nan
+    assert BREAKAWAY_PEAK_SAMPLES // 2 >= 1 and j in win
+    ev = breakaway_events(t, w, f, cmd, x, i)
+    assert all(np.isfinite(e["excess"]) for e in ev)
+    assert len(ev) == 1 and ev[0]["position"] == pytest.approx(0.0278, abs=1e-3)
+
+
+def test_stretches_of_an_empty_mask_are_none():
+    from thsa_control.trace.signature import stretches
+
+    assert stretches(np.zeros(10, bool)) == []
+    assert [q.tolist() for q in stretches(np.array([1, 1, 0, 1, 1, 1], bool), np.array([1, 1, 1, 1, -1, -1]))] == \
+        [[0, 1], [3], [4, 5]]

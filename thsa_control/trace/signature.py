@@ -791,12 +791,14 @@ def segment_torques(time, e_speed, segment_starts, inertia: float, min_samples: 
 
 def stretches(mask, labels=None, max_gap: int = 1) -> list[np.ndarray]:
     """The index arrays of the stretches of ``mask`` (bool per sample): a new stretch where the next True sample is
-    more than ``max_gap`` samples on (1: contiguous) or, with ``labels`` (per sample), where its label changes (a
-    direction of motion)."""
+    more than ``max_gap`` samples on (1: contiguous) or, with ``labels`` (per sample; or a tuple of such arrays),
+    where a label changes (a direction of motion, a command, a run).  None for a mask without a True sample."""
     idx = np.flatnonzero(mask)
+    if idx.size == 0:
+        return []
     brk = np.diff(idx) > max_gap
-    if labels is not None:
-        brk |= np.diff(np.asarray(labels)[idx]) != 0
+    for lab in (() if labels is None else labels if isinstance(labels, tuple) else (labels,)):
+        brk |= np.diff(np.asarray(lab)[idx]) != 0
     return np.split(idx, np.flatnonzero(brk) + 1)
 
 
@@ -928,7 +930,8 @@ def _pooled_slope(x: np.ndarray, y: np.ndarray, groups: list[np.ndarray], tau: f
     """Least squares of ``y`` on ``x`` with one level per group (index arrays: both centred within each group) and one
     slope shared by the groups; its standard error counts the samples by ``tau``, the residual's integrated
     autocorrelation time (computed from the residual, at least 1, unless given).  Returns ``slope``, ``stderr``,
-    ``iact``, ``s2`` (the residual variance, ``n - groups - 1`` degrees of freedom), ``sxx`` and ``n``; None where
+    ``iact``, ``s2`` (the residual variance, ``n - groups - 1`` degrees of freedom), ``sxx``, ``n`` and the
+    ``residual`` (the groups' samples in order); None where
     ``x`` does not vary within the groups."""
     xc = np.concatenate([x[q] - x[q].mean() for q in groups])
     yc = np.concatenate([y[q] - y[q].mean() for q in groups])
@@ -941,7 +944,7 @@ def _pooled_slope(x: np.ndarray, y: np.ndarray, groups: list[np.ndarray], tau: f
     if tau is None:
         tau = _iact(r)
     s2 = float(r @ r) / max(n - len(groups) - 1, 1)
-    return {"slope": b, "stderr": math.sqrt(s2 * tau / sxx), "iact": tau, "s2": s2, "sxx": sxx, "n": n}
+    return {"slope": b, "stderr": math.sqrt(s2 * tau / sxx), "iact": tau, "s2": s2, "sxx": sxx, "n": n, "residual": r}
 
 
 def hold_drift_test(time, load, position, held, *, alpha: float = 1e-6, min_hold: float = 0.2,
@@ -1199,6 +1202,8 @@ def breakaway_events(time, speed, load, speed_cmd, position, current, *, transie
         h = BREAKAWAY_PEAK_SAMPLES // 2
         pk = np.arange(max(j - h, 0), min(j + h + 1, n))
         peak = float(np.mean(d * i[pk]))
+        if not np.isfinite(peak):
+            continue  # an empty current cell next to the peak (outside the window checked above): no excess
         kin = float(np.mean(d * i[after]))
         out.append({"time": float(t[k]), "kind": kind, "direction": d, "position": float(x[k]),
                     "load": float(np.nanmean(f[after])), "speed_cmd": float(np.median(np.abs(cmd[after]))),
@@ -1344,11 +1349,18 @@ def breakaway_position_test(events: list[dict], *, place_gap: float = 2e-3, alph
             "classes": len(tested), "places": rows}
 
 
-def current_noise(time, speed, load, current, *, transient_time: float = 0.3, min_samples: int = 50) -> tuple[float, float] | None:
+def current_noise(time, speed, load, current, *, transient_time: float = 0.3, min_samples: int = 50,
+                  min_stretch: int = 20) -> tuple[float, float] | None:
     """The current's noise in steady motion: the standard deviation about a straight line per steady stretch (one
     direction, outside the base's transients) and the integrated autocorrelation time of that remainder, pooled over
     the stretches (``n / sum(n_eff)``).  A slow structure left in the stretch (a ripple) inflates it: conservative.
-    None with fewer than ``min_samples`` steady samples."""
+    None with fewer than ``min_samples`` steady samples.
+
+    ``min_samples`` (50): the noise's standard deviation is then known to ``1 / sqrt(2 (n - 2))`` = 10 % (chi-square),
+    small beside the events' own errors.  ``min_stretch`` (20): a stretch's own level and slope take 2 of its degrees
+    of freedom (10 % at 20 samples, which the ``n - 2 k`` divisor restores), and its autocorrelation sum needs lags
+    well beyond the current's correlation time (a few samples on the committed runs, IACT 1-3); a shorter stretch
+    (40 ms at 500 Hz, inside a reversal's ramp) is left out."""
     t = np.asarray(time, float)
     w = np.nan_to_num(np.asarray(speed, float))
     i = np.asarray(current, float)
@@ -1357,13 +1369,13 @@ def current_noise(time, speed, load, current, *, transient_time: float = 0.3, mi
     idx = np.flatnonzero(steady)
     if idx.size < min_samples:
         return None
-    parts = [q for q in np.split(idx, np.flatnonzero((np.diff(idx) > 1) | (np.diff(sgn[idx]) != 0)) + 1) if q.size >= 20]
+    parts = [q for q in stretches(steady, sgn) if q.size >= min_stretch]
     if not parts:
         return None
     res, neff = [], 0.0
-    for q in parts:
-        A = np.column_stack([np.ones(q.size), t[q] - t[q].mean()])
-        r = i[q] - A @ np.linalg.lstsq(A, i[q], rcond=None)[0]
+    for q in parts:  # the remainder about the stretch's own level and slope (tau given: its IACT is counted below)
+        fit = _pooled_slope(t, i, [q], tau=1.0)
+        r = fit["residual"] if fit is not None else i[q] - i[q].mean()
         res.append(r)
         neff += _effective_n_iact(r)
     r = np.concatenate(res)
@@ -1382,22 +1394,23 @@ def _steady_passes(t, w, f, cmd, on, ok, transient_time: float, min_pass: float,
     steady = ~base_transients(t, w, f, transient_time, sustained=True)
     sgn = motion_sign(w).astype(float)
     same_cmd = np.r_[False, cmd[1:] == cmd[:-1]]
-    idx = np.flatnonzero(steady & (sgn != 0) & same_cmd & (cmd != 0) & on & ok)
-    if idx.size < min_samples:
+    use = steady & (sgn != 0) & same_cmd & (cmd != 0) & on & ok
+    if np.count_nonzero(use) < min_samples:
         return [], sgn
-    cut = (np.diff(idx) > 1) | (np.diff(sgn[idx]) != 0) | (np.diff(cmd[idx]) != 0) | (np.diff(group[idx]) != 0)
-    parts = np.split(idx, np.flatnonzero(cut) + 1)
+    parts = stretches(use, (sgn, cmd, group))
     return [q for q in parts if q.size >= min_samples and t[q[-1]] - t[q[0]] >= min_pass], sgn
 
 
 def _level(t: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
     """(mean time, mean, standard error of the mean) of one pass: the scatter about the pass's own level and slope
     (a drift inside the pass is not noise), counted by its integrated autocorrelation time."""
-    tc = t - t.mean()
-    yc = y - y.mean()
-    sxx = float(tc @ tc)
-    r = yc - (float(tc @ yc) / sxx) * tc if sxx > 0 else yc
-    return float(t.mean()), float(y.mean()), math.sqrt(float(r @ r) / max(y.size - 2, 1) * _iact(r) / y.size)
+    fit = _pooled_slope(t, y, [np.arange(y.size)])
+    if fit is None:  # one time: the scatter about the level
+        r = y - y.mean()
+        s2, tau = float(r @ r) / max(y.size - 2, 1), _iact(r)
+    else:
+        s2, tau = fit["s2"], fit["iact"]
+    return float(t.mean()), float(y.mean()), math.sqrt(s2 * tau / y.size)
 
 
 def current_drift_test(time, current, speed, load, speed_cmd, position, temperature=None, drive_on=None, group=None,
