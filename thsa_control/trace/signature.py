@@ -1540,6 +1540,8 @@ def current_drift_test(time, current, speed, load, speed_cmd, position, temperat
     L = np.column_stack([(cls == k).astype(float) for k in range(n_cls)])
     lev = np.array([float(np.sum(wt[cls == k] * y[cls == k]) / np.sum(wt[cls == k])) for k in range(n_cls)])
     tbar = np.array([float(np.sum(wt[cls == k] * tp[cls == k]) / np.sum(wt[cls == k])) for k in range(n_cls)])
+    for k, c in enumerate(out_classes):  # the law's level and mean time per class (the report draws about them)
+        c["level"], c["mean_time"] = float(lev[k]), float(tbar[k])
     dt_ = tp - tbar[cls]
     x_kt = lev[cls] * dt_  # the torque constant's law: every current scaled by one factor in time
     dirs = np.array([out_classes[k]["direction"] for k in cls])
