@@ -47,14 +47,18 @@ __all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missin
            "STRUCTURED_VARIABLES", "split_remainder", "segment_torques", "drift_test",
            "time_or_position_test", "hold_samples", "still_band", "stretches", "travel_passes",
            "hold_drift_test", "breakaway_events", "breakaway_position_test", "current_noise",
-           "current_drift_test", "TORQUE_CONSTANT_DRIFT"]
+           "current_drift_test", "TORQUE_CONSTANT_DRIFT", "BREAKAWAY_VARIABLE"]
 
 #: signature variables whose structure an unmodelled-but-declared base does not leave: a feature repeated at a nut
 #: position over passes, periodic in motor or screw angle, a slow drift, a torque proportional to the current
+#: the variable of :func:`breakaway_position_test`: the breakaway current at starts and reversals by nut position
+BREAKAWAY_VARIABLE = "nut_position (breakaway at starts/reversals)"
+#: the variable of :func:`current_drift_test`: the current at one operating point drifting in time, in proportion
+TORQUE_CONSTANT_DRIFT = "motor_current (torque constant) drifting in time"
 STRUCTURED_VARIABLES = ("nut_position (repeated over passes)", "nut_position (revisited, not a drift in time)",
-                        "nut_position (breakaway at starts/reversals)",
+                        BREAKAWAY_VARIABLE,
                         "motor_angle", "screw_angle", "time (slow drift)",
-                        "motor_current (torque constant)", "motor_current (torque constant) drifting in time")
+                        "motor_current (torque constant)", TORQUE_CONSTANT_DRIFT)
 
 
 def remainder_kind(test: dict, temperature_span: float, s: SignatureSettings) -> str:
@@ -1338,7 +1342,7 @@ def breakaway_position_test(events: list[dict], *, place_gap: float = 2e-3, alph
     # the level: ``alpha`` (replicate-based) where replicates measured the events' scatter; without replicates the
     # error is the IACT-corrected sample noise alone, judged at the tracer's sample-based level ``sample_alpha``
     level = alpha if replicated else sample_alpha
-    return {"variable": "nut_position (breakaway at starts/reversals)", "kind": "breakaway", "unit": "A",
+    return {"variable": BREAKAWAY_VARIABLE, "kind": "breakaway", "unit": "A",
             "size": abs(peak["deviation"]), "r2": None, "p_value": p_val, "significant": bool(p_val < level),
             "level": level,
             "statistic": q, "dof": df, "F": F, "replicate_dof": rep_df, "birge_ratio": math.sqrt(birge2),
@@ -1382,10 +1386,6 @@ def current_noise(time, speed, load, current, *, transient_time: float = 0.3, mi
     if r.size < min_samples:
         return None
     return float(math.sqrt(float(r @ r) / max(r.size - 2 * len(parts), 1))), float(max(r.size / neff, 1.0))
-
-#: the variable of :func:`current_drift_test`: the current at one operating point drifting in time, in proportion
-TORQUE_CONSTANT_DRIFT = "motor_current (torque constant) drifting in time"
-
 
 def _steady_passes(t, w, f, cmd, on, ok, transient_time: float, min_pass: float, min_samples: int, group):
     """Stretches of steady motion at one constant, non-zero speed command: moving (outside the stop band of
