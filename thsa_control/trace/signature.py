@@ -1173,7 +1173,7 @@ def breakaway_events(time, speed, load, speed_cmd, position, current, *, transie
     x = np.asarray(position, float)
     i = np.asarray(current, float)
     n = t.size
-    if n < 20:
+    if n < 2 * BREAKAWAY_PEAK_SAMPLES:  # an event needs that many samples at its peak and as many after it
         return []
     state = motion_sign(w)
     ch = np.flatnonzero(state[1:] != state[:-1]) + 1
@@ -1440,7 +1440,10 @@ def current_drift_test(time, current, speed, load, speed_cmd, position, temperat
     one.  The scatter of the levels about the law checks those errors: where ``chi2`` exceeds its ``dof`` quantile at
     ``overdispersion_level`` (passes of one operating point differ by more than their noise: a loading actuator's
     repeatability, a base transient), the rate's error is scaled by ``sqrt(chi2 / dof)`` and judged on Student's t
-    with ``dof`` (the random-effects rule of Hartung and Knapp).  At least one pass beyond the law's parameters is
+    with ``dof`` (the random-effects rule of Hartung and Knapp).  ``overdispersion_level`` is 0.05, not the test's
+    alpha, because its two errors cost unequally: scaling a null record's errors (5 % of them) only widens the
+    rate's error by its chi2 / dof and Student's tails (conservative), while a scatter the check misses makes the
+    rate's test liberal; a lenient check errs on the safe side.  At least one pass beyond the law's parameters is
     required (``dof >= 1``), so that this check exists; two passes of one class are not compared.  Limit: seven
     passes cannot rule out a pass-to-pass scatter of about the levels' noise that the check misses (measured in
     docs/trace_notes.md "The torque constant drifting in time").
@@ -1572,6 +1575,10 @@ def current_drift_test(time, current, speed, load, speed_cmd, position, temperat
     # operating point only (a drag of one quadrant, the rig base's no-back drag while driving) is no torque constant.
     # "Resolve": the shared rate is at least z(1 - replication_level) + z(0.95) of the point's own standard errors (it
     # would pass with 95 % power if the rate were shared); a point at a small current does not resolve a relative rate.
+    # ``replication_level`` 0.01: a point that resolves the rate shows a truly shared one with 95 % power, so a torque
+    # constant over two points loses its verdict in 1 - 0.95^2 = 10 % of records at most, while a drift of one point
+    # passes at another point that does not drift (one-sided, the shared rate's sign) in 1 % of records; the verdict
+    # also needs the shared rate at ``alpha``, so this is a check of replication, not the test's level.
     # A point's error carries the overdispersion factor where the shared fit found one (the levels scatter beyond
     # their noise there too).  At least two points must resolve the rate: with one, "every point shows it" is vacuous
     # and a drag of that point drifting in time is the same column (collinear) - no torque constant is named.
