@@ -125,8 +125,11 @@ def current_drift_of_runs(runs: Sequence[RigRun], params: ParameterSet, s: Signa
     """:func:`~thsa_control.trace.signature.current_drift_test` over ``runs`` (each run its own group: passes are
     compared within a run, whose clock is one), from the records alone, at the sample-based level ``s.alpha`` (its
     errors are IACT-corrected sample counts); None when no run has comparable passes.  The runs are joined end to end
-    (a 1 s gap), each run's passes found on its own samples (``group``)."""
+    (a 1 s gap), each run's passes found on its own samples (``group``).  None without a parameter set ``params``
+    (a signature assembled without a model: the load tolerance needs the file's torque constant)."""
     s = s or SignatureSettings()
+    if params is None:
+        return None
     cols: dict[str, list] = {k: [] for k in ("t", "i", "w", "f", "cmd", "x", "temp", "on", "g")}
     t_offset = 0.0
     apn = None
