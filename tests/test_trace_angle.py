@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from thsa_control.data.rigdata import RigRun
+from thsa_control.model.params import default_parameters
 from thsa_control.trace.residual import _signature
 from thsa_control.trace.signature import SignatureSettings, split_remainder
 
@@ -58,7 +59,7 @@ def _record(seed: int, missing_torque):
 
 def _angle_test(seed, missing_torque):
     run, fit = _record(seed, missing_torque)
-    sig = _signature(fit, [run], None, _Plant(), SignatureSettings())
+    sig = _signature(fit, [run], default_parameters(), _Plant(), SignatureSettings())
     test = next(d for d in sig["tests"] if d["variable"] == "motor_angle")
     return test, [d["variable"] for d in split_remainder(sig)[0]]
 

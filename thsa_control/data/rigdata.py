@@ -134,8 +134,8 @@ from thsa_control.data.rigformat import (  # noqa: F401  (re-exported: the publi
     true_runs,
     drive_on,
     measured_motor_speed,
-    stop_band,
     motion_sign,
+    stop_band,
     speed_integral,
     motor_speed_from,
 )

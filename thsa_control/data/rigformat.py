@@ -318,12 +318,10 @@ def stop_band(speed) -> float:
 
 
 def motion_sign(speed, band: float | None = None) -> np.ndarray:
-    """Per sample, the direction of motion: +1 / -1 where the speed exceeds ``band`` in that direction, 0 inside it
-    (``band`` defaults to :func:`stop_band`, 5 % of the record's largest speed).  NaN speeds count as 0.  The one
-    direction-state rule for starts, stops, reversals and steady stretches."""
-    w = np.nan_to_num(np.asarray(speed, float))
-    dv = stop_band(w) if band is None else float(band)
-    return np.where(w > dv, 1, np.where(w < -dv, -1, 0))
+    """Per sample, the direction of motion: +1 / -1 beyond ``band`` [the speed's unit] (default the
+    :func:`stop_band`), 0 inside it (stopped)."""
+    dv = stop_band(speed) if band is None else band
+    return np.where(speed > dv, 1, np.where(speed < -dv, -1, 0))
 
 
 def drive_on(run) -> np.ndarray:
@@ -456,3 +454,18 @@ def speed_sensor_intervals(run, override=None) -> dict[str, dict]:
         else:
             out[sig] = {"interval": None, "source": "default: instantaneous"}
     return out
+
+
+def speed_sensor_delays(run, override=None) -> dict[str, float]:
+    """The delay [s] each speed sensor of ``run`` reads with (:func:`speed_sensor_intervals`): a difference quotient
+    of an angle over ``T`` is the mean speed over the last ``T``, the instantaneous speed ``T / 2`` earlier (``"sample"``:
+    one logged sample, the run's median sampling interval); 0 for an instantaneous sensor.  What two redundant
+    sensors' relative lag is expected to be when both are healthy."""
+    t = np.asarray(run.time, dtype=float)
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    out = {}
+    for sig, d in speed_sensor_intervals(run, override).items():
+        iv = d["interval"]
+        out[sig] = 0.0 if iv is None else 0.5 * (dt if iv == "sample" else float(iv))
+    return out
+

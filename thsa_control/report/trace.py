@@ -521,7 +521,9 @@ def format_trace_summary(doc: dict) -> str:
                     f"; flagged by the {t['flagged_by']} (p {_num(t['time_or_position']['time_beyond_position']['p_value'], '.2g')})"
                     if t.get("flagged_by") else "")
         elif t["kind"] == "redundant_sensors":
-            extra = f", gain {t['gain']:.4f} +- {t['gain_stderr']:.1g}, lag {1e3 * t['lag_s']:.1f} ms" + (
+            extra = f", gain {t['gain']:.4f} +- {t['gain_stderr']:.1g}, lag {1e3 * t['lag_s']:.1f}" + (
+                f" +- {1e3 * t['lag_stderr']:.1g} ms (p {_num(t.get('lag_p_value'), '.2g')} against "
+                f"+-{1e3 * t['lag_tolerance_s']:.1g} ms)" if t.get("lag_stderr") is not None else " ms") + (
                 f" (the odd sensor: {t['odd_sensor']})" if t.get("odd_sensor") else "")
         elif t["kind"] == "time_or_position":
             extra = (f", position beyond time p {_num(t['position_beyond_time']['p_value'], '.2g')}, time beyond position"

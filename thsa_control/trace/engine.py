@@ -517,7 +517,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 cur_free = tuple(f["free"])
             at_plausible_bound = _explainers_at_bound(current, base_bounds)
             cur_sig = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature,
-                                 sensor_noise)
+                                 sensor_noise, st.speed_sensors)
             base_doc["signature_after"] = _signature_brief(cur_sig)
     windows_cache = {spec: {r.name: _window(spec, r, params) for r in runs} for spec in WINDOWS}
     # where the candidates are scored: outside the base's transients on data the declared model may not describe
@@ -953,14 +953,16 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             if checked:
                 rounds[-1]["backward"] = checked
         # once per round, on the model the backward check left
-        cur_sig = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, sensor_noise)
+        cur_sig = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, sensor_noise,
+                             st.speed_sensors)
         rounds[-1]["signature_after"] = _signature_brief(cur_sig)
     order = _order_by_contribution(added, found_info, leave_one_out) if st.backward else None
-    sig_before = _signature(first, runs, ParameterSet.from_toml(first["params_toml"]), base_plant, st.signature, sensor_noise)
+    sig_before = _signature(first, runs, ParameterSet.from_toml(first["params_toml"]), base_plant, st.signature,
+                            sensor_noise, st.speed_sensors)
     # every change of ``current`` (the base step, an added effect, a removal) is followed by its signature
     sig_after = cur_sig if cur_sig is not None else _signature(current, runs, cur_params,
                                                                plant_of(cur_effects, cur_params), st.signature,
-                                                               sensor_noise)
+                                                               sensor_noise, st.speed_sensors)
     if rounds and "signature_after" not in rounds[-1]:  # a round that added nothing leaves the model as it was
         rounds[-1]["signature_after"] = _signature_brief(sig_after)
     # unexplained: structure an unmodelled-but-declared base does not leave; a residual above noise with only the

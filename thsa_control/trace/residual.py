@@ -16,6 +16,7 @@ import numpy as np
 
 from ..data.rigdata import (RigRun, drive_on, measured_motor_speed, motion_sign, motor_speed_from, speed_integral,
                             stop_band)
+from ..data.rigformat import speed_sensor_delays
 from ..fit.residuals import quadrant, reversal_proximity
 from ..model.laws import kinematic_ratio, torque_constant
 from ..model.params import ParameterSet
@@ -156,7 +157,7 @@ def current_drift_of_runs(runs: Sequence[RigRun], params: ParameterSet, s: Signa
 
 # ----------------------------------------------------------------------------- signature
 def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s: SignatureSettings,
-               noise: Mapping[str, float] | None = None) -> dict:
+               noise: Mapping[str, float] | None = None, speed_sensors: Mapping[str, object] | None = None) -> dict:
     inertia = plant.inertia(params)[1]  # the signature's missing torque at the motor shaft (what the current drives)
     torque: list = []
     vars_: dict = {}
@@ -264,9 +265,12 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     sensors = []
     for run in runs:
         measured = {c: run.signals[c] for c in ("motor_speed", "screw_speed", "nut_position") if c in run.source_columns}
+        # the redundant sensors' lag at the replicate-based level (signature.LAG_ALPHA), the chains' declared
+        # difference quotients compensated
         for d in sensor_consistency(run.time, {**measured, "load_force": run.signals["load_force"]},
                                     gear_ratio=run.gear_ratio, lead=run.screw_lead, alpha=s.alpha,
-                                    transient_time=s.transient_time):
+                                    transient_time=s.transient_time, lag_alpha=s.local_alpha,
+                                    delays=speed_sensor_delays(run, speed_sensors)):
             d["run"] = run.name
             sensors.append(d)
         on = drive_on(run)

@@ -43,7 +43,7 @@ from ..data.rigformat import motion_sign, stop_band
 from ..model.laws import kinematic_ratio
 
 __all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missing_torque", "current_offset_test",
-           "binned_mean", "cross_correlation", "position_local_test", "base_transients", "remainder_kind",
+           "binned_mean", "cross_correlation", "position_local_test", "lag_test", "base_transients", "remainder_kind",
            "STRUCTURED_VARIABLES", "split_remainder", "segment_torques", "drift_test",
            "time_or_position_test", "hold_samples", "still_band", "stretches", "travel_passes",
            "hold_drift_test", "breakaway_events", "breakaway_position_test", "current_noise",
@@ -113,8 +113,8 @@ def base_transients(time, speed, load, duration: float = 0.3, sustained: bool = 
         return out
     wmax = max(float(np.max(np.abs(w))), 1e-9)
     ev = []
-    for dv in (stop_band(w),) + (() if motion_band is None else (float(motion_band),)):
-        state = motion_sign(w, dv)
+    for band in (None,) + (() if motion_band is None else (float(motion_band),)):  # None: the stop band
+        state = motion_sign(w, band)
         ev += list(t[1:][state[1:] != state[:-1]])
     dt = float(np.median(np.diff(t)))
     k = max(round(duration / dt), 1)
@@ -242,6 +242,13 @@ def _iact(r: np.ndarray) -> float:
     """The integrated autocorrelation time of a residual: its sample count over its effective one
     (:func:`_effective_n_iact`), at least 1; the factor by which a regression's variance grows on it."""
     return max(r.size / _effective_n_iact(r), 1.0)
+
+
+def _pooled_iact(parts: list[np.ndarray]) -> float:
+    """The integrated autocorrelation time of a residual cut into stretches (passes separated by transients): its
+    sample count over the stretches' effective counts summed (each stretch's own, :func:`_effective_n_iact`), at
+    least 1."""
+    return max(sum(p.size for p in parts) / sum(_effective_n_iact(p) for p in parts), 1.0)
 
 
 def _f_test(e: np.ndarray, fitted: np.ndarray, k: int) -> tuple[float, float, float]:
@@ -403,6 +410,144 @@ def _gain_lag(a: np.ndarray, b: np.ndarray, dt: float, max_lag: int = 20) -> dic
     return {"gain": g, "gain_stderr": se, "lag_s": best_lag * dt, "z": (g - 1.0) / se if se > 0 else math.inf}
 
 
+#: a lag between two redundant sensors within this many logged samples (beyond the chains' declared difference
+#: quotients, which are compensated) is the logger's timing, not a sensor fault: the rig-data format gives one time
+#: per row, and a channel may be sampled anywhere within the row's interval, so two healthy chains can be up to one
+#: sample apart; a drive train's own compliance reads as a fraction of it (0.1-0.15 ms between motor and screw speed
+#: on rig-sim's drivetrain_compliance runs, 8e3 N m/rad, docs/trace_notes.md "A noise test for the redundant
+#: sensors' lag")
+LAG_TOLERANCE_SAMPLES = 1.0
+#: the lag test's level: its statistic is a sum over the record whose variance is taken from the lag model's own
+#: residual with its integrated autocorrelation time (the batch of correlated samples is its replicate), calibrated
+#: at its nominal level on synthetic pairs (tests/test_trace_sensors.py), so it takes the replicate-based tests'
+#: level (``SignatureSettings.local_alpha``), not the 1e-6 of the sample-based regressions on a structured residual
+LAG_ALPHA = 1e-4
+
+
+def _taper(n: int, dt: float, ramp: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+    """A Tukey window over ``n`` samples with cosine ramps of ``ramp`` seconds (at most a quarter of the record) at
+    both ends, and its derivative [1/s]: the lag statistic's weight, zero where the record is cut."""
+    m = int(min(max(round(ramp / dt), 1), n // 4))
+    h = np.ones(n)
+    hp = np.zeros(n)
+    if m >= 1:
+        u = np.arange(m) / m
+        h[:m] = 0.5 - 0.5 * np.cos(math.pi * u)
+        h[n - m:] = h[:m][::-1]
+        hp[:m] = 0.5 * math.pi / (m * dt) * np.sin(math.pi * u)
+        hp[n - m:] = -hp[:m][::-1]
+    return h, hp
+
+
+def _weighted_sum_variance(e: np.ndarray, c: np.ndarray, *, local: int = 125,
+                           max_lag: int = 500) -> tuple[float, float, int]:
+    """Variance of ``sum e c`` for a zero-mean noise ``e`` and weights ``c`` that may share its noise (jointly
+    Gaussian), the noise's level allowed to change along the record: ``e_t = s_t u_t`` with ``s_t`` its local RMS (a
+    moving window of ``local`` samples: four supports of the 31-sample filter the rates pass through) and ``u`` a
+    stationary unit series, so ``var = sum_|k|<=K [rho_u(k) R_sc(k) + R_ec(k) R_ec(-k) / n]`` with ``R_sc(k) =
+    sum_t s_t c_t s_(t+k) c_(t+k)``, ``rho_u`` the autocorrelation of ``u`` over the whole record and ``K`` where it
+    ends by Geyer's initial positive sequence (:func:`_effective_n_iact`).  The noise's correlation comes from every
+    sample, not only from those that carry the weights (a record whose motion changes at two short starts carries
+    the sum in a few dozen samples, whose own products would estimate the variance with a few degrees of freedom),
+    and its level from the samples near each weight (a load applied at the start deflects the load path: the LVDT
+    rate moves while the motor is still, a remainder that is no noise of the samples in motion).  Returns the
+    variance, its degrees of freedom (the samples over the autocorrelation time) and ``K``."""
+    n = e.size
+    e = e - e.mean()
+    w = min(local, n)
+    s2 = np.convolve(e * e, np.ones(w) / w, mode="same")
+    s = np.sqrt(np.maximum(s2, 1e-300))
+    u = e / s
+    sc = s * c
+    m = 1 << math.ceil(math.log2(2 * n))
+    fu, fsc, fe, fc = (np.fft.rfft(v, m) for v in (u, sc, e, c))
+    K = min(max_lag, n - 2)
+    acov = np.fft.irfft(fu * np.conj(fu), m)[:K + 2] / n
+    if acov[0] <= 0:
+        return 0.0, float(n), 0
+    rho = acov / acov[0]
+    k_max, tau = 0, 1.0
+    for j in range(1, K, 2):
+        pair = rho[j] + rho[j + 1]
+        if pair <= 0:
+            break
+        k_max, tau = j + 1, tau + 2.0 * pair
+    r_sc = np.fft.irfft(fsc * np.conj(fsc), m)[:k_max + 1]
+    cr = np.fft.irfft(np.conj(fe) * fc, m)  # R_ec(k) = sum_t e_t c_{t+k}, negative k wrapped to the end
+    r_pos, r_neg = cr[:k_max + 1], np.r_[cr[0], cr[::-1][:k_max]]
+    v = rho[:k_max + 1] * r_sc + r_pos * r_neg / n
+    var = float(v[0] + 2.0 * v[1:].sum())
+    return max(var, float(v[0])), n / max(tau, 1.0), k_max
+
+
+def _first_order_lag(x: np.ndarray, tau: float, dt: float) -> np.ndarray:
+    """``x`` through a first-order lag ``1 / (1 + tau s)`` (Tustin: its low-frequency delay is ``tau``), started in
+    steady state."""
+    from scipy.signal import lfilter, lfilter_zi
+
+    if tau <= 0:
+        return x
+    r = 2.0 * tau / dt
+    bb, aa = np.array([1.0, 1.0]) / (1.0 + r), np.array([1.0, (1.0 - r) / (1.0 + r)])
+    return lfilter(bb, aa, x, zi=lfilter_zi(bb, aa) * x[0])[0]
+
+
+def lag_test(a, b, dt: float, *, known: float = 0.0, tolerance: float | None = None,
+             alpha: float = LAG_ALPHA) -> dict | None:
+    """The lag of ``a`` behind ``b`` (two rates of one motion, smoothed alike) and its noise test.
+
+    Statistic: the antisymmetric part of the pair's cross-covariance around lag 0, ``W = sum h (a b' - a' b)`` (``h``
+    a taper, zero where the record is cut; derivatives by central differences).  Two sensors reading one motion with
+    any gain give ``W = 0`` sample by sample whatever their noises, so W is immune to the gain and to the
+    errors-in-variables that bias a regression or a cross-correlation peak of two noisy signals; a delay ``d`` of ``a``
+    makes it ``-2 d sum h a' b'`` (per frequency it reads ``tan(phase)/omega``: exactly ``tau`` for a first-order lag
+    ``tau``).  Estimate ``d = -W / (2 sum h a' b') - known`` (``known``: the pair's relative delay its chains
+    declare, a difference quotient over ``T`` lags by ``T / 2``).  Noise: by parts ``W = sum e c`` with ``e = a - g
+    b`` and ``c = 2 h b' + h' b``, so its variance is that of a weighted sum of the pair's residual; the residual is
+    the lag model's own (the leading signal through a first-order lag of the estimate, ``a - g L_d(b)`` for ``d > 0``,
+    ``L_|d|(a) - g b`` for ``d < 0``; the residual of ``a - g b`` would count the lag itself as noise); its variance
+    from the residual's local level and whole-record autocorrelation (:func:`_weighted_sum_variance`), with the
+    record's samples over their autocorrelation time as degrees of freedom (Student t).  Test ``H0: |d| <=
+    tolerance`` (one logged sample unless given: :data:`LAG_TOLERANCE_SAMPLES`), one-sided against the nearer
+    bound, significant at ``alpha``.
+    None when fewer than 50 finite samples or no motion.
+    """
+    from scipy.stats import t as t_dist
+
+    a = np.asarray(a, float)
+    b = np.asarray(b, float)
+    ok = np.isfinite(a) & np.isfinite(b)
+    if ok.sum() < 50:
+        return None
+    if not ok.all():  # the longest finite stretch (the derivatives need neighbours)
+        q = max(stretches(ok), key=len)
+        a, b = a[q], b[q]
+        if a.size < 50:
+            return None
+    tol = LAG_TOLERANCE_SAMPLES * dt if tolerance is None else float(tolerance)
+    h, hp = _taper(a.size, dt)
+    ap, bp = np.gradient(a, dt), np.gradient(b, dt)
+    den = 2.0 * float(np.sum(h * ap * bp))
+    if not den > 0:
+        return None
+    W = float(np.sum(h * (a * bp - ap * b)))
+    d_raw = -W / den
+    # the lag model's residual: the leading one of the two lagged by the estimate (a first-order lag), the other
+    # scaled by its gain (lagging the leader smooths its noise; unlagging the other, y + d y', would amplify it)
+    y, x = (a, _first_order_lag(b, d_raw, dt)) if d_raw > 0 else (_first_order_lag(a, -d_raw, dt), b)
+    g = float(y @ x) / float(x @ x) if float(x @ x) > 0 else 1.0
+    var, dof, k_max = _weighted_sum_variance(y - g * x, 2.0 * h * bp + hp * b)
+    se = math.sqrt(var) / den
+    tau = var / max(float(np.sum(((y - g * x) * (2.0 * h * bp + hp * b)) ** 2)), 1e-300)
+    d = d_raw - known
+    zs = (abs(d) - tol) / se if se > 0 else math.inf
+    p = float(t_dist.sf(zs, dof))
+    return {"lag_s": d, "lag_stderr": se, "lag_tolerance_s": tol, "known_delay_s": known, "lag_p_value": p,
+            "lag_significant": bool(p < alpha), "lag_alpha": alpha, "lag_iact": float(tau), "lag_dof": float(dof),
+            "lag_noise_lags": int(k_max),
+            "lag_method": "antisymmetric cross-covariance (W), noise from the lag model's residual"}
+
+
 #: a redundant-sensor gain within this of 1 is a calibration detail, not a structure: the tolerance of a calibrated
 #: position or speed chain (an LVDT's linearity class is 0.25-0.5 % of its span) and of the declared lead and ratio.
 #: The travel test below tests it as its null hypothesis (``|gain - 1| <= GAIN_TOLERANCE``), so a gain resolved to
@@ -488,8 +633,7 @@ def travel_gain_test(time, position, speed, load, *, ratio: float, transient_tim
     vif = float(th_p @ th_p) / max(sxx, 1e-300)
     g = float(coef[0])
     # the residual's integrated autocorrelation time, per pass (the passes are separated by transients)
-    tau = max(n / sum(_effective_n_iact(res[r0:r0 + q.size]) for r0, q in zip(np.cumsum([0] + [q.size for q in passes]),
-                                                                               passes)), 1.0)
+    tau = _pooled_iact([res[r0:r0 + q.size] for r0, q in zip(np.cumsum([0] + [q.size for q in passes]), passes)])
     se = math.sqrt(float(res @ res) / max(n - rank, 1) * tau / sxx) if sxx > 0 else math.inf
     # per-pass gains (the pass's own travel, no load curve) and their scatter
     gj, sej = [], []
@@ -540,7 +684,8 @@ def travel_passes(time, position, load, steady_speed, transient_time: float = 0.
 
 
 def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, alpha: float = 1e-6,
-                       transient_time: float = 0.3) -> list[dict]:
+                       transient_time: float = 0.3, delays: dict | None = None,
+                       lag_alpha: float = LAG_ALPHA) -> list[dict]:
     """Gain and lag between redundant sensors: motor speed vs ratio x screw speed, LVDT vs the lead-scaled motor
     angle, and LVDT vs the lead-scaled screw angle where the screw speed is measured.
 
@@ -550,9 +695,21 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
     position has few effective samples); every pair's lag is the peak of the cross-correlation of the sample
     differences (rates for the LVDT).  With all three pairs, a sensor in both pairs that disagree while the pair
     without it agrees is named (``odd_sensor``): one sensor's gain or lag reads in the two pairs that hold it.
+
+    The speeds' gain is the motor angle's against the screw angle over the steady passes (:func:`travel_gain_test`,
+    both integrated speeds), the rates' regression only where no pass qualifies: regressing one noisy rate on the
+    other attenuates the gain by the regressor's noise share (0.92 on a 0.15 mm/s record whose screw speed, an RVDT
+    angle differenced over one sample, carries 13 rpm of noise at the motor against 49 rpm of motion).  Every
+    pair's lag is :func:`lag_test` on the two rates filtered alike (the speeds by a 31-sample quadratic
+    Savitzky-Golay smoother, the LVDT and the integrated speed by the same filter's differentiator), its known
+    part ``delays`` (signal -> the delay its chain declares [s], a difference quotient over ``T`` lags by ``T / 2``)
+    compensated, at ``lag_alpha``; the cross-correlation peak of the rates (the former lag, noise on a slow record)
+    is kept as ``xcorr_peak_s``.
     """
     from scipy.signal import savgol_filter
     from scipy.stats import norm
+
+    from ..data.rigformat import speed_integral
 
     t = np.asarray(time, float)
     dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
@@ -561,17 +718,37 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
     ws = signals.get("screw_speed")
     load = signals.get("load_force")
     load = np.zeros(t.size) if load is None else np.asarray(load, float)
+    delays = dict(delays or {})
+    smooth = (lambda v: savgol_filter(np.nan_to_num(np.asarray(v, float)), 31, 2, delta=dt)) if t.size >= 31 else None
+
+    def lag_fields(lt, d):
+        if lt is None:
+            return {"lag_s": d.get("lag_s", 0.0), "lag_significant": False}
+        return {**lt, "xcorr_peak_s": d.get("lag_s")}
+
     if w is not None and ws is not None:
         d = _gain_lag(np.asarray(w, float), gear_ratio * np.asarray(ws, float), dt)
         if d:
-            p = float(2 * norm.sf(abs(d["z"]))) if math.isfinite(d["z"]) else 0.0
-            # a gain within the tolerance is a calibration detail, not a structure
-            sig_gain = bool(p < alpha and abs(d["gain"] - 1) > GAIN_TOLERANCE)
+            # the gain from the angles (integrated speeds) over the steady passes; the rates' regression as a fallback
+            wa = np.nan_to_num(np.asarray(w, float))
+            tg = travel_gain_test(t, speed_integral(t, wa), np.asarray(ws, float), load, ratio=gear_ratio,
+                                  transient_time=transient_time, alpha=alpha, steady_speed=wa) if t.size > 1 else None
+            if tg is not None:
+                gain, se, p, sig_gain = tg["gain"], tg["gain_stderr"], tg["p_value"], tg["significant"]
+            else:
+                gain, se = d["gain"], d["gain_stderr"]
+                p = float(2 * norm.sf(abs(d["z"]))) if math.isfinite(d["z"]) else 0.0
+                # a gain within the tolerance is a calibration detail, not a structure
+                sig_gain = bool(p < alpha and abs(gain - 1) > GAIN_TOLERANCE)
+            lt = None if smooth is None else lag_test(
+                smooth(w), smooth(gear_ratio * np.asarray(ws, float)), dt, alpha=lag_alpha,
+                known=delays.get("motor_speed", 0.0) - delays.get("screw_speed", 0.0))
+            lf = lag_fields(lt, d)
             out.append({"variable": "motor_speed vs gear_ratio x screw_speed", "kind": "redundant_sensors",
-                        "sensors": ["motor_speed", "screw_speed"], "gain": d["gain"], "gain_stderr": d["gain_stderr"],
-                        "lag_s": d["lag_s"], "p_value": p, "significant": sig_gain or abs(d["lag_s"]) > 2.5 * dt,
-                        "gain_significant": sig_gain,
-                        "size": abs(d["gain"] - 1.0), "unit": "-"})
+                        "sensors": ["motor_speed", "screw_speed"], "gain": gain, "gain_stderr": se,
+                        "p_value": p, "significant": bool(sig_gain or lf["lag_significant"]),
+                        "gain_significant": sig_gain, **lf,
+                        "size": abs(gain - 1.0), "unit": "-", **({"travel_test": tg} if tg is not None else {})})
     x = signals.get("nut_position")
     if x is not None:
         x = np.asarray(x, float)
@@ -600,9 +777,15 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
                 gain, se = d["gain"], d["gain_stderr"]
                 p = float(2 * norm.sf(abs(d["z"]))) if math.isfinite(d["z"]) else 0.0
                 sig_gain = bool(p < alpha and abs(gain - 1) > GAIN_TOLERANCE)
+            # the lag on rates filtered alike: the speed's integral through the LVDT's own differentiator (the SG
+            # smoother's response differs from the differentiator's: their difference at every transient would be
+            # counted as noise)
+            lt = lag_test(rate, r * savgol_filter(speed_integral(t, v), 31, 2, deriv=1, delta=dt), dt,
+                          known=delays.get("nut_position", 0.0) - delays.get(other, 0.0), alpha=lag_alpha)
+            lf = lag_fields(lt, d)
             out.append({"variable": name, "kind": "redundant_sensors", "sensors": ["nut_position", other],
-                        "gain": gain, "gain_stderr": se, "lag_s": d["lag_s"], "p_value": p,
-                        "significant": bool(sig_gain or abs(d["lag_s"]) > 2.5 * dt), "gain_significant": sig_gain,
+                        "gain": gain, "gain_stderr": se, "p_value": p,
+                        "significant": bool(sig_gain or lf["lag_significant"]), "gain_significant": sig_gain, **lf,
                         "size": abs(gain - 1.0), "unit": "-", **({"travel_test": tg} if tg is not None else {})})
     # the odd sensor out: in every pair that disagrees (gain or lag), absent from the pair that agrees
     if len(out) == 3:
@@ -795,7 +978,7 @@ def segment_torques(time, e_speed, segment_starts, inertia: float, min_samples: 
 
 def stretches(mask, labels=None, max_gap: int = 1) -> list[np.ndarray]:
     """The index arrays of the stretches of ``mask`` (bool per sample): a new stretch where the next True sample is
-    more than ``max_gap`` samples on (1: contiguous) or, with ``labels`` (per sample; or a tuple of such arrays),
+    more than ``max_gap`` samples on (1: contiguous) or, with ``labels`` (per sample, or a tuple of such arrays),
     where a label changes (a direction of motion, a command, a run).  None for a mask without a True sample."""
     idx = np.flatnonzero(mask)
     if idx.size == 0:
@@ -1370,22 +1553,20 @@ def current_noise(time, speed, load, current, *, transient_time: float = 0.3, mi
     i = np.asarray(current, float)
     sgn = motion_sign(w)
     steady = ~base_transients(t, w, np.asarray(load, float), transient_time) & (sgn != 0) & np.isfinite(i)
-    idx = np.flatnonzero(steady)
-    if idx.size < min_samples:
+    if np.count_nonzero(steady) < min_samples:
         return None
     parts = [q for q in stretches(steady, sgn) if q.size >= min_stretch]
     if not parts:
         return None
-    res, neff = [], 0.0
-    for q in parts:  # the remainder about the stretch's own level and slope (tau given: its IACT is counted below)
+    res = []
+    for q in parts:  # the remainder about the stretch's own level and slope
         fit = _pooled_slope(t, i, [q], tau=1.0)
-        r = fit["residual"] if fit is not None else i[q] - i[q].mean()
-        res.append(r)
-        neff += _effective_n_iact(r)
+        res.append(fit["residual"] if fit is not None else i[q] - i[q].mean())
     r = np.concatenate(res)
     if r.size < min_samples:
         return None
-    return float(math.sqrt(float(r @ r) / max(r.size - 2 * len(parts), 1))), float(max(r.size / neff, 1.0))
+    return float(math.sqrt(float(r @ r) / max(r.size - 2 * len(parts), 1))), float(_pooled_iact(res))
+
 
 def _steady_passes(t, w, f, cmd, on, ok, transient_time: float, min_pass: float, min_samples: int, group):
     """Stretches of steady motion at one constant, non-zero speed command: moving (outside the stop band of
@@ -1394,10 +1575,10 @@ def _steady_passes(t, w, f, cmd, on, ok, transient_time: float, min_pass: float,
     steady = ~base_transients(t, w, f, transient_time, sustained=True)
     sgn = motion_sign(w).astype(float)
     same_cmd = np.r_[False, cmd[1:] == cmd[:-1]]
-    use = steady & (sgn != 0) & same_cmd & (cmd != 0) & on & ok
-    if np.count_nonzero(use) < min_samples:
+    keep = steady & (sgn != 0) & same_cmd & (cmd != 0) & on & ok
+    if np.count_nonzero(keep) < min_samples:
         return [], sgn
-    parts = stretches(use, (sgn, cmd, group))
+    parts = stretches(keep, (sgn, cmd, group))
     return [q for q in parts if q.size >= min_samples and t[q[-1]] - t[q[0]] >= min_pass], sgn
 
 
