@@ -111,6 +111,19 @@ SETS: dict[str, list[tuple[str, str, str, int, float | None]]] = {
                          ("bipolar_ramp_tensile", "rig", "axial_offset", 138, 9.0)],
     "set_null": [("reversals_under_load", "rig", "", 147, 5.0),
                  ("bipolar_ramp_tensile", "rig", "", 148, 9.0)],
+    # two load magnitudes of one sign (trim ramps at 30 kN and the position loop's steps at 10 kN, compressive, both
+    # directions) and the tensile ramps (20 kN, both directions): a constant torque is told from the load-proportional
+    # explainers (efficiencies, disk coefficients) within each compressive cell, and the axial force from the drags by
+    # the load sign (trace.json ``separability``; docs/trace_notes.md "Two load magnitudes of one sign")
+    "set_coulomb_loads": [("trim_ramp_compressive", "rig", "coulomb", 157, 9.0),
+                          ("position_steps", "rig", "coulomb", 158, 7.0),
+                          ("bipolar_ramp_tensile", "rig", "coulomb", 159, 9.0)],
+    "set_axial_offset_loads": [("trim_ramp_compressive", "rig", "axial_offset", 167, 9.0),
+                               ("position_steps", "rig", "axial_offset", 168, 7.0),
+                               ("bipolar_ramp_tensile", "rig", "axial_offset", 169, 9.0)],
+    "set_null_loads": [("trim_ramp_compressive", "rig", "", 177, 9.0),
+                       ("position_steps", "rig", "", 178, 7.0),
+                       ("bipolar_ramp_tensile", "rig", "", 179, 9.0)],
 }
 
 
