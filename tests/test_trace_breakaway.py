@@ -137,3 +137,70 @@ def test_an_event_without_a_position_reading_is_left_out():
     x[k] = np.nan
     ev = breakaway_events(t, w, f, cmd, x, i)
     assert len(ev) == 1 and ev[0]["position"] == pytest.approx(0.0278, abs=1e-3)
+
+
+def test_a_class_spans_no_more_than_its_load_gap():
+    """Starts at loads 0 .. 9.9 kN in 900 N steps (each step under the 1 kN class gap): the classes are cut against
+    their first event, so no class spans more than the gap (chained against the previous event, all twelve were one
+    class and a start at 0 N was compared with one at 9.9 kN)."""
+    from thsa_control.trace.signature import BREAKAWAY_LOAD_GAP, _classes
+
+    ev = [{"kind": "start", "direction": 1, "load": 900.0 * k, "speed_cmd": 0.006, "position": 0.0} for k in range(12)]
+    classes = _classes(ev, BREAKAWAY_LOAD_GAP, 1.1)
+    assert len(classes) >= 2
+    for c in classes:
+        loads = [e["load"] for e in c]
+        assert max(loads) - min(loads) <= BREAKAWAY_LOAD_GAP, loads
+    assert sorted(e["load"] for c in classes for e in c) == [900.0 * k for k in range(12)]
+
+
+def test_a_cold_run_and_a_warm_run_are_not_compared():
+    """A set of two runs of one rig: a cold run (-30 degC) whose extension start at 0 mm breaks away 0.3 A harder (cold
+    grease) than the warm run's (25 degC) at 30 mm.  Same kind, direction, load and speed, but 55 K apart: two classes
+    of one place each, so no worn spot is made of the temperature (pooled, it was flagged at 0 mm)."""
+    cold = _events(_starts_record(seed=1))[:1]
+    warm = _events(_starts_record(seed=2))[1:]
+    cold[0]["excess"] += 0.3
+    ev = [{**cold[0], "run": "cold", "temperature": -30.0}, {**warm[0], "run": "warm", "temperature": 25.0}]
+    assert breakaway_position_test(ev) is None
+    # at one temperature the same pair is compared (and the 0.3 A is a place's)
+    same = [{**e, "temperature": 25.0} for e in ev]
+    b = breakaway_position_test(same)
+    assert b is not None and b["significant"] and b["peak_position"] == pytest.approx(0.0, abs=1e-3)
+
+
+def test_without_replicates_the_sample_based_level_judges():
+    """No class has two events at one place: the error is the IACT-corrected sample noise alone, judged at the
+    sample-based level (1e-6), not the replicate-based one (1e-4).  A 0.1 A harder start (p 4e-5 on this seed) is
+    significant at 1e-4 and not at 1e-6."""
+    ev = _events(_starts_record(extra=(0.1, 0.0), seed=4))
+    b = breakaway_position_test(ev, alpha=1e-4, sample_alpha=1e-6)
+    assert b["replicate_dof"] == 0 and b["level"] == 1e-6
+    assert 1e-6 < b["p_value"] < 1e-4 and not b["significant"], b["p_value"]
+
+
+def test_an_empty_current_cell_at_the_peak_leaves_the_event_out():
+    """A missing current sample among those averaged at the peak (just outside the window checked for finite
+    currents) gives no excess: the event is left out, not given a NaN excess."""
+    from thsa_control.trace.signature import BREAKAWAY_PEAK_SAMPLES, BREAKAWAY_WINDOW
+
+    t, w, f, cmd, x, i = _starts_record(extra=(0.3, 0.0))
+    k = int(np.argmax(w > 0.05 * np.max(w)))
+    win = np.flatnonzero(np.abs(t - t[k]) <= BREAKAWAY_WINDOW)
+    j = win[int(np.argmax(i[win]))]
+    i = i.copy()
+    # the peak at the window's edge, and the averaged sample beyond it empty
+    i[win[-1]] = 10.0
+    i[win[-1] + 1] = np.nan
+    assert BREAKAWAY_PEAK_SAMPLES // 2 >= 1 and j in win
+    ev = breakaway_events(t, w, f, cmd, x, i)
+    assert all(np.isfinite(e["excess"]) for e in ev)
+    assert len(ev) == 1 and ev[0]["position"] == pytest.approx(0.0278, abs=1e-3)
+
+
+def test_stretches_of_an_empty_mask_are_none():
+    from thsa_control.trace.signature import stretches
+
+    assert stretches(np.zeros(10, bool)) == []
+    assert [q.tolist() for q in stretches(np.array([1, 1, 0, 1, 1, 1], bool), np.array([1, 1, 1, 1, -1, -1]))] == \
+        [[0, 1], [3], [4, 5]]

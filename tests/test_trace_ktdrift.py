@@ -211,3 +211,61 @@ def test_the_report_panel_draws_the_passes_and_the_shared_rate():
     assert any("torque constant (STRUCTURED)" in t.get_text() for t in ax.texts)
     labels = ax.get_legend_handles_labels()[1]
     assert any(lb.startswith("extending") for lb in labels) and any(lb.startswith("retracting") for lb in labels)
+
+
+def test_each_run_of_a_set_has_its_own_passes():
+    """Two runs glued end to end (``group``): a reversal record at 6 mm/s and one 30 x faster.  Each run's passes come
+    from its own samples: the slow run keeps the passes it has alone (glued, its whole motion lay inside the fast
+    run's stop band, 5 % of the largest speed, and it had none)."""
+    slow = _reversals(3)
+    fast = list(_reversals(4))
+    fast[2] = fast[2] * 30.0  # motor speed
+    fast[4] = fast[4] * 30.0  # speed command
+    fast[0] = fast[0] + slow[0][-1] + 1.0
+    glued = [np.concatenate([a, b]) for a, b in zip(slow, fast)]
+    grp = np.r_[np.zeros(slow[0].size), np.ones(fast[0].size)]
+    t, i, w, f, cmd, x, temp = glued
+    both = current_drift_test(t, i, w, f, cmd, x, temp, group=grp, amps_per_newton=APN)
+    alone = _test(slow)
+    got = [[(p["start"], p["end"]) for p in c["passes"]] for c in both["classes"] if c["group"] == 0.0]
+    want = [[(p["start"], p["end"]) for p in c["passes"]] for c in alone["classes"]]
+    assert got and got == want
+
+
+def test_the_pass_breaking_the_common_range_is_dropped():
+    """Four extensions at one operating point: three over 0-10, 0-10 and 2-6 mm, one long one over 9-30 mm.  The long
+    one breaks the common range; dropping it leaves 2-6 mm for the other three (dropping the shortest first, as
+    before, emptied the class)."""
+    dt, v = 2e-3, 0.006
+    rng = np.random.default_rng(5)
+    cols = {k: [] for k in ("t", "w", "cmd", "x")}
+    t0 = 0.0
+    for a, b in ((0.0, 0.010), (0.0, 0.010), (0.002, 0.006), (0.009, 0.030)):
+        for moving, dur in ((False, 1.0), (True, (b - a) / v + 0.8)):
+            tt = t0 + np.arange(0.0, dur, dt)
+            cols["t"].append(tt)
+            cols["w"].append(np.full(tt.size, v * 2 * np.pi / 0.012 * 65.61 if moving else 0.0))
+            cols["cmd"].append(np.full(tt.size, v if moving else 0.0))
+            cols["x"].append(a + v * (tt - t0 - 0.4) if moving else np.full(tt.size, a))
+            t0 = tt[-1] + dt
+    t, w, cmd, x = (np.concatenate(cols[k]) for k in ("t", "w", "cmd", "x"))
+    i = np.where(cmd > 0, 3.0, 0.0) + 0.043 * rng.standard_normal(t.size)
+    f = 25e3 + 25.0 * rng.standard_normal(t.size)
+    d = current_drift_test(t, i, w, f, cmd, x, amps_per_newton=APN)
+    assert d is not None and len(d["classes"]) == 1
+    c = d["classes"][0]
+    assert len(c["passes"]) == 3
+    lo, hi = c["position_range"]  # the short pass's steady travel (its 0.3 s start transient off): ~1.4-6.6 mm
+    assert 0.001 < lo < hi < 0.007 and hi - lo > 0.004, (lo, hi)
+
+
+def test_a_drift_that_one_operating_point_resolves_is_not_named_without_the_drag_told_apart():
+    """Extending at 3 A, retracting at 0.05 A (a small current does not resolve a relative rate): only the extending
+    passes resolve the -1e-3 /s drift, and a drag of that point drifting in time fits it as well (not told apart
+    at the level): "every resolving point shows it" is then one point, and no torque constant is named.  The same
+    drift on two resolving points is."""
+    d = _test(_reversals(3, rate=-1e-3, levels=(3.0, -0.05)))
+    assert d["p_value"] < 1e-6 and sum(c["resolves_shared_rate"] for c in d["per_class"]) == 1
+    assert not d["significant"] and d["verdict"] == "one operating point, not told from a drag", d["verdict"]
+    d = _test(_reversals(3, rate=-1e-3, levels=(3.0, -3.9)))
+    assert d["significant"] and d["verdict"] == "torque constant"

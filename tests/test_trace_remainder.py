@@ -315,3 +315,19 @@ def test_an_inertia_error_on_an_excitation_is_not_a_torque_constant_error(seed):
     resid2 = 0.03 * kt * current2 + noise
     found = signature_tests(resid2, {"i": ("linear", current2)}, given={"i": acc_meas})[0]
     assert found["significant"] and found["slope"] == pytest.approx(0.03 * kt, rel=0.1), found
+
+
+def test_threshold_scale_counts_the_samples_its_chi2_sums():
+    """A channel of zero noise adds neither chi2 nor samples: the reduced chi2 is the weighted channel's mean squared
+    error (2^2 = 4 here), not diluted by the unweighted channel's samples (2, counting both)."""
+    import numpy as np
+
+    from thsa_control.trace.scoring import threshold_scale
+
+    n = 400
+    hold = np.ones(n, bool)
+    fit = {"predictions": {"r": {"holdout": hold,
+                                 "measured": {"a": np.full(n, 2.0), "b": np.full(n, 1.0)},
+                                 "simulated": {"a": np.zeros(n), "b": np.zeros(n)}}}}
+    red, _tau = threshold_scale(fit, {"a": 1.0, "b": 0.0})
+    assert red == 4.0

@@ -227,6 +227,11 @@ def chi2_by_channel(predictions: Mapping[str, Mapping], noise: Mapping[str, floa
     for r, p in predictions.items():
         hold = np.asarray(p["holdout"], bool)
         for c, y in p["measured"].items():
+            if noise[c] == 0:  # no weight: neither chi2 nor samples (its errors x/0 were not finite either)
+                out[c] = out.get(c, 0.0)
+                if counts is not None:
+                    counts[c] = counts.get(c, 0)
+                continue
             e = (np.asarray(y, float) - np.asarray(p["simulated"][c], float)) / noise[c]
             m = np.isfinite(e) & (hold if select == "holdout" else np.ones_like(hold))
             if windows is not None:

@@ -318,8 +318,7 @@ def _plot_current_drift(ax, test: dict | None) -> None:
             tm = np.array([p["time"] for p in c["passes"]])
             lv = np.array([p["level"] for p in c["passes"]])
             se = np.array([p["stderr"] for p in c["passes"]])
-            w = 1.0 / np.maximum(se, 1e-12) ** 2
-            lc, tc = float(np.sum(w * lv) / np.sum(w)), float(np.sum(w * tm) / np.sum(w))
+            lc, tc = c["level"], c["mean_time"]  # the test's weighted level and mean time of the class
             label = f"{'extending' if c['direction'] > 0 else 'retracting'} at {lc:.2f} A"
             ax.errorbar(tm, 1e3 * (lv / lc - 1), yerr=1e3 * se / abs(lc), fmt="o", ms=3, color=f"C{k}", label=label)
             tt = np.array([tm.min(), tm.max()])

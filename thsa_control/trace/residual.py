@@ -14,10 +14,11 @@ from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..data.rigdata import RigRun, drive_on, measured_motor_speed, motor_speed_from, speed_integral, stop_band
+from ..data.rigdata import (RigRun, drive_on, measured_motor_speed, motion_sign, motor_speed_from, speed_integral,
+                            stop_band)
 from ..data.rigformat import speed_sensor_delays
 from ..fit.residuals import quadrant, reversal_proximity
-from ..model.laws import kinematic_ratio
+from ..model.laws import kinematic_ratio, torque_constant
 from ..model.params import ParameterSet
 from .scoring import _rms_by_channel
 from .signature import (
@@ -84,8 +85,10 @@ def breakaway_of_runs(runs: Sequence[RigRun], s: SignatureSettings | None = None
     """:func:`~thsa_control.trace.signature.breakaway_position_test` over the starts and reversals of ``runs`` (one
     rig: the events of all runs are compared by class), each run's events with its own current noise.  From the
     records alone: the current is the model's input, so the fit leaves no residual in it; the drive's breakaway
-    current at a start against the same kind of start elsewhere is the worn spot's trace.  At the replicate-based
-    level ``s.local_alpha``, places apart by more than the position test's bin.  None where no class of events is
+    current at a start against the same kind of start elsewhere is the worn spot's trace (at ``s.local_alpha`` where
+    replicate events measured the scatter, ``s.alpha`` where none did).  Each event carries the
+    housing temperature at it, so a cold run's starts are not compared with a warm run's (within
+    ``s.temperature_span``).  Places apart by more than the position test's bin.  None where no class of events is
     seen at two places."""
     s = s or SignatureSettings()
     events = []
@@ -97,24 +100,37 @@ def breakaway_of_runs(runs: Sequence[RigRun], s: SignatureSettings | None = None
         cn = current_noise(run.time, w, sig["load_force"], sig["motor_current"], transient_time=s.transient_time)
         if cn is None:
             continue
+        t_run = np.asarray(run.time, float)
+        temp_run = np.asarray(sig["temperature"], float)
+
+        def temp_at(te, t_run=t_run, temp_run=temp_run):
+            """the housing temperature at an event (NaN where it is not read): its class's temperature"""
+            v = temp_run[int(np.clip(np.searchsorted(t_run, te), 0, t_run.size - 1))]
+            return float(v)
+
         for e in breakaway_events(run.time, w, sig["load_force"], sig["speed_cmd"], sig["nut_position"],
                                   sig["motor_current"], transient_time=s.transient_time):
-            events.append({**e, "run": run.name, "noise": cn[0], "iact": cn[1]})
-    return breakaway_position_test(events, place_gap=s.position_bin, alpha=s.local_alpha)
+            events.append({**e, "run": run.name, "noise": cn[0], "iact": cn[1], "temperature": temp_at(e["time"])})
+    return breakaway_position_test(events, place_gap=s.position_bin, alpha=s.local_alpha,
+                                   temperature_gap=s.temperature_span, sample_alpha=s.alpha)
 
 def amps_per_newton(params: ParameterSet, lead: float, gear_ratio: float) -> float:
-    """The motor current one newton of nut load needs through a lossless drive: ``lead / (2 pi N Kt)``, ``Kt = 1.5
-    p psi`` the file's torque constant (the scale of a load difference in current; efficiencies change it by tens
-    of per cent, not its order)."""
-    kt = 1.5 * params.value("motor.pole_pairs") * params.value("motor.flux_linkage")
-    return lead / (2 * math.pi * gear_ratio * kt)
+    """The motor current one newton of nut load needs through a lossless drive: ``lead / (2 pi N Kt)`` (the laws'
+    :func:`~thsa_control.model.laws.kinematic_ratio` of the run's kinematics over the file's
+    :func:`~thsa_control.model.laws.torque_constant`): the scale of a load difference in current; efficiencies change
+    it by tens of per cent, not its order."""
+    return kinematic_ratio({"screw.lead": lead, "gear.ratio": gear_ratio}) / torque_constant(params)
 
 
 def current_drift_of_runs(runs: Sequence[RigRun], params: ParameterSet, s: SignatureSettings | None = None) -> dict | None:
     """:func:`~thsa_control.trace.signature.current_drift_test` over ``runs`` (each run its own group: passes are
     compared within a run, whose clock is one), from the records alone, at the sample-based level ``s.alpha`` (its
-    errors are IACT-corrected sample counts); None when no run has comparable passes."""
+    errors are IACT-corrected sample counts); None when no run has comparable passes.  The runs are joined end to end
+    (a 1 s gap), each run's passes found on its own samples (``group``).  None without a parameter set ``params``
+    (a signature assembled without a model: the load tolerance needs the file's torque constant)."""
     s = s or SignatureSettings()
+    if params is None:
+        return None
     cols: dict[str, list] = {k: [] for k in ("t", "i", "w", "f", "cmd", "x", "temp", "on", "g")}
     t_offset = 0.0
     apn = None
@@ -200,7 +216,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             # reversal, p 4e-8 on all samples, p 1 outside them).  A cogging or ripple acts on every revolution.
             "motor_angle": ("angle", tested["motor_angle"][0]),
             "screw_angle": ("angle", tested["screw_angle"][0]),
-            "speed_sign": ("category", np.sign(np.where(np.abs(w) > dv, w, 0.0))),
+            "speed_sign": ("category", motion_sign(w, dv).astype(float)),
             # a torque-constant error (torque against current); a slow drift is tested per pass below
             "motor_current (torque constant)": ("linear", np.asarray(run.signals["motor_current"], float)),
         }
@@ -400,7 +416,7 @@ def _regime_errors(fit: dict, runs: Sequence[RigRun]) -> dict:
         run = by_run[r]
         w = np.nan_to_num(np.asarray(run.signals["speed_cmd"], float))
         load = np.asarray(run.signals["load_force"], float)
-        q = quadrant(w, load, (0.05 * max(float(np.max(np.abs(w))), 1e-12), max(0.02 * float(np.max(np.abs(load))), 1.0)))
+        q = quadrant(w, load, (stop_band(w), max(0.02 * float(np.max(np.abs(load))), 1.0)))
         return q == label
 
     for label, name in ((1, "opposing"), (-1, "aiding"), (0, "unloaded_or_stopped")):

@@ -144,7 +144,13 @@ def threshold_scale(fit: dict, noise, mask: dict | None = None) -> tuple[float, 
     """``(reduced chi2, IACT)`` of a fit's held-out residual (inside ``mask[run]`` when given): the noise-weighted
     held-out chi2 over the finite samples it sums and the residual's integrated autocorrelation time
     (:func:`_holdout_iact`), the two factors by which a chi2 difference between two fits is scaled when the residual
-    is structure, not white noise (:func:`scaled_threshold`)."""
+    is structure, not white noise (:func:`scaled_threshold`).
+
+    The count is the samples the chi2 sums (:func:`~thsa_control.fit.profile.chi2_by_channel`'s): a channel of zero
+    noise (weight undefined, its error 0/0 or x/0 not finite) adds neither chi2 nor samples.  Counting its samples
+    without its chi2 (as a count over every finite error once did) would divide the other channels' chi2 by too
+    many samples and bias the reduced chi2 low (by half with two channels of equal length), so that the
+    quasi-likelihood scaling never engaged; the IACT (:func:`_holdout_iact`) skips such a channel too."""
     counts: dict[str, int] = {}
     hold = sum(chi2_by_channel(fit["predictions"], noise, "holdout", mask, counts=counts).values())
     return hold / max(sum(counts.values()), 1), _holdout_iact(fit, noise, mask)
