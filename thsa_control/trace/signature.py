@@ -536,9 +536,10 @@ def lag_test(a, b, dt: float, *, known: float = 0.0, tolerance: float | None = N
     # scaled by its gain (lagging the leader smooths its noise; unlagging the other, y + d y', would amplify it)
     y, x = (a, _first_order_lag(b, d_raw, dt)) if d_raw > 0 else (_first_order_lag(a, -d_raw, dt), b)
     g = float(y @ x) / float(x @ x) if float(x @ x) > 0 else 1.0
-    var, dof, k_max = _weighted_sum_variance(y - g * x, 2.0 * h * bp + hp * b)
+    e, c = y - g * x, 2.0 * h * bp + hp * b  # the lag model's residual and the statistic's weights on it
+    var, dof, k_max = _weighted_sum_variance(e, c)
     se = math.sqrt(var) / den
-    tau = var / max(float(np.sum(((y - g * x) * (2.0 * h * bp + hp * b)) ** 2)), 1e-300)
+    tau = var / max(float(np.sum((e * c) ** 2)), 1e-300)
     d = d_raw - known
     zs = (abs(d) - tol) / se if se > 0 else math.inf
     p = float(t_dist.sf(zs, dof))
