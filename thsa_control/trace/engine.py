@@ -775,7 +775,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             period_test = (_repetition(current, f, spec, k, runs, noise, score_mask(spec.window), st.alpha,
                                        2 * st.signature.position_bin)
                            if spec.name in PERIODS and st.periodic_repeat else None)
-            if period_test is not None and not period_test["repeats"] and "left_out" in period_test:
+            if period_test is not None and not period_test["repeats"]:
                 _local_structure(period_test, cur_sig)
             # judged (and a refusal reported) only where it decides: on a candidate that passes the other tests
             repeats = period_test is None or period_test["repeats"] or not prelim
@@ -1326,7 +1326,11 @@ def _rivals(best: dict, scored: list[dict], alpha: float) -> list[dict]:
 
 def _local_structure(test: dict, sig: dict | None) -> None:
     """Name, in a failed repetition test, the nut-position test's local structure of the current model's residual
-    (:mod:`~thsa_control.trace.signature`) that lies in the period left out: what the candidate was fitted to."""
+    (:mod:`~thsa_control.trace.signature`) that lies in the period left out: what the candidate was fitted to.  A
+    halves test (:func:`~thsa_control.trace.periodicity.halves_test`: a period too short to leave one out) leaves no
+    period out and names none."""
+    if "left_out" not in test:
+        return
     a, b = test["left_out"]
     for t in (sig or {}).get("tests", []):
         pk = t.get("peak_bin")
