@@ -8,7 +8,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from thsa_control.data.rigdata import read_run
+from thsa_control.cli.common import read_runs
 from thsa_control.model.params import default_parameters
 from thsa_control.trace.residual import current_drift_of_runs
 
@@ -16,7 +16,7 @@ from thsa_control.trace.residual import current_drift_of_runs
 def main(paths: list[str]) -> int:
     params = default_parameters()
     for p in paths:
-        d = current_drift_of_runs([read_run(Path(p))], params)
+        d = current_drift_of_runs(read_runs([p], None, params), params)  # as `thsa trace` reads it
         name = Path(p).stem
         if d is None:
             print(f"{name:<36} no class of comparable passes with a pass to spare")

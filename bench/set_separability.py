@@ -14,8 +14,7 @@ from __future__ import annotations
 
 import sys
 
-from thsa_control.data.rigdata import read_run
-from thsa_control.fit.kinematics import run_kinematics
+from thsa_control.cli.common import read_runs
 from thsa_control.model.params import default_parameters
 from thsa_control.trace.separability import explainer_steps, separability
 
@@ -36,7 +35,7 @@ MAGNITUDES = {"drive.coulomb_torque": 0.057, "drive.axial_force_offset": 400.0, 
 def vifs(csvs: list[str], params=None) -> dict[str, tuple[float, list[str]]]:
     """effect -> (variance inflation, the explainers named beside it) on the runs ``csvs`` traced together."""
     params = params or default_parameters()
-    runs = [run_kinematics(read_run(c), params) for c in csvs]
+    runs = read_runs(csvs, None, params)  # as `thsa trace` reads them
     doc = separability(runs, ("standby_motor", "noback_quadrant_friction"), params, BASE, TARGETS,
                        explainer_steps(params, list(BASE) + list(TARGETS), {}, MAGNITUDES))
     return {e["effect"]: (e["vif"], e["same_part_as"]) for e in doc["explainers"].values()}

@@ -35,8 +35,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 
 import thsa_control.trace.engine as engine
-from thsa_control.data.rigdata import read_run
-from thsa_control.fit.kinematics import run_kinematics
+from thsa_control.cli.common import read_runs
 from thsa_control.fit.profile import chi2_by_channel
 from thsa_control.model.params import ParameterSet, default_parameters
 from thsa_control.trace import TraceSettings, trace
@@ -82,7 +81,7 @@ def main(argv=None) -> int:
     values = {k: float(v) for k, v in (s.split("=", 1) for s in a.set)}
     spec_noise = {k: float(v) for k, v in (s.split("=", 1) for s in a.sensor_noise)}
     params = default_parameters()
-    run = run_kinematics(read_run(a.csv), params)
+    run = read_runs([a.csv], None, params)[0]  # as `thsa trace` reads it (kinematics from the file where unstated)
     log: list = []
     engine._run_jobs = _record(log)
     st = TraceSettings(workers=a.workers)
@@ -109,19 +108,18 @@ def main(argv=None) -> int:
     masks = engine.score_masks([run], st.signature.transient_time)
     mask = masks.get(spec.window)
     win = _window(spec.window, run, fitted) & (mask[run.name] if mask is not None else True)
-    fits = {"before": _refit(bj, "before", {n: ParameterSet.from_toml(bj["params_toml"]).value(n)
-                                            for n in bj["free"]}),
+    before_params = ParameterSet.from_toml(bj["params_toml"])
+    held = {n: before_params.value(n) for n in bj["free"]}  # the model before the effect, as fitted
+    fits = {"before": _refit(bj, "before", held),
             "fitted": cf}
     if values:
         fits["values"] = _refit(cj, "values", values)
     if a.twin:
-        twin = dataclasses.replace(run_kinematics(read_run(a.twin), params), name=run.name, controller=None)
-        fits["twin"] = _refit(bj, "twin", {n: ParameterSet.from_toml(bj["params_toml"]).value(n) for n in bj["free"]},
-                              runs=[twin])
+        twin = dataclasses.replace(read_runs([a.twin], None, params)[0], name=run.name, controller=None)
+        fits["twin"] = _refit(bj, "twin", held, runs=[twin])
     sub = {}
     if a.substeps:
-        sub["before"] = _refit(bj, f"before, {a.substeps} steps", {n: ParameterSet.from_toml(bj["params_toml"]).value(n)
-                                                                   for n in bj["free"]}, substeps=a.substeps)
+        sub["before"] = _refit(bj, f"before, {a.substeps} steps", held, substeps=a.substeps)
         if values:
             sub["values"] = _refit(cj, f"values, {a.substeps} steps", values, substeps=a.substeps)
 
