@@ -210,9 +210,34 @@ def _effective_n(e: np.ndarray) -> float:
     return e.size * (1 - rho) / (1 + rho)
 
 
+def _geyer_autocorrelation(x: np.ndarray, max_lag: int,
+                           m: int | None = None) -> tuple[np.ndarray, float, int] | None:
+    """The autocorrelation ``rho`` of a series ``x`` about zero (the caller removes a mean where it has one; by FFT,
+    zero-padded to ``m`` >= 2 n points) over lags ``0 .. min(max_lag, n - 1)``, its integrated autocorrelation time
+    ``tau`` and the last lag ``K`` that time sums, by Geyer's (1992) initial positive sequence: ``Gamma_k = rho_2k +
+    rho_2k+1`` from ``k = 0`` (``rho_0 = 1``), summed while positive, ``tau = -1 + 2 sum Gamma_k`` (``= 1 + 2
+    sum_(1..K) rho``), ``K = 2k + 1`` of the last positive pair.  None when ``x`` has no variance.  The one copy of the
+    rule: :func:`_effective_n_iact` and the lag test's :func:`_weighted_sum_variance`."""
+    n = x.size
+    if m is None:
+        m = 1 << int(math.ceil(math.log2(2 * n)))
+    f = np.fft.rfft(x, m)
+    ac = np.fft.irfft(f * np.conj(f), m)[:min(max_lag, n - 1) + 1]
+    if ac[0] <= 0:
+        return None
+    rho = ac / ac[0]
+    tau, k_max = -1.0, 0
+    for j in range(0, rho.size - 1, 2):
+        g = rho[j] + rho[j + 1]
+        if g <= 0:
+            break
+        tau, k_max = tau + 2.0 * g, j + 1
+    return rho, tau, k_max
+
+
 def _effective_n_iact(r: np.ndarray, max_lag: int = 500) -> float:
     """Effective sample count ``n / tau`` of a stationary series, ``tau`` its integrated autocorrelation
-    time by Geyer's initial positive sequence (pairs of autocorrelations summed while positive).
+    time by Geyer's initial positive sequence (:func:`_geyer_autocorrelation`).
 
     The lag-1 rule ``n (1 - rho) / (1 + rho)`` assumes an AR(1) series; the missing torque is a smoothed
     derivative, whose lag-1 correlation is near 1 but whose correlation dies within the filter window
@@ -222,20 +247,10 @@ def _effective_n_iact(r: np.ndarray, max_lag: int = 500) -> float:
     n = r.size
     if n < 8:
         return float(n)
-    x = r - r.mean()
-    m = 1 << int(math.ceil(math.log2(2 * n)))
-    f = np.fft.rfft(x, m)
-    ac = np.fft.irfft(f * np.conj(f), m)[:min(max_lag, n - 1) + 1]
-    if ac[0] <= 0:
+    g = _geyer_autocorrelation(r - r.mean(), max_lag)
+    if g is None:
         return float(n)
-    rho = ac / ac[0]
-    tau = -1.0
-    for j in range(0, rho.size - 1, 2):
-        g = rho[j] + rho[j + 1]
-        if g <= 0:
-            break
-        tau += 2.0 * g
-    return float(n / max(tau, 1.0))
+    return float(n / max(g[1], 1.0))
 
 
 def _iact(r: np.ndarray) -> float:
@@ -446,8 +461,8 @@ def _weighted_sum_variance(e: np.ndarray, c: np.ndarray, *, local: int = 125,
     moving window of ``local`` samples: four supports of the 31-sample filter the rates pass through) and ``u`` a
     stationary unit series, so ``var = sum_|k|<=K [rho_u(k) R_sc(k) + R_ec(k) R_ec(-k) / n]`` with ``R_sc(k) =
     sum_t s_t c_t s_(t+k) c_(t+k)``, ``rho_u`` the autocorrelation of ``u`` over the whole record and ``K`` where it
-    ends by Geyer's initial positive sequence (:func:`_effective_n_iact`).  The noise's correlation comes from every
-    sample, not only from those that carry the weights (a record whose motion changes at two short starts carries
+    ends by Geyer's initial positive sequence (:func:`_geyer_autocorrelation`, pairs from lag 0).  The noise's
+    correlation comes from every sample, not only from those that carry the weights (a record whose motion changes at two short starts carries
     the sum in a few dozen samples, whose own products would estimate the variance with a few degrees of freedom),
     and its level from the samples near each weight (a load applied at the start deflects the load path: the LVDT
     rate moves while the motor is still, a remainder that is no noise of the samples in motion).  Returns the
@@ -460,18 +475,11 @@ def _weighted_sum_variance(e: np.ndarray, c: np.ndarray, *, local: int = 125,
     u = e / s
     sc = s * c
     m = 1 << math.ceil(math.log2(2 * n))
-    fu, fsc, fe, fc = (np.fft.rfft(v, m) for v in (u, sc, e, c))
-    K = min(max_lag, n - 2)
-    acov = np.fft.irfft(fu * np.conj(fu), m)[:K + 2] / n
-    if acov[0] <= 0:
+    g = _geyer_autocorrelation(u, min(max_lag, n - 2), m)
+    if g is None:
         return 0.0, float(n), 0
-    rho = acov / acov[0]
-    k_max, tau = 0, 1.0
-    for j in range(1, K, 2):
-        pair = rho[j] + rho[j + 1]
-        if pair <= 0:
-            break
-        k_max, tau = j + 1, tau + 2.0 * pair
+    rho, tau, k_max = g
+    fsc, fe, fc = (np.fft.rfft(v, m) for v in (sc, e, c))
     r_sc = np.fft.irfft(fsc * np.conj(fsc), m)[:k_max + 1]
     cr = np.fft.irfft(np.conj(fe) * fc, m)  # R_ec(k) = sum_t e_t c_{t+k}, negative k wrapped to the end
     r_pos, r_neg = cr[:k_max + 1], np.r_[cr[0], cr[::-1][:k_max]]
