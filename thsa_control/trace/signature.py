@@ -570,7 +570,7 @@ LOAD_KNOT_GAP = 1000.0
 
 def travel_gain_test(time, position, speed, load, *, ratio: float, transient_time: float = 0.3,
                      alpha: float = 1e-6, tolerance: float = GAIN_TOLERANCE, steady_speed=None,
-                     passes: list[np.ndarray] | None = None) -> dict | None:
+                     passes: list[np.ndarray] | None = None, angle=None) -> dict | None:
     """Gain of a position sensor against the travel a redundant speed sensor integrates (the LVDT against the
     motor angle times ``ratio = lead / (2 pi N)``), over the steady passes of a record.
 
@@ -596,7 +596,8 @@ def travel_gain_test(time, position, speed, load, *, ratio: float, transient_tim
     intercepts above :data:`~thsa_control.trace.separability.VIF_LIMIT`: an elastic load, whose force follows
     the position, makes a load path's compliance a gain).  The test: ``H0: |g - 1| <= tolerance`` (one-sided
     against the nearer bound), significant at ``alpha``.  None when no pass qualifies.  ``passes``: the record's
-    :func:`travel_passes` where the caller has them (they depend on the steady speed, not on the sensor pair).
+    :func:`travel_passes` where the caller has them (they depend on the steady speed, not on the sensor pair);
+    ``angle``: the speed's integral (:func:`~thsa_control.data.rigformat.speed_integral`) where the caller has it.
     """
     from scipy.stats import norm
 
@@ -610,7 +611,7 @@ def travel_gain_test(time, position, speed, load, *, ratio: float, transient_tim
         return None
     from ..data.rigformat import speed_integral
 
-    travel = ratio * speed_integral(t, w)
+    travel = ratio * (speed_integral(t, w) if angle is None else np.asarray(angle, float))
     if passes is None:
         passes = travel_passes(t, x, f, w if steady_speed is None else steady_speed, transient_time)
     if not passes:
@@ -728,7 +729,22 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
     load = signals.get("load_force")
     load = np.zeros(t.size) if load is None else np.asarray(load, float)
     delays = dict(delays or {})
-    smooth = (lambda v: savgol_filter(np.nan_to_num(np.asarray(v, float)), 31, 2, delta=dt)) if t.size >= 31 else None
+    # each speed integrated once (its angle: the travel tests' and the LVDT lag's), smoothed once (the motor speed:
+    # the speeds' lag and the LVDT pair's cross-correlation) and its angle differentiated once (the LVDT lag)
+    speeds = {k: np.nan_to_num(np.asarray(v, float)) for k, v in (("motor_speed", w), ("screw_speed", ws))
+              if v is not None}
+    angle = {k: speed_integral(t, v) for k, v in speeds.items()} if t.size > 1 else {}
+    smoothed: dict[str, np.ndarray] = {}
+
+    def smooth(k):
+        if k not in smoothed:
+            smoothed[k] = savgol_filter(speeds[k], 31, 2, delta=dt)
+        return smoothed[k]
+
+    # the steady passes, judged on the motor speed where measured: the same for every pair (built once; the motor
+    # angle and a measured LVDT are finite wherever they are judged, so the position leaves none out)
+    passes = travel_passes(t, angle["motor_speed"], load, speeds["motor_speed"], transient_time) \
+        if w is not None and t.size > 1 else None
 
     def lag_fields(lt, d):
         if lt is None:
@@ -739,9 +755,10 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
         d = _gain_lag(np.asarray(w, float), gear_ratio * np.asarray(ws, float), dt)
         if d:
             # the gain from the angles (integrated speeds) over the steady passes; the rates' regression as a fallback
-            wa = np.nan_to_num(np.asarray(w, float))
-            tg = travel_gain_test(t, speed_integral(t, wa), np.asarray(ws, float), load, ratio=gear_ratio,
-                                  transient_time=transient_time, alpha=alpha, steady_speed=wa) if t.size > 1 else None
+            wa = speeds["motor_speed"]
+            tg = travel_gain_test(t, angle["motor_speed"], np.asarray(ws, float), load, ratio=gear_ratio,
+                                  transient_time=transient_time, alpha=alpha, steady_speed=wa, passes=passes,
+                                  angle=angle["screw_speed"]) if t.size > 1 else None
             if tg is not None:
                 gain, se, p, sig_gain = tg["gain"], tg["gain_stderr"], tg["p_value"], tg["significant"]
             else:
@@ -749,9 +766,9 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
                 p = float(2 * norm.sf(abs(d["z"]))) if math.isfinite(d["z"]) else 0.0
                 # a gain within the tolerance is a calibration detail, not a structure
                 sig_gain = bool(p < alpha and abs(gain - 1) > GAIN_TOLERANCE)
-            lt = None if smooth is None else lag_test(
-                smooth(w), smooth(gear_ratio * np.asarray(ws, float)), dt, alpha=lag_alpha,
-                known=delays.get("motor_speed", 0.0) - delays.get("screw_speed", 0.0))
+            lt = None if t.size < 31 else lag_test(
+                smooth("motor_speed"), savgol_filter(gear_ratio * speeds["screw_speed"], 31, 2, delta=dt), dt,
+                alpha=lag_alpha, known=delays.get("motor_speed", 0.0) - delays.get("screw_speed", 0.0))
             lf = lag_fields(lt, d)
             out.append({"variable": "motor_speed vs gear_ratio x screw_speed", "kind": "redundant_sensors",
                         "sensors": ["motor_speed", "screw_speed"], "gain": gain, "gain_stderr": se,
@@ -767,19 +784,18 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
     if rate is not None:
         pairs = []
         if w is not None:
-            pairs.append(("lvdt rate vs lead/(2 pi N) x motor_speed", "motor_speed", np.nan_to_num(np.asarray(w, float)),
+            pairs.append(("lvdt rate vs lead/(2 pi N) x motor_speed", "motor_speed",
                           kinematic_ratio({"screw.lead": lead, "gear.ratio": gear_ratio})))
         if ws is not None:
-            pairs.append(("lvdt rate vs lead/(2 pi) x screw_speed", "screw_speed", np.nan_to_num(np.asarray(ws, float)),
-                          lead / (2 * math.pi)))
-        # judged on the motor speed where measured: the same passes for every pair (built once)
-        passes = travel_passes(t, x, load, np.asarray(w, float), transient_time) if w is not None else None
-        for name, other, v, r in pairs:
-            d = _gain_lag(rate, r * savgol_filter(v, 31, 2, delta=dt), dt)  # the lag (and the rate's gain, a fallback)
+            pairs.append(("lvdt rate vs lead/(2 pi) x screw_speed", "screw_speed", lead / (2 * math.pi)))
+        for name, other, r in pairs:
+            v = speeds[other]
+            d = _gain_lag(rate, r * smooth(other), dt)  # the lag (and the rate's gain, a fallback)
             if not d:
                 continue
             tg = travel_gain_test(t, x, v, load, ratio=r, transient_time=transient_time, alpha=alpha,
-                                  steady_speed=None if w is None else np.asarray(w, float), passes=passes)
+                                  steady_speed=None if w is None else np.asarray(w, float), passes=passes,
+                                  angle=angle[other])
             if tg is not None:
                 gain, se, p, sig_gain = tg["gain"], tg["gain_stderr"], tg["p_value"], tg["significant"]
             else:  # no steady pass: the rates' regression
@@ -789,7 +805,7 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
             # the lag on rates filtered alike: the speed's integral through the LVDT's own differentiator (the SG
             # smoother's response differs from the differentiator's: their difference at every transient would be
             # counted as noise)
-            lt = lag_test(rate, r * savgol_filter(speed_integral(t, v), 31, 2, deriv=1, delta=dt), dt,
+            lt = lag_test(rate, r * savgol_filter(angle[other], 31, 2, deriv=1, delta=dt), dt,
                           known=delays.get("nut_position", 0.0) - delays.get(other, 0.0), alpha=lag_alpha)
             lf = lag_fields(lt, d)
             out.append({"variable": name, "kind": "redundant_sensors", "sensors": ["nut_position", other],
