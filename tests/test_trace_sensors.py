@@ -353,6 +353,19 @@ def test_a_declared_difference_quotient_is_not_a_lag():
     ms = out["motor_speed vs gear_ratio x screw_speed"]
     assert ms["known_delay_s"] == pytest.approx(0.5e-3 - 1e-3)
     assert abs(ms["lag_s"]) < 5e-5 and not ms["lag_significant"], ms
+    # the LVDT reads its sample (no difference quotient): its pairs' known delay is minus the speed chain's
+    assert out["lvdt rate vs lead/(2 pi N) x motor_speed"]["known_delay_s"] == pytest.approx(-0.5e-3)
+    assert out["lvdt rate vs lead/(2 pi) x screw_speed"]["known_delay_s"] == pytest.approx(-1e-3)
+
+
+def test_a_delay_for_a_sensor_without_a_difference_quotient_is_refused():
+    """Only the speed sensors declare a difference quotient (rigformat.SPEED_SENSOR_COLUMNS); a delay given for
+    another channel (the LVDT) would have no meaning in the lag test and is refused by name, not ignored."""
+    run = read_run(DATA / "null_rig_trim_s1.csv")
+    sig = {c: run.signals[c] for c in ("motor_speed", "screw_speed", "nut_position")}
+    with pytest.raises(ValueError, match="nut_position"):
+        sensor_consistency(run.time, sig, gear_ratio=run.gear_ratio, lead=run.screw_lead,
+                           delays={"motor_speed": 5e-4, "nut_position": 1e-3})
 
 
 def test_rigsim_slow_cogging_run_keeps_its_sensors_consistent():

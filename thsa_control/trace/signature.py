@@ -712,8 +712,8 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
     angle differenced over one sample, carries 13 rpm of noise at the motor against 49 rpm of motion).  Every
     pair's lag is :func:`lag_test` on the two rates filtered alike (the speeds by a 31-sample quadratic
     Savitzky-Golay smoother, the LVDT and the integrated speed by the same filter's differentiator), its known
-    part ``delays`` (signal -> the delay its chain declares [s], a difference quotient over ``T`` lags by ``T / 2``)
-    compensated, at ``lag_alpha``; the cross-correlation peak of the rates (the former lag, noise on a slow record)
+    part ``delays`` (speed signal -> the delay its chain declares [s], a difference quotient over ``T`` lags by
+    ``T / 2``: :func:`~thsa_control.data.rigformat.speed_sensor_delays`; the LVDT reads its sample, none) compensated, at ``lag_alpha``; the cross-correlation peak of the rates (the former lag, noise on a slow record)
     is kept as ``xcorr_peak_s``.
     """
     from scipy.signal import savgol_filter
@@ -729,6 +729,9 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
     load = signals.get("load_force")
     load = np.zeros(t.size) if load is None else np.asarray(load, float)
     delays = dict(delays or {})
+    if set(delays) - {"motor_speed", "screw_speed"}:
+        raise ValueError(f"sensor_consistency: delays are the speed sensors' (motor_speed, screw_speed), got "
+                         f"{sorted(set(delays) - {'motor_speed', 'screw_speed'})}")
     # each speed integrated once (its angle: the travel tests' and the LVDT lag's), smoothed once (the motor speed:
     # the speeds' lag and the LVDT pair's cross-correlation) and its angle differentiated once (the LVDT lag)
     speeds = {k: np.nan_to_num(np.asarray(v, float)) for k, v in (("motor_speed", w), ("screw_speed", ws))
@@ -804,9 +807,11 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
                 sig_gain = bool(p < alpha and abs(gain - 1) > GAIN_TOLERANCE)
             # the lag on rates filtered alike: the speed's integral through the LVDT's own differentiator (the SG
             # smoother's response differs from the differentiator's: their difference at every transient would be
-            # counted as noise)
+            # counted as noise).  The known part is the speed chain's alone: the LVDT reads the position at its
+            # sample, no difference quotient (``delays`` holds the speed sensors', rigformat.SPEED_SENSOR_COLUMNS),
+            # so a speed read ``T / 2`` late makes the LVDT lead by that
             lt = lag_test(rate, r * savgol_filter(angle[other], 31, 2, deriv=1, delta=dt), dt,
-                          known=delays.get("nut_position", 0.0) - delays.get(other, 0.0), alpha=lag_alpha)
+                          known=0.0 - delays.get(other, 0.0), alpha=lag_alpha)
             lf = lag_fields(lt, d)
             out.append({"variable": name, "kind": "redundant_sensors", "sensors": ["nut_position", other],
                         "gain": gain, "gain_stderr": se, "p_value": p,
