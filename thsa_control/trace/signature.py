@@ -1598,17 +1598,19 @@ def current_noise(time, speed, load, current, *, transient_time: float = 0.3, mi
     return float(math.sqrt(float(r @ r) / max(r.size - 2 * len(parts), 1))), float(_pooled_iact(res))
 
 
-def _steady_passes(t, w, f, cmd, on, ok, transient_time: float, min_pass: float, min_samples: int, group):
-    """Stretches of steady motion at one constant, non-zero speed command: moving (outside the stop band of
-    :func:`base_transients`), outside the base's transients (``sustained``: a ripple is no transient), the drive on,
-    the command unchanged from the previous sample; cut at a gap, a change of direction, command or ``group``."""
+def _steady_passes(t, w, f, cmd, on, ok, transient_time: float, min_pass: float, min_samples: int):
+    """Stretches of steady motion at one constant, non-zero speed command in one record: moving (outside the stop
+    band of :func:`base_transients`), outside the base's transients (``sustained``: a ripple is no transient; a load
+    change is one), the drive on, the command unchanged from the previous sample; cut at a gap, a change of direction
+    or command.  The runs of a set are separated by the caller, which calls this per run (the stop band and the
+    transients are a record's own); a run label here would be constant."""
     steady = ~base_transients(t, w, f, transient_time, sustained=True)
     sgn = motion_sign(w).astype(float)
     same_cmd = np.r_[False, cmd[1:] == cmd[:-1]]
     keep = steady & (sgn != 0) & same_cmd & (cmd != 0) & on & ok
     if np.count_nonzero(keep) < min_samples:
         return [], sgn
-    parts = stretches(keep, (sgn, cmd, group))
+    parts = stretches(keep, (sgn, cmd))
     return [q for q in parts if q.size >= min_samples and t[q[-1]] - t[q[0]] >= min_pass], sgn
 
 
@@ -1692,7 +1694,7 @@ def current_drift_test(time, current, speed, load, speed_cmd, position, temperat
     for gv in np.unique(g):
         gi = np.flatnonzero(g == gv)
         ps, sg = _steady_passes(t[gi], w[gi], np.nan_to_num(f[gi]), cmd[gi], on[gi], ok[gi], transient_time, min_pass,
-                                min_samples, g[gi])
+                                min_samples)
         passes += [gi[q] for q in ps]
         sgn[gi] = sg
     passes.sort(key=lambda q: t[q[0]])
