@@ -29,6 +29,32 @@ speed, and of the LVDT rate against the lead-scaled motor speed.  From the
 records alone, the drive's breakaway current at starts and reversals of one
 class at different nut positions (a worn spot: :func:`breakaway_position_test`).
 
+Overdispersion: three tests combine estimates whose errors come from the sample noise (IACT-corrected) and may
+scatter beyond them; each takes its own rule, because the scale of that scatter is estimated from different data:
+
+* :func:`breakaway_position_test` (places' mean breakaway within a class): the scale comes from *replicate* events
+  at one place, independent of the places' contrast that is tested.  Then ``(q / df) / birge^2`` is exactly
+  ``F(df, rep_df)`` under the null whatever the base's scatter, so the Birge ratio is used unclipped and always (a
+  clip at 1 was conservative without scatter and liberal with a small one: 2.0 % at 0.05 and 3.2 % at 0.01 on
+  synthetic events); without replicates the noise alone, chi-square, at the sample-based level.
+* :func:`current_drift_test` (one rate shared by pass levels): the only scale is the levels' own scatter about the
+  fitted law, 3-5 dof, judged at the sample-based 1e-6.  Always scaling (Student t on 4 dof) leaves no power there
+  (measured: nothing named at 1e-6, 12 % at 1e-4), so the scatter is pre-tested: beyond its 5 % chi-square quantile
+  the error is scaled by ``sqrt(chi2 / dof)`` and judged on Student's t (Hartung-Knapp), below it the sample errors
+  and the normal.  Limit: a scatter the pre-test misses makes it liberal (0.2-0.9 % named at 1-4 x the noise).
+* :func:`travel_gain_test` (a sensor's gain against a tolerance band): the per-pass gains' Birge ratio, over
+  ``m - 1`` dof, clipped at 1, inflates the pooled estimate's sample-based error, and the normal judges it.  The
+  scatter it guards against is structure within passes (a direction-dependent deflection, a lag at a speed change)
+  that is not the gain; the per-pass gains spread by 1e-6..1.2e-4 on the committed runs, against a tolerance of
+  5e-3.  Clipped so that a scatter below the noise never shrinks an error measured on thousands of samples.  It is
+  the least exact of the three: with few passes the estimated ratio's own uncertainty is ignored (Student's t on
+  ``m - 1`` dof would be exact under a Gaussian scatter).  Measured on the runs it flags: rig_sensor_gain's
+  motor-vs-screw pair (two passes, Birge 6.5, gain 0.9804, 258 scaled errors beyond the tolerance) has p below
+  1e-300 on the normal against 1.2e-3 on t(1), so the drift test's rule would not flag the planted screw gain (with
+  one dof any scale is possible); its LVDT pairs and rig_sensor_gain_lvdt's (2-3 passes, Birge 0.13-0.53: not
+  scaled) are unchanged by either rule.  Kept, with that limit: a sensor gain is one factor of every pass by
+  construction, and two passes that agree to 4e-5 on a gain 2 % off are not a scale-free sample.
+
 Numerics only (numpy, scipy); no matplotlib.
 """
 
