@@ -481,7 +481,7 @@ def _taper(n: int, dt: float, ramp: float = 0.1) -> tuple[np.ndarray, np.ndarray
 
 
 def _weighted_sum_variance(e: np.ndarray, c: np.ndarray, *, local: int = 125,
-                           max_lag: int = 500) -> tuple[float, float, int]:
+                           max_lag: int | None = None) -> tuple[float, float, int]:
     """Variance of ``sum e c`` for a zero-mean noise ``e`` and weights ``c`` that may share its noise (jointly
     Gaussian), the noise's level allowed to change along the record: ``e_t = s_t u_t`` with ``s_t`` its local RMS (a
     moving window of ``local`` samples: four supports of the 31-sample filter the rates pass through) and ``u`` a
@@ -492,8 +492,16 @@ def _weighted_sum_variance(e: np.ndarray, c: np.ndarray, *, local: int = 125,
     the sum in a few dozen samples, whose own products would estimate the variance with a few degrees of freedom),
     and its level from the samples near each weight (a load applied at the start deflects the load path: the LVDT
     rate moves while the motor is still, a remainder that is no noise of the samples in motion).  Returns the
-    variance, its degrees of freedom (the samples over the autocorrelation time) and ``K``."""
+    variance, its degrees of freedom (the samples over the autocorrelation time) and ``K``.
+
+    ``max_lag`` (None: the whole record) only bounds the sum for a caller that wants it; the lag test does not cap it.
+    On a finite record whose mean is removed the sample autocorrelations sum to -1/2 over all lags, so Geyer's
+    sequence always ends; a cap that stops it first would set the variance by a number, not by the noise (the LVDT
+    pairs' residual ran past a former 500-lag cap on every rig-sim run while it still held the load path's
+    deflection, docs/trace_notes.md "The lag test's variance without a cap")."""
     n = e.size
+    if max_lag is None:
+        max_lag = n - 2
     e = e - e.mean()
     w = min(local, n)
     s2 = np.convolve(e * e, np.ones(w) / w, mode="same")
@@ -527,7 +535,7 @@ def _first_order_lag(x: np.ndarray, tau: float, dt: float) -> np.ndarray:
 
 
 def lag_test(a, b, dt: float, *, known: float = 0.0, tolerance: float | None = None,
-             alpha: float = LAG_ALPHA) -> dict | None:
+             alpha: float = LAG_ALPHA, explained=None) -> dict | None:
     """The lag of ``a`` behind ``b`` (two rates of one motion, smoothed alike) and its noise test.
 
     Statistic: the antisymmetric part of the pair's cross-covariance around lag 0, ``W = sum h (a b' - a' b)`` (``h``
@@ -544,23 +552,65 @@ def lag_test(a, b, dt: float, *, known: float = 0.0, tolerance: float | None = N
     record's samples over their autocorrelation time as degrees of freedom (Student t).  Test ``H0: |d| <=
     tolerance`` (one logged sample unless given: :data:`LAG_TOLERANCE_SAMPLES`), one-sided against the nearer
     bound, significant at ``alpha``.
+
+    ``explained``: regressors (a 1-D array or columns, filtered as ``a``) of a part of ``a`` that is physics, not a
+    sensor's lag or noise: the LVDT pairs pass the load's rate, whose product with the load path's compliance is the
+    LVDT's rate while the load changes (the LVDT reads the nut, the motor angle does not see the load path deflect).
+    Their coefficients come from the regression of ``a`` on ``b``, ``b'`` (the lag's first-order term, so that a lag
+    is not read as a load-rate term) and the regressors; their part is removed from ``a`` before the statistic and its
+    noise (``explained_coefficients`` in the result).  A remainder the pair's physics explains is not noise: left in,
+    it made the residual correlated over seconds (99 % of the LVDT-vs-motor residual's variance on the committed
+    trim and reversal nulls), and the variance then hung on where a lag cap stopped the sum.  Not removed where the
+    regressors reproduce the motion (``b`` or ``b'``: their largest canonical correlation with them as a variance
+    inflation beyond the usual limit): an elastic load makes the load cell a second motion sensor and a load whose
+    rate follows the acceleration makes a deflection read as a lag (``explained_vif``, ``explained_removed``).
     None when fewer than 50 finite samples or no motion.
     """
     from scipy.stats import t as t_dist
 
     a = np.asarray(a, float)
     b = np.asarray(b, float)
+    z = None if explained is None else np.asarray(explained, float).reshape(a.size, -1)
     ok = np.isfinite(a) & np.isfinite(b)
+    if z is not None:
+        ok &= np.all(np.isfinite(z), axis=1)
     if ok.sum() < 50:
         return None
     if not ok.all():  # the longest finite stretch (the derivatives need neighbours)
         q = max(stretches(ok), key=len)
         a, b = a[q], b[q]
+        z = None if z is None else z[q]
         if a.size < 50:
             return None
     tol = LAG_TOLERANCE_SAMPLES * dt if tolerance is None else float(tolerance)
     h, hp = _taper(a.size, dt)
-    ap, bp = np.gradient(a, dt), np.gradient(b, dt)
+    bp = np.gradient(b, dt)
+    coef_z, vif_z = [], None
+    if z is not None:
+        from .separability import VIF_LIMIT
+
+        z = z[:, np.any(z != 0.0, axis=0)]  # a regressor that never moves explains nothing
+        if z.shape[1]:
+            X = np.column_stack([b, bp, z])
+            X = X / np.maximum(np.sqrt(np.sum(X * X, axis=0)), 1e-300)  # unit columns: lstsq's cut-off is relative
+
+            def basis(m):  # an orthonormal basis of the columns' span (near-collinear columns counted once)
+                u, sv, _ = np.linalg.svd(m, full_matrices=False)
+                return u[:, sv > 1e-8 * sv[0]]
+
+            # the regressors must not reproduce the motion: a load that follows the speed (an elastic load: the load
+            # cell becomes a second motion sensor, and mixing it into ``a`` imports its chain's timing) or its
+            # acceleration (the lag's own term).  The largest canonical correlation of the regressors with (b, b')
+            # as a variance inflation 1 / (1 - r^2); beyond the usual limit (separability.VIF_LIMIT) the explained
+            # part is left in, as without it (the noise sum then holds it)
+            r2 = float(np.linalg.svd(basis(X[:, 2:]).T @ basis(X[:, :2]), compute_uv=False)[0]) ** 2
+            vif_z = 1.0 / max(1.0 - r2, 1e-300)
+            if vif_z <= VIF_LIMIT:
+                zz = X[:, 2:] * 1.0
+                coef = np.linalg.lstsq(X, a, rcond=None)[0]
+                a = a - zz @ coef[2:]
+                coef_z = [float(v) for v in coef[2:] / np.maximum(np.sqrt(np.sum(z * z, axis=0)), 1e-300)]
+    ap = np.gradient(a, dt)
     den = 2.0 * float(np.sum(h * ap * bp))
     if not den > 0:
         return None
@@ -579,8 +629,10 @@ def lag_test(a, b, dt: float, *, known: float = 0.0, tolerance: float | None = N
     p = float(t_dist.sf(zs, dof))
     return {"lag_s": d, "lag_stderr": se, "lag_tolerance_s": tol, "known_delay_s": known, "lag_p_value": p,
             "lag_significant": bool(p < alpha), "lag_alpha": alpha, "lag_iact": float(tau), "lag_dof": float(dof),
-            "lag_noise_lags": int(k_max),
-            "lag_method": "antisymmetric cross-covariance (W), noise from the lag model's residual"}
+            "lag_noise_lags": int(k_max), "explained_coefficients": coef_z, "explained_vif": vif_z,
+            "explained_removed": bool(coef_z),
+            "lag_method": "antisymmetric cross-covariance (W), noise from the lag model's residual"
+                          + (" after its explained part" if coef_z else "")}
 
 
 #: a redundant-sensor gain within this of 1 is a calibration detail, not a structure: the tolerance of a calibrated
@@ -592,6 +644,18 @@ GAIN_TOLERANCE = 0.005
 #: a knot never splits the noise of one load level; the sharpest feature of a load path's curve in the library, a
 #: clearance's soft zone (2 x 2 kds x0 = 4 kN wide, Table 1), still gets knots inside it
 LOAD_KNOT_GAP = 1000.0
+
+
+def _load_knots(f: np.ndarray) -> list[float]:
+    """Knots of a piecewise-linear load-deflection curve over the loads ``f``: the 5-95 % quantiles in 5 % steps, no
+    two closer than :data:`LOAD_KNOT_GAP`; none where the load spans less than one gap.  The curve is linear in the
+    load with a slope change at each knot but the first (the travel test's and the lag test's deflection)."""
+    knots: list[float] = []
+    if np.ptp(f) > LOAD_KNOT_GAP:
+        for q in np.quantile(f, np.linspace(0.05, 0.95, 19)):
+            if not knots or q - knots[-1] >= LOAD_KNOT_GAP:
+                knots.append(float(q))
+    return knots
 
 
 def travel_gain_test(time, position, speed, load, *, ratio: float, transient_time: float = 0.3,
@@ -651,11 +715,8 @@ def travel_gain_test(time, position, speed, load, *, ratio: float, transient_tim
         r0 += q.size
     fl = f[rows]
     cols = []
-    if np.ptp(fl) > LOAD_KNOT_GAP:
-        knots: list[float] = []
-        for q in np.quantile(fl, np.linspace(0.05, 0.95, 19)):
-            if not knots or q - knots[-1] >= LOAD_KNOT_GAP:
-                knots.append(float(q))
+    knots = _load_knots(fl)
+    if knots:
         cols = [fl - fl.mean()] + [np.maximum(fl - q, 0.0) for q in knots[1:]]
     nuis = np.column_stack([P, *cols]) if cols else P
     th, y = travel[rows], x[rows]
@@ -810,6 +871,20 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
         if x.size < 31 or not np.all(np.isfinite(x)):
             x = np.interp(t, t[np.isfinite(x)], x[np.isfinite(x)]) if np.isfinite(x).sum() > 2 else None
     rate = savgol_filter(x, 31, 2, deriv=1, delta=dt) if x is not None and x.size >= 31 else None
+
+    def load_rate():
+        """The load path's deflection rate as regressors: the piecewise-linear load-deflection curve of the travel
+        test (the load and its hinges at :func:`_load_knots`) through the LVDT's differentiator, so that its
+        coefficients times these columns are the LVDT's rate while the load changes (the lag test removes it: the
+        LVDT reads the nut, the motor angle does not see the load path deflect; a clearance's soft zone or a
+        preload's lift-off is a slope change of that curve).  Gaps interpolated as the position's; a load that never
+        changes: none."""
+        fin = np.isfinite(load)
+        if fin.sum() < 31 or np.ptp(load[fin]) == 0:
+            return None
+        f = load if fin.all() else np.interp(t, t[fin], load[fin])
+        cols = [f] + [np.maximum(f - q, 0.0) for q in _load_knots(f)[1:]]
+        return np.column_stack([savgol_filter(c, 31, 2, deriv=1, delta=dt) for c in cols])
     if rate is not None:
         pairs = []
         if w is not None:
@@ -837,7 +912,7 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
             # sample, no difference quotient (``delays`` holds the speed sensors', rigformat.SPEED_SENSOR_COLUMNS),
             # so a speed read ``T / 2`` late makes the LVDT lead by that
             lt = lag_test(rate, r * savgol_filter(angle[other], 31, 2, deriv=1, delta=dt), dt,
-                          known=0.0 - delays.get(other, 0.0), alpha=lag_alpha)
+                          known=0.0 - delays.get(other, 0.0), alpha=lag_alpha, explained=load_rate())
             lf = lag_fields(lt, d)
             out.append({"variable": name, "kind": "redundant_sensors", "sensors": ["nut_position", other],
                         "gain": gain, "gain_stderr": se, "p_value": p,
