@@ -371,20 +371,23 @@ def test_a_delay_for_a_sensor_without_a_difference_quotient_is_refused():
 def test_rigsim_slow_cogging_run_keeps_its_sensors_consistent():
     """rig_cogging (check_slow, 0.15 mm/s; truth: cogging only): the LVDT pairs' cross-correlation peak read a lag
     of 14 ms (noise) and the motor-vs-screw rate regression a gain of 0.92 (the screw speed's 13 rpm of noise at
-    the motor against 49 rpm of motion attenuates it): now no pair disagrees.  The lag's estimate stays as noisy as
-    the record is (25 +- 14 ms), and its test says so."""
+    the motor against 49 rpm of motion attenuates it): now no pair disagrees.  The lag's estimate read 25 +- 14 ms
+    while the load path's deflection at the start (the 5 kN applied while the motor stands) counted as lag and
+    noise; with the deflection explained by the load's rate it reads the truth, 0, within its standard error (2.4
+    +- 2.0 ms), and its test does not claim a lag."""
     out = _sensors("rig_cogging")
     for k, d in out.items():
         assert not d["significant"], (k, d)
     ms = out["motor_speed vs gear_ratio x screw_speed"]
     assert ms["gain"] == pytest.approx(1.0, abs=2e-3) and ms["travel_test"]["determined"]
     lv = out["lvdt rate vs lead/(2 pi N) x motor_speed"]
-    assert lv["lag_stderr"] > 5e-3 and lv["lag_p_value"] > 1e-2
+    assert abs(lv["lag_s"]) < 5e-3 and abs(lv["lag_s"]) < 3 * lv["lag_stderr"] and lv["lag_p_value"] > 1e-2
 
 
 def test_rigsim_motor_speed_lag_is_named():
     """rig_sensor_lag (speed excitation, 20 ms on the logged motor speed): the motor-vs-screw pair and the LVDT-vs-
-    motor pair read it (17.3 and -18.4 ms), the LVDT-vs-screw pair agrees, the motor speed is named."""
+    motor pair read it (17.3 and -19.1 ms; -18.4 before the load path's deflection was explained), the LVDT-vs-screw
+    pair agrees, the motor speed is named."""
     out = _sensors("rig_sensor_lag")
     ms, lm = out["motor_speed vs gear_ratio x screw_speed"], out["lvdt rate vs lead/(2 pi N) x motor_speed"]
     assert ms["lag_significant"] and ms["lag_s"] == pytest.approx(0.02, abs=5e-3)
