@@ -467,8 +467,10 @@ def _swept_pair(seed, tau=0.0, dt=2e-3, T=10.0, compliance=1.2e-8, v=6e-3):
         x = _tustin_lag(x, tau, dt)
     w = s / R + 0.3 * rng.standard_normal(t.size)
     fm = f + 25.0 * rng.standard_normal(t.size)
-    return (savgol_filter(x, 31, 2, deriv=1, delta=dt), R * savgol_filter(speed_integral(t, w), 31, 2, deriv=1, delta=dt),
-            dt, savgol_filter(fm, 31, 2, deriv=1, delta=dt))
+    def rate(y):
+        return savgol_filter(y, 31, 2, deriv=1, delta=dt)
+
+    return rate(x), R * rate(speed_integral(t, w)), dt, rate(fm)
 
 
 def test_the_load_paths_deflection_is_no_lag_noise():
