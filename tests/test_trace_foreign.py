@@ -166,7 +166,12 @@ KNOWN_FAILING = {
                                  "integrates, about 0.21 the one plant step per sample (1.26 at 4 steps, still 45 % "
                                  "against the model before it at 4 steps), 0.22 not identified; over all held-out "
                                  "samples (the window 'all' is scored outside the base's transients, 204 of 901) the "
-                                 "true values give 48 % / 49 %",
+                                 "true values give 48 % / 49 %" +
+                                 ".  trace-ceiling: a second seed of the scenario (rig, 601 / 602) gives 34 / 25 % "
+                                 "(motor speed) and 43 / 41 % (screw speed) at rig-sim's values, the fits the same: "
+                                 "the chirp's record cannot show 50 %.  On the position loop's 15 mm/s travel "
+                                 "(rig_drivetrain_compliance_steps, seed 601; 602 not committed) the same compliance is "
+                                 "found first with its window drop 69 % (65 %), rig-sim's values 69 % (65 %): passes",
     # the out-of-library effects (docs/trace_notes.md, "Out-of-library effects: what the remainder shows")
     "rig_kt_temperature": "not flagged, the run cannot tell it: housing temperature spans 0.7 K, the rotor's is not "
                           "measured, the voltage is not recorded; its 13 K cooling raises Kt 1.6 % in 10 s: per-pass drift "
@@ -205,7 +210,12 @@ KNOWN_FAILING = {
                             "(10 load bins within +-0.05 um, ANOVA p 1) and is 1.035 x rig-sim's noise on the held-"
                             "out samples: 0.5 um RMS at 20-100 Hz beyond it, the size of the load cell's 25 N noise "
                             "through the contact stiffness (measured on this run and a fresh seed, "
-                            "docs/trace_notes.md)",
+                            "docs/trace_notes.md)" +
+                            ".  trace-ceiling: the sweep changes the load within one replay segment by a few kN "
+                            "only; on a static load reversal with the drive off (check_hold, "
+                            "rig_loadpath_preload_hold, seed 601; 602 not committed) the same candidate is found "
+                            "first with its window drop 87 % (88 %), the preload -0.032 mm (rig-sim -0.03), rig-sim's "
+                            "values 87 % (88 %): passes",
 }
 
 
