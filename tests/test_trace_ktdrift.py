@@ -232,6 +232,22 @@ def test_each_run_of_a_set_has_its_own_passes():
     assert got and got == want
 
 
+def test_a_pass_never_spans_two_runs_of_a_set():
+    """One reversal record cut in two runs in the middle of a steady extension (time, direction, command and load
+    continuous across the cut): no pass of the set crosses the cut, and a class holds one run's passes only (the
+    docstring's "same direction and group"), where the record as one run has a pass across it."""
+    rec = _reversals(6)
+    t = rec[0]
+    cut = int(np.searchsorted(t, 6.1))  # inside the third extension (steady 5.7-6.3 s)
+    whole = _test(rec)
+    assert any(p["start"] < t[cut] < p["end"] for c in whole["classes"] for p in c["passes"])
+    grp = (np.arange(t.size) >= cut).astype(float)
+    d = current_drift_test(*rec, group=grp, amps_per_newton=APN)
+    for c in d["classes"]:
+        for p in c["passes"]:
+            assert (p["end"] < t[cut]) == (c["group"] == 0.0) and (p["start"] >= t[cut]) == (c["group"] == 1.0), p
+
+
 def test_the_pass_breaking_the_common_range_is_dropped():
     """Four extensions at one operating point: three over 0-10, 0-10 and 2-6 mm, one long one over 9-30 mm.  The long
     one breaks the common range; dropping it leaves 2-6 mm for the other three (dropping the shortest first, as

@@ -375,6 +375,19 @@ def test_a_declared_difference_quotient_is_not_a_lag():
     ms = out["motor_speed vs gear_ratio x screw_speed"]
     assert ms["known_delay_s"] == pytest.approx(0.5e-3 - 1e-3)
     assert abs(ms["lag_s"]) < 5e-5 and not ms["lag_significant"], ms
+    # the LVDT reads its sample (no difference quotient): its pairs' known delay is minus the speed chain's
+    assert out["lvdt rate vs lead/(2 pi N) x motor_speed"]["known_delay_s"] == pytest.approx(-0.5e-3)
+    assert out["lvdt rate vs lead/(2 pi) x screw_speed"]["known_delay_s"] == pytest.approx(-1e-3)
+
+
+def test_a_delay_for_a_sensor_without_a_difference_quotient_is_refused():
+    """Only the speed sensors declare a difference quotient (rigformat.SPEED_SENSOR_COLUMNS); a delay given for
+    another channel (the LVDT) would have no meaning in the lag test and is refused by name, not ignored."""
+    run = read_run(DATA / "null_rig_trim_s1.csv")
+    sig = {c: run.signals[c] for c in ("motor_speed", "screw_speed", "nut_position")}
+    with pytest.raises(ValueError, match="nut_position"):
+        sensor_consistency(run.time, sig, gear_ratio=run.gear_ratio, lead=run.screw_lead,
+                           delays={"motor_speed": 5e-4, "nut_position": 1e-3})
 
 
 def test_rigsim_slow_cogging_run_keeps_its_sensors_consistent():
@@ -410,3 +423,47 @@ def test_rigsim_drivetrain_compliance_is_no_sensor_lag():
         assert not d["significant"], (k, d)
     assert abs(out["motor_speed vs gear_ratio x screw_speed"]["lag_s"]) < 0.5e-3
 
+
+
+def _geyer_reference(u, max_lag):
+    """Geyer's (1992) initial positive sequence written out from its definition: the sample autocorrelation of ``u``
+    about zero, ``Gamma_k = rho_2k + rho_2k+1`` from ``k = 0``, summed while positive; (tau, last lag summed)."""
+    n = u.size
+    ac = np.array([float(u[:n - k] @ u[k:]) for k in range(max_lag + 1)])
+    rho = ac / ac[0]
+    tau, last = -1.0, 0
+    for k in range(0, max_lag, 2):
+        if rho[k] + rho[k + 1] <= 0:
+            break
+        tau, last = tau + 2.0 * (rho[k] + rho[k + 1]), k + 1
+    return tau, last
+
+
+@pytest.mark.parametrize("kind", ["pattern", "ar1", "ma1"])
+def test_the_lag_noise_cuts_its_autocorrelation_where_geyer_does(kind):
+    """The lag test's noise sum (``_weighted_sum_variance``) stops where Geyer's initial positive sequence does, the
+    pairs ``rho_2k + rho_2k+1`` taken from lag 0 - the rule the IACT of every other test uses (``_effective_n_iact``).
+    The copy it had paired (1, 2), (3, 4): on a residual of period 4 (+ + - -: rho_1 = 0, rho_2 = -1) it stopped at
+    lag 0 instead of 1.  A residual of constant magnitude with ``local=1`` makes the unit series the residual itself."""
+    from thsa_control.trace.signature import _effective_n_iact, _weighted_sum_variance
+
+    rng = np.random.default_rng(5)
+    n = 4000
+    if kind == "pattern":
+        e = np.tile([1.0, 1.0, -1.0, -1.0], n // 4)
+    else:
+        z = rng.standard_normal(n + 1)
+        x = np.empty(n)
+        if kind == "ar1":
+            x[0] = z[0]
+            for i in range(1, n):
+                x[i] = 0.7 * x[i - 1] + z[i]
+        else:
+            x = z[1:] + 0.8 * z[:-1]
+        e = np.sign(x - np.median(x))
+        e = np.r_[e[: n // 2], -e[: n // 2]]  # zero mean exactly, so the unit series is e itself
+    var, dof, k_max = _weighted_sum_variance(e, np.ones(n), local=1, max_lag=60)
+    tau, last = _geyer_reference(e, 60)
+    assert k_max == last and k_max % 2 == 1
+    assert dof == pytest.approx(n / max(tau, 1.0), rel=1e-9)
+    assert dof == pytest.approx(_effective_n_iact(e, max_lag=60), rel=1e-9)

@@ -53,6 +53,18 @@ def conclusion_table_html(doc: dict) -> str:
         rows.append(("declared model", esc(doc.get("base_model") or "functional"),
                      f"{esc(h['parameter'])} = {_num(h['held_at'])} {esc(h['unit'])} (held)", "-", "-",
                      f"{esc(h['parameter'])} held at {_num(h['held_at'])} {esc(h['unit'])}: {esc(h['reason'])}"))
+    final = doc.get("final_parameters") or {}
+    before = doc.get("declared_fit_before_base_step") or {}
+    for n in doc.get("uncertain_parameters") or []:  # the declared uncertain set, as the final model has it
+        if n not in final:
+            continue
+        p = final[n]
+        b = before.get(n)
+        was = (f"<br><small>fitted on the declared model alone, before the base step: {_num(b['value'])} "
+               f"{esc(b['unit'])}</small>") if b and b["value"] != p["value"] else ""
+        rows.append(("declared model (final values)", doc.get("base_model") or "functional",
+                     f"{esc(n)} = {_num(p['value'])} {esc(p['unit'])}{_ci(p)}"
+                     + (" (held)" if p.get("source") == "held" else "") + was, "-", "-", "-"))
     bc = doc.get("base_corrections") or {}
     if bc.get("accepted"):
         for c in bc.get("corrections", []):

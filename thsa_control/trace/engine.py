@@ -987,7 +987,10 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         "final_effects": list(cur_effects),
         "uncertain_parameters": list(uncertain),
         "declared_not_determined": declared_held,
-        "base_parameters": {n: v for n, v in first["estimates"].items()},
+        # the final model's parameters (what a user rebuilds it from: the parameter file with these values and
+        # ``final_effects``), and the declared uncertain set's fit before the base step under a name that says so
+        "final_parameters": _final_parameters(current, params),
+        "declared_fit_before_base_step": {n: v for n, v in first["estimates"].items()},
         "effects_added": added,
         "found_effects": [e["name"] for e in added],
         "effects_removed": removed,
@@ -1012,6 +1015,32 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                    "backward_fits": len(backward_cpu), "backward_cpu_s": float(sum(backward_cpu))},
     }
     return TraceResult(doc, {"before": first, "after": current})
+
+
+def _final_parameters(fit: dict, params: ParameterSet) -> dict:
+    """Every parameter of the final model ``fit`` that differs from the parameter file ``params`` or that its last fit
+    estimated: value (SI), unit, standard error and 95 % interval where estimated, and where it comes from (``fitted``:
+    free in the last fit; ``held``: held at a value the run does not determine; ``set``: changed by an earlier step
+    and not refitted).  With the file and ``final_effects`` this rebuilds the model whose errors are ``error_after``
+    (:func:`final_model`)."""
+    final = ParameterSet.from_toml(fit["params_toml"])
+    est = fit.get("estimates") or {}
+    out = {}
+    for n in final.names:
+        v = float(final.value(n))
+        if n in est:
+            e = est[n]
+            out[n] = {**_param_entry(e), "value": v, "source": "held" if e.get("held") else "fitted"}
+        elif n not in params or v != float(params.value(n)):
+            out[n] = {"value": v, "stderr": None, "unit": final[n].unit, "source": "set"}
+    return out
+
+
+def final_model(doc: Mapping, params: ParameterSet | None = None) -> tuple[tuple[str, ...], ParameterSet]:
+    """The final model of a trace (``trace.json``'s ``final_effects`` and ``final_parameters``) over the parameter
+    file the trace read (default: the embedded actuator): the effects and the parameter set to build its plant."""
+    p = params or default_parameters()
+    return tuple(doc["final_effects"]), p.replace({n: e["value"] for n, e in doc["final_parameters"].items()})
 
 
 #: the name the efficiencies lifted beyond their plausible spread go by among the joint lift's single lifts

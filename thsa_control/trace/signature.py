@@ -29,6 +29,32 @@ speed, and of the LVDT rate against the lead-scaled motor speed.  From the
 records alone, the drive's breakaway current at starts and reversals of one
 class at different nut positions (a worn spot: :func:`breakaway_position_test`).
 
+Overdispersion: three tests combine estimates whose errors come from the sample noise (IACT-corrected) and may
+scatter beyond them; each takes its own rule, because the scale of that scatter is estimated from different data:
+
+* :func:`breakaway_position_test` (places' mean breakaway within a class): the scale comes from *replicate* events
+  at one place, independent of the places' contrast that is tested.  Then ``(q / df) / birge^2`` is exactly
+  ``F(df, rep_df)`` under the null whatever the base's scatter, so the Birge ratio is used unclipped and always (a
+  clip at 1 was conservative without scatter and liberal with a small one: 2.0 % at 0.05 and 3.2 % at 0.01 on
+  synthetic events); without replicates the noise alone, chi-square, at the sample-based level.
+* :func:`current_drift_test` (one rate shared by pass levels): the only scale is the levels' own scatter about the
+  fitted law, 3-5 dof, judged at the sample-based 1e-6.  Always scaling (Student t on 4 dof) leaves no power there
+  (measured: nothing named at 1e-6, 12 % at 1e-4), so the scatter is pre-tested: beyond its 5 % chi-square quantile
+  the error is scaled by ``sqrt(chi2 / dof)`` and judged on Student's t (Hartung-Knapp), below it the sample errors
+  and the normal.  Limit: a scatter the pre-test misses makes it liberal (0.2-0.9 % named at 1-4 x the noise).
+* :func:`travel_gain_test` (a sensor's gain against a tolerance band): the per-pass gains' Birge ratio, over
+  ``m - 1`` dof, clipped at 1, inflates the pooled estimate's sample-based error, and the normal judges it.  The
+  scatter it guards against is structure within passes (a direction-dependent deflection, a lag at a speed change)
+  that is not the gain; the per-pass gains spread by 1e-6..1.2e-4 on the committed runs, against a tolerance of
+  5e-3.  Clipped so that a scatter below the noise never shrinks an error measured on thousands of samples.  It is
+  the least exact of the three: with few passes the estimated ratio's own uncertainty is ignored (Student's t on
+  ``m - 1`` dof would be exact under a Gaussian scatter).  Measured on the runs it flags: rig_sensor_gain's
+  motor-vs-screw pair (two passes, Birge 6.5, gain 0.9804, 258 scaled errors beyond the tolerance) has p below
+  1e-300 on the normal against 1.2e-3 on t(1), so the drift test's rule would not flag the planted screw gain (with
+  one dof any scale is possible); its LVDT pairs and rig_sensor_gain_lvdt's (2-3 passes, Birge 0.13-0.53: not
+  scaled) are unchanged by either rule.  Kept, with that limit: a sensor gain is one factor of every pass by
+  construction, and two passes that agree to 4e-5 on a gain 2 % off are not a scale-free sample.
+
 Numerics only (numpy, scipy); no matplotlib.
 """
 
@@ -210,9 +236,34 @@ def _effective_n(e: np.ndarray) -> float:
     return e.size * (1 - rho) / (1 + rho)
 
 
+def _geyer_autocorrelation(x: np.ndarray, max_lag: int,
+                           m: int | None = None) -> tuple[np.ndarray, float, int] | None:
+    """The autocorrelation ``rho`` of a series ``x`` about zero (the caller removes a mean where it has one; by FFT,
+    zero-padded to ``m`` >= 2 n points) over lags ``0 .. min(max_lag, n - 1)``, its integrated autocorrelation time
+    ``tau`` and the last lag ``K`` that time sums, by Geyer's (1992) initial positive sequence: ``Gamma_k = rho_2k +
+    rho_2k+1`` from ``k = 0`` (``rho_0 = 1``), summed while positive, ``tau = -1 + 2 sum Gamma_k`` (``= 1 + 2
+    sum_(1..K) rho``), ``K = 2k + 1`` of the last positive pair.  None when ``x`` has no variance.  The one copy of the
+    rule: :func:`_effective_n_iact` and the lag test's :func:`_weighted_sum_variance`."""
+    n = x.size
+    if m is None:
+        m = 1 << int(math.ceil(math.log2(2 * n)))
+    f = np.fft.rfft(x, m)
+    ac = np.fft.irfft(f * np.conj(f), m)[:min(max_lag, n - 1) + 1]
+    if ac[0] <= 0:
+        return None
+    rho = ac / ac[0]
+    tau, k_max = -1.0, 0
+    for j in range(0, rho.size - 1, 2):
+        g = rho[j] + rho[j + 1]
+        if g <= 0:
+            break
+        tau, k_max = tau + 2.0 * g, j + 1
+    return rho, tau, k_max
+
+
 def _effective_n_iact(r: np.ndarray, max_lag: int = 500) -> float:
     """Effective sample count ``n / tau`` of a stationary series, ``tau`` its integrated autocorrelation
-    time by Geyer's initial positive sequence (pairs of autocorrelations summed while positive).
+    time by Geyer's initial positive sequence (:func:`_geyer_autocorrelation`).
 
     The lag-1 rule ``n (1 - rho) / (1 + rho)`` assumes an AR(1) series; the missing torque is a smoothed
     derivative, whose lag-1 correlation is near 1 but whose correlation dies within the filter window
@@ -222,20 +273,10 @@ def _effective_n_iact(r: np.ndarray, max_lag: int = 500) -> float:
     n = r.size
     if n < 8:
         return float(n)
-    x = r - r.mean()
-    m = 1 << int(math.ceil(math.log2(2 * n)))
-    f = np.fft.rfft(x, m)
-    ac = np.fft.irfft(f * np.conj(f), m)[:min(max_lag, n - 1) + 1]
-    if ac[0] <= 0:
+    g = _geyer_autocorrelation(r - r.mean(), max_lag)
+    if g is None:
         return float(n)
-    rho = ac / ac[0]
-    tau = -1.0
-    for j in range(0, rho.size - 1, 2):
-        g = rho[j] + rho[j + 1]
-        if g <= 0:
-            break
-        tau += 2.0 * g
-    return float(n / max(tau, 1.0))
+    return float(n / max(g[1], 1.0))
 
 
 def _iact(r: np.ndarray) -> float:
@@ -467,8 +508,8 @@ def _weighted_sum_variance(e: np.ndarray, c: np.ndarray, *, local: int = 125,
     moving window of ``local`` samples: four supports of the 31-sample filter the rates pass through) and ``u`` a
     stationary unit series, so ``var = sum_|k|<=K [rho_u(k) R_sc(k) + R_ec(k) R_ec(-k) / n]`` with ``R_sc(k) =
     sum_t s_t c_t s_(t+k) c_(t+k)``, ``rho_u`` the autocorrelation of ``u`` over the whole record and ``K`` where it
-    ends by Geyer's initial positive sequence (:func:`_effective_n_iact`).  The noise's correlation comes from every
-    sample, not only from those that carry the weights (a record whose motion changes at two short starts carries
+    ends by Geyer's initial positive sequence (:func:`_geyer_autocorrelation`, pairs from lag 0).  The noise's
+    correlation comes from every sample, not only from those that carry the weights (a record whose motion changes at two short starts carries
     the sum in a few dozen samples, whose own products would estimate the variance with a few degrees of freedom),
     and its level from the samples near each weight (a load applied at the start deflects the load path: the LVDT
     rate moves while the motor is still, a remainder that is no noise of the samples in motion).  Returns the
@@ -481,18 +522,11 @@ def _weighted_sum_variance(e: np.ndarray, c: np.ndarray, *, local: int = 125,
     u = e / s
     sc = s * c
     m = 1 << math.ceil(math.log2(2 * n))
-    fu, fsc, fe, fc = (np.fft.rfft(v, m) for v in (u, sc, e, c))
-    K = min(max_lag, n - 2)
-    acov = np.fft.irfft(fu * np.conj(fu), m)[:K + 2] / n
-    if acov[0] <= 0:
+    g = _geyer_autocorrelation(u, min(max_lag, n - 2), m)
+    if g is None:
         return 0.0, float(n), 0
-    rho = acov / acov[0]
-    k_max, tau = 0, 1.0
-    for j in range(1, K, 2):
-        pair = rho[j] + rho[j + 1]
-        if pair <= 0:
-            break
-        k_max, tau = j + 1, tau + 2.0 * pair
+    rho, tau, k_max = g
+    fsc, fe, fc = (np.fft.rfft(v, m) for v in (sc, e, c))
     r_sc = np.fft.irfft(fsc * np.conj(fsc), m)[:k_max + 1]
     cr = np.fft.irfft(np.conj(fe) * fc, m)  # R_ec(k) = sum_t e_t c_{t+k}, negative k wrapped to the end
     r_pos, r_neg = cr[:k_max + 1], np.r_[cr[0], cr[::-1][:k_max]]
@@ -583,7 +617,7 @@ LOAD_KNOT_GAP = 1000.0
 
 def travel_gain_test(time, position, speed, load, *, ratio: float, transient_time: float = 0.3,
                      alpha: float = 1e-6, tolerance: float = GAIN_TOLERANCE, steady_speed=None,
-                     passes: list[np.ndarray] | None = None) -> dict | None:
+                     passes: list[np.ndarray] | None = None, angle=None) -> dict | None:
     """Gain of a position sensor against the travel a redundant speed sensor integrates (the LVDT against the
     motor angle times ``ratio = lead / (2 pi N)``), over the steady passes of a record.
 
@@ -609,7 +643,8 @@ def travel_gain_test(time, position, speed, load, *, ratio: float, transient_tim
     intercepts above :data:`~thsa_control.trace.separability.VIF_LIMIT`: an elastic load, whose force follows
     the position, makes a load path's compliance a gain).  The test: ``H0: |g - 1| <= tolerance`` (one-sided
     against the nearer bound), significant at ``alpha``.  None when no pass qualifies.  ``passes``: the record's
-    :func:`travel_passes` where the caller has them (they depend on the steady speed, not on the sensor pair).
+    :func:`travel_passes` where the caller has them (they depend on the steady speed, not on the sensor pair);
+    ``angle``: the speed's integral (:func:`~thsa_control.data.rigformat.speed_integral`) where the caller has it.
     """
     from scipy.stats import norm
 
@@ -623,7 +658,7 @@ def travel_gain_test(time, position, speed, load, *, ratio: float, transient_tim
         return None
     from ..data.rigformat import speed_integral
 
-    travel = ratio * speed_integral(t, w)
+    travel = ratio * (speed_integral(t, w) if angle is None else np.asarray(angle, float))
     if passes is None:
         passes = travel_passes(t, x, f, w if steady_speed is None else steady_speed, transient_time)
     if not passes:
@@ -724,8 +759,8 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
     angle differenced over one sample, carries 13 rpm of noise at the motor against 49 rpm of motion).  Every
     pair's lag is :func:`lag_test` on the two rates filtered alike (the speeds by a 31-sample quadratic
     Savitzky-Golay smoother, the LVDT and the integrated speed by the same filter's differentiator), its known
-    part ``delays`` (signal -> the delay its chain declares [s], a difference quotient over ``T`` lags by ``T / 2``)
-    compensated, at ``lag_alpha``; the cross-correlation peak of the rates (the former lag, noise on a slow record)
+    part ``delays`` (speed signal -> the delay its chain declares [s], a difference quotient over ``T`` lags by
+    ``T / 2``: :func:`~thsa_control.data.rigformat.speed_sensor_delays`; the LVDT reads its sample, none) compensated, at ``lag_alpha``; the cross-correlation peak of the rates (the former lag, noise on a slow record)
     is kept as ``xcorr_peak_s``.
     """
     from scipy.signal import savgol_filter
@@ -741,7 +776,25 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
     load = signals.get("load_force")
     load = np.zeros(t.size) if load is None else np.asarray(load, float)
     delays = dict(delays or {})
-    smooth = (lambda v: savgol_filter(np.nan_to_num(np.asarray(v, float)), 31, 2, delta=dt)) if t.size >= 31 else None
+    if set(delays) - {"motor_speed", "screw_speed"}:
+        raise ValueError(f"sensor_consistency: delays are the speed sensors' (motor_speed, screw_speed), got "
+                         f"{sorted(set(delays) - {'motor_speed', 'screw_speed'})}")
+    # each speed integrated once (its angle: the travel tests' and the LVDT lag's), smoothed once (the motor speed:
+    # the speeds' lag and the LVDT pair's cross-correlation) and its angle differentiated once (the LVDT lag)
+    speeds = {k: np.nan_to_num(np.asarray(v, float)) for k, v in (("motor_speed", w), ("screw_speed", ws))
+              if v is not None}
+    angle = {k: speed_integral(t, v) for k, v in speeds.items()} if t.size > 1 else {}
+    smoothed: dict[str, np.ndarray] = {}
+
+    def smooth(k):
+        if k not in smoothed:
+            smoothed[k] = savgol_filter(speeds[k], 31, 2, delta=dt)
+        return smoothed[k]
+
+    # the steady passes, judged on the motor speed where measured: the same for every pair (built once; the motor
+    # angle and a measured LVDT are finite wherever they are judged, so the position leaves none out)
+    passes = travel_passes(t, angle["motor_speed"], load, speeds["motor_speed"], transient_time) \
+        if w is not None and t.size > 1 else None
 
     def lag_fields(lt, d):
         if lt is None:
@@ -752,9 +805,10 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
         d = _gain_lag(np.asarray(w, float), gear_ratio * np.asarray(ws, float), dt)
         if d:
             # the gain from the angles (integrated speeds) over the steady passes; the rates' regression as a fallback
-            wa = np.nan_to_num(np.asarray(w, float))
-            tg = travel_gain_test(t, speed_integral(t, wa), np.asarray(ws, float), load, ratio=gear_ratio,
-                                  transient_time=transient_time, alpha=alpha, steady_speed=wa) if t.size > 1 else None
+            wa = speeds["motor_speed"]
+            tg = travel_gain_test(t, angle["motor_speed"], np.asarray(ws, float), load, ratio=gear_ratio,
+                                  transient_time=transient_time, alpha=alpha, steady_speed=wa, passes=passes,
+                                  angle=angle["screw_speed"]) if t.size > 1 else None
             still = None
             if tg is not None:
                 gain, se, p, sig_gain = tg["gain"], tg["gain_stderr"], tg["p_value"], tg["significant"]
@@ -765,9 +819,9 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
                 p = float(2 * norm.sf(abs(d["z"]))) if math.isfinite(d["z"]) else 0.0
                 # a gain within the tolerance is a calibration detail, not a structure
                 sig_gain = bool(p < alpha and abs(gain - 1) > GAIN_TOLERANCE)
-            lt = None if smooth is None else lag_test(
-                smooth(w), smooth(gear_ratio * np.asarray(ws, float)), dt, alpha=lag_alpha,
-                known=delays.get("motor_speed", 0.0) - delays.get("screw_speed", 0.0))
+            lt = None if t.size < 31 else lag_test(
+                smooth("motor_speed"), savgol_filter(gear_ratio * speeds["screw_speed"], 31, 2, delta=dt), dt,
+                alpha=lag_alpha, known=delays.get("motor_speed", 0.0) - delays.get("screw_speed", 0.0))
             lf = lag_fields(lt, d)
             out.append({"variable": "motor_speed vs gear_ratio x screw_speed", "kind": "redundant_sensors",
                         "sensors": ["motor_speed", "screw_speed"], "gain": gain, "gain_stderr": se,
@@ -784,19 +838,18 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
     if rate is not None:
         pairs = []
         if w is not None:
-            pairs.append(("lvdt rate vs lead/(2 pi N) x motor_speed", "motor_speed", np.nan_to_num(np.asarray(w, float)),
+            pairs.append(("lvdt rate vs lead/(2 pi N) x motor_speed", "motor_speed",
                           kinematic_ratio({"screw.lead": lead, "gear.ratio": gear_ratio})))
         if ws is not None:
-            pairs.append(("lvdt rate vs lead/(2 pi) x screw_speed", "screw_speed", np.nan_to_num(np.asarray(ws, float)),
-                          lead / (2 * math.pi)))
-        # judged on the motor speed where measured: the same passes for every pair (built once)
-        passes = travel_passes(t, x, load, np.asarray(w, float), transient_time) if w is not None else None
-        for name, other, v, r in pairs:
-            d = _gain_lag(rate, r * savgol_filter(v, 31, 2, delta=dt), dt)  # the lag (and the rate's gain, a fallback)
+            pairs.append(("lvdt rate vs lead/(2 pi) x screw_speed", "screw_speed", lead / (2 * math.pi)))
+        for name, other, r in pairs:
+            v = speeds[other]
+            d = _gain_lag(rate, r * smooth(other), dt)  # the lag (and the rate's gain, a fallback)
             if not d:
                 continue
             tg = travel_gain_test(t, x, v, load, ratio=r, transient_time=transient_time, alpha=alpha,
-                                  steady_speed=None if w is None else np.asarray(w, float), passes=passes)
+                                  steady_speed=None if w is None else np.asarray(w, float), passes=passes,
+                                  angle=angle[other])
             still = None
             if tg is not None:
                 gain, se, p, sig_gain = tg["gain"], tg["gain_stderr"], tg["p_value"], tg["significant"]
@@ -808,9 +861,11 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
                 sig_gain = bool(p < alpha and abs(gain - 1) > GAIN_TOLERANCE)
             # the lag on rates filtered alike: the speed's integral through the LVDT's own differentiator (the SG
             # smoother's response differs from the differentiator's: their difference at every transient would be
-            # counted as noise)
-            lt = lag_test(rate, r * savgol_filter(speed_integral(t, v), 31, 2, deriv=1, delta=dt), dt,
-                          known=delays.get("nut_position", 0.0) - delays.get(other, 0.0), alpha=lag_alpha)
+            # counted as noise).  The known part is the speed chain's alone: the LVDT reads the position at its
+            # sample, no difference quotient (``delays`` holds the speed sensors', rigformat.SPEED_SENSOR_COLUMNS),
+            # so a speed read ``T / 2`` late makes the LVDT lead by that
+            lt = lag_test(rate, r * savgol_filter(angle[other], 31, 2, deriv=1, delta=dt), dt,
+                          known=0.0 - delays.get(other, 0.0), alpha=lag_alpha)
             lf = lag_fields(lt, d)
             out.append({"variable": name, "kind": "redundant_sensors", "sensors": ["nut_position", other],
                         "gain": gain, "gain_stderr": se, "p_value": p,
@@ -1598,17 +1653,19 @@ def current_noise(time, speed, load, current, *, transient_time: float = 0.3, mi
     return float(math.sqrt(float(r @ r) / max(r.size - 2 * len(parts), 1))), float(_pooled_iact(res))
 
 
-def _steady_passes(t, w, f, cmd, on, ok, transient_time: float, min_pass: float, min_samples: int, group):
-    """Stretches of steady motion at one constant, non-zero speed command: moving (outside the stop band of
-    :func:`base_transients`), outside the base's transients (``sustained``: a ripple is no transient), the drive on,
-    the command unchanged from the previous sample; cut at a gap, a change of direction, command or ``group``."""
+def _steady_passes(t, w, f, cmd, on, ok, transient_time: float, min_pass: float, min_samples: int):
+    """Stretches of steady motion at one constant, non-zero speed command in one record: moving (outside the stop
+    band of :func:`base_transients`), outside the base's transients (``sustained``: a ripple is no transient; a load
+    change is one), the drive on, the command unchanged from the previous sample; cut at a gap, a change of direction
+    or command.  The runs of a set are separated by the caller, which calls this per run (the stop band and the
+    transients are a record's own); a run label here would be constant."""
     steady = ~base_transients(t, w, f, transient_time, sustained=True)
     sgn = motion_sign(w).astype(float)
     same_cmd = np.r_[False, cmd[1:] == cmd[:-1]]
     keep = steady & (sgn != 0) & same_cmd & (cmd != 0) & on & ok
     if np.count_nonzero(keep) < min_samples:
         return [], sgn
-    parts = stretches(keep, (sgn, cmd, group))
+    parts = stretches(keep, (sgn, cmd))
     return [q for q in parts if q.size >= min_samples and t[q[-1]] - t[q[0]] >= min_pass], sgn
 
 
@@ -1692,7 +1749,7 @@ def current_drift_test(time, current, speed, load, speed_cmd, position, temperat
     for gv in np.unique(g):
         gi = np.flatnonzero(g == gv)
         ps, sg = _steady_passes(t[gi], w[gi], np.nan_to_num(f[gi]), cmd[gi], on[gi], ok[gi], transient_time, min_pass,
-                                min_samples, g[gi])
+                                min_samples)
         passes += [gi[q] for q in ps]
         sgn[gi] = sg
     passes.sort(key=lambda q: t[q[0]])
