@@ -273,7 +273,9 @@ def test_cogging_on_a_position_loop_record_is_found_first(traced):
     library test is not asked here: measured 44 % of the window's RMS since its scoring mask leaves out the creep's
     stops (28 % before), where the same seed without the cogging leaves 45 %: the record's ceiling, the resolver's
     noise and what the rig base leaves at creep; docs/trace_notes.md "Cogging on records with little low-speed
-    motion" and "What limits the window drop".)"""
+    motion" and "What limits the window drop"; two more seeds of the scenario: ceiling 44 / 42 %, "Scenarios that excite
+    the effect".  The record that shows the cogging beyond the bar is the slow check, rig_cogging, in the library
+    test.)"""
     doc = traced("rig_cogging_steps")
     assert _truth_effects("rig_cogging_steps") == ["cogging"]
     phys = [e["name"] for e in _physical(doc)]
