@@ -429,14 +429,19 @@ def signature_tests(residual, variables: dict, *, unit: str = "N m",
     return out
 
 
+#: A speed beyond this many noise standard deviations, on two successive samples of one sign, is motion (the
+#: clearance window of :mod:`~thsa_control.trace.candidates`, :func:`moves_beyond_noise`): a lone sample beyond 4 sigma
+#: has a probability of 6e-5 under white Gaussian noise, two in a row of one sign about 1e-9 per sample.
+MOTION_SIGMA = 4.0
+
+
 def moves_beyond_noise(speed) -> bool:
     """Whether a measured speed shows any motion: two successive samples of one sign beyond ``MOTION_SIGMA`` of its
-    own noise standard deviations (:data:`~thsa_control.trace.candidates.MOTION_SIGMA`, the clearance window's motion
-    test: about 1e-9 per sample under white Gaussian noise).  A regression on a speed that does not move is a
+    own noise standard deviations (:data:`MOTION_SIGMA`, the clearance window's motion test: about 1e-9 per sample
+    under white Gaussian noise).  A regression on a speed that does not move is a
     regression on its noise: the errors-in-variables attenuation takes the gain to 0 with a small standard error
     (rig-sim's ``check_hold``, drive off: motor vs screw speed gain -0.006 +- 0.004, 'significant')."""
     from ..fit.identify import estimate_noise
-    from .candidates import MOTION_SIGMA
 
     v = np.nan_to_num(np.asarray(speed, float))
     if v.size < 3:
