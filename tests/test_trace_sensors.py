@@ -462,7 +462,7 @@ def test_the_lag_noise_cuts_its_autocorrelation_where_geyer_does(kind):
             x = z[1:] + 0.8 * z[:-1]
         e = np.sign(x - np.median(x))
         e = np.r_[e[: n // 2], -e[: n // 2]]  # zero mean exactly, so the unit series is e itself
-    var, dof, k_max = _weighted_sum_variance(e, np.ones(n), local=1, max_lag=60)
+    _var, dof, k_max = _weighted_sum_variance(e, np.ones(n), local=1, max_lag=60)
     tau, last = _geyer_reference(e, 60)
     assert k_max == last and k_max % 2 == 1
     assert dof == pytest.approx(n / max(tau, 1.0), rel=1e-9)
