@@ -167,9 +167,9 @@ KNOWN_FAILING = {
                                  "against the model before it at 4 steps), 0.22 not identified; over all held-out "
                                  "samples (the window 'all' is scored outside the base's transients, 204 of 901) the "
                                  "true values give 48 % / 49 %" +
-                                 ".  trace-ceiling: a second seed of the scenario (rig, 601 / 602) gives 34 / 25 % "
+                                 ".  trace-ceiling: two further seeds of the scenario (rig, 601 / 602) give 34 / 25 % "
                                  "(motor speed) and 43 / 41 % (screw speed) at rig-sim's values, the fits the same: "
-                                 "the chirp's record cannot show 50 %.  On the position loop's 15 mm/s travel "
+                                 "the chirp's record cannot show 50 %.  On the position loop's drive-off holds "
                                  "(rig_drivetrain_compliance_steps, seed 601; 602 not committed) the same compliance is "
                                  "found first with its window drop 69 % (65 %), rig-sim's values 69 % (65 %): passes",
     # the out-of-library effects (docs/trace_notes.md, "Out-of-library effects: what the remainder shows")
@@ -234,7 +234,8 @@ LIB_RUNS = [(f"rig_{k}", v) for k, v in LIBRARY.items()]
 #: library effects on the scenario that excites them, beside the catalogue's record of the same effect whose noise sets
 #: a window ceiling below the 50 % bar (docs/trace_notes.md "Scenarios that excite the effect": bench/window_ceiling.py
 #: at rig-sim's own values, two seeds): the preload on a static load reversal with the drive off (check_hold), the
-#: drive-train compliance on the position loop's travel (position_steps)
+#: drive-train compliance on the position loop, whose drive-off holds under load let the rotors ring on it
+#: (position_steps)
 LIB_RUNS_EXCITED = [("rig_loadpath_preload_hold", LIBRARY["loadpath_preload"]),
                     ("rig_drivetrain_compliance_steps", LIBRARY["drivetrain_compliance"])]
 

@@ -105,8 +105,9 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     # kN tensile): the LVDT reads the load path's deflection across the preload zone and both contacts, nothing else
     # moves; the sweep above changes the load within a replay segment by a few kN only (window ceiling 44 %)
     "rig_loadpath_preload_hold": ("check_hold", "rig", "loadpath_preload", 601, None, "library"),
-    # the drive-train compliance on the position loop's 15 mm/s travel, where the lightly damped motor-side mode
-    # rings in steady motion (the committed speed excitation's window ceiling is 46 % / 41 %)
+    # the drive-train compliance on the position loop, which stops the drive three times under 10 kN: the no-back
+    # holds the screw and the released rotors ring on the compliance at the motor-side mode (10 Hz) through each hold
+    # (the committed speed excitation never stops the drive: window ceiling 46 % / 41 %)
     "rig_drivetrain_compliance_steps": ("position_steps", "rig", "drivetrain_compliance", 601, None, "library"),
 }
 
