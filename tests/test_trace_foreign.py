@@ -166,7 +166,12 @@ KNOWN_FAILING = {
                                  "integrates, about 0.21 the one plant step per sample (1.26 at 4 steps, still 45 % "
                                  "against the model before it at 4 steps), 0.22 not identified; over all held-out "
                                  "samples (the window 'all' is scored outside the base's transients, 204 of 901) the "
-                                 "true values give 48 % / 49 %",
+                                 "true values give 48 % / 49 %" +
+                                 ".  trace-ceiling: two further seeds of the scenario (rig, 601 / 602) give 34 / 25 % "
+                                 "(motor speed) and 43 / 41 % (screw speed) at rig-sim's values, the fits the same: "
+                                 "the chirp's record cannot show 50 %.  On the position loop's drive-off holds "
+                                 "(rig_drivetrain_compliance_steps, seed 601; 602 not committed) the same compliance is "
+                                 "found first with its window drop 69 % (65 %), rig-sim's values 69 % (65 %): passes",
     # the out-of-library effects (docs/trace_notes.md, "Out-of-library effects: what the remainder shows")
     "rig_kt_temperature": "not flagged, the run cannot tell it: housing temperature spans 0.7 K, the rotor's is not "
                           "measured, the voltage is not recorded; its 13 K cooling raises Kt 1.6 % in 10 s: per-pass drift "
@@ -205,7 +210,12 @@ KNOWN_FAILING = {
                             "(10 load bins within +-0.05 um, ANOVA p 1) and is 1.035 x rig-sim's noise on the held-"
                             "out samples: 0.5 um RMS at 20-100 Hz beyond it, the size of the load cell's 25 N noise "
                             "through the contact stiffness (measured on this run and a fresh seed, "
-                            "docs/trace_notes.md)",
+                            "docs/trace_notes.md)" +
+                            ".  trace-ceiling: the sweep changes the load within one replay segment by a few kN "
+                            "only; on a static load reversal with the drive off (check_hold, "
+                            "rig_loadpath_preload_hold, seed 601; 602 not committed) the same candidate is found "
+                            "first with its window drop 87 % (88 %), the preload -0.032 mm (rig-sim -0.03), rig-sim's "
+                            "values 87 % (88 %): passes",
 }
 
 
@@ -221,11 +231,18 @@ def _cases(pairs, passes=frozenset()):
 
 
 LIB_RUNS = [(f"rig_{k}", v) for k, v in LIBRARY.items()]
+#: library effects on the scenario that excites them, beside the catalogue's record of the same effect whose noise sets
+#: a window ceiling below the 50 % bar (docs/trace_notes.md "Scenarios that excite the effect": bench/window_ceiling.py
+#: at rig-sim's own values, two seeds): the preload on a static load reversal with the drive off (check_hold), the
+#: drive-train compliance on the position loop, whose drive-off holds under load let the rotors ring on it
+#: (position_steps)
+LIB_RUNS_EXCITED = [("rig_loadpath_preload_hold", LIBRARY["loadpath_preload"]),
+                    ("rig_drivetrain_compliance_steps", LIBRARY["drivetrain_compliance"])]
 
 
 @pytest.mark.campaign
 @pytest.mark.slow
-@pytest.mark.parametrize("name, expected", _cases(LIB_RUNS))
+@pytest.mark.parametrize("name, expected", _cases(LIB_RUNS + LIB_RUNS_EXCITED))
 def test_library_effect_on_the_rig_base_is_found_first(traced, name, expected):
     """rig base + one library effect: the effect is added, first among the physical effects (a constant-torque
     one first among the found effects), and the error inside its window drops by half."""
@@ -257,7 +274,9 @@ def test_cogging_on_a_position_loop_record_is_found_first(traced):
     library test is not asked here: measured 44 % of the window's RMS since its scoring mask leaves out the creep's
     stops (28 % before), where the same seed without the cogging leaves 45 %: the record's ceiling, the resolver's
     noise and what the rig base leaves at creep; docs/trace_notes.md "Cogging on records with little low-speed
-    motion" and "What limits the window drop".)"""
+    motion" and "What limits the window drop"; two more seeds of the scenario: ceiling 44 / 42 %, "Scenarios that excite
+    the effect".  The record that shows the cogging beyond the bar is the slow check, rig_cogging, in the library
+    test.)"""
     doc = traced("rig_cogging_steps")
     assert _truth_effects("rig_cogging_steps") == ["cogging"]
     phys = [e["name"] for e in _physical(doc)]
@@ -267,6 +286,31 @@ def test_cogging_on_a_position_loop_record_is_found_first(traced):
     p = step["parameters"]
     amp = math.hypot(p["drive.cogging_torque_cos"]["value"], p["drive.cogging_torque_sin"]["value"])
     assert amp == pytest.approx(_truth("rig_cogging_steps")["effects"]["cogging"]["params"]["A_Nm"]["si"], rel=0.2), p
+
+
+@pytest.mark.campaign
+@pytest.mark.slow
+def test_a_preloaded_load_path_is_read_as_a_preload(traced):
+    """rig base + loadpath_preload on a static load reversal with the drive off (check_hold: 40 kN compressive, then
+    40 kN tensile): the load path is named with a preload (a negative soft zone, its 95 % interval below zero: a
+    clearance would be positive) and its contact stiffnesses as the LVDT sees them, rig-sim's contacts in series with
+    its ball-nut contact, within 20 % (the cogging test's bar on an amplitude).  On the same scenario's null
+    (null_rig_hold_s603) the base's linear load path is no preload: nothing is named there."""
+    name = "rig_loadpath_preload_hold"
+    assert _truth_effects(name) == ["loadpath_preload"]
+    doc = traced(name)
+    step = next((e for e in doc["effects_added"] if e["name"] == "loadpath_compliance"), None)
+    assert step is not None, doc["rounds"]
+    p = step["parameters"]
+    x0 = p["loadpath.backlash"]
+    assert x0["value"] < 0 and x0["ci95"][1] < 0, x0
+    truth = _truth(name)
+    law = truth["effects"]["loadpath_preload"]["params"]
+    k_nut = truth["parameters"]["k_ballscrew_N_m"]["value"]
+    for ours, theirs in (("loadpath.contact_stiffness_upper", "k_upper_N_m"),
+                         ("loadpath.contact_stiffness_lower", "k_lower_N_m")):
+        series = 1.0 / (1.0 / law[theirs]["si"] + 1.0 / k_nut)
+        assert p[ours]["value"] == pytest.approx(series, rel=0.2), (ours, p[ours], series)
 
 
 @pytest.mark.campaign
@@ -400,7 +444,7 @@ def test_out_of_library_effect_is_unexplained_with_its_signature(traced, name):
 
 #: library runs whose sensors are right: no redundant pair may disagree on them (the effects act on the physics, not
 #: on a sensor)
-SENSOR_CLEAN = sorted([n for n, _ in LIB_RUNS] + ["rig_cogging_steps", "rig_loadpath_backlash_spring",
+SENSOR_CLEAN = sorted([n for n, _ in LIB_RUNS + LIB_RUNS_EXCITED] + ["rig_cogging_steps", "rig_loadpath_backlash_spring",
                                                    "rig_pair_coulomb_ripple"])
 
 

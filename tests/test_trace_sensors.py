@@ -137,6 +137,28 @@ def test_a_lagging_lvdt_is_still_named_and_its_gain_is_right():
     assert not out["motor_speed vs gear_ratio x screw_speed"]["significant"]
 
 
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_still_record_does_not_test_the_speeds_gain(seed):
+    """The drive off and the screw held (a static load test): both speeds are their sensors' noise.  Regressing one on
+    the other attenuates the gain to 0 with a small standard error (rig-sim's check_hold: -0.006 +- 0.004, once
+    'significant'); the pair is not tested and says why.  With a motion of the same record's length the pair is
+    tested as before, and a 2 % gain on the screw speed is still named."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 3.0, 2e-3)
+    still = {"motor_speed": 0.216 * rng.standard_normal(t.size), "screw_speed": 0.0212 * rng.standard_normal(t.size),
+             "load_force": np.zeros(t.size)}
+    d = {x["variable"]: x for x in sensor_consistency(t, still, gear_ratio=RATIO, lead=LEAD)}
+    pair = d["motor_speed vs gear_ratio x screw_speed"]
+    assert not pair["significant"] and pair["p_value"] == 1.0 and "does not move" in pair["gain_not_determined"], pair
+    ramp = 40.0 * np.sin(2 * math.pi * t / 3.0) ** 2 * np.sign(np.sin(2 * math.pi * t / 1.5))  # reversals, no pass
+    moving = {"motor_speed": ramp + still["motor_speed"],
+              "screw_speed": 1.02 * ramp / RATIO + still["screw_speed"], "load_force": np.zeros(t.size)}
+    d = {x["variable"]: x for x in sensor_consistency(t, moving, gear_ratio=RATIO, lead=LEAD)}
+    pair = d["motor_speed vs gear_ratio x screw_speed"]
+    assert "gain_not_determined" not in pair and pair["gain_significant"], pair
+    assert pair["gain"] == pytest.approx(1 / 1.02, abs=0.01), pair
+
+
 def _sensors(name):
     """The sensors' verdicts as the tracer forms them (the chains' declared difference quotients, the lag's level)."""
     run = read_run(DATA / f"{name}.csv")

@@ -18,6 +18,7 @@ from ..data.rigdata import RigRun, measured_motor_speed, motion_sign, speed_inte
 from ..fit.residuals import reversal_proximity
 from ..model import EFFECTS, CandidateSpec
 from ..model.params import ParameterSet
+from .signature import MOTION_SIGMA
 
 #: The documented default uncertain parameters of each level (fitted before any candidate).
 #: The efficiencies are held at the parameter file's values by default: with a
@@ -412,10 +413,9 @@ def _window_text(kind: str, params: ParameterSet | None) -> str:
 #: The windows a candidate may act in (:attr:`CandidateSpec.window`, :func:`_window`).
 WINDOWS = ("moving", "all", "loaded", "reversal", "clearance", "cold", "resolved_cogging", "load_change")
 
-#: A screw speed beyond this many noise standard deviations, on two successive samples of one sign, is motion (the
-#: clearance window): a lone sample beyond 4 sigma has a probability of 6e-5 under white Gaussian noise, two in a
-#: row of one sign about 1e-9 per sample.
-MOTION_SIGMA = 4.0
+#: (``MOTION_SIGMA``: a speed beyond this many noise standard deviations, on two successive samples of one sign, is
+#: motion, the clearance window's test; defined in :mod:`~thsa_control.trace.signature`, whose redundant-sensor test
+#: uses it too)
 
 
 def _largest_clearance() -> float:

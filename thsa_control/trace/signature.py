@@ -429,6 +429,32 @@ def signature_tests(residual, variables: dict, *, unit: str = "N m",
     return out
 
 
+#: A speed beyond this many noise standard deviations, on two successive samples of one sign, is motion (the
+#: clearance window of :mod:`~thsa_control.trace.candidates`, :func:`moves_beyond_noise`): a lone sample beyond 4 sigma
+#: has a probability of 6e-5 under white Gaussian noise, two in a row of one sign about 1e-9 per sample.
+MOTION_SIGMA = 4.0
+
+
+def moves_beyond_noise(speed) -> bool:
+    """Whether a measured speed shows any motion: two successive samples of one sign beyond ``MOTION_SIGMA`` of its
+    own noise standard deviations (:data:`MOTION_SIGMA`, the clearance window's motion test: about 1e-9 per sample
+    under white Gaussian noise).  A regression on a speed that does not move is a
+    regression on its noise: the errors-in-variables attenuation takes the gain to 0 with a small standard error
+    (rig-sim's ``check_hold``, drive off: motor vs screw speed gain -0.006 +- 0.004, 'significant')."""
+    from ..fit.identify import estimate_noise
+
+    v = np.nan_to_num(np.asarray(speed, float))
+    if v.size < 3:
+        return False
+    sgn = motion_sign(v, MOTION_SIGMA * estimate_noise(v))
+    return bool(np.any((sgn[1:] != 0) & (sgn[1:] == sgn[:-1])))
+
+
+#: why a redundant pair's gain is not tested on a record where the speeds do not move (:func:`moves_beyond_noise`)
+STILL_PAIR = ("not determined: the regressor speed does not move beyond its noise on this record (a regression of "
+              "noise on noise attenuates the gain to 0)")
+
+
 def _gain_lag(a: np.ndarray, b: np.ndarray, dt: float, max_lag: int = 20) -> dict:
     """Fit ``a ~ g b(t - lag)``: gain, its standard error, lag [s] (cross-correlation peak)."""
     ok = np.isfinite(a) & np.isfinite(b)
@@ -849,8 +875,11 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
             tg = travel_gain_test(t, angle["motor_speed"], np.asarray(ws, float), load, ratio=gear_ratio,
                                   transient_time=transient_time, alpha=alpha, steady_speed=wa, passes=passes,
                                   angle=angle["screw_speed"]) if t.size > 1 else None
+            still = None
             if tg is not None:
                 gain, se, p, sig_gain = tg["gain"], tg["gain_stderr"], tg["p_value"], tg["significant"]
+            elif not moves_beyond_noise(ws):  # no pass and no motion: nothing to regress on
+                gain, se, p, sig_gain, still = d["gain"], d["gain_stderr"], 1.0, False, STILL_PAIR
             else:
                 gain, se = d["gain"], d["gain_stderr"]
                 p = float(2 * norm.sf(abs(d["z"]))) if math.isfinite(d["z"]) else 0.0
@@ -864,7 +893,8 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
                         "sensors": ["motor_speed", "screw_speed"], "gain": gain, "gain_stderr": se,
                         "p_value": p, "significant": bool(sig_gain or lf["lag_significant"]),
                         "gain_significant": sig_gain, **lf,
-                        "size": abs(gain - 1.0), "unit": "-", **({"travel_test": tg} if tg is not None else {})})
+                        "size": abs(gain - 1.0), "unit": "-", **({"travel_test": tg} if tg is not None else {}),
+                        **({"gain_not_determined": still} if still else {})})
     x = signals.get("nut_position")
     if x is not None:
         x = np.asarray(x, float)
@@ -900,8 +930,11 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
             tg = travel_gain_test(t, x, v, load, ratio=r, transient_time=transient_time, alpha=alpha,
                                   steady_speed=None if w is None else np.asarray(w, float), passes=passes,
                                   angle=angle[other])
+            still = None
             if tg is not None:
                 gain, se, p, sig_gain = tg["gain"], tg["gain_stderr"], tg["p_value"], tg["significant"]
+            elif not moves_beyond_noise(v):  # no pass and no motion: nothing to regress on
+                gain, se, p, sig_gain, still = d["gain"], d["gain_stderr"], 1.0, False, STILL_PAIR
             else:  # no steady pass: the rates' regression
                 gain, se = d["gain"], d["gain_stderr"]
                 p = float(2 * norm.sf(abs(d["z"]))) if math.isfinite(d["z"]) else 0.0
@@ -917,7 +950,8 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
             out.append({"variable": name, "kind": "redundant_sensors", "sensors": ["nut_position", other],
                         "gain": gain, "gain_stderr": se, "p_value": p,
                         "significant": bool(sig_gain or lf["lag_significant"]), "gain_significant": sig_gain, **lf,
-                        "size": abs(gain - 1.0), "unit": "-", **({"travel_test": tg} if tg is not None else {})})
+                        "size": abs(gain - 1.0), "unit": "-", **({"travel_test": tg} if tg is not None else {}),
+                        **({"gain_not_determined": still} if still else {})})
     # the odd sensor out: in every pair that disagrees (gain or lag), absent from the pair that agrees
     if len(out) == 3:
         bad = [d for d in out if d["significant"]]

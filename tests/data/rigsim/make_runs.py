@@ -65,6 +65,9 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     "null_rig_reversals_s303": ("reversals_under_load", "rig", "", 303, None, "null"),
     # the position loop's null: its creep resolves cogging counts up to about 60 per revolution (the cogging is scored)
     "null_rig_steps_s252": ("position_steps", "rig", "", 252, None, "null"),
+    # the static load reversal with the drive off: the null of rig_loadpath_preload_hold (the rig base's own linear
+    # load path, 1.2e8 N/m, is what it may name)
+    "null_rig_hold_s603": ("check_hold", "rig", "", 603, None, "null"),
     "null_papers_trim_s1": ("trim_ramp_compressive", "papers", "", 1, None, "null"),
     "null_papers_reversals_s2": ("reversals_under_load", "papers", "", 2, 5.0, "null"),
     "null_papers_bipolar_s3": ("bipolar_ramp_tensile", "papers", "", 3, 9.0, "null"),
@@ -96,6 +99,16 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     # a second load-path backlash record (an elastic surface): a ratchet backlash whose pitch was screened on the
     # held-out segments was added beside it with its training error higher than without it (AIC drop -187)
     "rig_loadpath_backlash_spring": ("spring_load_ramp", "rig", "loadpath_backlash", 205, None, "library"),
+    # --- library effects on the scenario that excites them, where the committed record above cannot show a 50 % window
+    # drop (its noise sets the ceiling: bench/window_ceiling.py, docs/trace_notes.md "Scenarios that excite the effect")
+    # the preloaded load path under a static load reversal with the drive off (check_hold: 40 kN compressive, then 40
+    # kN tensile): the LVDT reads the load path's deflection across the preload zone and both contacts, nothing else
+    # moves; the sweep above changes the load within a replay segment by a few kN only (window ceiling 44 %)
+    "rig_loadpath_preload_hold": ("check_hold", "rig", "loadpath_preload", 601, None, "library"),
+    # the drive-train compliance on the position loop, which stops the drive three times under 10 kN: the no-back
+    # holds the screw and the released rotors ring on the compliance at the motor-side mode (10 Hz) through each hold
+    # (the committed speed excitation never stops the drive: window ceiling 46 % / 41 %)
+    "rig_drivetrain_compliance_steps": ("position_steps", "rig", "drivetrain_compliance", 601, None, "library"),
 }
 
 #: run sets traced together (``thsa trace A.csv B.csv``; tests/test_trace_sets.py), written to ``sets/``: the rig base
