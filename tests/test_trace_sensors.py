@@ -155,8 +155,31 @@ def test_a_still_record_does_not_test_the_speeds_gain(seed):
               "screw_speed": 1.02 * ramp / RATIO + still["screw_speed"], "load_force": np.zeros(t.size)}
     d = {x["variable"]: x for x in sensor_consistency(t, moving, gear_ratio=RATIO, lead=LEAD)}
     pair = d["motor_speed vs gear_ratio x screw_speed"]
+    assert "travel_test" not in pair, pair  # no steady pass: the rates' regression, the branch the still test guards
     assert "gain_not_determined" not in pair and pair["gain_significant"], pair
     assert pair["gain"] == pytest.approx(1 / 1.02, abs=0.01), pair
+
+
+def test_a_still_regressor_says_which_sensor_is_still_and_not_that_both_are():
+    """The reason a pair is not tested names its still regressor and does not claim both sensors read noise: on
+    rig-sim's drive-off load reversal (rig_loadpath_preload_hold) the speeds are still while the LVDT reads the load
+    path's deflection (its rates' regression on a speed gives -2.3 +- 2.7e4, not an attenuated 0), and a motor that
+    turns while the screw speed reads noise alone (a sensor that does not read the motion) is not a regression of
+    noise on noise either.  Both cases say the other sensor may move and that the record does not tell why."""
+    d = _sensors("rig_loadpath_preload_hold")
+    for name, speed in (("lvdt rate vs lead/(2 pi N) x motor_speed", "motor_speed"),
+                        ("lvdt rate vs lead/(2 pi) x screw_speed", "screw_speed")):
+        why = d[name]["gain_not_determined"]
+        assert speed in why and "noise on noise" not in why and "other sensor may move" in why, (name, why)
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 3.0, 2e-3)
+    ramp = 40.0 * np.sin(2 * math.pi * t / 3.0) ** 2 * np.sign(np.sin(2 * math.pi * t / 1.5))
+    dead = {"motor_speed": ramp + 0.216 * rng.standard_normal(t.size),
+            "screw_speed": 0.0212 * rng.standard_normal(t.size), "load_force": np.zeros(t.size)}
+    pair = {x["variable"]: x for x in sensor_consistency(t, dead, gear_ratio=RATIO, lead=LEAD)}[
+        "motor_speed vs gear_ratio x screw_speed"]
+    why = pair["gain_not_determined"]
+    assert "screw_speed does not move" in why and "does not read the motion" in why, why
 
 
 def _sensors(name):

@@ -450,9 +450,15 @@ def moves_beyond_noise(speed) -> bool:
     return bool(np.any((sgn[1:] != 0) & (sgn[1:] == sgn[:-1])))
 
 
-#: why a redundant pair's gain is not tested on a record where the speeds do not move (:func:`moves_beyond_noise`)
-STILL_PAIR = ("not determined: the regressor speed does not move beyond its noise on this record (a regression of "
-              "noise on noise attenuates the gain to 0)")
+def still_pair(regressor: str) -> str:
+    """Why a redundant pair's gain is not tested on a record where its regressor speed does not move
+    (:func:`moves_beyond_noise`) and no steady pass qualifies.  Only the regressor is judged: the other sensor may
+    move (the LVDT reads the load path's deflection under a drive-off load reversal, rig-sim's ``check_hold``; a
+    motor turning while the screw speed reads noise), so the text does not say both read noise."""
+    return (f"not determined: {regressor} does not move beyond its noise on this record, so the rates' regression "
+            "on it is no gain of the pair (on noise alone it attenuates toward 0); the other sensor may move: a "
+            "deflection between the two (the load path's under a load change) and a sensor that does not read the "
+            "motion are not told apart here")
 
 
 def _gain_lag(a: np.ndarray, b: np.ndarray, dt: float, max_lag: int = 20) -> dict:
@@ -879,7 +885,7 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
             if tg is not None:
                 gain, se, p, sig_gain = tg["gain"], tg["gain_stderr"], tg["p_value"], tg["significant"]
             elif not moves_beyond_noise(ws):  # no pass and no motion: nothing to regress on
-                gain, se, p, sig_gain, still = d["gain"], d["gain_stderr"], 1.0, False, STILL_PAIR
+                gain, se, p, sig_gain, still = d["gain"], d["gain_stderr"], 1.0, False, still_pair("screw_speed")
             else:
                 gain, se = d["gain"], d["gain_stderr"]
                 p = float(2 * norm.sf(abs(d["z"]))) if math.isfinite(d["z"]) else 0.0
@@ -934,7 +940,7 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
             if tg is not None:
                 gain, se, p, sig_gain = tg["gain"], tg["gain_stderr"], tg["p_value"], tg["significant"]
             elif not moves_beyond_noise(v):  # no pass and no motion: nothing to regress on
-                gain, se, p, sig_gain, still = d["gain"], d["gain_stderr"], 1.0, False, STILL_PAIR
+                gain, se, p, sig_gain, still = d["gain"], d["gain_stderr"], 1.0, False, still_pair(other)
             else:  # no steady pass: the rates' regression
                 gain, se = d["gain"], d["gain_stderr"]
                 p = float(2 * norm.sf(abs(d["z"]))) if math.isfinite(d["z"]) else 0.0
