@@ -567,3 +567,25 @@ def test_the_lvdt_lag_noise_ends_before_any_cap(name):
         lv = out["lvdt rate vs lead/(2 pi N) x motor_speed"]
         assert lv["lag_significant"] and lv["lag_s"] == pytest.approx(-0.02, abs=0.003)
         assert lv["odd_sensor"] == "motor_speed"
+
+
+def test_one_motion_rule_for_the_still_pair_and_the_clearance_window():
+    """Motion is two successive samples of one sign beyond MOTION_SIGMA noise standard deviations, one copy of the rule
+    (signature.motion_band / sustained_motion) for the still pair's test and the candidates' clearance window and
+    turning band: a lone spike or two samples of opposite signs beyond the band are no motion, two of one sign are."""
+    from thsa_control.data.rigformat import motion_sign
+    from thsa_control.fit.identify import estimate_noise
+    from thsa_control.trace.signature import MOTION_SIGMA, motion_band, moves_beyond_noise, sustained_motion
+
+    rng = np.random.default_rng(7)
+    v = 0.1 * rng.standard_normal(4000)
+    band = motion_band(v)
+    assert band == pytest.approx(MOTION_SIGMA * estimate_noise(v)) and 0.3 < band < 0.5  # 4 x the 0.1 noise
+    v = np.clip(v, -0.9 * band, 0.9 * band)
+    assert not moves_beyond_noise(v)
+    for pattern, moving in (([2.0], False), ([2.0, -2.0], False), ([2.0, 2.0], True), ([-2.0, -2.0], True)):
+        w = v.copy()
+        w[1000:1000 + len(pattern)] = np.asarray(pattern) * band
+        got = sustained_motion(motion_sign(w, motion_band(w)))
+        assert moves_beyond_noise(w) == moving and bool(got.any()) == moving, pattern
+        assert not moving or np.flatnonzero(got).tolist() == [1001], pattern  # the second of the two samples

@@ -18,7 +18,7 @@ from ..data.rigdata import RigRun, measured_motor_speed, motion_sign, speed_inte
 from ..fit.residuals import reversal_proximity
 from ..model import EFFECTS, CandidateSpec
 from ..model.params import ParameterSet
-from .signature import MOTION_SIGMA
+from .signature import motion_band, sustained_motion
 
 #: The documented default uncertain parameters of each level (fitted before any candidate).
 #: The efficiencies are held at the parameter file's values by default: with a
@@ -165,10 +165,8 @@ COGGING_SAMPLES_PER_PERIOD = 4.0
 
 def turning_band(run: RigRun) -> float:
     """The motor speed [rad/s] beyond which the motor turns: ``MOTION_SIGMA`` noise standard deviations of the
-    measured motor speed (:func:`motor_turning`)."""
-    from ..fit.identify import estimate_noise
-
-    return MOTION_SIGMA * estimate_noise(np.nan_to_num(np.asarray(measured_motor_speed(run), float)))
+    measured motor speed (:func:`motor_turning`, :func:`~thsa_control.trace.signature.motion_band`)."""
+    return motion_band(measured_motor_speed(run))
 
 
 def motor_turning(run: RigRun) -> np.ndarray:
@@ -447,15 +445,13 @@ def clearance_window(run: RigRun, travel: float) -> np.ndarray:
     if ws is None or not np.isfinite(ws).any():
         ws = np.asarray(measured_motor_speed(run), float) / run.gear_ratio
     ws = np.nan_to_num(ws)
-    from ..fit.identify import estimate_noise
-
-    band = MOTION_SIGMA * estimate_noise(ws)
-    sign = motion_sign(ws, band)
+    sign = motion_sign(ws, motion_band(ws))
+    moving = sustained_motion(sign)
     dt = np.diff(t, prepend=t[0] - (t[1] - t[0]))
     out = np.zeros(t.size, bool)
     last, turned = 0, 0.0
     for k in range(1, t.size):
-        if sign[k] == 0 or sign[k - 1] != sign[k]:
+        if not moving[k]:
             continue
         if sign[k] != last:
             last, turned = int(sign[k]), 0.0

@@ -435,19 +435,35 @@ def signature_tests(residual, variables: dict, *, unit: str = "N m",
 MOTION_SIGMA = 4.0
 
 
-def moves_beyond_noise(speed) -> bool:
-    """Whether a measured speed shows any motion: two successive samples of one sign beyond ``MOTION_SIGMA`` of its
-    own noise standard deviations (:data:`MOTION_SIGMA`, the clearance window's motion test: about 1e-9 per sample
-    under white Gaussian noise).  A regression on a speed that does not move is a
-    regression on its noise: the errors-in-variables attenuation takes the gain to 0 with a small standard error
-    (rig-sim's ``check_hold``, drive off: motor vs screw speed gain -0.006 +- 0.004, 'significant')."""
+def motion_band(speed) -> float:
+    """The speed beyond which a measured speed is motion: :data:`MOTION_SIGMA` of its own noise standard deviations
+    (:func:`~thsa_control.fit.identify.estimate_noise`, a missing sample read as 0).  The one copy of the rule, for
+    :func:`moves_beyond_noise`, the clearance window and the turning motor (:mod:`~thsa_control.trace.candidates`)."""
     from ..fit.identify import estimate_noise
 
+    return MOTION_SIGMA * estimate_noise(np.nan_to_num(np.asarray(speed, float)))
+
+
+def sustained_motion(sign) -> np.ndarray:
+    """Per sample of a direction ``sign`` (:func:`~thsa_control.data.rigformat.motion_sign` beyond
+    :func:`motion_band`), whether it is motion of the previous sample's sign: two successive samples of one sign
+    (about 1e-9 per sample under white Gaussian noise); the first sample has no predecessor and is not."""
+    s = np.asarray(sign)
+    out = np.zeros(s.shape, bool)
+    out[1:] = (s[1:] != 0) & (s[1:] == s[:-1])
+    return out
+
+
+def moves_beyond_noise(speed) -> bool:
+    """Whether a measured speed shows any motion: two successive samples of one sign beyond ``MOTION_SIGMA`` of its
+    own noise standard deviations (:func:`motion_band`, :func:`sustained_motion`: the clearance window's motion test,
+    about 1e-9 per sample under white Gaussian noise).  A regression on a speed that does not move is a
+    regression on its noise: the errors-in-variables attenuation takes the gain to 0 with a small standard error
+    (rig-sim's ``check_hold``, drive off: motor vs screw speed gain -0.006 +- 0.004, 'significant')."""
     v = np.nan_to_num(np.asarray(speed, float))
     if v.size < 3:
         return False
-    sgn = motion_sign(v, MOTION_SIGMA * estimate_noise(v))
-    return bool(np.any((sgn[1:] != 0) & (sgn[1:] == sgn[:-1])))
+    return bool(sustained_motion(motion_sign(v, motion_band(v))).any())
 
 
 def still_pair(regressor: str) -> str:
