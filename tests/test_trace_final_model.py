@@ -73,3 +73,16 @@ def test_the_final_parameters_rebuild_the_traced_model(traced, params):
     # the report's conclusion table shows the final value, and the pre-base-step one as such
     html = conclusion_table_html(doc)
     assert "declared model (final values)" in html and "before the base step" in html
+
+
+def test_the_conclusion_table_escapes_the_base_model_once():
+    """The conclusion table's first two cells are escaped where the rows are drawn; the held and final-value rows of
+    the declared model pass the base model's name as text (it was escaped twice in the held row: '&amp;lt;')."""
+    doc = {"base_model": "rig <A&B>", "uncertain_parameters": ["gear.viscous_friction"],
+           "declared_not_determined": [{"parameter": "gear.viscous_friction", "held_at": 8e-5, "unit": "N m s/rad",
+                                        "reason": "not reached"}],
+           "final_parameters": {"gear.viscous_friction": {"value": 8e-5, "unit": "N m s/rad", "stderr": None,
+                                                          "source": "held"}},
+           "effects_added": [], "effects_removed": [], "unexplained": False, "residual_signature": {}}
+    html = conclusion_table_html(doc)
+    assert html.count("<td>rig &lt;A&amp;B&gt;</td>") == 2 and "&amp;lt;" not in html, html

@@ -50,7 +50,7 @@ def conclusion_table_html(doc: dict) -> str:
     rows = []
     esc = html.escape
     for h in doc.get("declared_not_determined") or []:  # the declared model's own parameters the runs do not fix
-        rows.append(("declared model", esc(doc.get("base_model") or "functional"),
+        rows.append(("declared model", doc.get("base_model") or "functional",  # the first two cells escaped below
                      f"{esc(h['parameter'])} = {_num(h['held_at'])} {esc(h['unit'])} (held)", "-", "-",
                      f"{esc(h['parameter'])} held at {_num(h['held_at'])} {esc(h['unit'])}: {esc(h['reason'])}"))
     final = doc.get("final_parameters") or {}
