@@ -86,3 +86,13 @@ def test_the_conclusion_table_escapes_the_base_model_once():
            "effects_added": [], "effects_removed": [], "unexplained": False, "residual_signature": {}}
     html = conclusion_table_html(doc)
     assert html.count("<td>rig &lt;A&amp;B&gt;</td>") == 2 and "&amp;lt;" not in html, html
+
+
+def test_an_old_trace_without_final_parameters_is_refused_by_name():
+    """A trace.json written before ``final_parameters`` (its ``base_parameters`` were the fit before the base step):
+    rebuilding the final model from it names the missing field instead of a bare KeyError."""
+    from thsa_control.errors import ThsaError
+
+    old = {"final_effects": ["noback_ideal"], "base_parameters": {"gear.viscous_friction": {"value": 3.6e-4}}}
+    with pytest.raises(ThsaError, match="final_parameters"):
+        final_model(old)

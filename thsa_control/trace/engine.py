@@ -1038,7 +1038,13 @@ def _final_parameters(fit: dict, params: ParameterSet) -> dict:
 
 def final_model(doc: Mapping, params: ParameterSet | None = None) -> tuple[tuple[str, ...], ParameterSet]:
     """The final model of a trace (``trace.json``'s ``final_effects`` and ``final_parameters``) over the parameter
-    file the trace read (default: the embedded actuator): the effects and the parameter set to build its plant."""
+    file the trace read (default: the embedded actuator): the effects and the parameter set to build its plant.  A
+    trace.json without them (written before ``final_parameters`` existed: its ``base_parameters`` were the declared
+    set's fit before the base step, not the final model) is refused by name."""
+    missing = [k for k in ("final_effects", "final_parameters") if k not in doc]
+    if missing:
+        raise ThsaError(f"trace.json: no {' and no '.join(missing)}: the final model cannot be rebuilt from this trace "
+                        "(a trace written before final_parameters; its base_parameters are not the final model's)")
     p = params or default_parameters()
     return tuple(doc["final_effects"]), p.replace({n: e["value"] for n, e in doc["final_parameters"].items()})
 
