@@ -9,5 +9,5 @@ here=$(cd "$(dirname "$0")" && pwd)
 mkdir -p "$out"
 for s in $(ls "$here"/sets/*_1.csv | sed 's/_1\.csv$//'); do
     n=$(basename "$s")
-    thsa trace "$s"_*.csv --model A --out "$out/$n" --force --quiet > "$out/$n.log" 2>&1 || echo "$n: exit $?" >&2
+    thsa trace "$s"_[0-9].csv --model A --out "$out/$n" --force --quiet > "$out/$n.log" 2>&1 || echo "$n: exit $?" >&2
 done
