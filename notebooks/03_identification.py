@@ -72,10 +72,10 @@ for c, f in before.fits.items():
 # %% [markdown]
 # ## 3. Identify
 #
-# Three parameters of level B.  Which ones the run can tell is physics: the 12 kN load exceeds the
-# 3 kN no-back preload, so the light (tensile-side) disk carries max(preload - |F|, 0) = 0 and the (+)
+# Three parameters of level B.  Which ones the run can tell is physics: the 12 kN load exceeds twice the
+# 3 kN no-back preload, so the light (tensile-side) disk set is unloaded and the (+)
 # disk coefficient acts nowhere in this run; under a constant load the aided current is
-# mu (preload + |F|) / N - |F| r eta_i, so the (-) disk coefficient and the inverse efficiency are
+# mu |F| / N - |F| r eta_i, so the (-) disk coefficient and the inverse efficiency are
 # collinear.  The result reports each value with its standard error, flags pairs correlated above 0.95,
 # and saves as a parameter TOML the models load.
 

@@ -189,15 +189,15 @@ def test_grid_worst_points_validity_and_saturation(grid_analysis):
     a = grid_analysis
     assert len(a) == 36 and a.grid is not None
     speeds = np.array([c.nut_speed for c in a.conditions])
-    # zero speed: 9 points; against the no-back under 55 kN aiding the steady motion needs > 15 A at 1 mm/s
-    # (15.7 A at 25 degC, the gearbox efficiency acting on the disk torque too) and at 2 mm/s when cold
-    # (15.2 A at -55 degC, the preload dilated): 4 points
+    # zero speed: 9 points; against the no-back under 55 kN aiding (the loaded disk set carries the 55 kN alone,
+    # beyond twice the preload) the steady motion needs about 14.7 A at 1 mm/s and 25 degC (tests/handcalc.py,
+    # without the standby rotor's and the cold drags), under the 15 A limit, and > 15 A at 1 mm/s when cold
+    # (15.6 A at -55 degC, the cold drag's low-speed rise): 1 point
     assert np.all(~a.valid[speeds == 0.0])
     sat = [c.label() for c in np.array(a.conditions)[a.saturated]]
-    assert sat == ["1 mm/s, -55 kN (aiding), -55 degC", "2 mm/s, -55 kN (aiding), -55 degC",
-                   "1 mm/s, -55 kN (aiding), 25 degC", "1 mm/s, -55 kN (aiding), 70 degC"]
+    assert sat == ["1 mm/s, -55 kN (aiding), -55 degC"]
     assert all("current limit 15 A" in r[0] for c, r in a.invalid_points() if c.nut_speed != 0)
-    assert a.valid.sum() == 36 - 9 - 4
+    assert a.valid.sum() == 36 - 9 - 1
     # every metric has a named worst point, and it is a valid one
     worst = {(w.loop, w.metric): w for w in a.worst_points()}
     # 9 metrics per loop, the upper gain margin of each, the lower one only where a loop is conditionally
@@ -207,7 +207,8 @@ def test_grid_worst_points_validity_and_saturation(grid_analysis):
         not in worst and ("position_loop", "gain_margin_lower_db") not in worst
     assert all(a.valid[w.index] for w in worst.values())
     pm = worst[("velocity_loop", "phase_margin_deg")]
-    assert pm.condition.label() == "2 mm/s, -55 kN (aiding), 70 degC"  # the loaded disk's Stribeck drop
+    # the loaded disk's Stribeck drop, with the cold drag's low-speed rise on top (valid: 15 A not reached)
+    assert pm.condition.label() == "2 mm/s, -55 kN (aiding), -55 degC"
     assert 60 < pm.value < 75
     gm = worst[("velocity_loop", "gain_margin_db")]
     assert gm.value < 0 and gm.condition == pm.condition  # conditionally stable: a lower gain margin
@@ -223,7 +224,7 @@ def test_grid_worst_points_validity_and_saturation(grid_analysis):
 def test_nominal_design_meets_its_requirements(grid_analysis):
     check = check_requirements(grid_analysis)
     assert check.passed, check.summary()
-    assert check.checked_points == 23 and check.skipped_points == 13
+    assert check.checked_points == 26 and check.skipped_points == 10
     assert {r.loop for r in check.rows} == set(LOOPS)
 
 

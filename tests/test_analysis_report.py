@@ -92,10 +92,10 @@ def test_analysis_json_validates_and_holds_every_loop_and_point(nominal_report, 
             assert all(key in r for r in rows)
         assert all(set(r["step"]) >= {"rise_time_s", "settling_time_s", "overshoot_percent"} for r in rows)
     invalid = [p for p in doc["points"] if not p["valid"]]
-    assert len(invalid) == 13 and all(p["invalid_reasons"] for p in invalid)  # 9 at zero speed, 4 saturated
+    assert len(invalid) == 10 and all(p["invalid_reasons"] for p in invalid)  # 9 at zero speed, 1 saturated
     worst = doc["loops"]["velocity_loop"]["worst"]["phase_margin_deg"]
     assert worst["condition"]["label"] == nominal_result.loops.worst("velocity_loop", "phase_margin_deg").condition.label()
-    assert worst["condition"]["label"] == "2 mm/s, -55 kN (aiding), 70 degC"
+    assert worst["condition"]["label"] == "2 mm/s, -55 kN (aiding), -55 degC"
     assert doc["passed"] is True and doc["requirement_check"]["violations"] == []
     assert {c["delay_s"] for c in doc["switching"]["cases"]} == {0.005, 0.015, 0.05}
     assert len(doc["configurations"]) > 0 and len(doc["limit_cycles"]) > 0
@@ -251,7 +251,8 @@ def test_report_grid_from_the_command_line_and_the_design_file(tmp_path, capsys,
     out = tmp_path / "r"
     assert main(["report", "--design", str(path), "--temperature", "70", "--no-switching", "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "velocity_loop gain_margin_db: conditionally stable (lower gain margin -13.5 dB, upper +" in text
+    # the loaded no-back disk's Stribeck drop (55 kN on it) makes the loop conditionally stable at 2 mm/s aided
+    assert "velocity_loop gain_margin_db: conditionally stable (lower gain margin -14.0 dB, upper +" in text
     assert not re.search(r"gain_margin_db = -", text)  # never a bare negative margin next to PASS
     grid = json.loads((out / "analysis.json").read_text())["grid"]
     assert grid["nut_speeds_mm_s"] == [2.0, 10.0] and grid["load_forces_N"] == [-55e3, 20e3]

@@ -45,15 +45,24 @@ def test_steady_current_equals_torque_balance(run, params, level, speed_mm_s, lo
 
 def test_light_disk_normal_force_shrinks_with_load(params):
     # paper 001: the light disk's force "is limited within the spring preload and grows smaller
-    # with the increase in compressive load"; the loaded one sees preload + |F|
+    # with the increase in compressive load"; the flange between the two disk sets balances the load,
+    # N_comp - N_tens = F, the sets sharing it (preload +- F/2) until the light one unloads at 2 preload
     plant = build_plant("B")
     p = plant.p_vector(params)
     pre = params.value("noback.preload")
-    for F in (0.0, 1e3, 2.9e3, 5e3, 29e3, -1e3, -29e3):
+    for F in (0.0, 1e3, 2.9e3, 5e3, 5.999e3, 6.001e3, 29e3, -1e3, -5e3, -29e3):
         y = np.asarray(plant.f(plant.initial_state(params), plant_inputs(plant, load_force=F, temperature=25), p)[1]).ravel()
         comp, tens = y[plant.index("output", "noback_normal_force_comp")], y[plant.index("output", "noback_normal_force_tens")]
-        assert comp == pytest.approx(max(pre + F, 0.0)) and tens == pytest.approx(max(pre - F, 0.0))
-        assert max(comp, tens) == pytest.approx(pre + abs(F))
+        assert comp - tens == pytest.approx(F, abs=1e-9)  # the flange's force balance
+        assert min(comp, tens) >= 0.0 and min(comp, tens) <= pre
+        if abs(F) < 2 * pre:  # both sets carry: the load change shared
+            assert comp == pytest.approx(pre + F / 2) and tens == pytest.approx(pre - F / 2)
+        else:  # the light set unloaded: the loaded one carries the load alone
+            assert max(comp, tens) == pytest.approx(abs(F)) and min(comp, tens) == 0.0
+    # the light set's force falls as the load grows, and is gone beyond twice the preload
+    light = [np.asarray(plant.f(plant.initial_state(params), plant_inputs(plant, load_force=F, temperature=25),
+                                p)[1]).ravel()[plant.index("output", "noback_normal_force_tens")] for F in (0, 2e3, 4e3, 8e3)]
+    assert light[0] > light[1] > light[2] > light[3] == 0.0
 
 
 def test_levels_are_nested_and_effects_known():

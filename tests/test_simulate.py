@@ -3,9 +3,10 @@
 Papers' figures quoted in issue #2: about 3x more current when the load aids,
 about 40 % back-drive at the first trim stop at level C, about 30 % surface
 speed overshoot at level D while the load crosses the load-path backlash.
-With Table 2 and the normal forces of paper 001 (loaded disk preload + |F|,
-light disk max(preload - |F|, 0)) the model gives an aiding/opposing current
-ratio of 1.7 at 29 kN with the (+) coefficients and 1.6 with the (-) ones
+With Table 2 and the disk normal forces of the flange balance (preload +- |F|/2
+until the light disk set unloads at twice the preload, paper 001's light disk
+"limited within the spring preload") the model gives an aiding/opposing current
+ratio of 1.5 at 29 kN with the (+) coefficients and 1.25 with the (-) ones
 (hand-derived in handcalc.py), not 3: at 29 kN the light disk is unloaded,
 so the opposing current is the screw and gear losses alone, and the aided
 current is the loaded disk's torque less what the load gives back through the

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import casadi as ca
 
 __all__ = ["Law", "LAWS", "values_of", "kinematic_ratio", "torque_constant", "back_emf_constant", "motor_lag",
-           "stribeck", "temperature_drag_terms", "loadpath_force_law", "loadpath_static_deflection",
+           "stribeck", "noback_disk_normal_forces", "temperature_drag_terms", "loadpath_force_law", "loadpath_static_deflection",
            "drivetrain_stiffness", "limiter_slip_torques", "drive_coulomb_terms", "screw_angle", "motor_angle"]
 
 
@@ -99,6 +99,25 @@ def motor_lag(p, current, voltage, enable, speed):
 def stribeck(mu_s, mu_c, speed, w_st):
     """Stribeck coefficient ``mu_c + (mu_s - mu_c) exp(-(speed/w_st)^2)`` of the disk law."""
     return mu_c + (mu_s - mu_c) * ca.exp(-((speed / w_st) ** 2))
+
+
+def noback_disk_normal_forces(preload, force):
+    """Normal forces ``(N_comp, N_tens)`` [N] of the no-back's two friction-disk sets under the axial force ``force``.
+
+    The screw flange sits between the two disk sets, clamped by the disk-spring ``preload``; ``force`` (compressive
+    positive) pushes it onto the compressive-side set.  The flange's force balance holds at every load,
+    ``N_comp - N_tens = force``; the two sets, equally stiff (assumed: the papers give one preload and one disk
+    design for both sides), share the load change, ``preload +- force / 2``, until the light set unloads at
+    ``|force| = 2 preload``; beyond it the loaded set carries ``|force|`` alone and the light one nothing.  So the
+    light set's force "is limited within the spring preload and grows smaller with the increase in compressive load"
+    (paper 001), and each set carries its share of the load plus what is left of the preload::
+
+        m = max(preload - |force| / 2, 0),   N_comp = max(force, 0) + m,   N_tens = max(-force, 0) + m
+
+    Smooth through zero load (both slopes 1/2 there); kinks at ``|force| = 2 preload``.
+    """
+    rest = ca.fmax(preload - 0.5 * ca.fabs(force), 0.0)
+    return ca.fmax(force, 0.0) + rest, ca.fmax(-force, 0.0) + rest
 
 
 def temperature_drag_terms(p, speed, temperature):

@@ -32,12 +32,14 @@ Effects (the papers' incremental modelling):
     Two friction-disk sets, each between the screw flange and a ratchet wheel.
     The compressive-side wheel is locked by its pawl against retraction, the
     tensile-side wheel against extension; the other direction is free, so the
-    wheel turns with the screw and its disks do not slip.  Normal forces:
-    the loaded disk ``preload + |F|``, the light one ``max(preload - |F|, 0)``,
-    i.e. ``N_comp = max(preload + F, 0)``, ``N_tens = max(preload - F, 0)``
+    wheel turns with the screw and its disks do not slip.  Normal forces
+    (``laws.noback_disk_normal_forces``): the flange between the two sets
+    balances ``N_comp - N_tens = F`` at every load, the equally stiff sets
+    sharing it as ``preload +- F/2`` until the light one unloads at
+    ``|F| = 2 preload``, beyond which the loaded one carries ``|F|`` alone
     (``F`` the force through the no-back: the load-path force at level D).  So when
     the load aids the motion the loaded disk slips (large friction) and when it
-    opposes, the preload-only disk slips (small friction); with the motors off
+    opposes, the light disk slips (small friction, none above twice the preload); with the motors off
     the loaded disk holds the load by stiction.  Disk law per rotation
     direction: ``T = (mu_c + (mu_s - mu_c) exp(-(ws/ws_t)^2)) N sgn(ws) + fs ws``.
 ``noback_ideal``
@@ -75,8 +77,8 @@ import casadi as ca
 
 from ..effect import CandidateSpec, Effect, Guard, LinearHints, NoNeutral, NotCandidate, Output, Phase, register
 from ..laws import (
-    drivetrain_stiffness, kinematic_ratio, loadpath_force_law, loadpath_static_deflection, motor_lag, stribeck,
-    temperature_drag_terms, torque_constant,
+    drivetrain_stiffness, kinematic_ratio, loadpath_force_law, loadpath_static_deflection, motor_lag,
+    noback_disk_normal_forces, stribeck, temperature_drag_terms, torque_constant,
 )
 from ..structure import Assembly, FrictionChannel, StateInfo
 
@@ -150,12 +152,8 @@ def _noback_quadrant_friction(a: Assembly) -> None:
     N = p["gear.ratio"]
     ws = w / N
     F = a.axial_force
-    pre = noback_preload(a)
-    # the loaded disk sees preload + |F|; the light one what the load leaves of
-    # the preload, max(preload - |F|, 0) (paper 001: "limited within the spring
-    # preload and grows smaller with the increase in compressive load")
-    n_comp = ca.fmax(pre + F, 0.0)
-    n_tens = ca.fmax(pre - F, 0.0)
+    # the flange between the two disk sets: preload +- F/2 until the light set unloads at |F| = 2 preload
+    n_comp, n_tens = noback_disk_normal_forces(noback_preload(a), F)
     g_comp = a.pawl_engaged.get("comp", 1.0)
     g_tens = a.pawl_engaged.get("tens", 1.0)
     a.inertia.append(2.0 * p["noback.ratchet_inertia"] / N**2)
@@ -381,8 +379,8 @@ register(Effect(
     candidate=CandidateSpec("noback_quadrant_friction", ("noback.mu_coulomb_pos", "noback.mu_coulomb_neg",
                                                          "noback.mu_static_pos", "noback.mu_static_neg"), {},
                             "loaded"),
-    linear=LinearHints(kinks={"noback_normal_force": "load reversal in the load path (zero load-path force: the "
-                                                     "no-back's loaded side switches)"}),
+    linear=LinearHints(kinks={"noback_normal_force": "the no-back's light disk set unloading (load-path force at "
+                                                     "twice the preload)"}),
 ))
 register(Effect(
     "noback_ideal", "ideal irreversible no-back (level A): Coulomb torque F r against load-aided motion",
