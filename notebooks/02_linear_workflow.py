@@ -102,8 +102,9 @@ fig
 
 # %% [markdown]
 # Points without a small-signal loop are listed with their reason: zero speed,
-# and the slow motions against 55 kN of aiding load, whose steady state needs
-# more than the 15 A current limit (the no-back's loaded disk brakes them).
+# and the slowest motions against 55 kN of aiding load when cold, whose steady
+# state needs more than the 15 A current limit (the no-back's loaded disk brakes
+# them, and the cold drag rises at low speed).
 
 # %%
 for cond, reasons in analysis.invalid_points():
