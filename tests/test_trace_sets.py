@@ -86,7 +86,9 @@ KNOWN_FAILING = {
                    "efficiencies lifted beyond their catalogue spread explain as much (drop 171.5, carry gap 28): at "
                    "25 kN and 20 kN a constant drag and a load-proportional loss are one torque, so it is refused as "
                    "'a lossier base explains as much' (the fresh set 981/475 the same: 254.4 against the efficiencies' "
-                   "248.3, gap 26.3; named there before with a window drop of 7-8 %, no longer)",
+                   "248.3, gap 26.3; named there before with a window drop of 7-8 %, no longer)" +
+                   ".  Traced with its own two runs (trace_sets.sh took set_coulomb_loads' three too before 1f7eb00), "
+                   "before and after the flange-balanced no-back: nothing named beyond the base corrections",
     "set_axial_offset": "the bases' load-path compliance first, then force_offset and direction_friction ambiguous "
                         "(held-out drops 20557 / 20555, indistinct below 18): on two load magnitudes of opposite sign, "
                         "both directions, the per-(load sign, direction) constants are spanned by the Coulomb drag, "
@@ -102,29 +104,20 @@ KNOWN_FAILING = {
                         "pinned at their bounds" +
                         ".  trace-lift: force_offset and direction_friction both miss the sign test now (drops 16546 / "
                         "16541, not robust) and the joint lift of the base corrections says it (drop 16546, carried by "
-                        "each of force_offset and direction_friction: the record does not tell them apart)",
-    "set_coulomb_loads": "nothing named beyond the base corrections (trace-sets2, bc29d83): the Coulomb correction at its "
-                         "bound (0.056 N m) with both efficiencies at theirs; coulomb_friction beyond its bound stays at "
-                         "0.0565 N m (held-out drop -73); the joint lift (17243) is carried by the efficiencies lifted "
-                         "alone, which run the inverse efficiency to 2e-4 along the no-back disks' null direction.  Per "
-                         "(direction, load) cell the base fit lacks -0.13..-0.15 N m of retraction drag at 10-15 kN "
-                         "against -0.06 at 30 kN: the detailed no-back's loaded disk carries preload + |F| (a constant "
-                         "mu Fp / N = 0.2 N m at the motor in the aiding quadrant), rig-sim's |F| beyond 2 Fp; one load "
-                         "magnitude per cell hides it in the disk coefficient, two expose it as a constant torque of the "
-                         "load's sign (docs/trace_notes.md \"Two load magnitudes of one sign\").  With the preload held at 0 (rig-sim's law "
-                         "beyond 2 Fp, --params) coulomb_friction is named first beyond its base correction, 0.0988 "
-                         "N m, joint lift carried by it alone, window 47 % beyond the bound (93 % in all)",
-    "set_axial_offset_loads": "direction_friction named (0.123 N m, window 50 %) instead of force_offset (trace-sets2, "
-                              "bc29d83): the force beyond its bound reaches 1225 N (planted 1500) with a held-out drop "
-                              "of 21098 against the direction drag's 42401, improving 47 of 99 segments (not robust); "
-                              "the separability has the force determined (inflation 3.5), so the record separates it: "
-                              "the confounder is the detailed no-back's preload constant in the aiding cells and the rig "
-                              "base's drag while driven beyond the direct efficiency's bound, both exposed by the second "
-                              "load magnitude (docs/trace_notes.md \"Two load magnitudes of one sign\").  With the preload held at 0 (rig-sim's "
-                              "law beyond 2 Fp, --params) force_offset is named first beyond its base correction, "
-                              "1447 N, window 71 % beyond the bound; with the preload freed (fitted 1294 N) the direction "
-                              "drag still wins by 50 in held-out chi2 (gap about 43): a free preload makes the force a "
-                              "combination of the Coulomb, direction and preload constants again",
+                        "each of force_offset and direction_friction: the record does not tell them apart)" +
+                        ".  Traced with its own two runs (trace_sets.sh took set_axial_offset_loads' three too before "
+                        "1f7eb00) and with the flange-balanced no-back: the same ambiguity, drops 16484 / 16483, "
+                        "indistinct below 14",
+    "set_coulomb_loads": "named first beyond its base correction since the no-back's flange balance (ac18db0), 0.0986 "
+                         "+- 0.0006 N m (planted 4 N m at the screw = 0.066 at the motor, plus the rig base's own "
+                         "drags), held-out drop 9473, no ambiguity, but its window RMS drop beyond the base "
+                         "correction's bound is 46 % (< 50 %): the whole drag drops the window by 93 %, of which the "
+                         "bounded 0.057 N m correction carries 58 % (trace.json contribution); it explains the "
+                         "opposing cells (56 % of their motor-speed error) and nothing of the aiding ones.  Before the"
+                         " flange balance nothing was named: the old law's loaded disk carried preload + |F|, a "
+                         "constant mu Fp / N = 0.19 N m in the aiding cells that two load magnitudes of one sign "
+                         "exposed (docs/trace_notes.md \"Two load magnitudes of one sign\", \"The no-back's flange "
+                         "balance\")",
 }
 
 LIB_SETS = [("set_coulomb", "coulomb_friction"), ("set_direction_friction", "direction_friction"),
