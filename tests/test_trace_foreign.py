@@ -398,6 +398,24 @@ def test_base_step_details_the_declared_no_back(traced, name):
 
 @pytest.mark.campaign
 @pytest.mark.slow
+def test_a_part_of_the_declared_no_back_the_run_finds_at_zero_is_reported_not_refused(traced):
+    """rig base + load-path backlash against an elastic surface (spring_load_ramp, 5-50 kN compressive): below twice
+    the preload the no-back's light (+) disk set carries a few hundred newtons, where rig-sim's rig base has no disk
+    hump (its light disk drags through the pawls, a constant), so the run determines ``noback.mu_static_pos`` at zero.
+    The no-back is declared: the base step keeps its detailed model and reports that part as not shown by the run.
+    Refused as implausible ("collapses to zero"), the disks came in through ``noback_backlash`` instead (a ratchet
+    backlash invented, the load path lost: measured on ac18db0)."""
+    doc = traced("rig_loadpath_backlash_spring")
+    det = {d["name"]: d for d in doc["base_corrections"]["declared_components_detailed"]}["noback_quadrant_friction"]
+    assert det["accepted"], det
+    assert [w for w in det["parts_not_shown"] if w.startswith("noback.mu_static_pos") and "collapses to zero" in w], det
+    step = doc["effects_added"][0]
+    assert step["base_step"] == "declared component detailed" and step["parts_not_shown"] == det["parts_not_shown"]
+    assert "noback_backlash" not in {e["name"] for e in doc["effects_added"]}, doc["effects_added"]
+
+
+@pytest.mark.campaign
+@pytest.mark.slow
 def test_a_pitch_one_loaded_stop_cannot_fix_is_reported_not_determined(traced, params):
     """rig_ratchet_backlash: one stop under load after one long extension shows the pawl pitch only through the
     stop's depth, the extension's travel modulo the pitch (a comb of pitches).  The backlash is added (its window

@@ -82,8 +82,9 @@ def conclusion_table_html(doc: dict) -> str:
         pars = "<br>".join(f"{esc(n)} = {_num(p['value'])} {esc(p['unit'])}{_ci(p)}"
                            + (" (profiled)" if p.get("profiled") else "") + (" (held)" if p.get("held") else "")
                            for n, p in e["parameters"].items())
-        nd = "<br>".join(f"{esc(h['parameter'])} held at {_num(h['held_at'])} {esc(h['unit'])}: {esc(h['reason'])}"
-                         for h in e.get("not_determined", []))
+        nd = "<br>".join([f"{esc(h['parameter'])} held at {_num(h['held_at'])} {esc(h['unit'])}: {esc(h['reason'])}"
+                          for h in e.get("not_determined", [])]
+                         + [f"part not shown by this run (kept at its fit): {esc(w)}" for w in e.get("parts_not_shown", [])])
         win = e.get("window_reduction") or {}
         wtxt = esc(", ".join(f"{c} {100 * v:+.0f} %" for c, v in win.items()))
         if e.get("contribution"):  # the part beyond the bound (above) and the whole effect with its bounded share
@@ -437,6 +438,8 @@ def format_trace_summary(doc: dict) -> str:
     for d in (bc or {}).get("declared_components_detailed", []):
         lines.append(f"    declared component detailed: {d['name']} (for {', '.join(d.get('refines', []))}): "
                      f"{'kept' if d['accepted'] else 'not kept'}, {d.get('reason', '')}")
+        for w in d.get("parts_not_shown") or []:
+            lines.append(f"        part not shown by this run (kept at its fit; the component is declared): {w}")
     step = 0
     for e in doc["effects_added"]:
         if e.get("implied_by"):
