@@ -76,6 +76,14 @@ def main() -> None:
     for level in ("A", "B"):
         show(f"shared example excitation_tensile_12kN (independent simulator), model level {level}", example,
              build_plant(level, params=params), params)
+    # the example's simulator loads its slipping disk with preload + |F| (level B: |F| beyond twice the preload): at
+    # its constant 12 kN that is the disk coefficients x (preload + |F|) / |F| (tests/handcalc.py example_disk_law)
+    load = float(np.median(np.abs(example.signals["load_force"])))
+    scale = (params.value("noback.preload") + load) / load
+    law = params.replace({n: params.value(n) * scale for n in params.names
+                          if n.startswith(("noback.mu_static_", "noback.mu_coulomb_"))})
+    show(f"shared example, model level B with the example's disk law (coefficients x {scale:.3f})", example,
+         build_plant("B", params=law), law)
 
 
 if __name__ == "__main__":

@@ -287,7 +287,7 @@ def test_shared_example_fit_improves(params):
     # efficiency all scale the same aiding torque, and the result says so
     assert len(res.high_correlations) >= 2
     # the closed-loop replay (the rig's controller, not fitted) explains the current better afterwards:
-    # measured 77 % -> 94 %
+    # measured 84.5 % -> 95.4 % (the same from the example's disk law as from the file's before the flange balance)
     b = replay_closed_loop(run, build_plant("B"), start)
     a = replay_closed_loop(run, build_plant("B"), res.to_parameter_set())
     assert a.fits["motor_current"].fit_percent > b.fits["motor_current"].fit_percent + 10

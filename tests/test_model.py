@@ -50,9 +50,14 @@ def test_light_disk_normal_force_shrinks_with_load(params):
     plant = build_plant("B")
     p = plant.p_vector(params)
     pre = params.value("noback.preload")
+
+    def normal_forces(F):
+        y = np.asarray(plant.f(plant.initial_state(params), plant_inputs(plant, load_force=F, temperature=25), p)[1])
+        y = y.ravel()
+        return tuple(y[plant.index("output", f"noback_normal_force_{side}")] for side in ("comp", "tens"))
+
     for F in (0.0, 1e3, 2.9e3, 5e3, 5.999e3, 6.001e3, 29e3, -1e3, -5e3, -29e3):
-        y = np.asarray(plant.f(plant.initial_state(params), plant_inputs(plant, load_force=F, temperature=25), p)[1]).ravel()
-        comp, tens = y[plant.index("output", "noback_normal_force_comp")], y[plant.index("output", "noback_normal_force_tens")]
+        comp, tens = normal_forces(F)
         assert comp - tens == pytest.approx(F, abs=1e-9)  # the flange's force balance
         assert min(comp, tens) >= 0.0 and min(comp, tens) <= pre
         if abs(F) < 2 * pre:  # both sets carry: the load change shared
@@ -60,8 +65,7 @@ def test_light_disk_normal_force_shrinks_with_load(params):
         else:  # the light set unloaded: the loaded one carries the load alone
             assert max(comp, tens) == pytest.approx(abs(F)) and min(comp, tens) == 0.0
     # the light set's force falls as the load grows, and is gone beyond twice the preload
-    light = [np.asarray(plant.f(plant.initial_state(params), plant_inputs(plant, load_force=F, temperature=25),
-                                p)[1]).ravel()[plant.index("output", "noback_normal_force_tens")] for F in (0, 2e3, 4e3, 8e3)]
+    light = [normal_forces(F)[1] for F in (0, 2e3, 4e3, 8e3)]
     assert light[0] > light[1] > light[2] > light[3] == 0.0
 
 

@@ -124,8 +124,8 @@ def _shared_example() -> Path:
 def test_independent_simulator_run_segmented_residual_is_bounded(params):
     """The shipped example (an independent reference simulator, 10 s, no-back friction under a 12 kN aiding
     load): the whole-run open-loop replay runs away (metres) at level A and at level B; the segmented one stays
-    bounded over the run, and the model with the no-back friction (B) has a segmented nut-position residual
-    several times smaller than the level-A one, near the sensor noise.
+    bounded over the run.  With the example's own no-back law (below) level B's segmented nut-position residual is
+    several times smaller than level A's, near the sensor noise; with level B's file law it is still half A's.
 
     The example's simulator loads the slipping disk with preload + |F| (15 kN at its 12 kN), the reading of
     issue #8; level B's flange balance gives |F| alone beyond twice the preload.  At the example's one load the

@@ -8,6 +8,7 @@ import math
 import pytest
 
 from thsa_control.trace import CANDIDATES
+from thsa_control.trace.engine import parts_not_shown
 from thsa_control.trace.scoring import _ci95, _param_entry, determination, zero_is_absent
 
 Z = 2.0
@@ -73,3 +74,27 @@ def test_interval_of_a_positive_parameter_stays_positive():
     assert scale == "wald" and (lo, hi) == pytest.approx((-692.0, 92.0))
     e = {"value": v, "stderr": sd, "unit": "N/m", "at_bound": None, "min": 1e3}
     assert _param_entry(e)["ci95_scale"] == "log" and _param_entry(e)["ci95"][0] > 0
+
+
+def test_a_declared_components_coefficient_at_zero_is_a_part_not_shown_only_beside_one_that_shows():
+    """The base step's rule for a declared component's detailed model (engine.parts_not_shown): the light disk's
+    static coefficient determined at zero beside a loaded-disk coefficient determined away from zero is a part the
+    run does not show (reported, no refusal); every determined coefficient at zero is a component without friction
+    and stays refused; other reasons always stay."""
+    spec = CANDIDATES["noback_quadrant_friction"]
+
+    def fit(**det):
+        return {"estimates": {n: {"value": 1e-4, "determination": det.get(n.split(".")[1], "not determined")}
+                              for n in spec.free}}
+
+    why = ["noback.mu_static_pos = 0.000483 collapses to zero (stderr 0.00037 from the run)",
+           "noback.mu_coulomb_neg at its max bound"]
+    kept, parts = parts_not_shown(fit(mu_static_pos="zero", mu_coulomb_neg="determined"), spec, why)
+    assert parts == why[:1] and kept == why[1:]
+    # nothing else shows: the collapse is a verdict on the detail
+    assert parts_not_shown(fit(mu_static_pos="zero", mu_coulomb_neg="zero"), spec, why) == (why, [])
+    assert parts_not_shown(fit(mu_static_pos="zero"), spec, why) == (why, [])
+    # a held coefficient is no evidence either way
+    held = fit(mu_static_pos="zero", mu_coulomb_neg="determined")
+    held["estimates"]["noback.mu_coulomb_neg"]["held"] = True
+    assert parts_not_shown(held, spec, why) == (why, [])

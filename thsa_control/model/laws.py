@@ -6,7 +6,8 @@ Two kinds, both casadi-only and free of any effect machinery:
   (name -> number or casadi expression; a :class:`~thsa_control.model.params.ParameterSet`
   is accepted too) and operating variables: the screw-to-nut ratio
   :func:`kinematic_ratio`, the torque constant :func:`torque_constant`, the
-  q-axis motor electrics :func:`motor_lag`, the friction laws (:func:`stribeck`,
+  q-axis motor electrics :func:`motor_lag`, the no-back's disk normal forces
+  :func:`noback_disk_normal_forces`, the friction laws (:func:`stribeck`,
   :func:`temperature_drag_terms`, :func:`drive_coulomb_terms`), the load-path
   law and its inverse, the drive-train stiffness, the limiter's slip torques,
   the screw and motor angles.  The structure (``structure.py``) and the effect
@@ -36,7 +37,8 @@ from dataclasses import dataclass
 import casadi as ca
 
 __all__ = ["Law", "LAWS", "values_of", "kinematic_ratio", "torque_constant", "back_emf_constant", "motor_lag",
-           "stribeck", "noback_disk_normal_forces", "temperature_drag_terms", "loadpath_force_law", "loadpath_static_deflection",
+           "stribeck", "noback_disk_normal_forces",
+           "temperature_drag_terms", "loadpath_force_law", "loadpath_static_deflection",
            "drivetrain_stiffness", "limiter_slip_torques", "drive_coulomb_terms", "screw_angle", "motor_angle"]
 
 

@@ -84,7 +84,8 @@ def conclusion_table_html(doc: dict) -> str:
                            for n, p in e["parameters"].items())
         nd = "<br>".join([f"{esc(h['parameter'])} held at {_num(h['held_at'])} {esc(h['unit'])}: {esc(h['reason'])}"
                           for h in e.get("not_determined", [])]
-                         + [f"part not shown by this run (kept at its fit): {esc(w)}" for w in e.get("parts_not_shown", [])])
+                         + [f"part not shown by this run (kept at its fit): {esc(w)}"
+                            for w in e.get("parts_not_shown", [])])
         win = e.get("window_reduction") or {}
         wtxt = esc(", ".join(f"{c} {100 * v:+.0f} %" for c, v in win.items()))
         if e.get("contribution"):  # the part beyond the bound (above) and the whole effect with its bounded share
@@ -439,7 +440,8 @@ def format_trace_summary(doc: dict) -> str:
         lines.append(f"    declared component detailed: {d['name']} (for {', '.join(d.get('refines', []))}): "
                      f"{'kept' if d['accepted'] else 'not kept'}, {d.get('reason', '')}")
         for w in d.get("parts_not_shown") or []:
-            lines.append(f"        part not shown by this run (kept at its fit; the component is declared): {w}")
+            lines.append("        part not shown by this run"
+                         + (" (kept at its fit; the component is declared): " if d["accepted"] else ": ") + w)
     step = 0
     for e in doc["effects_added"]:
         if e.get("implied_by"):

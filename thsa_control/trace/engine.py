@@ -1206,12 +1206,31 @@ def _residual_rms(fit: dict, runs) -> dict[str, float]:
     return {c: float(np.sqrt(np.mean(np.concatenate(v) ** 2))) for c, v in acc.items() if sum(map(len, v))}
 
 
+def parts_not_shown(fit: dict, spec: CandidateSpec, why: list[str]) -> tuple[list[str], list[str]]:
+    """Split a declared component's detailed model's refusal reasons: ``(why, parts)``.
+
+    The declared component is there by declaration: a coefficient of its detailed model that the run determines at
+    zero (``determination == "zero"``) says that part of it does not show in this run (the light disk set's static
+    hump on a rig whose light disk drags by other means), no verdict that the component is absent, provided another
+    of its coefficients is determined away from zero (the component shows).  Those reasons move to ``parts``; with
+    every determined coefficient at zero they stay (the detail would be a component without friction)."""
+    est = {n: fit["estimates"].get(n) or {} for n in spec.free}
+    zero = [n for n, e in est.items() if e.get("determination") == "zero" and not e.get("held")]
+    shows = [n for n, e in est.items() if e.get("determination") == "determined" and not e.get("held")]
+    if not zero or not shows:
+        return list(why), []
+    parts = [w for w in why if any(w.startswith(f"{n} = ") and "collapses to zero" in w for n in zero)]
+    return [w for w in why if w not in parts], parts
+
+
 def _detail_declared(refinements, current: dict, cur_effects, cur_free, fit_runs, noise, st, job, say, plaus,
                      windows_cache, runs) -> list[dict]:
     """Judge each detailed model of a declared idealised component (fitted jointly with the base corrections) by
     the rules of a candidate: held-out chi2 drop above the ``chi2(k)`` quantile and ``null_factor`` times the drop
     the same refinement buys on a null run of the corrected base, window RMS drop, own channel not worse,
-    plausible on the parameters the run determines (the others held at their file values)."""
+    plausible on the parameters the run determines (the others held at their file values); a coefficient the run
+    determines at zero beside one it determines away from zero is a part not shown (:func:`parts_not_shown`),
+    reported, no refusal."""
     out = []
     base_hold = holdout_total(current, noise)
     todo = []
@@ -1229,11 +1248,7 @@ def _detail_declared(refinements, current: dict, cur_effects, cur_free, fit_runs
                               whole_record=False, aic=False)
         drop, thr, win_red = adm["holdout_chi2_drop"], adm["chi2_threshold"], adm["window_reduction"]
         plausible, why = _plausibility(f, spec, plaus)
-        # the declared component is there by declaration: a coefficient of its detailed model the run determines at
-        # zero says that part of it does not show in this run (the light disk set's static hump on a rig whose light
-        # disk drags by other means), kept at its fit and reported; it is no verdict that the component is absent
-        absent_parts = [w for w in why if "collapses to zero" in w]
-        why = [w for w in why if w not in absent_parts]
+        why, absent_parts = parts_not_shown(f, spec, why)
         plausible = not why
         if adm["channel_fail"]:
             plausible = False
