@@ -13,6 +13,7 @@ Run: ``python bench/bench_residual_segments.py [--duration 10]``
 from __future__ import annotations
 
 import argparse
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -28,6 +29,8 @@ from thsa_control.model import build_plant
 from thsa_control.model.params import default_parameters
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+from handcalc import example_disk_law  # noqa: E402  (the example's disk law, one copy, shared with the tests)
 NOISE = {"motor_speed_rpm": 2.0, "nut_position_mm": 0.005, "motor_current_A": 0.02, "screw_speed_rpm": 0.2}
 
 
@@ -76,13 +79,9 @@ def main() -> None:
     for level in ("A", "B"):
         show(f"shared example excitation_tensile_12kN (independent simulator), model level {level}", example,
              build_plant(level, params=params), params)
-    # the example's simulator loads its slipping disk with preload + |F| (level B: |F| beyond twice the preload): at
-    # its constant 12 kN that is the disk coefficients x (preload + |F|) / |F| (tests/handcalc.py example_disk_law)
-    load = float(np.median(np.abs(example.signals["load_force"])))
-    scale = (params.value("noback.preload") + load) / load
-    law = params.replace({n: params.value(n) * scale for n in params.names
-                          if n.startswith(("noback.mu_static_", "noback.mu_coulomb_"))})
-    show(f"shared example, model level B with the example's disk law (coefficients x {scale:.3f})", example,
+    # the example's simulator loads its slipping disk with preload + |F| (level B: |F| beyond twice the preload)
+    law = example_disk_law(params, float(np.median(np.abs(example.signals["load_force"]))))
+    show("shared example, model level B with the example's disk law (preload + |F| on the slipping disk)", example,
          build_plant("B", params=law), law)
 
 

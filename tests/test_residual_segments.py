@@ -129,8 +129,7 @@ def test_independent_simulator_run_segmented_residual_is_bounded(params):
 
     The example's simulator loads the slipping disk with preload + |F| (15 kN at its 12 kN), the reading of
     issue #8; level B's flange balance gives |F| alone beyond twice the preload.  At the example's one load the
-    two differ by a factor (3 + 12) / 12 on the disk coefficients: with it B reaches the example's own law (the
-    several-times-smaller residual); with the file's coefficients it still halves level A's."""
+    two differ by a factor (3 + 12) / 12 on the disk coefficients (handcalc.example_disk_law)."""
     run = read_run(_shared_example())
     load = float(np.median(np.abs(run.signals["load_force"])))
     assert load == pytest.approx(12e3, rel=0.02)

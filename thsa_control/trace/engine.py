@@ -1247,8 +1247,7 @@ def _detail_declared(refinements, current: dict, cur_effects, cur_free, fit_runs
                               min_window_reduction=st.min_window_reduction, max_channel_increase=st.max_channel_increase,
                               whole_record=False, aic=False)
         drop, thr, win_red = adm["holdout_chi2_drop"], adm["chi2_threshold"], adm["window_reduction"]
-        plausible, why = _plausibility(f, spec, plaus)
-        why, absent_parts = parts_not_shown(f, spec, why)
+        why, absent_parts = parts_not_shown(f, spec, _plausibility(f, spec, plaus)[1])
         plausible = not why
         if adm["channel_fail"]:
             plausible = False
