@@ -4,12 +4,13 @@ not determined by the run (held at its file value, reported) or collapses to zer
 from __future__ import annotations
 
 import math
+import pickle
 
 import pytest
 
 from thsa_control.trace import CANDIDATES
 from thsa_control.trace.engine import parts_not_shown
-from thsa_control.trace.scoring import _ci95, _param_entry, determination, zero_is_absent
+from thsa_control.trace.scoring import _ci95, _param_entry, _plausibility, determination, zero_is_absent
 
 Z = 2.0
 
@@ -84,13 +85,25 @@ def test_a_declared_components_coefficient_at_zero_is_a_part_not_shown_only_besi
     spec = CANDIDATES["noback_quadrant_friction"]
 
     def fit(**det):
-        return {"estimates": {n: {"value": 1e-4, "determination": det.get(n.split(".")[1], "not determined")}
-                              for n in spec.free}}
+        # the fields _plausibility reads: a value, its standard errors, the run's verdict, a bound
+        est = {n: {"value": 1e-4, "stderr": None, "stderr_data": None, "at_bound": None,
+                   "determination": det.get(n.split(".")[1], "not determined")} for n in spec.free}
+        est["noback.mu_static_pos"].update(value=0.000483, stderr=0.00037, stderr_data=0.00037)
+        est["noback.mu_coulomb_neg"].update(value=0.02, stderr=0.001, stderr_data=0.001, at_bound="max")
+        return {"estimates": est}
 
-    why = ["noback.mu_static_pos = 0.000483 collapses to zero (stderr 0.00037 from the run)",
-           "noback.mu_coulomb_neg at its max bound"]
-    kept, parts = parts_not_shown(fit(mu_static_pos="zero", mu_coulomb_neg="determined"), spec, why)
-    assert parts == why[:1] and kept == why[1:]
+    f = fit(mu_static_pos="zero", mu_coulomb_neg="determined")
+    why = _plausibility(f, spec)[1]
+    assert [str(w) for w in why] == ["noback.mu_coulomb_neg at its max bound",
+                                     "noback.mu_static_pos = 0.000483 collapses to zero (stderr 0.00037 from the run)"]
+    kept, parts = parts_not_shown(f, spec, why)
+    assert parts == why[1:] and kept == why[:1]
+    # the rule reads the reason's kind and parameter, not its wording: a plain text saying the same is no reason
+    # it moves (an admission test's failure is a plain text)
+    assert parts_not_shown(f, spec, [str(w) for w in why]) == ([str(w) for w in why], [])
+    # a reason keeps its kind through a worker's pickle
+    assert pickle.loads(pickle.dumps(why[1])).kind == "zero" and pickle.loads(pickle.dumps(why[1])).param == \
+        "noback.mu_static_pos"
     # nothing else shows: the collapse is a verdict on the detail
     assert parts_not_shown(fit(mu_static_pos="zero", mu_coulomb_neg="zero"), spec, why) == (why, [])
     assert parts_not_shown(fit(mu_static_pos="zero"), spec, why) == (why, [])

@@ -72,7 +72,7 @@ from . import periodicity
 from .residual import _regime_errors, _signature
 from .scoring import (_at_edge, _base_correction, _window_beyond_noise, _channel_errors, _chi2_by_channel, _explainers_at_bound, _held_out,
                       _holdout_segment_changes,
-                      _held_params, _null_runs, _param_entry, _plausibility,
+                      _held_params, _null_runs, _param_entry, _plausibility, reason_kind,
                       _run_jobs,
                       _signature_brief, admission_tests, beats_null, holdout_total, null_drop, scaled_threshold, zero_is_absent)
 from .lift import better, contribution, interior, joint_verdict, lift_names, lifted as lifted_bounds
@@ -1219,7 +1219,7 @@ def parts_not_shown(fit: dict, spec: CandidateSpec, why: list[str]) -> tuple[lis
     shows = [n for n, e in est.items() if e.get("determination") == "determined" and not e.get("held")]
     if not zero or not shows:
         return list(why), []
-    parts = [w for w in why if any(w.startswith(f"{n} = ") and "collapses to zero" in w for n in zero)]
+    parts = [w for w in why if reason_kind(w) == "zero" and w.param in zero]
     return [w for w in why if w not in parts], parts
 
 
@@ -1361,7 +1361,7 @@ def _rivals(best: dict, scored: list[dict], alpha: float) -> list[dict]:
     # "2.14e3 N collapses to zero (stderr 1.4e3)", and direction_friction 164.4, "not determined")
     def collinear_only(s):
         return bool(s["implausible_because"]) and all(
-            w.startswith("no parameter determined") or "collapses to zero" in w for w in s["implausible_because"])
+            reason_kind(w) in ("undetermined", "zero") for w in s["implausible_because"])
 
     def measured(s):
         if s.get("joint_lift_refused"):

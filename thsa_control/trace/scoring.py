@@ -487,31 +487,58 @@ def _channel_errors(fit: dict) -> dict:
     return out
 
 
-def _plausibility(fit: dict, spec: CandidateSpec, plaus: Mapping | None = None) -> tuple[bool, list[str]]:
+class Reason(str):
+    """A refusal reason of :func:`_plausibility`: the text trace.json and the report show, with its ``kind`` and the
+    ``param`` it names, so that the rules acting on a reason read those, never the wording.
+
+    Kinds: ``"undetermined"`` (no parameter determined by the run), ``"zero"`` (a determined parameter, or a periodic
+    pair's amplitude with ``param`` None, collapses to zero), ``"bound"`` (at a search bound or a profile range's end),
+    ``"periodic"`` (an amplitude beyond a healthy drive's).  A ``str``: JSON and the text write it as its text.
+    """
+
+    kind: str
+    param: str | None
+
+    def __new__(cls, text: str, kind: str, param: str | None = None):
+        self = super().__new__(cls, text)
+        self.kind, self.param = kind, param
+        return self
+
+    def __reduce__(self):
+        return (Reason, (str(self), self.kind, self.param))
+
+
+def reason_kind(reason) -> str | None:
+    """The kind of a refusal reason (:class:`Reason`); None for a plain text (an admission test's failure)."""
+    return getattr(reason, "kind", None)
+
+
+def _plausibility(fit: dict, spec: CandidateSpec, plaus: Mapping | None = None) -> tuple[bool, list[Reason]]:
     """Plausible: no parameter at a bound, none collapsing to zero, at least one determined by the data,
     no periodic torque larger than a healthy drive's (:data:`PLAUSIBLE`).
 
     A parameter the run does not determine was held at its file value (``held``) and is not judged: "collapses
-    to zero" is a verdict only for a parameter the data determine.
+    to zero" is a verdict only for a parameter the data determine.  Each reason is a :class:`Reason`.
     """
-    why, determined = [], 0
+    why: list[Reason] = []
+    determined = 0
     est = [(n, fit["estimates"][n]) for n in spec.free if n in fit["estimates"] and not fit["estimates"][n].get("held")]
     lost = [n for n in spec.free if fit["estimates"].get(n, {}).get("undetermined")
             and not fit["estimates"][n].get("held")]
     if lost:
-        why.append("no parameter determined by the run: " + ", ".join(lost))
+        why.append(Reason("no parameter determined by the run: " + ", ".join(lost), "undetermined"))
     periodic = [n for n in spec.free if spec.plausible.get(n) == "periodic"]
     if plaus and periodic and all(n in fit["estimates"] for n in periodic):
         amp = math.hypot(*(fit["estimates"][n]["value"] for n in periodic))
         bound, src = plaus["periodic"]
         if amp > bound:
-            why.append(f"amplitude {amp:.3g} N m exceeds the plausible {bound:.3g} N m ({src})")
+            why.append(Reason(f"amplitude {amp:.3g} N m exceeds the plausible {bound:.3g} N m ({src})", "periodic"))
     for n in spec.profile:  # profiled: determined when its profile interval closes inside the search range
         e = fit["estimates"].get(n)
         if e is None or not e.get("mattered"):
             continue
         if e["at_bound"] and not (e["at_bound"] == "min" and n in PROFILE_FLOORS):
-            why.append(f"{n} at the {e['at_bound']} end of its profile range")
+            why.append(Reason(f"{n} at the {e['at_bound']} end of its profile range", "bound", n))
         elif e["interval"] is not None and e.get("determined", True):  # a profile set that does not determine it
             determined += 1
     pairs = spec.name in ("screw_friction_ripple", "cogging_torque")
@@ -522,7 +549,7 @@ def _plausibility(fit: dict, spec: CandidateSpec, plaus: Mapping | None = None) 
         if e.get("undetermined"):  # nothing determined: said once above ("no parameter determined by the run")
             continue
         if e["at_bound"]:
-            why.append(f"{n} at its {e['at_bound']} bound")
+            why.append(Reason(f"{n} at its {e['at_bound']} bound", "bound", n))
         # a candidate's own parameter: judged on the runs' own information (:func:`determination`); a lifted base
         # correction (no reference magnitude of its own) on its posterior standard error, as before
         verdict = e.get("determination")
@@ -531,16 +558,17 @@ def _plausibility(fit: dict, spec: CandidateSpec, plaus: Mapping | None = None) 
             continue
         determined += 1
         if not pairs and zero_is_absent(spec.name, n) and (verdict == "zero" if verdict else abs(e["value"]) < 2 * sd):
-            why.append(f"{n} = {e['value']:.3g} collapses to zero (stderr {sd:.2g}{' from the run' if verdict else ''})")
+            why.append(Reason(f"{n} = {e['value']:.3g} collapses to zero (stderr {sd:.2g}"
+                              f"{' from the run' if verdict else ''})", "zero", n))
     if pairs and len(est) == 2:
         (_, a), (_, b) = est
         amp = math.hypot(a["value"], b["value"])
         sa, sb = (x.get("stderr_data") if x.get("determination") else x["stderr"] for x in (a, b))
         sd = math.hypot(sa if sa is not None else math.inf, sb if sb is not None else math.inf)
         if not amp > 2 * sd:
-            why.append(f"amplitude {amp:.3g} collapses to zero (stderr {sd:.2g})")
-    if (est or spec.profile) and determined == 0 and not any("determined" in w for w in why):
-        why.append("no parameter determined by the data")
+            why.append(Reason(f"amplitude {amp:.3g} collapses to zero (stderr {sd:.2g})", "zero"))
+    if (est or spec.profile) and determined == 0 and not any(w.kind == "undetermined" for w in why):
+        why.append(Reason("no parameter determined by the data", "undetermined"))
     return not why, why
 
 
