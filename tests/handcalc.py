@@ -42,7 +42,11 @@ def hand_current(P, level, speed_mm_s, load_N):
         sfx = "pos" if w > 0 else "neg"
         # w < 0: the compressive-side disk slips; w > 0: the tensile-side one
         pre = P("noback.preload")
-        loaded, light = (abs(load_N), 0.0) if abs(load_N) >= 2 * pre else (pre + abs(load_N) / 2, pre - abs(load_N) / 2)
+        # the flange between two preloaded disk sets: the loaded one takes its stiffness' share of the load change,
+        # the light one gives up the rest, until it has lost its preload (equal sets: +-|F|/2 up to 2 preload)
+        s = P("noback.load_share") if load_N > 0 else 1 - P("noback.load_share")  # the loaded set's share
+        light = max(pre - (1 - s) * abs(load_N), 0.0)
+        loaded = abs(load_N) + light
         compressive_side = loaded if load_N > 0 else light
         normal = compressive_side if w < 0 else (loaded if load_N < 0 else light)
         mu = P(f"noback.mu_coulomb_{sfx}") + (P(f"noback.mu_static_{sfx}") - P(f"noback.mu_coulomb_{sfx}")) * math.exp(

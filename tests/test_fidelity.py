@@ -195,8 +195,8 @@ def test_nominal_meets_its_requirements_on_the_plant_that_exists(design, params)
 def test_headline_numbers_over_the_assumed_ranges(design, params):
     from thsa_control.sim.assumptions import assumption_ranges, format_ranges
 
-    damping, clearance = assumption_ranges(design, params)
-    print(format_ranges((damping, clearance)))
+    damping, clearance, share = assumption_ranges(design, params)
+    print(format_ranges((damping, clearance, share)))
     # more disk-spring damping, less surface overshoot where the backlash is crossed (level D)
     assert all(b < a for a, b in zip(damping.metric_values, damping.metric_values[1:]))
     assert damping.span[0] < damping.nominal_metric < damping.span[1]
@@ -204,6 +204,13 @@ def test_headline_numbers_over_the_assumed_ranges(design, params):
     # (initial clearance + travel before the stop) mod pitch: it spans a factor of two over the range
     assert clearance.span[1] > 2.0 * clearance.span[0] > 0
     assert clearance.values[2] == clearance.nominal_value and clearance.metric_values[2] == clearance.nominal_metric
+    # a tensile load opposing the retraction: the light compressive disk set slips with what is left of its preload,
+    # preload - share |F|; a stiffer compressive set (larger share) loses it sooner, so the current falls with the
+    # share; at 0.5 the set is unloaded at 6 kN, the band's middle
+    i = share.metric_values
+    assert all(b < a for a, b in zip(i, i[1:]))
+    assert share.values[2] == share.nominal_value == 0.5 and i[2] == share.nominal_metric
+    assert 0.0 < share.span[0] < share.span[1] < 15.0
 
 
 def test_noback_preload_dilates_with_temperature(params):

@@ -43,6 +43,19 @@ def test_steady_current_equals_torque_balance(run, params, level, speed_mm_s, lo
     assert np.mean(res["motor_current"][m]) == pytest.approx(hand_current(params.value, level, speed_mm_s, load_N), abs=1e-3)
 
 
+@pytest.mark.parametrize("share", [0.4, 0.6])
+@pytest.mark.parametrize("speed_mm_s, load_N", [(2.0, 4e3), (-2.0, -4e3)])
+def test_steady_current_with_unequal_noback_disk_sets(run, params, share, speed_mm_s, load_N):
+    # 4 kN opposing: the light disk set slips with what is left of its preload, preload - (1 - s) |F| for the loaded
+    # set's share s; the closed loop's steady current against the hand balance at an assumed share's range ends
+    ps = params.replace({"noback.load_share": share})
+    res = run(_constant_motion(speed_mm_s, load_N), "B", params_override=ps)
+    m = res.window(2.0, 2.5)
+    assert np.mean(res["motor_current"][m]) == pytest.approx(hand_current(ps.value, "B", speed_mm_s, load_N), abs=1e-3)
+    # and it differs from the equal sets' by more than that: the share is seen
+    assert abs(hand_current(ps.value, "B", speed_mm_s, load_N) - hand_current(params.value, "B", speed_mm_s, load_N)) > 0.02
+
+
 def test_light_disk_normal_force_shrinks_with_load(params):
     # paper 001: the light disk's force "is limited within the spring preload and grows smaller
     # with the increase in compressive load"; the flange between the two disk sets balances the load,
@@ -67,6 +80,44 @@ def test_light_disk_normal_force_shrinks_with_load(params):
     # the light set's force falls as the load grows, and is gone beyond twice the preload
     light = [normal_forces(F)[1] for F in (0, 2e3, 4e3, 8e3)]
     assert light[0] > light[1] > light[2] > light[3] == 0.0
+
+
+@pytest.mark.parametrize("k_comp, k_tens", [(2.0e8, 3.0e8), (3.0e8, 2.0e8), (1.0e8, 1.0e8)])
+def test_noback_disk_sets_share_a_load_change_by_their_stiffness(params, k_comp, k_tens):
+    """Unequal disk sets (``noback.load_share`` = k_comp / (k_comp + k_tens)): the flange moves by ``x`` until the two
+    sets' force changes balance the load, ``k_comp x + k_tens x = F``, so each set's change is its stiffness times the
+    one ``x``; the light set unloads where ``preload = k_light x``.  Solved here from the two springs, not from the
+    law: the model's normal forces must match at loads on both sides of each set's unloading point."""
+    pre = params.value("noback.preload")
+    share = k_comp / (k_comp + k_tens)
+    plant = build_plant("B")
+    ps = params.replace({"noback.load_share": share})
+    p = plant.p_vector(ps)
+
+    def model(F):
+        y = np.asarray(plant.f(plant.initial_state(ps), plant_inputs(plant, load_force=F, temperature=25), p)[1]).ravel()
+        return tuple(y[plant.index("output", f"noback_normal_force_{side}")] for side in ("comp", "tens"))
+
+    def springs(F):
+        # the flange between two preloaded springs: while both are in contact, x = F / (k_comp + k_tens); once the
+        # light one has lost its preload it is off, and the loaded one carries F alone
+        x = F / (k_comp + k_tens)
+        comp, tens = pre + k_comp * x, pre - k_tens * x
+        if tens < 0:
+            return F, 0.0
+        if comp < 0:
+            return 0.0, -F
+        return comp, tens
+
+    unload_c, unload_t = pre * (k_comp + k_tens) / k_tens, pre * (k_comp + k_tens) / k_comp
+    for F in (0.0, 1e3, 0.99 * unload_c, 1.01 * unload_c, 29e3, -1e3, -0.99 * unload_t, -1.01 * unload_t, -29e3):
+        got, want = model(F), springs(F)
+        assert got == pytest.approx(want, abs=1e-6), F
+        assert got[0] - got[1] == pytest.approx(F, abs=1e-6)  # the flange's balance at every share
+    # at twice the preload, where equal sets lose the light one, a stiffer compressive set (share > 0.5) still
+    # leaves the light tensile set loaded, a softer one has lost it already
+    light = model(2 * pre)[1]
+    assert (light > 1.0) if share > 0.5 else (light == 0.0)
 
 
 def test_levels_are_nested_and_effects_known():

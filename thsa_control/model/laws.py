@@ -103,23 +103,29 @@ def stribeck(mu_s, mu_c, speed, w_st):
     return mu_c + (mu_s - mu_c) * ca.exp(-((speed / w_st) ** 2))
 
 
-def noback_disk_normal_forces(preload, force):
+def noback_disk_normal_forces(preload, force, share=0.5):
     """Normal forces ``(N_comp, N_tens)`` [N] of the no-back's two friction-disk sets under the axial force ``force``.
 
     The screw flange sits between the two disk sets, clamped by the disk-spring ``preload``; ``force`` (compressive
     positive) pushes it onto the compressive-side set.  The flange's force balance holds at every load,
-    ``N_comp - N_tens = force``; the two sets, equally stiff (assumed: the papers give one preload and one disk
-    design for both sides), share the load change, ``preload +- force / 2``, until the light set unloads at
-    ``|force| = 2 preload``; beyond it the loaded set carries ``|force|`` alone and the light one nothing.  So the
-    light set's force "is limited within the spring preload and grows smaller with the increase in compressive load"
-    (paper 001), and each set carries its share of the load plus what is left of the preload::
+    ``N_comp - N_tens = force``.  The flange moves until the two sets' force changes balance the load, so each set
+    takes the load change in proportion to its stiffness: ``share = k_comp / (k_comp + k_tens)`` of a compressive
+    load goes onto the compressive set and ``1 - share`` off the tensile one (a tensile load: ``1 - share`` onto the
+    tensile set, ``share`` off the compressive one), until the light set unloads at ``force = preload / (1 - share)``
+    (tensile: ``|force| = preload / share``); beyond it the loaded set carries ``|force|`` alone and the light one
+    nothing.  So the light set's force "is limited within the spring preload and grows smaller with the increase in
+    compressive load" (paper 001), and each set carries its part of the load plus what is left of the preload::
 
-        m = max(preload - |force| / 2, 0),   N_comp = max(force, 0) + m,   N_tens = max(-force, 0) + m
+        m = max(preload - (1 - share) max(force, 0) - share max(-force, 0), 0)
+        N_comp = max(force, 0) + m,   N_tens = max(-force, 0) + m
 
-    Smooth through zero load (both slopes 1/2 there); kinks at ``|force| = 2 preload``.
+    ``share`` 0.5 (``noback.load_share``, assumed: the papers give one preload and one disk design for both sides):
+    ``preload +- force / 2`` until ``|force| = 2 preload``.  Continuous through zero load; kinks where the light set
+    unloads.
     """
-    rest = ca.fmax(preload - 0.5 * ca.fabs(force), 0.0)
-    return ca.fmax(force, 0.0) + rest, ca.fmax(-force, 0.0) + rest
+    comp, tens = ca.fmax(force, 0.0), ca.fmax(-force, 0.0)
+    rest = ca.fmax(preload - (1.0 - share) * comp - share * tens, 0.0)
+    return comp + rest, tens + rest
 
 
 def temperature_drag_terms(p, speed, temperature):

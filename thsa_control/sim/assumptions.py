@@ -12,7 +12,12 @@ values the papers do not give:
   (``noback.pawl_initial_clearance``, a fraction of the pawl pitch; a full
   pitch is the next tooth, i.e. zero clearance again).  The clearance left
   at the stop is the initial one plus the travel before it, modulo the pitch,
-  so the back-drive is not monotonic in the initial clearance.
+  so the back-drive is not monotonic in the initial clearance;
+* the motor current of level B while a tensile load of 5..7 kN opposes the
+  retraction of ``triangular_load`` is set by how the no-back's two disk sets
+  share a load change (``noback.load_share``, their stiffness ratio: one disk
+  design on both sides, assumed 0.5): the light compressive set slips there,
+  with what is left of its preload as normal force.
 
 :func:`assumption_ranges` runs each scenario over the range and returns the
 metric at every value, so that a reader sees what the model predicts and what
@@ -22,7 +27,7 @@ Examples
 --------
 >>> from thsa_control.sim.assumptions import ASSUMED_RANGES
 >>> [a.parameter for a in ASSUMED_RANGES]
-['loadpath.disk_spring_damping', 'noback.pawl_initial_clearance']
+['loadpath.disk_spring_damping', 'noback.pawl_initial_clearance', 'noback.load_share']
 """
 
 from __future__ import annotations
@@ -33,7 +38,7 @@ from dataclasses import dataclass
 from ..loops.design import Design
 from ..model import build_plant
 from ..model.params import ParameterSet
-from .metrics import backdrive_metrics, surface_speed_deviation
+from .metrics import backdrive_metrics, current_in_load_band, surface_speed_deviation
 from .scenarios import get_scenario
 from .simulate import SimulationSettings, Simulator
 
@@ -75,6 +80,8 @@ ASSUMED_RANGES: tuple[AssumedRange, ...] = (
     AssumedRange("noback.pawl_initial_clearance", "initial pawl clearance [fraction of pitch]",
                  (0.0, 0.25, 0.5, 0.75, 0.95), "backdrive_bipolar_ramp", "C",
                  "back-drive at the first trim stop [% of command]"),
+    AssumedRange("noback.load_share", "no-back load share of the compressive disk set", (0.4, 0.45, 0.5, 0.55, 0.6),
+                 "triangular_load", "B", "|motor current| with 5..7 kN tensile opposing [A]"),
 )
 
 
@@ -94,6 +101,8 @@ class RangeResult:
 
 
 def _metric(assumed: AssumedRange, result) -> float:
+    if assumed.parameter == "noback.load_share":
+        return current_in_load_band(result, -7e3, -5e3)
     if assumed.scenario == "triangular_load":
         return 100.0 * surface_speed_deviation(result)
     m = backdrive_metrics(result)
@@ -138,9 +147,9 @@ def format_ranges(results) -> str:
     for r in results:
         a = r.assumed
         lines.append(f"{a.metric}, {a.scenario} at level {a.level}, over {a.label} ({a.parameter}, assumed):")
-        lines.append("    " + "  ".join(f"{v:g}: {m:.1f}" for v, m in zip(r.values, r.metric_values)))
-        lines.append(f"    embedded value {r.nominal_value:.3g} gives {r.nominal_metric:.1f}; "
-                     f"the range spans {r.span[0]:.1f} .. {r.span[1]:.1f}")
+        lines.append("    " + "  ".join(f"{v:g}: {m:.3g}" for v, m in zip(r.values, r.metric_values)))
+        lines.append(f"    embedded value {r.nominal_value:.3g} gives {r.nominal_metric:.3g}; "
+                     f"the range spans {r.span[0]:.3g} .. {r.span[1]:.3g}")
     return "\n".join(lines)
 
 

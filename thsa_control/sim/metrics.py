@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 
 from ..data.rigdata import true_runs  # maximal runs of True, (start, stop exclusive)
@@ -135,6 +137,18 @@ def surface_speed_deviation(result, *, t0: float | None = None, t1: float | None
         if np.any(m):
             worst = max(worst, float(np.max(np.abs(vs[m] - p.command)) / abs(p.command)))
     return worst
+
+
+def current_in_load_band(result, low: float, high: float, *, settle: float = 0.3) -> float:
+    """Mean |motor current| [A] on constant-command plateaus (``settle`` [s] after each start) while the load force
+    is within ``low .. high`` [N] (compressive positive); NaN where the run never is."""
+    t = np.asarray(result.time)
+    v, f, i = (np.asarray(result[n]) for n in ("speed_cmd", "load_force", "motor_current"))
+    m = np.zeros(t.shape, bool)
+    for p in plateaus(t, v, f):
+        m |= (t >= p.start + settle) & (t <= p.end)
+    m &= (f >= low) & (f <= high)
+    return float(np.mean(np.abs(i[m]))) if np.any(m) else math.nan
 
 
 def energy_residual(result) -> float:

@@ -34,9 +34,10 @@ Effects (the papers' incremental modelling):
     tensile-side wheel against extension; the other direction is free, so the
     wheel turns with the screw and its disks do not slip.  Normal forces
     (``laws.noback_disk_normal_forces``): the flange between the two sets
-    balances ``N_comp - N_tens = F`` at every load, the equally stiff sets
-    sharing it as ``preload +- F/2`` until the light one unloads at
-    ``|F| = 2 preload``, beyond which the loaded one carries ``|F|`` alone
+    balances ``N_comp - N_tens = F`` at every load, the sets sharing the
+    load change by their stiffness (``noback.load_share``; equal sets, the
+    assumed 0.5: ``preload +- F/2``) until the light one unloads (at
+    ``|F| = 2 preload`` for equal sets), beyond which the loaded one carries ``|F|`` alone
     (``F`` the force through the no-back: the load-path force at level D).  So when
     the load aids the motion the loaded disk slips (large friction) and when it
     opposes, the light disk slips (small friction, none above twice the preload); with the motors off
@@ -152,8 +153,9 @@ def _noback_quadrant_friction(a: Assembly) -> None:
     N = p["gear.ratio"]
     ws = w / N
     F = a.axial_force
-    # the flange between the two disk sets: preload +- F/2 until the light set unloads at |F| = 2 preload
-    n_comp, n_tens = noback_disk_normal_forces(noback_preload(a), F)
+    # the flange between the two disk sets: each takes its stiffness' share of the load change (0.5 +- F/2) until the
+    # light set unloads (at |F| = 2 preload for equal sets)
+    n_comp, n_tens = noback_disk_normal_forces(noback_preload(a), F, p["noback.load_share"])
     g_comp = a.pawl_engaged.get("comp", 1.0)
     g_tens = a.pawl_engaged.get("tens", 1.0)
     a.inertia.append(2.0 * p["noback.ratchet_inertia"] / N**2)
@@ -274,7 +276,7 @@ def _drivetrain_operating_point(c):
 
 
 _NOBACK = tuple(f"noback.{n}" for n in (
-    "preload", "ratchet_inertia", "mu_static_pos", "mu_coulomb_pos", "viscous_pos", "stribeck_speed_pos",
+    "preload", "load_share", "ratchet_inertia", "mu_static_pos", "mu_coulomb_pos", "viscous_pos", "stribeck_speed_pos",
     "mu_static_neg", "mu_coulomb_neg", "viscous_neg", "stribeck_speed_neg",
 ))
 _PAWLS = ("pawl_clearance_comp", "pawl_clearance_tens")
@@ -380,7 +382,8 @@ register(Effect(
                                                          "noback.mu_static_pos", "noback.mu_static_neg"), {},
                             "loaded"),
     linear=LinearHints(kinks={"noback_normal_force": "the no-back's light disk set unloading (load-path force at "
-                                                     "twice the preload)"}),
+                                                     "preload / (1 - load share), compressive, preload / load "
+                                                     "share, tensile: twice the preload for equal sets)"}),
 ))
 register(Effect(
     "noback_ideal", "ideal irreversible no-back (level A): Coulomb torque F r against load-aided motion",
