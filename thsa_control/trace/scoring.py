@@ -455,12 +455,17 @@ def _holdout_segment_changes(before: dict, after: dict, noise: Mapping[str, floa
         return {}
     from scipy.stats import binom
 
+    from scipy.stats import wilcoxon
+
     a = np.sort(np.abs(x))[::-1]
     up, down = int(np.sum(x > 0)), int(np.sum(x < 0))
     return {"segments": int(x.size), "improved": up, "worse": down,
             "top3_share": float(a[:3].sum() / a.sum()) if a.sum() > 0 else 0.0,
             "median_drop": float(np.median(x)),
-            "sign_p": float(binom.sf(up - 1, up + down, 0.5)) if up + down else 1.0}
+            "sign_p": float(binom.sf(up - 1, up + down, 0.5)) if up + down else 1.0,
+            # reported beside it (measured, not used): the signed-rank test of the same hypothesis, which weighs each
+            # segment by the rank of its change, so that a segment the candidate hardly changes counts little
+            "signed_rank_p": float(wilcoxon(x[x != 0], alternative="greater").pvalue) if up + down >= 2 else 1.0}
 
 
 def _rms_by_channel(fit: dict, mask_fn=None) -> dict:
