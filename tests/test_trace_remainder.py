@@ -8,9 +8,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.stats import binom
 
 from thsa_control.trace.scoring import _holdout_iact
-from thsa_control.trace.scoring import _holdout_segment_changes
+from thsa_control.trace.scoring import _holdout_segment_changes, admission_tests
 from thsa_control.trace.signature import (
     SignatureSettings,
     base_transients,
@@ -164,6 +165,41 @@ def test_holdout_segment_changes_inside_a_window_and_the_sign_test():
     assert d["segments"] == 10 and d["improved"] == 10 and d["sign_p"] == pytest.approx(0.5 ** 10)
     d = _holdout_segment_changes(before, _fit(every, meas, hold, starts, t), {"motor_speed": 1.0})
     assert d["segments"] == 20 and d["sign_p"] < 1e-5
+
+
+def test_signed_rank_weighs_a_segment_by_its_change_and_still_refuses_a_drop_few_segments_carry():
+    """The robustness test of a constant torque (TraceSettings.robust_test).  Where the candidate improves most
+    segments clearly and worsens the rest a little (a constant torque on a base that differs: small coin flips where
+    it matters little), the sign test counts only the votes, 38 of 60 (p 0.026), and refuses; the signed-rank test
+    weighs the clear improvements and admits (p < 1e-5).  A drop carried by three segments with the other 57 a little
+    worse fails both."""
+    n, seg = 9000, 50
+    t = np.arange(n) * 1e-3
+    k = np.arange(n) // seg
+    hold = k % 3 == 2  # 60 held-out segments
+    starts = t[::seg]
+    meas = np.ones(n)
+    before = _fit(np.zeros(n), meas, hold, starts, t)
+    held = np.unique(k[hold])
+    clear = np.full(n, -0.1)  # a little worse (1.21 against 1 per sample) ...
+    clear[np.isin(k, held[:38])] = 0.5  # ... 38 segments clearly better (0.25 against 1)
+    d = _holdout_segment_changes(before, _fit(clear, meas, hold, starts, t), {"motor_speed": 1.0})
+    assert (d["improved"], d["worse"]) == (38, 22)
+    assert d["sign_p"] == pytest.approx(binom.sf(37, 60, 0.5)) and d["sign_p"] > 1e-3
+    assert d["signed_rank_p"] < 1e-5
+    # the admission rule reads the test the settings name
+    after = {**_fit(clear, meas, hold, starts, t), "aic": 0.0}
+    common = dict(k=1, alpha=1e-3, mask=None, window=None, channel="motor_speed", min_window_reduction=0.5,
+                  max_channel_increase=0.1, robust=True)
+    by = {test: admission_tests({**before, "aic": 1.0}, after, {"motor_speed": 1.0}, robust_test=test, **common)
+          for test in ("sign", "signed-rank")}
+    assert "sign test p = 0.026" in by["sign"]["robust_fail"] and by["signed-rank"]["robust_fail"] is None
+    with pytest.raises(ValueError, match="robust_test 'median'"):
+        admission_tests({**before, "aic": 1.0}, after, {"motor_speed": 1.0}, robust_test="median", **common)
+    few = np.full(n, -0.1)
+    few[np.isin(k, held[:3])] = 1.0  # three segments fixed, every other one a little worse
+    d = _holdout_segment_changes(before, _fit(few, meas, hold, starts, t), {"motor_speed": 1.0})
+    assert (d["improved"], d["worse"]) == (3, 57) and d["sign_p"] > 0.5 and d["signed_rank_p"] > 0.5
 
 
 def _trim_xd():

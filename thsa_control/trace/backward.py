@@ -97,14 +97,16 @@ def model_key(effects, free, pset: ParameterSet) -> tuple:
 
 
 def judge_removal(a: Added, full: dict, reduced: dict, *, noise, mask, window_mask, alpha: float,
-                  min_window_reduction: float, max_channel_increase: float, z: float, robust: bool) -> dict:
+                  min_window_reduction: float, max_channel_increase: float, z: float, robust: bool,
+                  robust_test: str = "signed-rank") -> dict:
     """The admission criterion of ``a``, given the others: ``full`` (the current fit) against ``reduced`` (the
     fit without it).  Returns the record (before the null calibration); ``prelim`` says whether it passes the
     tests that need no null run."""
     spec = a.spec
     adm = admission_tests(reduced, full, noise, k=a.k, alpha=alpha, mask=mask, window=window_mask,
                           channel=spec.channel, min_window_reduction=min_window_reduction,
-                          max_channel_increase=max_channel_increase, robust=robust, given_others=True)
+                          max_channel_increase=max_channel_increase, robust=robust, robust_test=robust_test,
+                          given_others=True)
     drop, thr, win_red = adm["holdout_chi2_drop"], adm["chi2_threshold"], adm["window_reduction"]
     why = []
     if not adm["significant"]:

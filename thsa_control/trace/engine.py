@@ -192,14 +192,22 @@ class TraceSettings:
     robust_constant_torque : bool
         With the base step, a constant-torque explainer (a Coulomb or direction drag, an axial force; within or
         beyond its base correction) is significant only when it improves a majority of the held-out segments
-        of its window (outside the base's transients) beyond chance: one-sided sign test of the per-segment
-        chi2 drops at ``alpha`` (``window_segments.sign_p``).  A constant torque acts on every moving sample
+        of its window (outside the base's transients) beyond chance: the one-sided ``robust_test`` of the per-segment
+        chi2 drops at ``alpha``.  A constant torque acts on every moving sample
         alike, so a real one lowers the error of most segments; the pooled held-out drop of a declared model of
         another rig's base is carried by a few segments (measured: an axial force beyond its bound, the first
         effect named on rig_direction_friction, improved 6 of the 15 held-out segments of its window outside the
         transients; over all 33 held-out segments 13, three of them carrying 91 % of the change).  The held-out segments are separate shooting
         segments, each started from its own fitted state, and 2 segment lengths apart: their drops are taken
         as independent.
+    robust_test : str
+        The test of ``robust_constant_torque``: ``"signed-rank"`` (default; Wilcoxon's one-sided signed-rank test
+        of the per-segment drops, ``window_segments.signed_rank_p``) or ``"sign"`` (the sign test,
+        ``window_segments.sign_p``).  The sign test counts a segment the candidate hardly changes as a full vote;
+        on a record whose base differs, the segments where a constant torque matters little (slow motion, light
+        load) are coin flips of small size and dilute the segments where it acts.  The signed-rank test weighs each
+        segment by the rank of its change, so those count little, while a drop carried by a few segments (large
+        ranks on few segments, the rest against it) still fails.
     joint_lift : bool
         With the base step, where a Coulomb-drag or axial-force correction ran to its plausible bound: the
         explainers lifted together (:func:`~thsa_control.trace.lift.joint_verdict`) and the lifted fits started
@@ -247,6 +255,7 @@ class TraceSettings:
     speed_sensors: Mapping[str, object] | None = None
     score_outside_transients: bool = True
     robust_constant_torque: bool = True
+    robust_test: str = "signed-rank"
     rig_hardware: bool = True
     #: with the base step, when a constant-torque base correction sits at its plausible bound: fit the whole
     #: plausible set lifted together against all bounded (one held-out likelihood ratio, reported per round as
@@ -580,7 +589,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 a, current, f, noise=noise, mask=score_mask(a.spec.window), window_mask=window_of(a.spec.window, cur_params),
                 alpha=st.alpha, min_window_reduction=st.min_window_reduction,
                 max_channel_increase=st.max_channel_increase, z=st.determination_z,
-                robust=bool(use_base and st.robust_constant_torque and constant)))
+                robust=bool(use_base and st.robust_constant_torque and constant), robust_test=st.robust_test))
         return out
 
     def backward_check(after_round: int) -> list[dict]:
@@ -759,7 +768,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             adm = admission_tests(current, f, noise, k=k, alpha=st.alpha, mask=score_mask(spec.window), window=win,
                                   channel=spec.channel, min_window_reduction=st.min_window_reduction,
                                   max_channel_increase=st.max_channel_increase,
-                                  robust=bool(use_base and st.robust_constant_torque and constant))
+                                  robust=bool(use_base and st.robust_constant_torque and constant),
+                                  robust_test=st.robust_test)
             drop, thr, win_red, err_red, aic_drop, seg_win = (adm[x] for x in (
                 "holdout_chi2_drop", "chi2_threshold", "window_reduction", "error_reduction", "aic_drop",
                 "window_segments"))

@@ -334,8 +334,8 @@ def _chi2_by_channel(fit: dict, noise: Mapping[str, float], select: str, windows
 
 def admission_tests(before: dict, after: dict, noise: Mapping[str, float], *, k: int, alpha: float, mask: dict | None,
                     window: dict, channel: str, min_window_reduction: float, max_channel_increase: float,
-                    robust: bool = False, whole_record: bool = True, aic: bool = True,
-                    given_others: bool = False) -> dict:
+                    robust: bool = False, robust_test: str = "signed-rank", whole_record: bool = True,
+                    aic: bool = True, given_others: bool = False) -> dict:
     """The admission test of an effect: ``after`` (the model with it) against ``before`` (the model without it), the
     one rule of the forward selection (engine: a candidate, a declared component detailed) and of the backward check
     (:func:`thsa_control.trace.backward.judge_removal`: a kept effect given the later ones).
@@ -345,8 +345,8 @@ def admission_tests(before: dict, after: dict, noise: Mapping[str, float], *, k:
     inside ``window``) at least ``min_window_reduction``.  ``channel_fail``: the effect's own ``channel`` worse in
     the window by more than ``max_channel_increase`` or (``whole_record``) over the whole record.  ``aic_fail``
     (``aic``): the training samples prefer the model without it (AIC drop <= 0).  ``robust_fail`` (``robust``, a
-    constant torque on a record whose base differs): the one-sided sign test over the window's held-out segments
-    (:func:`_holdout_segment_changes`) not below ``alpha``.  A failure is its reason (text), else None;
+    constant torque on a record whose base differs): the one-sided ``robust_test`` over the window's held-out segments
+    (:func:`_holdout_segment_changes`: ``"signed-rank"`` or ``"sign"``) not below ``alpha``.  A failure is its reason (text), else None;
     ``given_others`` words it for an effect judged given the others.  Also returned: the drops, the threshold, the
     window and whole-record error reductions, the AIC drop and the window's segment changes."""
     from scipy.stats import chi2
@@ -378,14 +378,21 @@ def admission_tests(before: dict, after: dict, noise: Mapping[str, float], *, k:
                     f"{aic_drop:.3g} <= 0)")
     seg = _holdout_segment_changes(before, after, noise, window)
     robust_fail = None
-    if robust and seg.get("sign_p", 1.0) >= alpha:
+    if robust_test not in ROBUST_TESTS:
+        raise ValueError(f"robust_test {robust_test!r}: one of {', '.join(ROBUST_TESTS)}")
+    key = ROBUST_TESTS[robust_test]
+    if robust and seg.get(key, 1.0) >= alpha:
         robust_fail = (f"a constant torque that improves {seg.get('improved', 0)} of {seg.get('segments', 0)} held-out "
-                       f"segments of its window (sign test p = {seg.get('sign_p', 1.0):.2g} >= {alpha:g})")
+                       f"segments of its window ({robust_test} test p = {seg.get(key, 1.0):.2g} >= {alpha:g})")
     return {"holdout_chi2_before": hb, "holdout_chi2_drop": drop, "holdout_chi2_drop_all_samples": drop_all,
             "chi2_threshold": thr, "significant": drop > thr, "window_reduction": win_red,
             "window_ok": max(win_red.values(), default=0.0) >= min_window_reduction, "error_reduction": err_red,
             "aic_drop": aic_drop, "window_segments": seg, "channel_fail": channel_fail, "aic_fail": aic_fail,
             "robust_fail": robust_fail}
+
+
+#: the robustness tests of a constant torque's held-out segment changes -> their p-value in ``window_segments``
+ROBUST_TESTS = {"signed-rank": "signed_rank_p", "sign": "sign_p"}
 
 
 def holdout_total(fit: dict, noise: Mapping[str, float], mask: dict | None = None) -> float:
@@ -463,8 +470,8 @@ def _holdout_segment_changes(before: dict, after: dict, noise: Mapping[str, floa
             "top3_share": float(a[:3].sum() / a.sum()) if a.sum() > 0 else 0.0,
             "median_drop": float(np.median(x)),
             "sign_p": float(binom.sf(up - 1, up + down, 0.5)) if up + down else 1.0,
-            # reported beside it (measured, not used): the signed-rank test of the same hypothesis, which weighs each
-            # segment by the rank of its change, so that a segment the candidate hardly changes counts little
+            # the signed-rank test of the same hypothesis (TraceSettings.robust_test): each segment weighed by the rank
+            # of its change, so that a segment the candidate hardly changes counts little
             "signed_rank_p": float(wilcoxon(x[x != 0], alternative="greater").pvalue) if up + down >= 2 else 1.0}
 
 
