@@ -144,16 +144,22 @@ def test_holdout_segment_changes_count_and_concentrate():
     assert d["sign_p"] == pytest.approx(5 / 16)
 
 
+def _held_out_record(n, seg):
+    """A record of ``n`` samples in segments of ``seg``, every third held out, measured 1 where the model before says
+    0: ``(t, segment index per sample, held-out mask, segment starts, measured, fit before)``."""
+    t = np.arange(n) * 1e-3
+    k = np.arange(n) // seg
+    hold = k % 3 == 2
+    starts = t[::seg]
+    meas = np.ones(n)
+    return t, k, hold, starts, meas, _fit(np.zeros(n), meas, hold, starts, t)
+
+
 def test_holdout_segment_changes_inside_a_window_and_the_sign_test():
     """Only segments with samples in the window count; a change carried by a few segments does not pass the sign
     test, one that improves every segment does."""
     n, seg = 3000, 50
-    t = np.arange(n) * 1e-3
-    k = np.arange(n) // seg
-    hold = k % 3 == 2  # 20 held-out segments
-    starts = t[::seg]
-    meas = np.ones(n)
-    before = _fit(np.zeros(n), meas, hold, starts, t)
+    t, k, hold, starts, meas, before = _held_out_record(n, seg)  # 20 held-out segments
     window = {"r": k < 30}  # the first 30 segments: 10 held out
     few = np.zeros(n)
     few[np.isin(k, (2, 5))] = 1.0  # two segments fixed, the others as before (no change: ties, left out)
@@ -174,12 +180,7 @@ def test_signed_rank_weighs_a_segment_by_its_change_and_still_refuses_a_drop_few
     weighs the clear improvements and admits (p < 1e-5).  A drop carried by three segments with the other 57 a little
     worse fails both."""
     n, seg = 9000, 50
-    t = np.arange(n) * 1e-3
-    k = np.arange(n) // seg
-    hold = k % 3 == 2  # 60 held-out segments
-    starts = t[::seg]
-    meas = np.ones(n)
-    before = _fit(np.zeros(n), meas, hold, starts, t)
+    t, k, hold, starts, meas, before = _held_out_record(n, seg)  # 60 held-out segments
     held = np.unique(k[hold])
     clear = np.full(n, -0.1)  # a little worse (1.21 against 1 per sample) ...
     clear[np.isin(k, held[:38])] = 0.5  # ... 38 segments clearly better (0.25 against 1)

@@ -8,9 +8,8 @@ and *aids* it when ``< 0`` (FORMAT.md).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import math
+from dataclasses import dataclass
 
 import numpy as np
 

@@ -460,9 +460,7 @@ def _holdout_segment_changes(before: dict, after: dict, noise: Mapping[str, floa
     x = np.asarray(changes, float)
     if not x.size:
         return {}
-    from scipy.stats import binom
-
-    from scipy.stats import wilcoxon
+    from scipy.stats import binom, wilcoxon
 
     a = np.sort(np.abs(x))[::-1]
     up, down = int(np.sum(x > 0)), int(np.sum(x < 0))
