@@ -23,8 +23,9 @@ def hand_current(P, level, speed_mm_s, load_N):
     Screw side, at the motor shaft: gear drag, the load through the screw
     efficiency of its power-flow direction, and the no-back (level A: the ideal
     Coulomb torque F r against load-aided motion; level B: the slipping disk,
-    the loaded one preload + |F|/2 and the light one preload - |F|/2 while
-    |F| < 2 preload, beyond it |F| and 0: the flange balance).  The gearbox
+    the flange balance: the loaded set takes its stiffness share s of the
+    load change, the light one gives up 1 - s until it has lost its preload,
+    then |F| and 0; equal sets, s = 0.5: preload +- |F|/2 up to 2 preload).  The gearbox
     divides what it passes by eta_g when the motor drives it and multiplies by
     eta_g when it is driven.  The motor bearing drag stays on the motor side.
     """

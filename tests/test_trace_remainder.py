@@ -11,6 +11,7 @@ import pytest
 from scipy.stats import binom
 
 from thsa_control.trace.scoring import _holdout_iact
+from thsa_control.trace import TraceSettings
 from thsa_control.trace.scoring import _holdout_segment_changes, admission_tests
 from thsa_control.trace.signature import (
     SignatureSettings,
@@ -197,6 +198,9 @@ def test_signed_rank_weighs_a_segment_by_its_change_and_still_refuses_a_drop_few
     assert "sign test p = 0.026" in by["sign"]["robust_fail"] and by["signed-rank"]["robust_fail"] is None
     with pytest.raises(ValueError, match="robust_test 'median'"):
         admission_tests({**before, "aic": 1.0}, after, {"motor_speed": 1.0}, robust_test="median", **common)
+    # and the settings refuse an unknown test before any fit
+    with pytest.raises(ValueError, match="TraceSettings.robust_test = 'median'"):
+        TraceSettings(robust_test="median").validate()
     few = np.full(n, -0.1)
     few[np.isin(k, held[:3])] = 1.0  # three segments fixed, every other one a little worse
     d = _holdout_segment_changes(before, _fit(few, meas, hold, starts, t), {"motor_speed": 1.0})

@@ -535,8 +535,8 @@ def _classify(model: PlantModel, conds, batch: LinearModelBatch, slope, damping)
                 which = text.split("'")[1]
                 why.append(f"backlash edge ({which.replace('_edge', '')}): {text}")
             elif "input 'load_force'" in text:
-                note.append(f"load kink (|F| laws at F = 0, or the no-back's light disk set unloading at |F| = 2 "
-                            f"preload): the load-step response is one-sided; {text}")
+                note.append(f"load kink (|F| laws at F = 0, or the no-back's light disk set unloading: at |F| = 2 "
+                            f"preload for equal disk sets): the load-step response is one-sided; {text}")
             elif "input 'disturbance_torque'" in text:  # pragma: no cover - the torque enters linearly
                 note.append(text)
             elif "state 'motor_speed'" in text or "d(motor_speed)" in text:

@@ -74,7 +74,8 @@ from .scoring import (_at_edge, _base_correction, _window_beyond_noise, _channel
                       _holdout_segment_changes,
                       _held_params, _null_runs, _param_entry, _plausibility, reason_kind,
                       _run_jobs,
-                      _signature_brief, admission_tests, beats_null, holdout_total, null_drop, scaled_threshold, zero_is_absent)
+                      _signature_brief, admission_tests, beats_null, holdout_total, null_drop, scaled_threshold, zero_is_absent,
+                      ROBUST_TESTS)
 from .lift import better, contribution, interior, joint_verdict, lift_names, lifted as lifted_bounds
 from .signature import SignatureSettings, base_transients, split_remainder
 from .threads import limit_blas_threads
@@ -283,6 +284,9 @@ class TraceSettings:
         if self.channel_weights not in ("sensor_noise", "base_residual"):
             raise ValueError(f"TraceSettings.channel_weights = {self.channel_weights!r}: expected 'sensor_noise' or "
                              "'base_residual'")
+        if self.robust_test not in ROBUST_TESTS:
+            raise ValueError(f"TraceSettings.robust_test = {self.robust_test!r}: expected one of "
+                             f"{', '.join(map(repr, ROBUST_TESTS))}")
         if self.speed_sensors is not None:
             from ..data.rigformat import SPEED_SENSOR_COLUMNS, speed_interval_from
 
@@ -1216,8 +1220,9 @@ def _residual_rms(fit: dict, runs) -> dict[str, float]:
     return {c: float(np.sqrt(np.mean(np.concatenate(v) ** 2))) for c, v in acc.items() if sum(map(len, v))}
 
 
-def parts_not_shown(fit: dict, spec: CandidateSpec, why: list[str]) -> tuple[list[str], list[str]]:
-    """Split a declared component's detailed model's refusal reasons: ``(why, parts)``.
+def parts_not_shown(fit: dict, spec: CandidateSpec, why: list) -> tuple[list, list]:
+    """Split a declared component's detailed model's refusal reasons (:class:`~thsa_control.trace.scoring.Reason`,
+    read by kind and parameter; a plain text never moves): ``(why, parts)``.
 
     The declared component is there by declaration: a coefficient of its detailed model that the run determines at
     zero (``determination == "zero"``) says that part of it does not show in this run (the light disk set's static
