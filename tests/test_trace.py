@@ -119,6 +119,44 @@ def test_every_candidate_is_found_first(record, params, effect, values, candidat
     assert max(red.values()) >= 0.5, red
 
 
+def _share(doc: dict) -> dict:
+    nb = next(e for e in doc["effects_added"] if e["name"] == "noback_quadrant_friction")
+    return nb["parameters"]["noback.load_share"]
+
+
+def test_noback_load_share_is_identified_where_the_load_crosses_the_band(record, params):
+    """The no-back's load share (assumed 0.5) is a parameter of its candidate.  Truth 0.4 (the compressive disk set
+    the softer one), the load swinging +-12 kN through the band where both disk sets carry load (|F| below twice the
+    3 kN preload): the slipping set's drag changes with the load at a slope set by the share and ends where that
+    set unloads (compressive load 3 kN / 0.6 = 5 kN, tensile 3 kN / 0.4 = 7.5 kN).  The tracer adds the detailed
+    no-back with the share determined, its interval around 0.4 and clear of the assumed 0.5."""
+    truth = 0.4
+    run = record(("noback_quadrant_friction",), {"noback.load_share": truth}, load=12e3, duration=3.0, level="A",
+                 triangle_load=True)
+    doc = trace(run, "A", params=params,
+                settings=_settings(("noback_quadrant_friction", "coulomb_friction"), max_effects=1)).to_dict()
+    assert [e["name"] for e in doc["effects_added"]] == ["noback_quadrant_friction"], doc["rounds"]
+    share = _share(doc)
+    assert not share.get("held"), share
+    lo, hi = share["ci95"]
+    assert lo <= truth <= hi and hi < 0.5, share
+    assert abs(share["value"] - truth) < 0.03, share
+
+
+def test_noback_load_share_is_held_on_a_load_beyond_the_band(record, params):
+    """On a constant 12 kN the light disk set is unloaded throughout (12 kN is beyond twice the preload): no
+    sample says how the sets share a load change.  The share is held at the file's 0.5 and reported as not
+    determined, and the no-back is still added on what its coefficients explain."""
+    run = record(("noback_quadrant_friction",), {"noback.load_share": 0.4}, load=12e3, duration=3.0, level="A")
+    doc = trace(run, "A", params=params,
+                settings=_settings(("noback_quadrant_friction", "coulomb_friction"), max_effects=1)).to_dict()
+    assert [e["name"] for e in doc["effects_added"]] == ["noback_quadrant_friction"], doc["rounds"]
+    share = _share(doc)
+    assert share.get("held") and share["value"] == params.value("noback.load_share"), share
+    nb = next(c for c in doc["candidates"] if c["name"] == "noback_quadrant_friction")
+    assert "noback.load_share" in {h["parameter"] for h in nb["not_determined"]}, nb["not_determined"]
+
+
 @pytest.mark.slow
 def test_temperature_friction_is_found_across_temperatures(record, params):
     """At one temperature the cold drag is a Coulomb friction plus a viscous one; with a warm and a cold run

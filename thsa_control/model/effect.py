@@ -124,6 +124,11 @@ class CandidateSpec:
     #: share (a cold run's drag fitted as a 25 degC viscous friction 9 x the file's); the tracer holds them at
     #: their file values (``trace.candidates.reference_not_determined``)
     reference: tuple[str, ...] = ()
+    #: free parameter -> the standard error above which the runs do not determine it, for a parameter whose zero is
+    #: not the effect's absence and whose file value is no scale of what matters (a share, 0..1, assumed within
+    #: +-0.1): the assumption's spread, which a run that determines it must narrow; default the reference magnitude
+    #: (file value, seed or plausible bound; ``trace.scoring.determination``)
+    resolution: Mapping[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

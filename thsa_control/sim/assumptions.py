@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 from ..loops.design import Design
 from ..model import build_plant
+from ..model.effects.papers import NOBACK_LOAD_SHARE_SPREAD
 from ..model.params import ParameterSet
 from .metrics import backdrive_metrics, current_in_load_band, surface_speed_deviation
 from .scenarios import get_scenario
@@ -80,7 +81,8 @@ ASSUMED_RANGES: tuple[AssumedRange, ...] = (
     AssumedRange("noback.pawl_initial_clearance", "initial pawl clearance [fraction of pitch]",
                  (0.0, 0.25, 0.5, 0.75, 0.95), "backdrive_bipolar_ramp", "C",
                  "back-drive at the first trim stop [% of command]"),
-    AssumedRange("noback.load_share", "no-back load share of the compressive disk set", (0.4, 0.45, 0.5, 0.55, 0.6),
+    AssumedRange("noback.load_share", "no-back load share of the compressive disk set",
+                 tuple(0.5 + k * NOBACK_LOAD_SHARE_SPREAD for k in (-1.0, -0.5, 0.0, 0.5, 1.0)),
                  "triangular_load", "B", "|motor current| with 5..7 kN tensile opposing [A]"),
 )
 

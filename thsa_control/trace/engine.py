@@ -451,8 +451,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             for n in spec.free + spec.second_stage + _reference_freed(spec):
                 if n in uncertain or n in base_priors:
                     continue
-                ref = max(abs(params.value(n)), abs(spec.seeds.get(n, 0.0)),
-                          plaus[spec.plausible[n]][0] if n in spec.plausible else 0.0)
+                ref = spec.resolution.get(n) or max(abs(params.value(n)), abs(spec.seeds.get(n, 0.0)),
+                                                    plaus[spec.plausible[n]][0] if n in spec.plausible else 0.0)
                 judge[n] = ref if ref > 0 else 0.01 * (params[n].max - params[n].min)
         return {"label": label, "effects": tuple(effs), "free": tuple(free), "params_toml": pset.to_toml(),
                 "settings": id_settings(prior, [n for n in free + (spec.second_stage if spec is not None else ())

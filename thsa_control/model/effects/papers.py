@@ -275,6 +275,11 @@ def _drivetrain_operating_point(c):
     return {}, {"rotor_speed": c.speed, "drivetrain_twist": c.torque_constant * c.current / drivetrain_stiffness(c.values)}
 
 
+#: half the plausible range of ``noback.load_share`` around its assumed 0.5 (0.4..0.6: the housing and cover that react
+#: the two disk sets differ; the parameter file's source); sim.assumptions spans it, the tracer's candidate needs a
+#: standard error below it to call the share determined by a record
+NOBACK_LOAD_SHARE_SPREAD = 0.1
+
 _NOBACK = tuple(f"noback.{n}" for n in (
     "preload", "load_share", "ratchet_inertia", "mu_static_pos", "mu_coulomb_pos", "viscous_pos", "stribeck_speed_pos",
     "mu_static_neg", "mu_coulomb_neg", "viscous_neg", "stribeck_speed_neg",
@@ -369,7 +374,8 @@ register(Effect(
     "noback_quadrant_friction", "no-back friction disks with load- and quadrant-dependent normal force",
     (), _NOBACK, (), _noback_quadrant_friction, supersedes=("noback_ideal",),
     phase=Phase.NOBACK,
-    neutral={n: 0.0 for n in _NOBACK if "stribeck_speed" not in n},
+    # the load share is no size of the effect: with the coefficients at zero any share leaves no torque
+    neutral={n: 0.0 for n in _NOBACK if "stribeck_speed" not in n and n != "noback.load_share"},
     outputs=(Output("noback_torque", "N m"), Output("noback_normal_force_comp", "N"),
              Output("noback_normal_force_tens", "N"), Output("noback_disk_comp_slipping", "-"),
              Output("noback_disk_tens_slipping", "-"), Output("pawl_comp_engaged", "-"),
@@ -378,9 +384,14 @@ register(Effect(
     # specimen's, and a no-back without the hump (a plain Coulomb disk, sticking only at rest) left a hump of
     # (mu_s - mu_c) N at every start under an aiding load that the base corrections then stood in for
     # (docs/trace_notes.md, "Base drags"); what a run does not determine is held at the file's value
+    # the load share too: a record whose load crosses the band where both disk sets carry load (|F| below about twice
+    # the preload) determines it from where and how the slipping set's drag changes with the load; any other record
+    # leaves it at the file's assumed value, held and reported (its spread, NOBACK_LOAD_SHARE_SPREAD, is what a
+    # determining record must narrow)
     candidate=CandidateSpec("noback_quadrant_friction", ("noback.mu_coulomb_pos", "noback.mu_coulomb_neg",
-                                                         "noback.mu_static_pos", "noback.mu_static_neg"), {},
-                            "loaded"),
+                                                         "noback.mu_static_pos", "noback.mu_static_neg",
+                                                         "noback.load_share"), {},
+                            "loaded", resolution={"noback.load_share": NOBACK_LOAD_SHARE_SPREAD}),
     linear=LinearHints(kinks={"noback_normal_force": "the no-back's light disk set unloading (load-path force at "
                                                      "preload / (1 - load share), compressive, preload / load "
                                                      "share, tensile: twice the preload for equal sets)"}),
