@@ -202,9 +202,10 @@ def test_cli_trace_writes_json_and_report(record, params, tmp_path, capsys):
     run = record(("coulomb_friction",), {"drive.coulomb_torque": 0.05})
     out = tmp_path / "tr"
     assert main(["trace", str(run.csv_path), "--model", "A", "--candidates", "coulomb_friction",
-                 "--max-nfev", "30", "--quiet", "--out", str(out)]) == 0
+                 "--max-nfev", "30", "--robust-test", "sign", "--quiet", "--out", str(out)]) == 0
     doc = json.loads((out / "trace.json").read_text())
     assert doc["format"] == "thsa-trace/1" and doc["base_model"] == "A"
+    assert doc["settings"]["robust_test"] == "sign"  # the flag reaches the settings the trace ran with
     assert [e["name"] for e in doc["effects_added"]] == ["coulomb_friction"]
     for key in ("datasets", "error_before", "error_after", "unexplained", "residual_signature", "candidates"):
         assert key in doc
@@ -217,6 +218,21 @@ def test_cli_trace_writes_json_and_report(record, params, tmp_path, capsys):
     bad = tmp_path / "bad"
     assert main(["trace", str(run.csv_path), "--model", "A", "--candidates", "magic", "--out", str(bad)]) == 2
     assert "magic" in capsys.readouterr().err and not bad.exists()
+
+
+def test_cli_robust_test_choices_are_the_scorings():
+    """``--robust-test`` offers exactly the tests the scoring knows (trace.scoring.ROBUST_TESTS), default its
+    default; an unknown one is a usage error naming the flag."""
+    from thsa_control.cli import build_parser
+    from thsa_control.trace.scoring import ROBUST_TESTS
+
+    parser = build_parser()
+    action = next(a for sp in parser._subparsers._group_actions for n, p in sp.choices.items() if n == "trace"
+                  for a in p._actions if a.dest == "robust_test")
+    assert set(action.choices) == set(ROBUST_TESTS) and action.default == TraceSettings().robust_test
+    with pytest.raises(SystemExit) as exc:
+        parser.parse_args(["trace", "x.csv", "--model", "A", "--out", "o", "--robust-test", "median"])
+    assert exc.value.code == 2
 
 
 def _shared_example() -> Path | None:

@@ -80,6 +80,23 @@ def test_the_rest_must_pass_the_threshold_not_only_be_positive():
     assert "does not pass the held-out test" in periodicity.describe(t)
 
 
+def test_a_gain_at_two_places_is_not_periodic():
+    """Two local structures a lead or more apart (a load path's two zero crossings on a load sweep): leaving out the
+    period of the larger still leaves the other's gain above the threshold, but the typical period of travel loses,
+    and a ripple gains in every period."""
+    def g(x):
+        bumps = sum(400.0 * math.exp(-0.5 * ((x - c) / 0.0015) ** 2) for c in (0.006, 0.032))
+        return bumps - 2.0 * (1 + math.sin(2 * math.pi * x / LEAD)) ** 2
+
+    segs = _segments(g, 7, travel=0.09)
+    t = periodicity.repetition_test(segs, LEAD, threshold=14.0)
+    assert t["rest_drop"] > t["threshold"], t  # the leave-one-out part alone would pass it
+    assert t["median_period_drop"] < 0 and not t["repeats"], t
+    assert "the typical period does not gain" in periodicity.describe(t)
+    r = periodicity.repetition_test(_segments(_ripple_gain, 7, travel=0.09), LEAD, threshold=14.0)
+    assert r["repeats"] and r["median_period_drop"] > 0, r
+
+
 def test_less_than_two_periods_of_travel_is_not_testable():
     segs = _segments(_bump_gain(0.005), 6, travel=0.02)
     t = periodicity.repetition_test(segs, LEAD, threshold=14.0)

@@ -38,6 +38,11 @@ def add_parser(subparsers) -> None:
                    help="what each channel is weighted by in the fits and scores: its sensor noise (default) or the "
                         "larger of that and the declared model's residual RMS on it (a channel the base leaves "
                         "far above its noise then does not pull the candidates' parameters)")
+    p.add_argument("--robust-test", choices=("signed-rank", "sign"), default="signed-rank",
+                   help="the one-sided test over the held-out segments that a constant-torque candidate beyond its "
+                        "base correction must pass (its drop carried by the window, not by a few segments): the "
+                        "Wilcoxon signed-rank test (default) or the sign test, which counts a segment the candidate "
+                        "hardly changes as a full vote")
     p.add_argument("--no-rig-hardware", action="store_true",
                    help="do not complete the declared model from the runs' rig description (by default a JSON "
                         "rig.motors = 2 adds standby_motor: the second rotor carried along)")
@@ -86,7 +91,7 @@ def run(args) -> int:
                 sensors[k.strip()] = v.strip()
         settings = TraceSettings(segment_duration=args.segment, max_effects=args.max_effects, max_nfev=args.max_nfev,
                                  workers=args.workers, substeps=args.substeps, speed_sensors=sensors,
-                                 channel_weights=args.channel_weights.replace("-", "_"),
+                                 channel_weights=args.channel_weights.replace("-", "_"), robust_test=args.robust_test,
                                  base_corrections={"auto": None, "on": True, "off": False}[args.base_corrections], rig_hardware=not args.no_rig_hardware, uncertain=split(args.free), candidates=split(args.candidates))
         settings.validate()
     except ValueError as exc:

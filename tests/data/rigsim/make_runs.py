@@ -48,6 +48,10 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     # the cogging on a closed position loop (15 mm/s, creep at 0.3 mm/s near the targets): at 500 Hz its 18th harmonic
     # is resolved only in the approach and the creep (a fifth of the record), aliased in the fast travel
     "rig_cogging_steps": ("position_steps", "rig", "cogging", 251, None, "library"),
+    # the no-back on the load sweep through zero: the only record here whose load crosses the band where both disk
+    # sets carry load (|F| < 2 x 3 kN), so the only one that determines how they share a load change (rig-sim: Fp +-
+    # F/2, a share of 0.5); every other record holds the share at the file's assumed 0.5
+    "rig_noback_quadrant_sweep": ("triangular_load_sweep", "rig", "noback_quadrant", 621, None, "library"),
     # --- nothing planted: the bases alone, several scenarios and noise seeds
     "null_rig_trim_s1": ("trim_ramp_compressive", "rig", "", 1, None, "null"),
     "null_rig_reversals_s2": ("reversals_under_load", "rig", "", 2, 5.0, "null"),
