@@ -60,6 +60,14 @@ def test_drivetrain_damping_is_a_second_stage_parameter():
     assert spec.second_stage == ("gear.torsional_damping",)
 
 
+def test_noback_load_share_is_a_second_stage_parameter():
+    """The no-back's load share is freed from the disk coefficients the run determines (freed with them, it traded
+    with the light disk's coefficients where the band both sets share is thin), judged against its assumed spread."""
+    spec = CANDIDATES["noback_quadrant_friction"]
+    assert "noback.load_share" not in spec.free and spec.second_stage == ("noback.load_share",)
+    assert 0 < spec.resolution["noback.load_share"] < 0.5
+
+
 def test_interval_of_a_positive_parameter_stays_positive():
     """A stiffness (search bound above zero) poorly determined: its 95 % interval is symmetric in the logarithm, so it
     never reaches zero, holds the estimate with the Wald interval's coverage in log space (sd(log v) = sd / v), and

@@ -200,17 +200,32 @@ def _holdout_iact(fit: dict, noise, mask: dict | None = None) -> float:
 
 def _second_stage(job: dict, res, params: ParameterSet, held: dict):
     """Free ``job["second_stage"]`` (:attr:`CandidateSpec.second_stage`) from the first fit's estimates when that
-    fit determines every other parameter it judges; keep the second fit unless it leaves one of them, or a
-    second-stage parameter, undetermined (then that is held at its file value, as the first fit had it)."""
+    fit determines every other parameter it judges and still fits (those the run does not determine were held
+    before: a no-back's light disk on a one-signed load); keep the second fit unless it leaves one of them, or a
+    second-stage parameter, undetermined (then that is held at its file value, as the first fit had it).
+
+    Freed together with the first stage, a parameter that only a part of the runs informs (the no-back's load
+    share: the band where both disk sets carry load) trades with the others where that part is thin and takes
+    their determination with it (measured on rig-sim's elastic-surface ramp: freed with the disks' coefficients,
+    the share wandered to 0.1 +- 0.56 and the light disk's static coefficient, which the run determines at zero,
+    became undetermined)."""
     second = tuple(n for n in job.get("second_stage", ()) if n in params and n not in job["free"])
     judge = job.get("judge") or {}
-    first = [n for n in judge if n not in second]
-    if not second or held or not first:
+    first = [n for n in judge if n not in second and n in job["free"]]
+    if not second:
         return res, job, params, held
+
+    def not_freed(why: str):  # held at the file's value, and said so (no fit of its own to report)
+        return res, job, params, {**held, **{n: {"reason": f"not freed: {why}", "value_if_free": None,
+                                                 "stderr_if_free": None, "held_at": params.value(n)} for n in second}}
+
+    if not first:
+        return not_freed("the run determines none of the parameters it is freed from")
     z, absent = job.get("determination_z", 2.0), job.get("absent") or {}
-    if any(determination(res.estimates[n].value, _data_stderr(res.estimates[n]), judge[n], z, absent.get(n, True))
-           != "determined" for n in first if n in res.estimates):
-        return res, job, params, held
+    lost = [n for n in first if n in res.estimates and determination(
+        res.estimates[n].value, _data_stderr(res.estimates[n]), judge[n], z, absent.get(n, True)) == "not determined"]
+    if lost:
+        return not_freed("the run does not determine " + ", ".join(lost) + ", which it is freed from")
     free = tuple(job["free"]) + second
     start = params.replace({n: e.value for n, e in res.estimates.items()})
     res2 = Identifier(None, start, free, effects=job["effects"], settings=job["settings"]).fit(job["runs"])
@@ -221,8 +236,8 @@ def _second_stage(job: dict, res, params: ParameterSet, held: dict):
             und.setdefault(n, {"reason": "freed, it left " + ", ".join(lost) + " undetermined",
                                "value_if_free": res2.estimates[n].value,
                                "stderr_if_free": _data_stderr(res2.estimates[n])})
-        return res, job, params, {n: {**und[n], "held_at": params.value(n)} for n in second}
-    return res2, {**job, "free": free}, start, {}
+        return res, job, params, {**held, **{n: {**und[n], "held_at": params.value(n)} for n in second}}
+    return res2, {**job, "free": free}, start, held
 
 
 def _data_stderr(e) -> float | None:

@@ -384,14 +384,15 @@ register(Effect(
     # specimen's, and a no-back without the hump (a plain Coulomb disk, sticking only at rest) left a hump of
     # (mu_s - mu_c) N at every start under an aiding load that the base corrections then stood in for
     # (docs/trace_notes.md, "Base drags"); what a run does not determine is held at the file's value
-    # the load share too: a record whose load crosses the band where both disk sets carry load (|F| below about twice
-    # the preload) determines it from where and how the slipping set's drag changes with the load; any other record
-    # leaves it at the file's assumed value, held and reported (its spread, NOBACK_LOAD_SHARE_SPREAD, is what a
-    # determining record must narrow)
+    # then the load share, from the coefficients the run determines: a record whose load crosses the band where both
+    # disk sets carry load (|F| below about twice the preload) determines it from where and how the slipping set's
+    # drag changes with the load; any other record leaves it at the file's assumed value, held and reported (its
+    # spread, NOBACK_LOAD_SHARE_SPREAD, is what a determining record must narrow).  Freed with the coefficients it
+    # traded with them where the band is thin (trace.scoring._second_stage)
     candidate=CandidateSpec("noback_quadrant_friction", ("noback.mu_coulomb_pos", "noback.mu_coulomb_neg",
-                                                         "noback.mu_static_pos", "noback.mu_static_neg",
-                                                         "noback.load_share"), {},
-                            "loaded", resolution={"noback.load_share": NOBACK_LOAD_SHARE_SPREAD}),
+                                                         "noback.mu_static_pos", "noback.mu_static_neg"), {},
+                            "loaded", second_stage=("noback.load_share",),
+                            resolution={"noback.load_share": NOBACK_LOAD_SHARE_SPREAD}),
     linear=LinearHints(kinks={"noback_normal_force": "the no-back's light disk set unloading (load-path force at "
                                                      "preload / (1 - load share), compressive, preload / load "
                                                      "share, tensile: twice the preload for equal sets)"}),
