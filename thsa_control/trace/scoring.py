@@ -200,8 +200,8 @@ def _holdout_iact(fit: dict, noise, mask: dict | None = None) -> float:
 
 def _second_stage(job: dict, res, params: ParameterSet, held: dict):
     """Free ``job["second_stage"]`` (:attr:`CandidateSpec.second_stage`) from the first fit's estimates when that
-    fit determines every other parameter it judges and still fits (those the run does not determine were held
-    before: a no-back's light disk on a one-signed load); keep the second fit unless it leaves one of them, or a
+    fit determines every other parameter it still frees (those the run does not determine were held before: a
+    no-back's light disk on a one-signed load); keep the second fit unless it leaves one of them, or a
     second-stage parameter, undetermined (then that is held at its file value, as the first fit had it).
 
     Freed together with the first stage, a parameter that only a part of the runs informs (the no-back's load
@@ -222,10 +222,10 @@ def _second_stage(job: dict, res, params: ParameterSet, held: dict):
     if not first:
         return not_freed("the run determines none of the parameters it is freed from")
     z, absent = job.get("determination_z", 2.0), job.get("absent") or {}
-    lost = [n for n in first if n in res.estimates and determination(
+    unknown = [n for n in first if n in res.estimates and determination(
         res.estimates[n].value, _data_stderr(res.estimates[n]), judge[n], z, absent.get(n, True)) == "not determined"]
-    if lost:
-        return not_freed("the run does not determine " + ", ".join(lost) + ", which it is freed from")
+    if unknown:
+        return not_freed("the run does not determine " + ", ".join(unknown) + ", which it is freed from")
     free = tuple(job["free"]) + second
     start = params.replace({n: e.value for n, e in res.estimates.items()})
     res2 = Identifier(None, start, free, effects=job["effects"], settings=job["settings"]).fit(job["runs"])
