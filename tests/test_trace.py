@@ -125,8 +125,8 @@ def _share(doc: dict) -> dict:
 
 
 def test_noback_load_share_is_identified_where_the_load_crosses_the_band(record, params):
-    """The no-back's load share (assumed 0.5) is its candidate's second-stage parameter.  Truth 0.4 (the compressive disk set
-    the softer one), the load swinging +-12 kN through the band where both disk sets carry load (|F| below twice the
+    """The no-back's load share (assumed 0.5) is its candidate's second-stage parameter.  Truth 0.4 (the
+    compressive disk set the softer one), the load swinging +-12 kN through the band where both disk sets carry load (|F| below twice the
     3 kN preload): the slipping set's drag changes with the load at a slope set by the share and ends where that
     set unloads (compressive load 3 kN / 0.6 = 5 kN, tensile 3 kN / 0.4 = 7.5 kN).  The tracer adds the detailed
     no-back with the share determined, its interval around 0.4 and clear of the assumed 0.5."""
