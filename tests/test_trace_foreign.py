@@ -412,6 +412,7 @@ def test_the_no_back_load_share_is_read_from_a_load_sweep_through_zero(traced):
     assert abs(share["value"] - 0.5) < 0.05, share
     lo, hi = share["ci95"]
     assert 0.4 < lo <= share["value"] <= hi < 0.6, share
+    assert share["assumed_range"] == pytest.approx([0.4, 0.6]) and share["outside_assumed_range"] is False, share
 
 
 @pytest.mark.campaign

@@ -119,3 +119,29 @@ def test_a_declared_components_coefficient_at_zero_is_a_part_not_shown_only_besi
     held = fit(mu_static_pos="zero", mu_coulomb_neg="determined")
     held["estimates"]["noback.mu_coulomb_neg"]["held"] = True
     assert parts_not_shown(held, spec, why) == (why, [])
+
+
+def test_a_load_share_outside_its_assumed_range_is_said_not_refused():
+    """A share the run determines beyond the assumed 0.4..0.6 (rig-sim's rig-base no-back, no disk pair, read 0.61
+    on two run sets) is reported with the range it leaves, in trace.json and the report's line; inside the range and
+    held, nothing is added."""
+    from thsa_control.report.trace import _outside
+    from thsa_control.trace.engine import _params_out
+
+    spec = CANDIDATES["noback_quadrant_friction"]
+
+    def fit(share, held=False):
+        est = {n: {"value": 0.005, "stderr": 1e-5, "init": 0.005, "at_bound": None, "min": 0.0, "max": 1.0,
+                   "unit": "N m/N"} for n in spec.free}
+        est["noback.load_share"] = {"value": share, "stderr": None if held else 0.01, "init": 0.5, "at_bound": None,
+                                    "min": 0.0, "max": 1.0, "unit": "-", **({"held": True} if held else {})}
+        return {"estimates": est}
+
+    out = _params_out(fit(0.61), spec)["noback.load_share"]
+    assert out["assumed_range"] == pytest.approx([0.4, 0.6]) and out["outside_assumed_range"] is True
+    assert "outside the assumed 0.4..0.6" in _outside(out)
+    inside = _params_out(fit(0.483), spec)["noback.load_share"]
+    assert inside["outside_assumed_range"] is False and _outside(inside) == ""
+    held = _params_out(fit(0.5, held=True), spec)["noback.load_share"]
+    assert "outside_assumed_range" not in held and _outside(held) == ""
+    assert "assumed_range" not in _params_out(fit(0.61), spec)["noback.mu_coulomb_neg"]

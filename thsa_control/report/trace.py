@@ -39,6 +39,14 @@ def plot_residual_before_after(before: dict, after: dict, run_name: str, channel
     return fig
 
 
+def _outside(p: dict) -> str:
+    """A determined parameter outside its assumed range (trace.json ``outside_assumed_range``), said beside it."""
+    if not p.get("outside_assumed_range"):
+        return ""
+    lo, hi = p["assumed_range"]
+    return f" (outside the assumed {_num(lo)}..{_num(hi)})"
+
+
 def _ci(p: dict) -> str:
     ci = p.get("ci95")
     return f" [{_num(ci[0])}, {_num(ci[1])}]" if ci else ""
@@ -81,7 +89,7 @@ def conclusion_table_html(doc: dict) -> str:
             f"detailed declared {', '.join(e['refines_declared'])}" if e.get("refines_declared") else "found effect")
         pars = "<br>".join(f"{esc(n)} = {_num(p['value'])} {esc(p['unit'])}{_ci(p)}"
                            + (" (profiled)" if p.get("profiled") else "") + (" (held)" if p.get("held") else "")
-                           for n, p in e["parameters"].items())
+                           + _outside(p) for n, p in e["parameters"].items())
         nd = "<br>".join([f"{esc(h['parameter'])} held at {_num(h['held_at'])} {esc(h['unit'])}: {esc(h['reason'])}"
                           for h in e.get("not_determined", [])]
                          + [f"part not shown by this run (kept at its fit): {esc(w)}"
@@ -460,7 +468,8 @@ def format_trace_summary(doc: dict) -> str:
         for n, p in e["parameters"].items():
             ci = p["ci95"]
             lines.append(f"    {n} = {_num(p['value'])} {p['unit']}" + (f"  95 % CI [{_num(ci[0])}, {_num(ci[1])}]" if ci else "")
-                         + (" (profiled)" if p.get("profiled") else "") + (" (held)" if p.get("held") else ""))
+                         + (" (profiled)" if p.get("profiled") else "") + (" (held)" if p.get("held") else "")
+                         + _outside(p))
         for h in e.get("not_determined", []):
             lines.append(f"    not determined by this run: {h['parameter']} held at {_num(h['held_at'])} {h['unit']} "
                          f"({h['reason']})")

@@ -1448,8 +1448,20 @@ def _repetition(current: dict, fit: dict, spec: CandidateSpec, k: int, runs, noi
 
 
 def _params_out(f: dict, spec: CandidateSpec) -> dict:
-    return {n: _param_entry(f["estimates"][n]) for n in (*spec.free, *spec.second_stage, *spec.profile)
-            if n in f["estimates"]}
+    out = {n: _param_entry(f["estimates"][n]) for n in (*spec.free, *spec.second_stage, *spec.profile)
+           if n in f["estimates"]}
+    for n, spread in spec.resolution.items():
+        # a parameter with an assumed spread (the no-back's load share: 0.4..0.6 around the file's 0.5): where the run
+        # determines it, say whether it lies inside the assumption (outside: reported, not refused: the value is the
+        # rig's law seen through the model's; the assumption or the law wants a look).  The fit started it at the
+        # file's value (``init``)
+        e, p = f["estimates"].get(n), out.get(n)
+        if e is None or p is None or p.get("held") or e.get("init") is None:
+            continue
+        lo, hi = e["init"] - spread, e["init"] + spread
+        p["assumed_range"] = [lo, hi]
+        p["outside_assumed_range"] = not lo <= p["value"] <= hi
+    return out
 
 
 def _explained_regimes(before: dict, after: dict, runs) -> dict:
