@@ -145,3 +145,111 @@ def test_a_load_share_outside_its_assumed_range_is_said_not_refused():
     held = _params_out(fit(0.5, held=True), spec)["noback.load_share"]
     assert "outside_assumed_range" not in held and _outside(held) == ""
     assert "assumed_range" not in _params_out(fit(0.61), spec)["noback.mu_coulomb_neg"]
+
+
+# --- the hold, and the second stage, on fits whose information is set by hand -------------------------------------
+
+def _est(name, value, sd, lo=-math.inf, hi=math.inf, at_bound=None, unit="-"):
+    from thsa_control.fit.identify_result import ParameterEstimate
+
+    return ParameterEstimate(name=name, unit=unit, value=value, stderr=sd, init=value, min=lo, max=hi,
+                             at_bound=at_bound, at_initial=False, stderr_data=sd)
+
+
+class _Fit:
+    def __init__(self, est):
+        self.estimates = {e.name: e for e in est}
+
+
+def _job(free, judge, **kw):
+    import dataclasses
+
+    from thsa_control.fit.identify import IdentificationSettings
+
+    return {"free": tuple(free), "judge": judge, "hold_at": {n: 1.0 for n in judge}, "determination_z": Z,
+            "absent": {n: True for n in judge}, "settings": dataclasses.replace(IdentificationSettings()), **kw}
+
+
+def _params(names):
+    from thsa_control.model.params import default_parameters
+
+    base = default_parameters()
+    return base, [n for n in names if n in base]
+
+
+def test_a_parameter_the_refit_leaves_undetermined_is_held_too():
+    """Three coefficients a, b, c (reference 1): the first fit does not determine a; refitted with a held, b is left
+    undetermined (it traded with a and now only with c): b is held too and the last fit frees c alone, which it
+    determines.  The refits are told which parameters they free."""
+    from thsa_control.trace.scoring import _hold_undetermined
+
+    pset, (a, b, c) = _params(["noback.mu_static_pos", "noback.mu_static_neg", "noback.mu_coulomb_neg"])
+    fits = {(a, b, c): _Fit([_est(a, 0.5, 2.0), _est(b, 1.0, 0.1), _est(c, 1.0, 0.1)]),
+            (b, c): _Fit([_est(b, 0.5, 2.0), _est(c, 1.0, 0.1)]),
+            (c,): _Fit([_est(c, 0.9, 0.1)])}
+    calls = []
+
+    def refit(p, keep, settings):
+        calls.append(tuple(keep))
+        assert p.value(a) == 1.0 and (len(keep) > 1 or p.value(b) == 1.0)  # held at hold_at
+        return fits[tuple(keep)]
+
+    res, job, params, held = _hold_undetermined(_job((a, b, c), {a: 1.0, b: 1.0, c: 1.0}), fits[(a, b, c)], pset,
+                                                refit)
+    assert calls == [(b, c), (c,)]
+    assert job["free"] == (c,) and res is fits[(c,)]
+    assert set(held) == {a, b} and held[a]["held_at"] == 1.0 and held[b]["held_at"] == 1.0
+    assert "in the refit with " + a + " held" in held[b]["reason"]
+
+
+def test_where_the_refit_determines_nothing_the_candidate_is_judged_undetermined():
+    """a undetermined, then b (the only one left) too: nothing is determined, b is marked undetermined without a
+    held value (the candidate is judged as such: "no parameter determined by the run"), no further fit."""
+    from thsa_control.trace.scoring import _hold_undetermined
+
+    pset, (a, b) = _params(["noback.mu_static_pos", "noback.mu_static_neg"])
+    first = _Fit([_est(a, 0.5, 2.0), _est(b, 1.0, 0.1)])
+    second = _Fit([_est(b, 0.5, 2.0)])
+    calls = []
+    res, job, params, held = _hold_undetermined(_job((a, b), {a: 1.0, b: 1.0}), first, pset,
+                                                lambda p, keep, st: calls.append(keep) or second)
+    assert calls == [(b,)] and res is second
+    assert held[a]["held_at"] == 1.0 and held[b]["held_at"] is None
+
+
+def test_the_hold_leaves_a_fit_that_determines_everything_alone():
+    from thsa_control.trace.scoring import _hold_undetermined
+
+    pset, (a, b) = _params(["noback.mu_static_pos", "noback.mu_static_neg"])
+    first = _Fit([_est(a, 1.0, 0.1), _est(b, 1.0, 0.1)])
+    res, job, params, held = _hold_undetermined(_job((a, b), {a: 1.0, b: 1.0}), first, pset,
+                                                lambda *x: pytest.fail("refitted"))
+    assert res is first and held == {} and job["free"] == (a, b)
+
+
+def test_a_load_share_the_second_stage_puts_on_its_bound_is_held_at_its_file_value(monkeypatch):
+    """A share of 1 (one disk set infinitely stiffer than the other) is no estimate: the first fit stands and the
+    share is held at 0.5, the reason says the bound."""
+    from thsa_control.trace import scoring
+
+    pset, (a, share) = _params(["noback.mu_static_neg", "noback.load_share"])
+    first = _Fit([_est(a, 1.0, 0.1)])
+    second = _Fit([_est(a, 1.1, 0.1), _est(share, 1.0, 0.01, 0.0, 1.0, at_bound="max")])
+
+    class FakeIdentifier:
+        def __init__(self, _model, start, free, **kw):
+            assert tuple(free) == (a, share)
+
+        def fit(self, runs):
+            return second
+
+    monkeypatch.setattr(scoring, "Identifier", FakeIdentifier)
+    job = _job((a,), {a: 1.0}, second_stage=(share,), effects=(), runs=[])
+    res, job2, params, held = scoring._second_stage(job, first, pset, {})
+    assert res is first and job2["free"] == (a,)
+    assert held[share]["held_at"] == pset.value(share) == 0.5
+    assert "max bound" in held[share]["reason"] and held[share]["value_if_free"] == 1.0
+    # inside its range it is kept
+    second.estimates[share] = _est(share, 0.45, 0.02, 0.0, 1.0)
+    res, job2, params, held = scoring._second_stage(job, first, pset, {})
+    assert res is second and job2["free"] == (a, share) and held == {}

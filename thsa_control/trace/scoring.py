@@ -67,22 +67,8 @@ def _fit_job(job: dict) -> dict:
             ident = Identifier(None, params, job["free"], effects=job["effects"], settings=job["settings"],
                                states_only=not job["free"])
             res = ident.fit(job["runs"])
-            judged = {n: r for n, r in (job.get("judge") or {}).items() if n in job["free"]}
-            held = _undetermined(res, judged, job.get("determination_z", 2.0), job.get("absent"))
-            if held and len(held) < len(judged):
-                # identifiability before plausibility: hold what the run does not determine at its file
-                # value and judge the candidate on what the others explain
-                keep = tuple(n for n in job["free"] if n not in held)
-                params = params.replace({n: job["hold_at"][n] for n in held})
-                settings = dataclasses.replace(job["settings"], no_prior=tuple(n for n in job["settings"].no_prior
-                                                                               if n in keep))
-                res = Identifier(None, params, keep, effects=job["effects"], settings=settings).fit(job["runs"])
-                job = {**job, "free": keep}
-                for n, h in held.items():
-                    h["held_at"] = job["hold_at"][n]
-            elif held:
-                for h in held.values():
-                    h["held_at"] = None  # nothing determined: the candidate is judged as such
+            res, job, params, held = _hold_undetermined(job, res, params, lambda p, keep, st: Identifier(
+                None, p, keep, effects=job["effects"], settings=st).fit(job["runs"]))
             res, job, params, held = _second_stage(job, res, params, held)
     except (ThsaError, ValueError, RuntimeError) as exc:  # casadi raises RuntimeError
         return {"label": job["label"], "error": str(exc), "time_s": time.perf_counter() - t0}
@@ -198,11 +184,43 @@ def _holdout_iact(fit: dict, noise, mask: dict | None = None) -> float:
     return max(acc / wsum, 1.0) if wsum > 0 else 1.0
 
 
+def _hold_undetermined(job: dict, res, params: ParameterSet, refit: Callable):
+    """Identifiability before plausibility: the parameters of ``job["judge"]`` the first fit ``res`` does not
+    determine (:func:`_undetermined`) are held at ``job["hold_at"]`` and the others refitted (``refit(params, free,
+    settings)``); the refit can leave another one undetermined (it traded with a held one and no longer does), so
+    that one is held too, until the fit determines every parameter it frees.  Where none is left determined, the
+    last ones are marked undetermined without a held value (``held_at`` None): the candidate is judged as such.
+    Returns the last fit, the job with its free set, the parameters with the held values, and the held entries.
+    """
+    judged = {n: r for n, r in (job.get("judge") or {}).items() if n in job["free"]}
+    z = job.get("determination_z", 2.0)
+    held = _undetermined(res, judged, z, job.get("absent"))
+    new = dict(held)
+    while new and len(held) < len(judged):
+        keep = tuple(n for n in job["free"] if n not in new)
+        params = params.replace({n: job["hold_at"][n] for n in new})
+        settings = dataclasses.replace(job["settings"], no_prior=tuple(n for n in job["settings"].no_prior
+                                                                       if n in keep))
+        res = refit(params, keep, settings)
+        job = {**job, "free": keep}
+        for n, h in new.items():
+            h["held_at"] = job["hold_at"][n]
+        new = _undetermined(res, {n: r for n, r in judged.items() if n in keep}, z, job.get("absent"))
+        for h in new.values():
+            h["reason"] += " (in the refit with " + ", ".join(sorted(held)) + " held)"
+        held.update(new)
+    for h in new.values():
+        h["held_at"] = None  # nothing (left) determined: the candidate is judged as such
+    return res, job, params, held
+
+
 def _second_stage(job: dict, res, params: ParameterSet, held: dict):
     """Free ``job["second_stage"]`` (:attr:`CandidateSpec.second_stage`) from the first fit's estimates when that
     fit determines every other parameter it still frees (those the run does not determine were held before: a
     no-back's light disk on a one-signed load); keep the second fit unless it leaves one of them, or a
-    second-stage parameter, undetermined (then that is held at its file value, as the first fit had it).
+    second-stage parameter, undetermined, or puts a second-stage parameter on a bound of its physical range (a load
+    share of 0 or 1: one disk set infinitely stiffer than the other; then it is held at its file value, as the first
+    fit had it, and the first fit stands).
 
     Freed together with the first stage, a parameter that only a part of the runs informs (the no-back's load
     share: the band where both disk sets carry load) trades with the others where that part is thin and takes
@@ -230,6 +248,16 @@ def _second_stage(job: dict, res, params: ParameterSet, held: dict):
     start = params.replace({n: e.value for n, e in res.estimates.items()})
     res2 = Identifier(None, start, free, effects=job["effects"], settings=job["settings"]).fit(job["runs"])
     und = _undetermined(res2, judge, z, absent)
+    edge = [n for n in second if res2.estimates[n].at_bound]
+    if edge and not und:  # a share of 0 or 1 is no estimate (its standard error is not that of a value inside)
+        def why(n: str) -> str:
+            e = res2.estimates[n]
+            return (f"freed, it went to its {e.at_bound} bound ({e.value:.3g} {e.unit}): the run does not place it "
+                    "inside its physical range" if n in edge else "freed with " + ", ".join(edge) + ", which went "
+                    "to a bound")
+        return res, job, params, {**held, **{
+            n: {"reason": why(n), "value_if_free": res2.estimates[n].value,
+                "stderr_if_free": _data_stderr(res2.estimates[n]), "held_at": params.value(n)} for n in second}}
     if und:  # the first fit stands; the second-stage parameters stay at their file values, reported as held
         lost = [n for n in und if n not in second]
         for n in second:
