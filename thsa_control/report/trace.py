@@ -114,8 +114,10 @@ def conclusion_table_html(doc: dict) -> str:
         body += "".join(f"<tr><td>joint lift (round {k})</td><td>base corrections beyond their bounds</td>"
                         f"<td colspan='4'>{esc(_joint_text(j))}</td></tr>" for k, j in joints)
     base_like = doc["residual_signature"].get("base_like") or []
+    misfit = misfit_shapes(doc["residual_signature"])
     tail = (f"<p>unexplained: <b>{doc['unexplained']}</b>"
             + (f" (structured: {esc(', '.join(doc['residual_signature']['structured']))})" if doc["unexplained"] else "")
+            + "".join(f"<br><small>{esc(m)}</small>" for m in misfit)
             + (f"<br><small>left as a declared model of another rig's base leaves it (starts, stops, reversals, "
                f"quadrant; not counted as unexplained): {esc('; '.join(base_like))}</small>" if base_like else "")
             + "</p>")
@@ -234,6 +236,24 @@ def _binned(ax, c: dict, scale: float = 1.0, gap_bins: float = 1.5, **kw):
     return ax.errorbar(x, y, yerr=se, **kw)
 
 
+def misfit_shapes(sig: dict) -> list[str]:
+    """Sentences for an added periodic drag whose own shape the residual still holds (the pass-replicated position
+    test, ``added_shapes``): its fitted size is off, which is no effect the model lacks."""
+    loc = next((t for t in sig.get("tests", []) if t.get("variable") == "nut_position (repeated over passes)"), None)
+    out = []
+    for name, a in ((loc or {}).get("added_shapes") or {}).items():
+        if not a.get("significant"):
+            continue
+        ip, fit = a.get("in_phase"), a.get("fitted_amplitude")
+        what = (f"in phase with the fit: the rig's is about {_num(fit + ip, '.2g')} N m against the "
+                f"{_num(fit, '.2g')} fitted" if ip is not None and fit and abs(ip) >= 0.7 * a["amplitude"]
+                else "not in phase with the fit")
+        out.append(f"the residual still holds {_num(a['amplitude'], '.2g')} N m of the added {name}'s own shape "
+                   f"(period {_num(1e3 * a['period'], '.3g')} mm, p {_num(a['p_value'], '.2g')}), {what}: its fitted "
+                   "size is off, not an effect the model lacks (the position test is made beyond that shape)")
+    return out
+
+
 def plot_signature(sig: dict):
     """The remaining residual's signature: binned by nut position, by motor and screw angle, the redundant
     sensors' cross-correlation, the per-segment torque against time (the drift test's data), the residual
@@ -254,6 +274,7 @@ def plot_signature(sig: dict):
                        alpha=0.25, lw=0)
             ax.text(0.02, 0.97, f"repeated over passes: p {_num(loc['p_value'], '.2g')}"
                     + (f", {loc['law'].split(' ')[0]}" if loc.get("law") else "")
+                    + (" beyond " + ", ".join(loc["added_shapes"]) + "'s shape" if loc.get("added_shapes") else "")
                     + (" (STRUCTURED)" if loc["significant"] else ""), transform=ax.transAxes, va="top", fontsize=7)
         else:
             ax.text(0.02, 0.97, "repeated over passes: not tested (fewer than three bins crossed by two passes)",
@@ -533,6 +554,7 @@ def format_trace_summary(doc: dict) -> str:
     if sig.get("base_like"):
         lines.append("left as a declared model of another rig's base leaves it (not unexplained): "
                      + "; ".join(sig["base_like"]))
+    lines += misfit_shapes(sig)
     for t in sig["tests"][:6] + sig["sensors"]:
         extra = ""
         if t["kind"] == "periodic":

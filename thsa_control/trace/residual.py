@@ -20,6 +20,7 @@ from ..data.rigformat import speed_sensor_delays
 from ..fit.residuals import quadrant, reversal_proximity
 from ..model.laws import kinematic_ratio, torque_constant
 from ..model.params import ParameterSet
+from .candidates import CANDIDATES, PERIODS
 from .scoring import _rms_by_channel
 from .signature import (
     SignatureSettings,
@@ -248,11 +249,16 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     tests = signature_tests(e_all, variables, unit="N m", settings=s,
                             given={"motor_current (torque constant)": np.concatenate(accel)})
     xs = variables["nut_position"][1]
+    # the model's own periodic drags (an added screw ripple): their shape misfitted is no effect the model lacks
+    shapes = {n: PERIODS[n](params) for n in fit.get("effects", ()) if n in PERIODS}
     loc = position_local_test(np.concatenate(local_in["e"]), np.concatenate(local_in["x"]),
                               np.concatenate(local_in["d"]), bin_width=s.position_bin, alpha=s.local_alpha,
-                              origin=float(np.nanmin(xs)) if np.isfinite(xs).any() else None)  # the curves' bins
+                              origin=float(np.nanmin(xs)) if np.isfinite(xs).any() else None,  # the curves' bins
+                              shapes=shapes)
     if loc is not None:
         loc["unit"] = "N m"
+        for name, a in (loc.get("added_shapes") or {}).items():
+            _against_fitted(a, name, params)
         tests.insert(0, loc) if loc["significant"] else tests.append(loc)
     if drift_in:
         dr = drift_test(*(np.asarray(v) for v in zip(*drift_in)), alpha=s.local_alpha, min_r2=s.min_r2)
@@ -321,6 +327,23 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
                                           "nut_position": [d[0] for d in drift_at]},
                        # the load-cell drift test's data: the load reading and the LVDT in the holds
                        "hold_load": hold_curve}}
+
+
+def _against_fitted(along: dict, name: str, params: ParameterSet) -> None:
+    """What the residual holds along an added periodic drag's shape (:func:`position_local_test`'s ``added_shapes``:
+    the residual times the direction against a cosine and a sine of the nut position over the period) compared with
+    the drag as fitted (its cosine and sine parameters, the same angle ``2 pi x / period``): ``in_phase`` [N m] > 0
+    where the model's drag is short of the rig's (less friction than measured, in its phase), < 0 where it is too
+    large; ``fitted_amplitude`` its own."""
+    spec = CANDIDATES.get(name)
+    pair = [n for n in (spec.free if spec else ()) if spec.plausible.get(n) == "periodic" and n in params]
+    if len(pair) != 2:
+        return
+    c, s = (params.value(n) for n in pair)
+    amp = math.hypot(c, s)
+    along["fitted_amplitude"] = amp
+    # a friction the model lacks slows the motion: the missing torque opposes it, so times the direction it is < 0
+    along["in_phase"] = -(along["cos"] * c + along["sin"] * s) / amp if amp > 0 else None
 
 
 def _time_or_position(dr: dict, drift_in: list, drift_at: list, tests: list, s: SignatureSettings) -> None:
