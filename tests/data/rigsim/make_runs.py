@@ -100,6 +100,10 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     "rig_sensor_gain_lvdt": ("reversals_under_load", "rig", "sensor_gain=channel:nut_position", 451, 5.0, "foreign"),
     # --- a pair of library effects
     "rig_pair_coulomb_ripple": ("trim_ramp_compressive", "rig", "coulomb,screw_ripple", 41, None, "pair"),
+    # rig-sim's disk-pair no-back and a screw ripple on the trim record: the ripple is fitted short (0.040 N m at the
+    # motor where the current shows 0.050), and the once-per-lead friction it leaves, repeated over both passes, was
+    # taken for a local effect the model lacks (docs/trace_notes.md "An added ripple's own shape")
+    "rig_pair_noback_ripple": ("trim_ramp_compressive", "rig", "noback_quadrant,screw_ripple", 641, None, "pair"),
     # a second load-path backlash record (an elastic surface): a ratchet backlash whose pitch was screened on the
     # held-out segments was added beside it with its training error higher than without it (AIC drop -187)
     "rig_loadpath_backlash_spring": ("spring_load_ramp", "rig", "loadpath_backlash", 205, None, "library"),
