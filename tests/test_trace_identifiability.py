@@ -253,3 +253,26 @@ def test_a_load_share_the_second_stage_puts_on_its_bound_is_held_at_its_file_val
     second.estimates[share] = _est(share, 0.45, 0.02, 0.0, 1.0)
     res, job2, params, held = scoring._second_stage(job, first, pset, {})
     assert res is second and job2["free"] == (a, share) and held == {}
+
+
+def test_a_candidate_its_own_window_test_refuses_is_no_rival(monkeypatch):
+    """The ambiguity rule names none of the candidates whose held-out drops the data cannot tell apart; one that
+    explains less than ``min_window_reduction`` of its window (a screw ripple at 3.7 % of the motor speed on a load
+    sweep, beside a load path at 46 % of the LVDT) would never be named in the best's place: no rival.  Between two
+    constant-torque explainers (one window) the window decides nothing: still rivals."""
+    from thsa_control.trace import engine
+
+    monkeypatch.setattr(engine, "scaled_threshold", lambda *a, **k: (684.0, None, 4.9))
+
+    def cand(name, drop, **kw):
+        return {"name": name, "holdout_chi2_drop": drop, "plausible": True, "implausible_because": [],
+                "_spec": CANDIDATES[name], "_fit": {}, "_noise": {}, "_mask": None, **kw}
+
+    best = cand("loadpath_compliance", 4404.6)
+    ripple = cand("screw_friction_ripple", 4567.6, window_too_small=True, periodicity={"repeats": True})
+    assert engine._rivals(best, [best, ripple], 1e-3) == []
+    ripple.pop("window_too_small")
+    assert engine._rivals(best, [best, ripple], 1e-3) == [ripple]
+    force = cand("force_offset", 300.0)
+    drag = cand("coulomb_friction", 290.0, window_too_small=True)
+    assert engine._rivals(force, [force, drag], 1e-3) == [drag]
