@@ -276,3 +276,18 @@ def test_a_candidate_its_own_window_test_refuses_is_no_rival(monkeypatch):
     force = cand("force_offset", 300.0)
     drag = cand("coulomb_friction", 290.0, window_too_small=True)
     assert engine._rivals(force, [force, drag], 1e-3) == [drag]
+
+
+def test_a_periodic_candidate_that_hurt_is_fitted_again_where_the_residual_now_shows_its_angle():
+    """A candidate that made the held-out error worse is skipped in the next round, unless the current residual is
+    structured in its own angle (the screw ripple beside a ratchet backlash that dominated round 1)."""
+    from thsa_control.trace.engine import _shows_now
+
+    sig = {"tests": [{"variable": "screw_angle", "significant": True, "remainder": "structured"},
+                     {"variable": "motor_angle", "significant": False, "remainder": "structured"}]}
+    assert _shows_now("screw_friction_ripple", sig)
+    assert not _shows_now("cogging_torque", sig)  # its angle is not significant
+    assert not _shows_now("coulomb_friction", sig)  # no angle of its own
+    assert not _shows_now("screw_friction_ripple", None)
+    base = {"tests": [{"variable": "screw_angle", "significant": True, "remainder": "base"}]}
+    assert not _shows_now("screw_friction_ripple", base)  # a short stroke's angle is a position: the base's

@@ -329,6 +329,10 @@ def _cogging_period(params: ParameterSet) -> float:
 #: held-out gain must repeat over the travel (:mod:`thsa_control.trace.periodicity`).
 PERIODS: dict[str, Callable] = {"screw_friction_ripple": _ripple_period, "cogging_torque": _cogging_period}
 
+#: The residual signature's variable an angle-periodic candidate's torque is periodic in
+#: (:func:`~thsa_control.trace.signature.signature_tests`: the harmonics of that angle).
+ANGLE_OF: dict[str, str] = {"screw_friction_ripple": "screw_angle", "cogging_torque": "motor_angle"}
+
 #: Starting values read off the runs (:attr:`CandidateSpec.start` -> function(params, runs) -> {name: value}).
 STARTS: dict[str, Callable] = {"loadpath_static": _start_loadpath}
 
