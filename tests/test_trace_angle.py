@@ -114,3 +114,22 @@ def test_a_speed_ripple_is_not_a_sustained_speed_change_but_a_step_is():
     assert plain[(t > 0.5) & (t < 1.5)].mean() > 0.8  # the ripple alone: 88 % of those samples
     assert not sus[(t > 0.5) & (t < 1.5)].any() and not sus[(t > 2.6) & (t < 3.5)].any()
     assert sus[(t > 1.9) & (t < 2.1)].all()
+
+
+def test_an_angle_spanning_less_than_a_revolution_reports_no_harmonic_amplitudes():
+    """On a short stroke (rig-sim's reversals: 7 mm of nut travel, 0.37 screw revolutions) the 24 harmonics are nearly
+    collinear and their least-squares coefficients cancel: 1.2e10 N m were reported beside a fit of 0.05 N m.  Under
+    a revolution the test reports its size only and says why; over a few revolutions the amplitudes are the data's."""
+    from thsa_control.trace.signature import signature_tests
+
+    rng = np.random.default_rng(7)
+    for revolutions, has in ((0.37, False), (3.0, True)):
+        angle = np.linspace(0.0, 2 * math.pi * revolutions, 2000)
+        e = 0.02 * np.sin(angle) + 0.003 * rng.standard_normal(angle.size)
+        t = signature_tests(e, {"screw_angle": ("angle", angle)})[0]
+        assert t["size"] < 0.05 and math.isfinite(t["size"])
+        if has:
+            assert t["dominant_harmonic"] == 1 and t["dominant_amplitude"] == pytest.approx(0.02, rel=0.1)
+        else:
+            assert t["dominant_harmonic"] is None and t["harmonic_amplitudes"] is None
+            assert t["why_no_harmonics"] == "0.37 revolutions"

@@ -558,7 +558,8 @@ def format_trace_summary(doc: dict) -> str:
     for t in sig["tests"][:6] + sig["sensors"]:
         extra = ""
         if t["kind"] == "periodic":
-            extra = f", dominant harmonic {t['dominant_harmonic']} per revolution"
+            extra = (f", dominant harmonic {t['dominant_harmonic']} per revolution" if t.get("dominant_harmonic")
+                     else f", no harmonics over {t.get('why_no_harmonics', 'less than a revolution')}")
         elif t["kind"] == "local":
             extra = f", peak in {1e3 * t['peak_bin'][0]:.1f}..{1e3 * t['peak_bin'][1]:.1f} mm" + (
                 f", {t['law']}" if t.get("law") else "")
