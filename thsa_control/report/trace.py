@@ -262,6 +262,7 @@ def plot_signature(sig: dict):
     curves = sig.get("curves") or {}
     fig, axes = subplots(5, 2, figsize=(11, 16))
     ax = axes[0, 0]
+    local_note = ""
     if "nut_position" in curves:
         c = curves["nut_position"]
         by_dir = c.get("by_direction") or {}
@@ -272,13 +273,13 @@ def plot_signature(sig: dict):
         if loc is not None:  # the pass-replicated test's peak bin, its law and p-value
             ax.axvspan(1e3 * loc["peak_bin"][0], 1e3 * loc["peak_bin"][1], color="C3" if loc["significant"] else "0.85",
                        alpha=0.25, lw=0)
-            ax.text(0.02, 0.97, f"repeated over passes: p {_num(loc['p_value'], '.2g')}"
-                    + (f", {loc['law'].split(' ')[0]}" if loc.get("law") else "")
-                    + (" beyond " + ", ".join(loc["added_shapes"]) + "'s shape" if loc.get("added_shapes") else "")
-                    + (" (STRUCTURED)" if loc["significant"] else ""), transform=ax.transAxes, va="top", fontsize=7)
+            # under the title, where neither the legend nor the curves reach it
+            local_note = (f"repeated over passes: p {_num(loc['p_value'], '.2g')}"
+                          + (f", {loc['law'].split(' ')[0]}" if loc.get("law") else "")
+                          + (" beyond " + ", ".join(loc["added_shapes"]) + "'s shape" if loc.get("added_shapes") else "")
+                          + (" (STRUCTURED)" if loc["significant"] else ""))
         else:
-            ax.text(0.02, 0.97, "repeated over passes: not tested (fewer than three bins crossed by two passes)",
-                    transform=ax.transAxes, va="top", fontsize=7, color="0.35")
+            local_note = "repeated over passes: not tested (fewer than three bins crossed by two passes)"
         bk = next((t for t in sig.get("tests", []) if t.get("kind") == "breakaway"), None)
         if bk is not None:  # the breakaway test's places (starts and reversals of one class), the one that stands out
             for pl in bk["places"]:
@@ -296,7 +297,7 @@ def plot_signature(sig: dict):
     ax.axhline(0, color="0.5", lw=0.5)
     ax.set_xlabel("nut position [mm]")
     ax.set_ylabel("missing torque [N m]")
-    ax.set_title("residual binned by nut position", fontsize=9)
+    ax.set_title("residual binned by nut position" + (f"\n{local_note}" if local_note else ""), fontsize=9)
     for ax, name in ((axes[0, 1], "motor_angle"), (axes[1, 0], "screw_angle")):
         c = curves.get(name)
         if c:
