@@ -1098,9 +1098,9 @@ def position_local_test(residual, position, direction, *, bin_width: float = 2e-
     residual with such a shape is that effect's size misestimated, not an effect the model lacks: for a period of
     two bins or more the dissipative law is tested beyond a cosine and a sine of that period (nuisance columns), and
     what the residual holds along them is reported (``added_shapes``: the amplitude, with its F test; the shapes
-    averaged over each bin's samples, as the residual is).  Measured: a no-back and a screw ripple on a trim record, the ripple fitted 0.040 N m
-    at the motor against rig-sim's 0.050; the 0.01 N m left is what the test found "local" (p 1e-5), and at 0.045
-    it does not.
+    averaged over the bin's samples of every pass).  Measured: a no-back and a screw ripple on a trim record, the
+    ripple fitted 0.040 N m at the motor against the rig's 0.042-0.049; what it leaves is what the test found "local"
+    (p 1e-5), and with the amplitude at 0.045 it does not.
     """
     e = np.asarray(residual, float)
     x = np.asarray(position, float)
