@@ -236,10 +236,15 @@ def _binned(ax, c: dict, scale: float = 1.0, gap_bins: float = 1.5, **kw):
     return ax.errorbar(x, y, yerr=se, **kw)
 
 
+def _position_test(sig: dict) -> dict | None:
+    """The signature's pass-replicated nut-position test, where it ran."""
+    return next((t for t in sig.get("tests", []) if t.get("variable") == "nut_position (repeated over passes)"), None)
+
+
 def misfit_shapes(sig: dict) -> list[str]:
     """Sentences for an added periodic drag whose own shape the residual still holds (the pass-replicated position
     test, ``added_shapes``): its fitted size is off, which is no effect the model lacks."""
-    loc = next((t for t in sig.get("tests", []) if t.get("variable") == "nut_position (repeated over passes)"), None)
+    loc = _position_test(sig)
     out = []
     for name, a in ((loc or {}).get("added_shapes") or {}).items():
         if not a.get("significant"):
@@ -269,7 +274,7 @@ def plot_signature(sig: dict):
         _binned(ax, c, 1e3, fmt="o-", ms=2, lw=0.6, color="0.7", label="all samples")
         for (label, cd), col in zip(by_dir.items(), ("C0", "C1")):
             _binned(ax, cd, 1e3, fmt="o-", ms=3, lw=0.8, color=col, label=f"{label}, outside the base's transients")
-        loc = next((t for t in sig.get("tests", []) if t.get("variable") == "nut_position (repeated over passes)"), None)
+        loc = _position_test(sig)
         if loc is not None:  # the pass-replicated test's peak bin, its law and p-value
             ax.axvspan(1e3 * loc["peak_bin"][0], 1e3 * loc["peak_bin"][1], color="C3" if loc["significant"] else "0.85",
                        alpha=0.25, lw=0)

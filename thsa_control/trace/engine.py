@@ -1323,8 +1323,7 @@ def _shows_now(name: str, sig: dict | None) -> bool:
     a ratchet backlash and a screw ripple: beside the backlash's error, 925355 in held-out chi2, the ripple lost 132
     in round 1 and was not fitted again, while the residual after the backlash was periodic in the screw angle)."""
     var = ANGLE_OF.get(name)
-    return bool(var and sig and any(t.get("variable") == var and t.get("significant") and t.get("remainder") == "structured"
-                                    for t in sig.get("tests", [])))
+    return bool(var and sig and any(t.get("variable") == var for t in split_remainder(sig)[0]))
 
 
 def _is_explainer(s: dict) -> bool:
