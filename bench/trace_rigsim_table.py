@@ -60,7 +60,7 @@ def row(folder: Path) -> dict | None:
             (" (beyond base)" if e.get("beyond_base_correction") else "")
         wr = e.get("window_reduction") or {}
         if wr and not e.get("implied_by"):
-            tag += f" [{max(wr.values()):.0%}]"
+            tag += f" [{max(wr.values()):.0%}{' all samples' if e.get('window_on_all_samples') else ''}]"
         if e.get("round_added") and (doc.get("order") or {}).get("changed"):
             tag += f" (round {e['round_added']})"
         added.append(tag)

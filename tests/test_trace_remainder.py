@@ -412,3 +412,43 @@ def test_an_added_ripples_own_shape_left_in_the_residual_is_its_size_not_a_local
     assert position_local_test(e + bump, x, d, shapes={"screw_friction_ripple": lead})["significant"]
     # a period shorter than two bins (the cogging's 0.18 mm) is not resolved by the bins: not taken as a shape
     assert "added_shapes" not in position_local_test(e, x, d, shapes={"cogging_torque": 1e-4})
+
+
+def test_a_window_whose_events_fell_in_training_segments_is_judged_on_all_its_samples():
+    """A window of two short events (a back-drive through the pawl clearance at each trim stop), both in training
+    segments: its held-out samples are where the effect changes nothing, so its held-out drop says nothing about it.
+    The effect that explains the events is judged over all the window's samples (and says so); where the held-out
+    samples do hold the window's error, the held-out drop stands, and an effect that explains nothing in the window
+    gains nothing from the rule."""
+    n, seg = 3000, 50
+    t, k, hold, starts, meas, _ = _held_out_record(n, seg)  # segments 2, 5, 8, ... held out
+    meas = np.zeros(n)
+    events = np.isin(k, (12, 13, 30, 31))  # two events of two training segments each (12 % 3 = 0, 13 % 3 = 1)
+    assert not (events & hold).any()
+    meas[events] = 20.0  # a jump neither model's start state holds
+    window = {"r": events | np.isin(k, (20, 38))}  # the events and two held-out motion starts
+    common = dict(k=2, alpha=1e-3, mask=None, window=window, channel="motor_speed", min_window_reduction=0.05,
+                  max_channel_increase=0.1)
+    explains = np.where(events, 19.0, 0.0)
+    explains[np.isin(k, (20, 38))] = 0.1  # a little worse on the starts (noise 1: chi2 1.01 against 1 per sample)
+    rng = np.random.default_rng(3)
+    noisy = meas + rng.standard_normal(n)
+    before = {**_fit(np.zeros(n), noisy, hold, starts, t), "aic": 1.0}
+    adm = admission_tests(before, {**_fit(explains, noisy, hold, starts, t), "aic": 0.0}, {"motor_speed": 1.0},
+                          **common)
+    on_all = adm["window_on_all_samples"]["motor_speed"]
+    assert on_all["holdout_reduction"] < 0.01 and on_all["heldout_samples"] == 100 and on_all["samples"] == 300
+    assert on_all["heldout_error_ratio"] < 0.01  # mean chi2 ~1 held out against ~(200 x 401 + 100) / 300 in all
+    assert adm["window_reduction"]["motor_speed"] > 0.9 and adm["window_ok"]
+    # the same effect when one event lies in a held-out segment: the held-out drop stands
+    events2 = np.isin(k, (12, 13, 29, 30))  # 29 % 3 = 2: held out
+    meas2 = np.where(events2, 20.0, 0.0) + rng.standard_normal(n)
+    before2 = {**_fit(np.zeros(n), meas2, hold, starts, t), "aic": 1.0}
+    adm2 = admission_tests(before2, {**_fit(np.where(events2, 19.0, 0.0), meas2, hold, starts, t), "aic": 0.0},
+                           {"motor_speed": 1.0}, **{**common, "window": {"r": events2 | np.isin(k, (20, 38))}})
+    assert adm2["window_on_all_samples"] == {} and adm2["window_reduction"]["motor_speed"] > 0.8
+    # an effect that changes nothing where the events are is not helped: over all samples it explains nothing either
+    adm3 = admission_tests(before, {**_fit(np.where(np.isin(k, (20, 38)), 0.1, 0.0), noisy, hold, starts, t),
+                                    "aic": 0.0}, {"motor_speed": 1.0}, **common)
+    assert "motor_speed" in adm3["window_on_all_samples"]
+    assert adm3["window_reduction"]["motor_speed"] < 0.01 and not adm3["window_ok"]

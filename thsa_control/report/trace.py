@@ -95,7 +95,10 @@ def conclusion_table_html(doc: dict) -> str:
                          + [f"part not shown by this run (kept at its fit): {esc(w)}"
                             for w in e.get("parts_not_shown", [])])
         win = e.get("window_reduction") or {}
-        wtxt = esc(", ".join(f"{c} {100 * v:+.0f} %" for c, v in win.items()))
+        wtxt = esc(", ".join(f"{c} {100 * v:+.0f} %" + (" (all samples)" if c in (e.get("window_on_all_samples") or {})
+                                                        else "") for c, v in win.items()))
+        if e.get("window_on_all_samples"):  # its events fell in training segments (scoring.window_reductions)
+            wtxt += f"<br><small>{esc(_on_all_text(e['window_on_all_samples']))}</small>"
         if e.get("contribution"):  # the part beyond the bound (above) and the whole effect with its bounded share
             wtxt += f"<br><small>{esc(_contribution_text(e['contribution']))}</small>"
         rows.append((kind, e["name"], pars, _errors_cell(e["error_before"], e["error_after"]), wtxt,
@@ -440,6 +443,14 @@ def _contribution_text(c: dict) -> str:
             f"correction at its plausible bound ({_num(c['bound'])}, {_num(None if c.get('bounded_share') is None else 100 * c['bounded_share'], '.0f')} % of the value) "
             f"would carry {_num(None if bnd is None else 100 * bnd, '.0f')} % of it; the window drop counted for the "
             "selection is what lies beyond the bound")
+
+
+def _on_all_text(on_all: dict) -> str:
+    """One line: the window drops taken over all the window's samples, and why (its events in training segments)."""
+    return "; ".join(
+        f"{c}: over all {v['samples']} samples of its window, training ones included: its {v['heldout_samples']} "
+        f"held-out samples had {_num(v['heldout_error_ratio'], '.2g')} x the window's mean error (its events fell in "
+        f"training segments; held-out drop {_num(100 * v['holdout_reduction'], '+.0f')} %)" for c, v in on_all.items())
 
 
 def _joint_text(j: dict) -> str:

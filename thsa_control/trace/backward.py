@@ -140,7 +140,8 @@ def judge_removal(a: Added, full: dict, reduced: dict, *, noise, mask, window_ma
             "holdout_chi2_drop": drop, "holdout_chi2_drop_all_samples": adm["holdout_chi2_drop_all_samples"],
             "scored_outside_transients": mask is not None, "chi2_threshold": thr, "window": spec.window, "window_reduction": win_red,
             "error_reduction": adm["error_reduction"], "aic_drop": adm["aic_drop"], "determination": verdicts,
-            "window_segments": adm["window_segments"], "fails": why, "prelim": not why}
+            "window_segments": adm["window_segments"], "fails": why, "prelim": not why,
+            **({"window_on_all_samples": adm["window_on_all_samples"]} if adm["window_on_all_samples"] else {})}
 
 
 def null_calibrate(recs: list[dict], reduceds: Mapping, jobs_of: Mapping, fit_runs, noise,

@@ -777,7 +777,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             drop, thr, win_red, err_red, aic_drop, seg_win = (adm[x] for x in (
                 "holdout_chi2_drop", "chi2_threshold", "window_reduction", "error_reduction", "aic_drop",
                 "window_segments"))
-            win_sys = _window_beyond_noise(current, f, noise, win)
+            win_sys = _window_beyond_noise(current, f, noise, win, tuple(adm["window_on_all_samples"]))
             plausible, why = _plausibility(f, spec, plaus)
             for fail in (adm["channel_fail"], adm["aic_fail"]):
                 if fail:
@@ -801,6 +801,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "holdout_chi2_drop_all_samples": adm["holdout_chi2_drop_all_samples"],
                 "chi2_threshold": thr, "error_reduction": err_red, "window": spec.window, "window_reduction": win_red,
                 "window_reduction_beyond_noise": win_sys, "aic_drop": aic_drop, "bic_drop": current["bic"] - f["bic"],
+                **({"window_on_all_samples": adm["window_on_all_samples"]} if adm["window_on_all_samples"] else {}),
                 "plausible": plausible, "implausible_because": why, "parameters": _params_out(f, spec),
                 "fit_time_s": f["time_s"], "converged": f["converged"], "prelim": prelim, "_fit": f, "_job": jb,
                 **({"starts": f["starts"]} if "starts" in f else {}),
@@ -921,6 +922,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "aic_drop": best["aic_drop"], "bic_drop": best["bic_drop"], "score": best["score"],
                 "window": best["window"], "window_reduction": best["window_reduction"],
                 "window_reduction_beyond_noise": best.get("window_reduction_beyond_noise"),
+                **({"window_on_all_samples": best["window_on_all_samples"]} if best.get("window_on_all_samples")
+                   else {}),
                 "holdout_chi2_drop": best["holdout_chi2_drop"],
                 "error_before": _channel_errors(current), "error_after": _channel_errors(f),
                 "segments_explained": _explained_regimes(current, f, runs),
@@ -1271,7 +1274,8 @@ def _detail_declared(refinements, current: dict, cur_effects, cur_free, fit_runs
         d.update(holdout_chi2_drop=drop, chi2_threshold=thr, window=spec.window, window_reduction=win_red,
                  plausible=plausible, implausible_because=why, parameters=_params_out(f, spec),
                  not_determined=_held_out(f), holdout_segments=_holdout_segment_changes(current, f, noise),
-                 error_reduction=adm["error_reduction"], parts_not_shown=absent_parts)
+                 error_reduction=adm["error_reduction"], parts_not_shown=absent_parts,
+                 **({"window_on_all_samples": adm["window_on_all_samples"]} if adm["window_on_all_samples"] else {}))
         if adm["significant"] and adm["window_ok"] and plausible:
             todo.append((spec, jb, f, d))
         else:
@@ -1313,7 +1317,9 @@ def _detail_declared(refinements, current: dict, cur_effects, cur_free, fit_runs
                         "segments_explained": _explained_regimes(current, f, runs),
                         "not_determined": d["not_determined"], "refines_declared": d["refines"],
                         "base_step": "declared component detailed",
-                        **({"parts_not_shown": d["parts_not_shown"]} if d["parts_not_shown"] else {})}
+                        **({"parts_not_shown": d["parts_not_shown"]} if d["parts_not_shown"] else {}),
+                        **({"window_on_all_samples": d["window_on_all_samples"]} if d.get("window_on_all_samples")
+                           else {})}
     return out
 
 
