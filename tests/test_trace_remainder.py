@@ -452,3 +452,46 @@ def test_a_window_whose_events_fell_in_training_segments_is_judged_on_all_its_sa
                                     "aic": 0.0}, {"motor_speed": 1.0}, **common)
     assert "motor_speed" in adm3["window_on_all_samples"]
     assert adm3["window_reduction"]["motor_speed"] < 0.01 and not adm3["window_ok"]
+
+
+def _reversal_xd(passes=8, dt=2e-3, speed=6e-3, period=1.2, settle=0.35):
+    """Speed reversals without stops (rig-sim's reversals_under_load): the nut goes 0 -> 7.2 mm and back every 1.2 s;
+    the first and last ``settle`` s of each pass are the base's transients (NaN), so a pass's steady part is 3 mm."""
+    k = int(round(period / dt))
+    tau = np.arange(k) * dt
+    xs, ds, keep = [], [], []
+    for j in range(passes):
+        up = j % 2 == 0
+        xs.append(speed * tau if up else speed * (period - tau))
+        ds.append(np.full(k, 1.0 if up else -1.0))
+        keep.append((tau >= settle) & (tau <= period - settle))
+    t = np.arange(passes * k) * dt
+    return t, np.concatenate(xs), np.concatenate(ds), np.concatenate(keep)
+
+
+def test_short_passes_get_bins_narrow_enough_to_test_and_keep_the_level():
+    """On a reversal record the steady part of a pass is 3 mm: at 2 mm bins a pass crosses two, which its own
+    intercept and slope take, and the flank of a friction bump (at 5 mm, 1.5 mm wide: rig-sim's) is not seen; with
+    the bins narrowed until the median pass crosses four, it is, the width is reported, and noise with per-pass
+    offsets and slopes (a direction drag, a drift in time) is rejected at the test's level (300 seeds at 5 %)."""
+    from scipy.stats import binom
+
+    t, x, d, keep = _reversal_xd()
+    rng = np.random.default_rng(7)
+    kernel = np.ones(5) / 5
+    bump = -0.1 * np.exp(-0.5 * ((x - 5e-3) / 1.5e-3) ** 2) * d  # opposes the motion
+    e = np.where(keep, bump + 0.01 * np.convolve(rng.standard_normal(t.size), kernel, mode="same"), np.nan)
+    coarse = position_local_test(e, x, d, bins_per_pass=1)  # the bins kept at 2 mm
+    assert coarse is None or not coarse["significant"], coarse
+    r = position_local_test(e, x, d)
+    assert r["significant"] and r["law"].startswith("dissipative") and r["bin_width"] < 1e-3, r
+    assert r["bin_width"] == pytest.approx(np.ptp(x[keep][:300]) / 4, rel=0.05)
+    n, alpha, hits = 300, 0.05, 0
+    for seed in range(n):
+        g = np.random.default_rng(500 + seed)
+        noise = np.convolve(g.standard_normal(t.size), kernel, mode="same")
+        trend = 0.01 * (g.normal() * d + g.normal() * t)  # a direction drag and a drift in time
+        res = position_local_test(np.where(keep, noise + trend, np.nan), x, d, alpha=alpha)
+        hits += bool(res["significant"])
+    lo, hi = binom.ppf(0.0005, n, alpha), binom.ppf(0.9995, n, alpha)
+    assert lo <= hits <= hi, (hits, lo, hi)

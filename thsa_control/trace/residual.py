@@ -9,6 +9,7 @@ The statistical tests themselves are :mod:`thsa_control.trace.signature`'s.  Use
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Mapping, Sequence
 
@@ -320,7 +321,9 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             "reflected_inertia": inertia, "missing_torque_rms": float(np.sqrt(np.mean(e_all[ok] ** 2))),
             "residual_to_noise": ratio, "max_noise_ratio": s.max_noise_ratio,
             "tests": tests, "sensors": sensors,
-            "curves": {**_signature_curves(e_all, variables, runs, s, np.concatenate(steady)),
+            # the nut-position curves in the position test's bins (narrower on short passes), so that they share them
+            "curves": {**_signature_curves(e_all, variables, runs, s if loc is None else dataclasses.replace(
+                           s, position_bin=loc["bin_width"]), np.concatenate(steady)),
                        # the drift test's data: one torque per steady segment (runs one after another in time)
                        "segment_torque": {"time": [d[0] for d in drift_in], "torque": [d[1] for d in drift_in],
                                           "direction": [d[2] for d in drift_in],
