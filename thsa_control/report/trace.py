@@ -283,6 +283,7 @@ def plot_signature(sig: dict):
                        alpha=0.25, lw=0)
             # under the title, where neither the legend nor the curves reach it
             local_note = (f"repeated over passes: p {_num(loc['p_value'], '.2g')}"
+                          + (f" ({1e3 * loc['bin_width']:.2g} mm bins)" if loc.get("bin_width") else "")
                           + (f", {loc['law'].split(' ')[0]}" if loc.get("law") else "")
                           + (" beyond " + ", ".join(loc["added_shapes"]) + "'s shape" if loc.get("added_shapes") else "")
                           + (" (STRUCTURED)" if loc["significant"] else ""))
