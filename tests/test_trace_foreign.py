@@ -477,6 +477,8 @@ FOREIGN["rig_worn_spot_stiction_cold"] = FOREIGN["rig_worn_spot_stiction"]
 
 #: the torque constant drifting with the rotor's temperature on a record of comparable passes (10 s of reversals)
 FOREIGN["rig_kt_temperature_reversals"] = tuple(CATALOGUE["foreign"]["kt_temperature"])
+#: the friction bump on the reversal scenario (3 mm of steady travel a pass: the position test's bins narrowed)
+FOREIGN["rig_friction_bump_reversals"] = FOREIGN["rig_friction_bump"]
 
 
 @pytest.mark.campaign

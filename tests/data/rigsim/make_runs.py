@@ -98,6 +98,9 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     # rig-sim's default sensor gain, on the LVDT (the committed rig_sensor_gain plants it on the screw speed): the
     # LVDT's redundancy test once read it as a gain of 1.019 +- 0.79 from the differentiated position
     "rig_sensor_gain_lvdt": ("reversals_under_load", "rig", "sensor_gain=channel:nut_position", 451, 5.0, "foreign"),
+    # the friction bump on the reversal scenario: the steady part of a pass is 3 mm, so at 2 mm bins the position
+    # test had two bins a pass, which its per-pass intercept and slope took (docs/trace_notes.md "Short passes")
+    "rig_friction_bump_reversals": ("reversals_under_load", "rig", "friction_bump", 643, None, "foreign"),
     # --- a pair of library effects
     "rig_pair_coulomb_ripple": ("trim_ramp_compressive", "rig", "coulomb,screw_ripple", 41, None, "pair"),
     # rig-sim's disk-pair no-back and a screw ripple on the trim record: the ripple is fitted short (0.040 N m at the
