@@ -1109,7 +1109,7 @@ def position_local_test(residual, position, direction, *, bin_width: float = 2e-
     scenario (6 mm/s, reversals every 1.2 s) the steady part of a pass is 3 mm; at 2 mm bins fewer than three bins
     were crossed by two passes, or the test ran on two bins a pass and a friction bump at 5 mm (8 N m at the
     screw, 0.13 N m at the motor) was p 0.76; at 0.76 mm bins p 3e-12, while the reversal records without a
-    position feature (four nulls, ten with other effects) range p 0.02..1.
+    position feature (six nulls, thirteen with other effects) range p 0.02..1.
     """
     e = np.asarray(residual, float)
     x = np.asarray(position, float)
