@@ -386,8 +386,8 @@ def admission_tests(before: dict, after: dict, noise: Mapping[str, float], *, k:
     ``significant``: the held-out chi2 drop over ``mask`` (run -> bool per sample, None: every held-out sample) above
     the ``chi2(k)`` quantile at ``alpha``.  ``window_ok``: the largest window RMS drop (noise-weighted held-out error
     inside ``window``; over all its samples for a channel whose held-out samples do not hold the window's events,
-    :func:`window_reductions`, listed in ``window_on_all_samples``) at least ``min_window_reduction``.  ``channel_fail``: the effect's own ``channel`` worse in
-    the window by more than ``max_channel_increase`` or (``whole_record``) over the whole record.  ``aic_fail``
+    :func:`window_reductions`, listed in ``window_on_all_samples``) at least ``min_window_reduction``.
+    ``channel_fail``: the effect's own ``channel`` worse in the window by more than ``max_channel_increase`` or (``whole_record``) over the whole record.  ``aic_fail``
     (``aic``): the training samples prefer the model without it (AIC drop <= 0).  ``robust_fail`` (``robust``, a
     constant torque on a record whose base differs): the one-sided ``robust_test`` over the window's held-out segments
     (:func:`_holdout_segment_changes`: ``"signed-rank"`` or ``"sign"``) not below ``alpha``.  A failure is its reason (text), else None;
