@@ -70,7 +70,7 @@ from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, IN
 from . import backward as bw
 from . import periodicity
 from .residual import _regime_errors, _signature
-from .scoring import (_at_edge, _base_correction, _window_beyond_noise, _channel_errors, _chi2_by_channel, _explainers_at_bound, _held_out,
+from .scoring import (_at_edge, _base_correction, _channel_errors, _chi2_by_channel, _explainers_at_bound, _held_out,
                       _holdout_segment_changes,
                       _held_params, _null_runs, _param_entry, _plausibility, reason_kind,
                       _run_jobs,
@@ -777,7 +777,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             drop, thr, win_red, err_red, aic_drop, seg_win = (adm[x] for x in (
                 "holdout_chi2_drop", "chi2_threshold", "window_reduction", "error_reduction", "aic_drop",
                 "window_segments"))
-            win_sys = _window_beyond_noise(current, f, noise, win, tuple(adm["window_on_all_samples"]))
+            win_sys = adm["window_reduction_beyond_noise"]
             plausible, why = _plausibility(f, spec, plaus)
             for fail in (adm["channel_fail"], adm["aic_fail"]):
                 if fail:

@@ -399,7 +399,7 @@ def admission_tests(before: dict, after: dict, noise: Mapping[str, float], *, k:
     drop = hb - holdout_total(after, noise, mask)
     drop_all = holdout_total(before, noise) - holdout_total(after, noise)
     thr = float(chi2.ppf(1 - alpha, k))
-    win_red, on_all = window_reductions(before, after, noise, window)
+    win_red, on_all, used = window_reductions(before, after, noise, window)
     rms_b, rms_c = _rms_by_channel(before), _rms_by_channel(after)
     err_red = {c: (1 - rms_c[c] / rms_b[c]) if rms_b.get(c, 0) > 0 else 0.0 for c in rms_c}
     aic_drop = before["aic"] - after["aic"]
@@ -430,7 +430,8 @@ def admission_tests(before: dict, after: dict, noise: Mapping[str, float], *, k:
             "chi2_threshold": thr, "significant": drop > thr, "window_reduction": win_red,
             "window_ok": max(win_red.values(), default=0.0) >= min_window_reduction, "error_reduction": err_red,
             "aic_drop": aic_drop, "window_segments": seg, "channel_fail": channel_fail, "aic_fail": aic_fail,
-            "robust_fail": robust_fail, "window_on_all_samples": on_all}
+            "robust_fail": robust_fail, "window_on_all_samples": on_all,
+            "window_reduction_beyond_noise": _window_beyond_noise(used)}
 
 
 #: a window's held-out samples whose mean error (before the effect) is below this fraction of the window's mean error
@@ -440,7 +441,7 @@ WINDOW_HELDOUT_MIN_RATIO = 0.2
 
 
 def window_reductions(before: dict, after: dict, noise: Mapping[str, float], window: dict | None
-                      ) -> tuple[dict, dict]:
+                      ) -> tuple[dict, dict, dict]:
     """Per channel, the RMS drop of the noise-weighted error inside ``window`` (run -> bool per sample), ``after``
     against ``before``: on the held-out samples, unless they do not hold what the window is for.
 
@@ -454,27 +455,28 @@ def window_reductions(before: dict, after: dict, noise: Mapping[str, float], win
     refused, where over all the window's samples it explains 65 %.  So where the held-out samples' mean error before
     the effect is below ``WINDOW_HELDOUT_MIN_RATIO`` of the window's (or there are none), that channel's drop is
     taken over all the window's samples, training ones included, and reported as such (second value: channel ->
-    the held-out drop, the ratio and the sample counts).  The significance (held-out chi2 drop, null calibration)
-    stays out of sample; a fitted effect's in-sample drop in its window is slightly optimistic (a few parameters
-    over hundreds of samples)."""
+    the held-out drop, the ratio and the sample counts; third: channel -> the chi2 before, after and the sample
+    count the drop was taken over, :func:`_window_beyond_noise`'s input).  The significance (held-out chi2 drop,
+    null calibration) stays out of sample; a fitted effect's in-sample drop in its window is slightly optimistic (a
+    few parameters over hundreds of samples)."""
     nh: dict[str, int] = {}
     na: dict[str, int] = {}
     wb = chi2_by_channel(before["predictions"], noise, "holdout", window, counts=nh)
     wc = _chi2_by_channel(after, noise, "holdout", window)
     wba = chi2_by_channel(before["predictions"], noise, "all", window, counts=na)
     wca = _chi2_by_channel(after, noise, "all", window)
-    red, on_all = {}, {}
+    red, on_all, used = {}, {}, {}
     for c in wc:
         held = (1 - math.sqrt(wc[c] / wb[c])) if wb.get(c, 0) > 0 else 0.0
-        red[c] = held
+        red[c], used[c] = held, (wb.get(c, 0.0), wc[c], nh.get(c, 0))
         if not (na.get(c) and wba.get(c, 0) > 0 and c in wca):
             continue
         ratio = (wb.get(c, 0.0) / nh[c]) / (wba[c] / na[c]) if nh.get(c) else 0.0
         if ratio < WINDOW_HELDOUT_MIN_RATIO:
-            red[c] = 1 - math.sqrt(wca[c] / wba[c])
+            red[c], used[c] = 1 - math.sqrt(wca[c] / wba[c]), (wba[c], wca[c], na[c])
             on_all[c] = {"holdout_reduction": held, "heldout_error_ratio": ratio,
                          "heldout_samples": int(nh.get(c, 0)), "samples": int(na[c])}
-    return red, on_all
+    return red, on_all, used
 
 
 #: the robustness tests of a constant torque's held-out segment changes -> their p-value in ``window_segments``
@@ -502,29 +504,18 @@ def beats_null(drop: float, null_drop: float | None, null_factor: float) -> bool
     return null_drop is not None and math.isfinite(null_drop) and drop > null_factor * max(null_drop, 0.0)
 
 
-def _window_beyond_noise(before: dict, after: dict, noise: Mapping[str, float], windows: dict | None,
-                         on_all: Sequence[str] = ()) -> dict:
-    """Per channel, the drop of the held-out window error beyond the sensor noise: ``1 - sqrt((chi2_after - n) /
-    (chi2_before - n))``, ``n`` the window's held-out sample count (a noise-weighted chi2 of a perfect model is
-    ``n`` in expectation).  The RMS drop (``window_reduction``) counts the noise no model removes: an effect whose
-    window error is 1.8 x the noise can drop it by 44 % at most.  None where the error before is within
-    ``2 sqrt(2 n)`` (two standard deviations of a chi2(n)) of the noise level: nothing beyond noise to explain.
-    Reported, not used to select (the noise level is an estimate).  ``on_all``: channels whose window drop is taken
-    over all the window's samples (:func:`window_reductions`): the same here."""
-    n: dict[str, int] = {}
-    wb = chi2_by_channel(before["predictions"], noise, "holdout", windows, counts=n)
-    wa = _chi2_by_channel(after, noise, "holdout", windows)
-    if on_all:
-        na: dict[str, int] = {}
-        wba = chi2_by_channel(before["predictions"], noise, "all", windows, counts=na)
-        waa = _chi2_by_channel(after, noise, "all", windows)
-        for c in on_all:
-            n[c], wb[c], wa[c] = na.get(c, 0), wba.get(c, 0.0), waa.get(c, 0.0)
+def _window_beyond_noise(used: Mapping[str, tuple[float, float, int]]) -> dict:
+    """Per channel, the drop of the window error beyond the sensor noise: ``1 - sqrt((chi2_after - n) / (chi2_before -
+    n))``, ``n`` the sample count the window drop was taken over (the held-out ones, or all, :func:`window_reductions`'
+    third value, ``used``: channel -> (chi2 before, chi2 after, n)); a noise-weighted chi2 of a perfect model is ``n``
+    in expectation.  The RMS drop (``window_reduction``) counts the noise no model removes: an effect whose window
+    error is 1.8 x the noise can drop it by 44 % at most.  None where the error before is within ``2 sqrt(2 n)`` (two
+    standard deviations of a chi2(n)) of the noise level: nothing beyond noise to explain.  Reported, not used to
+    select (the noise level is an estimate)."""
     out = {}
-    for c in wa:
-        k = n.get(c, 0)
-        excess = wb.get(c, 0.0) - k
-        out[c] = (1 - math.sqrt(max(wa[c] - k, 0.0) / excess)) if k and excess > 2 * math.sqrt(2 * k) else None
+    for c, (before, after, k) in used.items():
+        excess = before - k
+        out[c] = (1 - math.sqrt(max(after - k, 0.0) / excess)) if k and excess > 2 * math.sqrt(2 * k) else None
     return out
 
 
