@@ -486,6 +486,11 @@ def test_short_passes_get_bins_narrow_enough_to_test_and_keep_the_level():
     r = position_local_test(e, x, d)
     assert r["significant"] and r["law"].startswith("dissipative") and r["bin_width"] < 1e-3, r
     assert r["bin_width"] == pytest.approx(np.ptp(x[keep][:300]) / 4, rel=0.05)
+    # the place is reported within the positions tested: the steady part of the passes, every bin crossed by them
+    lo, hi = r["tested_range"]
+    assert lo == pytest.approx(np.nanmin(x[keep]), abs=r["bin_width"]) and hi - lo == pytest.approx(
+        r["bins"] * r["bin_width"]), r
+    assert lo <= r["peak_bin"][0] < r["peak_bin"][1] <= hi + 1e-12, r
     n, alpha, hits = 300, 0.05, 0
     for seed in range(n):
         g = np.random.default_rng(500 + seed)

@@ -580,6 +580,9 @@ def format_trace_summary(doc: dict) -> str:
                      else f", no harmonics over {t.get('why_no_harmonics', 'less than a revolution')}")
         elif t["kind"] == "local":
             extra = f", peak in {1e3 * t['peak_bin'][0]:.1f}..{1e3 * t['peak_bin'][1]:.1f} mm" + (
+                f" of the {1e3 * t['tested_range'][0]:.1f}..{1e3 * t['tested_range'][1]:.1f} mm tested (the bins' "
+                "effects are found up to a straight line in position: over a few bins the place is uncertain)"
+                if t.get("tested_range") else "") + (
                 f", {t['law']}" if t.get("law") else "")
         elif t["kind"] == "drift":
             extra = ", slope per pass " + ", ".join(f"{v:.2g}+-{e:.1g}" for v, e in zip(t["slopes"], t["slope_stderr"])) \
