@@ -696,6 +696,24 @@ def test_found_effects_are_reported_in_the_order_of_what_they_explain(traced, na
                 assert names.index(p) < names.index(b), order
 
 
+ALL_RUNS = sorted(p.stem for p in DATA.glob("*.csv"))
+
+
+@pytest.mark.campaign
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ALL_RUNS)
+def test_the_cap_counts_found_effects_not_what_the_base_contains(traced, name):
+    """``max_effects`` caps the found effects; the no-back the base step details is what the base contains and does
+    not count.  A search whose last round added an effect stopped at the cap, so it holds ``max_effects`` found
+    effects (on fd7f278 rig_screw_ripple, rig_pair_noback_ripple and rig_pair_coulomb_ripple stopped with the detailed
+    no-back and two)."""
+    doc = traced(name)
+    found = [e for e in doc["effects_added"] if e.get("round_added") and not e.get("implied_by")]
+    assert not [e for e in found if e.get("base_step")]
+    if doc["rounds"] and any(e["round_added"] == doc["rounds"][-1]["round"] for e in found):
+        assert len(found) == doc["settings"]["max_effects"], [e["name"] for e in doc["effects_added"]]
+
+
 @pytest.mark.slow
 def test_trace_json_and_report_say_what_was_done(traced_result, tmp_path):
     """trace.json follows its schema and reports the base corrections with their bounds' sources; the report has

@@ -20,7 +20,9 @@ def add_parser(subparsers) -> None:
     p.add_argument("--free", help="comma-separated declared parameters to fit (default: the level's uncertain set)")
     p.add_argument("--candidates", help="comma-separated candidate effects (default: every library effect not declared)")
     p.add_argument("--segment", type=float, default=0.05, help="multiple-shooting segment length [s] (default 0.05)")
-    p.add_argument("--max-effects", type=int, default=3, help="stop after adding this many effects")
+    p.add_argument("--max-effects", type=int, default=3,
+                   help="stop after adding this many found effects (a declared component detailed in the base step, "
+                        "what the base contains, is not counted)")
     p.add_argument("--max-nfev", type=int, default=40, help="evaluation limit of each fit")
     p.add_argument("--base-corrections", choices=("auto", "on", "off"), default="auto",
                    help="fit the base-correction step first (Coulomb drag, direction drag, axial force, screw "

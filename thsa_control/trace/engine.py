@@ -138,7 +138,9 @@ class TraceSettings:
         cogging fit aligns its angle through the segments' nut positions and
         doubles the LVDT's small error.
     max_effects : int
-        Forward selection stops after this many effects.
+        Forward selection stops after this many found effects (the base step's detailed declared component,
+        what the base contains, is not counted: counted, it left two found effects on every record whose no-back
+        the base step detailed).
     periodic_repeat : bool
         An angle-periodic candidate (:data:`~thsa_control.trace.candidates.PERIODS`: the screw ripple once per
         lead of nut travel, the cogging once per ``lead / (ratio x count)``) whose period is two bins of the
@@ -651,7 +653,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             everyone = True
         return records
 
-    while sum(1 for e in added if "implied_by" not in e) < st.max_effects:
+    # the found effects count, not the base step's detailed declared component (what the base contains)
+    while sum(1 for e in added if "implied_by" not in e and "base_step" not in e) < st.max_effects:
         specs = candidate_specs(cur_effects, cur_params, st.candidates)
         # any base correction at its plausible bound (an efficiency included: the explainers share one torque per
         # load sign and direction, so one at its bound saturates the set): the joint lift is fitted, and every
