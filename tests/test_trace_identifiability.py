@@ -3,6 +3,7 @@ not determined by the run (held at its file value, reported) or collapses to zer
 
 from __future__ import annotations
 
+import json
 import math
 import pickle
 
@@ -83,6 +84,18 @@ def test_interval_of_a_positive_parameter_stays_positive():
     assert scale == "wald" and (lo, hi) == pytest.approx((-692.0, 92.0))
     e = {"value": v, "stderr": sd, "unit": "N/m", "at_bound": None, "min": 1e3}
     assert _param_entry(e)["ci95_scale"] == "log" and _param_entry(e)["ci95"][0] > 0
+
+
+@pytest.mark.parametrize("value, sd", [(2.5e-4, 1.2), (1e9, 3.55e11)])
+def test_a_positive_parameter_the_run_does_not_bound_has_no_interval(value, sd):
+    """A standard error hundreds of times the estimate: the log interval's factor exp(1.96 sd / v) is beyond the
+    floating-point range (exp overflowed, or the upper end is infinite): no interval (null in trace.json), the
+    estimate and its standard error still reported, and no internal error (measured on a 1.6 s cold check record
+    with rig-sim's cold friction: the trace stopped with "OverflowError: math range error")."""
+    assert _ci95(value, sd, 1e-9) == (None, None)
+    entry = _param_entry({"value": value, "stderr": sd, "unit": "-", "at_bound": None, "min": 1e-9})
+    assert entry["ci95"] is None and "ci95_scale" not in entry and entry["stderr"] == sd
+    json.dumps(entry, allow_nan=False)  # a standard JSON document
 
 
 def test_a_declared_components_coefficient_at_zero_is_a_part_not_shown_only_beside_one_that_shows():

@@ -667,14 +667,21 @@ def _plausibility(fit: dict, spec: CandidateSpec, plaus: Mapping | None = None) 
     return not why, why
 
 
-def _ci95(value: float, sd: float, lower_bound: float | None) -> tuple[list[float], str]:
+def _ci95(value: float, sd: float, lower_bound: float | None) -> tuple[list[float] | None, str | None]:
     """The 95 % interval of a fitted parameter from its standard error: symmetric (Wald) in general; for a parameter
     that is positive by definition (its search bound above zero: a stiffness, a damping) with a positive estimate,
     symmetric in the logarithm (the delta method, ``sd(log v) = sd / v``), so that the interval of a poorly determined
     stiffness stays positive instead of reaching below zero (measured: a load-path contact stiffness 1.98e7 +- 1.04e7
-    N/m, Wald -6.4e5 .. 4.0e7, log 7.1e6 .. 5.6e7 on null_rig_reversals_s2)."""
+    N/m, Wald -6.4e5 .. 4.0e7, log 7.1e6 .. 5.6e7 on null_rig_reversals_s2).  A standard error so many times the
+    value that the factor exceeds the floating-point range gives no interval (None): the run does not bound it
+    (measured: a cold check record of 1.6 s, ``math.exp`` overflowed and the trace stopped with an internal error)."""
     if lower_bound is not None and lower_bound > 0 and value > 0:
-        f = math.exp(1.96 * sd / value)
+        z = 1.96 * sd / value
+        if not z < 700.0:  # exp(700) ~ 1e304: beyond it value * f is not a number
+            return None, None
+        f = math.exp(z)
+        if not math.isfinite(value * f):
+            return None, None
         return [value / f, value * f], "log"
     return [value - 1.96 * sd, value + 1.96 * sd], "wald"
 
