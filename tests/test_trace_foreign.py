@@ -240,9 +240,14 @@ LIB_RUNS_EXCITED = [("rig_loadpath_preload_hold", LIBRARY["loadpath_preload"]),
                     ("rig_drivetrain_compliance_steps", LIBRARY["drivetrain_compliance"])]
 
 
+#: a library effect on a short check record: rig-sim's cold friction on its 1.6 s cold check, whose trace stopped with an
+#: internal error before 332d930 (a parameter's interval overflowed)
+LIB_RUNS_SHORT = [("rig_temp_friction_checkcold", LIBRARY["temp_friction"])]
+
+
 @pytest.mark.campaign
 @pytest.mark.slow
-@pytest.mark.parametrize("name, expected", _cases(LIB_RUNS + LIB_RUNS_EXCITED))
+@pytest.mark.parametrize("name, expected", _cases(LIB_RUNS + LIB_RUNS_EXCITED + LIB_RUNS_SHORT))
 def test_library_effect_on_the_rig_base_is_found_first(traced, name, expected):
     """rig base + one library effect: the effect is added, first among the physical effects (a constant-torque
     one first among the found effects), and the error inside its window drops by half."""

@@ -125,6 +125,11 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     # holds the screw and the released rotors ring on the compliance at the motor-side mode (10 Hz) through each hold
     # (the committed speed excitation never stops the drive: window ceiling 46 % / 41 %)
     "rig_drivetrain_compliance_steps": ("position_steps", "rig", "drivetrain_compliance", 601, None, "library"),
+    # --- a library effect on a short check record
+    # rig-sim's cold friction on its 1.6 s cold check (-20 degC, +10 mm/s against 10 kN): a drive-train compliance fitted
+    # there had a stiffness of 7e8 +- 8e11 N m/rad, whose log-scale interval overflowed, and the trace stopped with an
+    # internal error (docs/trace_notes.md "A crash on a short cold record")
+    "rig_temp_friction_checkcold": ("check_cold", "rig", "temp_friction", 644, None, "library"),
 }
 
 #: run sets traced together (``thsa trace A.csv B.csv``; tests/test_trace_sets.py), written to ``sets/``: the rig base
