@@ -653,8 +653,9 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             everyone = True
         return records
 
-    # the found effects count, not the base step's detailed declared component (what the base contains)
-    while sum(1 for e in added if "implied_by" not in e and "base_step" not in e) < st.max_effects:
+    # the found effects count (``found_info``: added in a round, not removed since), not the base step's detailed
+    # declared component (what the base contains) nor an effect implied by a found one
+    while len(found_info) < st.max_effects:
         specs = candidate_specs(cur_effects, cur_params, st.candidates)
         # any base correction at its plausible bound (an efficiency included: the explainers share one torque per
         # load sign and direction, so one at its bound saturates the set): the joint lift is fitted, and every
