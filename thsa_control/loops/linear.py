@@ -105,7 +105,7 @@ from .conditions import (
     conditions_tuple,
 )
 from ..model import EFFECTS, OperatingContext, Plant, build_plant
-from ..model.laws import back_emf_constant, drivetrain_stiffness, values_of
+from ..model.laws import back_emf_constant, drivetrain_modes, drivetrain_stiffness, values_of
 from ..model.params import ParameterSet, default_parameters
 
 __all__ = [
@@ -186,7 +186,7 @@ class PlantModel:
         if "drivetrain_compliance" in self.effects:
             k = drivetrain_stiffness(self.params)
             j_m, j_r = self.plant.inertia(self.p_plant)
-            f = math.sqrt(k * (1 / j_r + self.params.value("gear.efficiency") / j_m)) / (2 * math.pi)  # motor driving
+            f = drivetrain_modes(k, j_m, j_r, self.params.value("gear.efficiency"))[0] / (2 * math.pi)  # motor driving
             line += f"; compliant drive train, rotor/screw torsional resonance near {f:.0f} Hz (assumed stiffness)"
         return line + f"; drifting (excluded): {', '.join(self.named.drifting_states)}"
 

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 
 import casadi as ca
 
-__all__ = ["Law", "LAWS", "values_of", "kinematic_ratio", "torque_constant", "back_emf_constant", "motor_lag",
+__all__ = ["Law", "LAWS", "values_of", "drivetrain_modes", "stiffness_of_output_mode", "kinematic_ratio", "torque_constant", "back_emf_constant", "motor_lag",
            "stribeck", "noback_disk_normal_forces",
            "temperature_drag_terms", "loadpath_force_law", "loadpath_static_deflection",
            "drivetrain_stiffness", "limiter_slip_torques", "drive_coulomb_terms", "screw_angle", "motor_angle"]
@@ -199,6 +199,23 @@ def drivetrain_stiffness(p):
     p = values_of(p)
     k_eq = 1.0 / (1.0 / p["gear.torsional_stiffness"] + 1.0 / p["screw.torsional_stiffness"])
     return k_eq / p["gear.ratio"] ** 2
+
+
+def drivetrain_modes(k, j_main, j_rotors, efficiency) -> tuple[float, float]:
+    """The compliant drive train's two angular frequencies [rad/s] (``drivetrain_compliance``): the rotors against
+    the gear-output side with the motor driving (the spring torque passes the gearbox at ``efficiency``),
+    ``sqrt(k (1/J_rotors + eta/J_main))``, and the gear-output side's own mode with the rotor speed imposed (what a
+    speed-controlled motor sees, and what the twist rate over the motor speed rings at: ``J s^2 / (J s^2 + c s +
+    k)``), ``sqrt(eta k / J_main)``.  ``k`` at the motor shaft (:func:`drivetrain_stiffness`), inertias at the
+    motor shaft (``Plant.inertia``)."""
+    out = efficiency * k / j_main
+    return math.sqrt(k / j_rotors + out), math.sqrt(out)
+
+
+def stiffness_of_output_mode(w, j_main, efficiency) -> float:
+    """The stiffness at the motor shaft [N m/rad] whose gear-output mode (:func:`drivetrain_modes`, second) is at
+    ``w`` [rad/s]: ``J_main w^2 / eta``."""
+    return j_main * w**2 / efficiency
 
 
 def limiter_slip_torques(p):

@@ -333,8 +333,14 @@ PERIODS: dict[str, Callable] = {"screw_friction_ripple": _ripple_period, "coggin
 #: (:func:`~thsa_control.trace.signature.signature_tests`: the harmonics of that angle).
 ANGLE_OF: dict[str, str] = {"screw_friction_ripple": "screw_angle", "cogging_torque": "motor_angle"}
 
+def _start_drivetrain(params: ParameterSet, runs) -> dict[str, float]:
+    from ..fit.resonance_screen import drivetrain_resonance_start
+
+    return drivetrain_resonance_start(params, runs)
+
+
 #: Starting values read off the runs (:attr:`CandidateSpec.start` -> function(params, runs) -> {name: value}).
-STARTS: dict[str, Callable] = {"loadpath_static": _start_loadpath}
+STARTS: dict[str, Callable] = {"loadpath_static": _start_loadpath, "drivetrain_resonance": _start_drivetrain}
 
 
 # ----------------------------------------------------------------------------- candidates

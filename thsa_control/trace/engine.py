@@ -728,8 +728,12 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             pset = cur_params.replace({n: v for n, v in spec.seeds.items() if cur_params.value(n) == 0})
             if spec.start:  # starting values read off the runs (a static screen), within the search bounds; a
                 # parameter the fit then finds undetermined is held there, not at the file's value
-                pset = pset.replace({n: min(max(v, pset[n].min), pset[n].max)
-                                     for n, v in STARTS[spec.start](pset, runs).items() if n in pset})
+                read = {n: min(max(v, pset[n].min), pset[n].max)
+                        for n, v in STARTS[spec.start](pset, runs).items() if n in pset}
+                pset = pset.replace(read)
+                if read and not rounds:  # said once: the screen reads the runs, the same in every round
+                    say(f"{spec.name}: started where the runs put it ({spec.start}): "
+                        + ", ".join(f"{n} = {v:.4g} {pset[n].unit}" for n, v in read.items()))
             if spec.profile:
                 # a switch the model lacks distorts the declared fit (a missing pawl clearance drives the
                 # retraction disk friction to 0): a profiled candidate restarts the declared parameters, and

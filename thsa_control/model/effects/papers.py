@@ -314,8 +314,12 @@ register(Effect(
     # a second fit once the first (damping at the file's 20 N m s/rad) determines the stiffness: freed from the
     # start it stands in for a lag on rigid data; held, a lightly damped mode (rig-sim's 2 N m s/rad, 47 Hz)
     # cannot ring and the screw-speed error grows (docs/trace_notes.md)
+    # The stiffness starts at the mode the record rings at, where it shows one (``fit.resonance_screen``: a peak of
+    # the twist rate over the motor speed): the cost has a minimum at each stiffness whose ringing matches the
+    # record's in some phase, and from the file's (a mode near 87 Hz) the fit stopped at the wrong one on a rig-sim
+    # speed excitation ringing at 47 Hz (gearbox 3.2e4 N m/rad where rig-sim's 8000 in series asks 1.0e4)
     candidate=CandidateSpec("drivetrain_compliance", ("gear.torsional_stiffness",), {}, "all", "screw_speed",
-                            second_stage=("gear.torsional_damping",)),
+                            start="drivetrain_resonance", second_stage=("gear.torsional_damping",)),
     linear=LinearHints(
         # the spring torque k * twist enters the gear-output body with unit gain
         inertia_probe=("drivetrain_twist", drivetrain_stiffness),
