@@ -97,6 +97,15 @@ def _physical(doc: dict) -> list[dict]:
 #: Cases measured to fail on this branch (docs/trace_notes.md, "Still failing"): the assertion stays, the case is
 #: marked with what was measured so that a fix shows as XPASS.
 KNOWN_FAILING = {
+    "rig_drivetrain_compliance_exc": "drivetrain_compliance found first, its window drop 30 % on the motor speed (25 % "
+                                     "on the screw speed; < 50 %): started at the record's 47 Hz mode, the gearbox "
+                                     "stiffness is 7.0e3 N m/rad (series 5.8e3, rig-sim 8e3; from the file's start "
+                                     "2.4e4, series 1.5e4) but its damping 17.6 N m s/rad (rig-sim 2): over the PRBS "
+                                     "that follows the chirp the fitted mode is damped, and a remainder is flagged as "
+                                     "a torque-constant error.  Cut to the chirp (rig_drivetrain_compliance) the fit "
+                                     "is right (1.01e4, damping 2.8); the same record logged at 1 kHz is left "
+                                     "ambiguous with the load path's compliance (docs/trace_notes.md, \"The drive-train "
+                                     "compliance started at the record's mode\")",
     # measured on the committed runs with this tracer (the standby rotor declared from each run's rig.motors = 2),
     # `tests/data/rigsim/trace_all.sh DIR` then THSA_TRACED_DIR=DIR; the table is in docs/trace_notes.md
     # trace-drags (no-back static coefficients freed, sign test of constant torques); one-load reversal and trim runs:
@@ -243,11 +252,14 @@ LIB_RUNS_EXCITED = [("rig_loadpath_preload_hold", LIBRARY["loadpath_preload"]),
 #: a library effect on a short check record: rig-sim's cold friction on its 1.6 s cold check, whose trace stopped with an
 #: internal error before 332d930 (a parameter's interval overflowed)
 LIB_RUNS_SHORT = [("rig_temp_friction_checkcold", LIBRARY["temp_friction"])]
+#: a library effect on the whole of its scenario: rig-sim's drive-train compliance over the speed excitation's chirp and
+#: PRBS (rig_drivetrain_compliance is cut to the chirp)
+LIB_RUNS_WHOLE = [("rig_drivetrain_compliance_exc", LIBRARY["drivetrain_compliance"])]
 
 
 @pytest.mark.campaign
 @pytest.mark.slow
-@pytest.mark.parametrize("name, expected", _cases(LIB_RUNS + LIB_RUNS_EXCITED + LIB_RUNS_SHORT))
+@pytest.mark.parametrize("name, expected", _cases(LIB_RUNS + LIB_RUNS_EXCITED + LIB_RUNS_SHORT + LIB_RUNS_WHOLE))
 def test_library_effect_on_the_rig_base_is_found_first(traced, name, expected):
     """rig base + one library effect: the effect is added, first among the physical effects (a constant-torque
     one first among the found effects), and the error inside its window drops by half."""
@@ -702,6 +714,30 @@ def test_found_effects_are_reported_in_the_order_of_what_they_explain(traced, na
 
 
 ALL_RUNS = sorted(p.stem for p in DATA.glob("*.csv"))
+
+
+#: rig-sim's drive-train compliance records: the chirp, the position loop's steps and the whole speed excitation
+RINGING = ["rig_drivetrain_compliance", "rig_drivetrain_compliance_steps", "rig_drivetrain_compliance_exc"]
+
+
+@pytest.mark.campaign
+@pytest.mark.slow
+@pytest.mark.parametrize("name", RINGING)
+def test_the_compliance_starts_at_the_mode_the_record_rings_at(traced, params, name):
+    """rig-sim's drive-train compliance (8000 N m/rad in series, 2 N m s/rad: a mode near 47 Hz): each fit of the
+    candidate starts its stiffness at the mode the record rings at (``start`` in trace.json, read by
+    thsa_control.fit.resonance_screen), and the added compliance's series stiffness (with the file's screw) is within
+    35 % of rig-sim's.  On the whole speed excitation the fit started at the file's stiffness (a mode near 87 Hz)
+    stopped at a gearbox of 2.4e4 N m/rad, series 1.5e4 (+88 %), on 09049ae."""
+    truth = _truth(name)["effects"]["drivetrain_compliance"]["params"]["k_Nm_rad"]["si"]
+    doc = traced(name)
+    fits = [c for r in doc["rounds"] for c in r["candidates"] if c["name"] == "drivetrain_compliance"]
+    assert fits and all((c.get("start") or {}).get("rule") == "drivetrain_resonance" for c in fits), fits
+    step = next((e for e in doc["effects_added"] if e["name"] == "drivetrain_compliance"), None)
+    assert step is not None and step.get("start"), [e["name"] for e in doc["effects_added"]]
+    k_gear = step["parameters"]["gear.torsional_stiffness"]["value"]
+    series = 1.0 / (1.0 / k_gear + 1.0 / params.value("screw.torsional_stiffness"))
+    assert series == pytest.approx(truth, rel=0.35), (k_gear, series, truth)
 
 
 @pytest.mark.campaign

@@ -101,11 +101,12 @@ def twist_resonance(runs: Sequence, band_hz: tuple[float, float] = (5.0, math.in
     return best
 
 
-def drivetrain_resonance_start(params: ParameterSet, runs: Sequence) -> dict[str, float]:
+def drivetrain_resonance_start(params: ParameterSet, runs: Sequence, found: dict | None = None) -> dict[str, float]:
     """The gearbox torsional stiffness whose gear-output mode (:func:`~thsa_control.model.laws.drivetrain_modes`,
     the plant's own inertias at ``params``, the screw's stiffness held in series) is the one the runs ring at
     (:func:`twist_resonance`, searched over the modes of the parameter's range); ``{}`` when they show none, or
-    when the mode asks a stiffness the screw's alone cannot give (then the file's start stands)."""
+    when the mode asks a stiffness the screw's alone cannot give (then the file's start stands).  ``found``, when
+    given, receives :func:`twist_resonance`'s result."""
     from ..model import build_plant
 
     name = "gear.torsional_stiffness"
@@ -118,10 +119,12 @@ def drivetrain_resonance_start(params: ParameterSet, runs: Sequence) -> dict[str
                                   name: k_gear})
         return drivetrain_modes(k, j_main, j_rotors, eta)[1] / (2 * math.pi)
 
-    found = twist_resonance(runs, (mode_hz(params[name].min), mode_hz(params[name].max)))
-    if found is None:
+    mode = twist_resonance(runs, (mode_hz(params[name].min), mode_hz(params[name].max)))
+    if mode is None:
         return {}
-    series = stiffness_of_output_mode(2 * math.pi * found["frequency_hz"], j_main, eta) * ratio2
+    if found is not None:
+        found.update(mode)
+    series = stiffness_of_output_mode(2 * math.pi * mode["frequency_hz"], j_main, eta) * ratio2
     k_screw = params.value("screw.torsional_stiffness")
     if series >= k_screw:
         return {}

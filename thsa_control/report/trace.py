@@ -466,6 +466,12 @@ def _joint_text(j: dict) -> str:
                "of it" if j.get("joint_from") else "") + f"); {j['verdict']}")
 
 
+def _start_text(start: dict) -> str:
+    """One line: where a candidate's fit started, read off the runs (``start`` in trace.json)."""
+    vals = ", ".join(f"{n} = {_num(v)}" for n, v in start["values"].items())
+    return f"started at {vals}, read off the runs" + (f" ({start['why']})" if start.get("why") else "")
+
+
 def format_trace_summary(doc: dict) -> str:
     """Console / report text: what was added, the ranking, the errors, the signature."""
     lines = [f"declared model: {doc['base_model']} ({', '.join(doc['declared_effects']) or 'functional'}), "
@@ -512,6 +518,8 @@ def format_trace_summary(doc: dict) -> str:
         for h in e.get("not_determined", []):
             lines.append(f"    not determined by this run: {h['parameter']} held at {_num(h['held_at'])} {h['unit']} "
                          f"({h['reason']})")
+        if e.get("start"):
+            lines.append(f"    {_start_text(e['start'])}")
         for c, red in e["error_reduction"].items():
             b, a = e["error_before"].get(c, {}), e["error_after"].get(c, {})
             lines.append(f"    {c}: RMS {_num(b.get('rms'))} -> {_num(a.get('rms'))} ({100 * red:+.1f} % drop)")
@@ -557,6 +565,8 @@ def format_trace_summary(doc: dict) -> str:
                          f"score {_num(c['score'], '.3f')}  {flag}")
             for h in c.get("not_determined", []):
                 lines.append(f"        not determined: {h['parameter']} held at {_num(h['held_at'])} {h['unit']}")
+            if c.get("start"):
+                lines.append(f"        {_start_text(c['start'])}")
         for s in r["skipped"]:
             lines.append(f"    {s['name']:<26} skipped: {s['reason']}")
         if r.get("joint_lift"):

@@ -150,10 +150,19 @@ PLAUSIBLE: dict[str, Callable] = {"drag": _rule_drag, "axial_force": _rule_axial
                                   "efficiency": _rule_efficiency, "inertia": _rule_inertia}
 
 
-def _start_loadpath(params: ParameterSet, runs) -> dict[str, float]:
+class ReadStart(dict):
+    """Starting values read off the runs (name -> value) and, in ``why``, what they were read from."""
+
+    def __init__(self, values=(), why: str = ""):
+        super().__init__(values)
+        self.why = why
+
+
+def _start_loadpath(params: ParameterSet, runs) -> ReadStart:
     from ..fit.loadpath_screen import loadpath_static_screen
 
-    return loadpath_static_screen(runs, params)
+    return ReadStart(loadpath_static_screen(runs, params), "the static load-path deflection (the LVDT against the "
+                     "kinematic nut position) against the measured load")
 
 
 #: samples per cogging period for the period to count as resolved: the Nyquist limit is 2; 4 keeps the harmonic below
@@ -333,10 +342,14 @@ PERIODS: dict[str, Callable] = {"screw_friction_ripple": _ripple_period, "coggin
 #: (:func:`~thsa_control.trace.signature.signature_tests`: the harmonics of that angle).
 ANGLE_OF: dict[str, str] = {"screw_friction_ripple": "screw_angle", "cogging_torque": "motor_angle"}
 
-def _start_drivetrain(params: ParameterSet, runs) -> dict[str, float]:
+def _start_drivetrain(params: ParameterSet, runs) -> ReadStart:
     from ..fit.resonance_screen import drivetrain_resonance_start
 
-    return drivetrain_resonance_start(params, runs)
+    found: dict = {}
+    values = drivetrain_resonance_start(params, runs, found=found)
+    return ReadStart(values, (f"the torsional mode the record rings at, {found['frequency_hz']:.1f} Hz (twist rate "
+                              f"over motor speed: gain {found['gain']:.1f}, coherence {found['coherence']:.2f}, "
+                              f"run {found['run']})") if values else "")
 
 
 #: Starting values read off the runs (:attr:`CandidateSpec.start` -> function(params, runs) -> {name: value}).

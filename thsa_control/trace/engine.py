@@ -726,14 +726,18 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             replaced = {x for e in req + [spec.name] for x in EFFECTS[e].supersedes}
             effs = resolve_effects(None, add=[e for e in cur_effects if e not in replaced] + req + [spec.name])
             pset = cur_params.replace({n: v for n, v in spec.seeds.items() if cur_params.value(n) == 0})
+            start_read = None
             if spec.start:  # starting values read off the runs (a static screen), within the search bounds; a
                 # parameter the fit then finds undetermined is held there, not at the file's value
-                read = {n: min(max(v, pset[n].min), pset[n].max)
-                        for n, v in STARTS[spec.start](pset, runs).items() if n in pset}
+                screen = STARTS[spec.start](pset, runs)
+                read = {n: min(max(v, pset[n].min), pset[n].max) for n, v in screen.items() if n in pset}
                 pset = pset.replace(read)
-                if read and not rounds:  # said once: the screen reads the runs, the same in every round
-                    say(f"{spec.name}: started where the runs put it ({spec.start}): "
-                        + ", ".join(f"{n} = {v:.4g} {pset[n].unit}" for n, v in read.items()))
+                if read:
+                    start_read = {"rule": spec.start, "values": read, "why": getattr(screen, "why", "")}
+                    if not rounds:  # said once: the screen reads the runs, the same in every round
+                        say(f"{spec.name}: started where the runs put it ({spec.start}"
+                            + (f": {start_read['why']}" if start_read["why"] else "") + "): "
+                            + ", ".join(f"{n} = {v:.4g} {pset[n].unit}" for n, v in read.items()))
             if spec.profile:
                 # a switch the model lacks distorts the declared fit (a missing pawl clearance drives the
                 # retraction disk friction to 0): a profiled candidate restarts the declared parameters, and
@@ -741,7 +745,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 pset = pset.replace({n: params.value(n) for n in uncertain})
             free = tuple(dict.fromkeys(cur_free + spec.free + _reference_freed(spec)))
             jobs.append({**job(spec.name, effs, free, pset, fit_runs, profile=spec.profile, spec=spec),
-                         **({"profile_grid": profile_grids[spec.name]} if spec.name in profile_grids else {})})
+                         **({"profile_grid": profile_grids[spec.name]} if spec.name in profile_grids else {}),
+                         **({"start_read": start_read} if start_read else {})})
             if lifting and spec.base_correction:  # a found constant torque, the explainers unsaturated too
                 extra[len(jobs) - 1] = job(f"{spec.name} (interior start)", effs, free,
                                            interior(pset, base_priors, lifting), fit_runs, spec=spec)
@@ -813,6 +818,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "plausible": plausible, "implausible_because": why, "parameters": _params_out(f, spec),
                 "fit_time_s": f["time_s"], "converged": f["converged"], "prelim": prelim, "_fit": f, "_job": jb,
                 **({"starts": f["starts"]} if "starts" in f else {}),
+                **({"start": jb["start_read"]} if jb.get("start_read") else {}),
                 "not_determined": _held_out(f),
                 "holdout_segments": _holdout_segment_changes(current, f, noise),
                 "window_segments": seg_win,
@@ -936,6 +942,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "error_before": _channel_errors(current), "error_after": _channel_errors(f),
                 "segments_explained": _explained_regimes(current, f, runs),
                 "not_determined": best["not_determined"],
+                **({"start": best["start"]} if best.get("start") else {}),
                 **({"beyond_base_correction": True} if best.get("beyond_base_correction") else {}),
                 **({"profile": best["profile"]} if best.get("profile") else {})}
         if best.get("beyond_base_correction"):
