@@ -191,7 +191,9 @@ def plot_candidate_drops(doc: dict):
         ax.set_xscale("symlog", linthresh=10.0)  # negative: the candidate made the held-out error worse
         ax.axvline(0, color="0.3", lw=0.6)
         ax.set_xlabel("held-out chi2 drop, symmetric log (green: significant, red: implausible, grey: not significant)")
-        ax.set_title(f"round {r['round']}: model {', '.join(r['model']) or 'functional'}", fontsize=9, wrap=True)
+        ax.set_title(f"round {r['round']}"
+                     + (f" (retry of round {r['retry']['of_round']}'s skipped candidates)" if r.get("retry") else "")
+                     + f": model {', '.join(r['model']) or 'functional'}", fontsize=9, wrap=True)
     return fig
 
 
@@ -547,7 +549,10 @@ def format_trace_summary(doc: dict) -> str:
                      "sensitivities over its moving samples):")
         lines += [f"    {x}" for x in sep["sentences"]]
     for r in doc["rounds"]:
-        lines.append(f"round {r['round']} (model: {', '.join(r['model']) or 'functional'}): candidates")
+        lines.append(f"round {r['round']} (model: {', '.join(r['model']) or 'functional'}): candidates"
+                     + (f" skipped in round {r['retry']['of_round']}, fitted on the same model before stopping "
+                        f"(decided with round {r['retry']['of_round']}'s: {', '.join(r['retry']['decided_with'])})"
+                        if r.get("retry") else ""))
         for c in r["candidates"]:
             if "error" in c:
                 lines.append(f"    {c['name']:<26} fit failed: {c['error']}")
@@ -571,6 +576,8 @@ def format_trace_summary(doc: dict) -> str:
             lines.append(f"    {s['name']:<26} skipped: {s['reason']}")
         if r.get("joint_lift"):
             lines.append(f"    {_joint_text(r['joint_lift'])}")
+    if doc.get("stop"):
+        lines.append(f"search stopped: {doc['stop']['reason'].replace('_', ' ')} ({doc['stop']['detail']})")
     lines.append("error before -> after (all samples):")
     for c, b in doc["error_before"].items():
         a = doc["error_after"][c]
