@@ -105,7 +105,7 @@ KNOWN_FAILING = {
                                      "small part of a record whose motor-speed error the detailed no-back explains",
     "rig_drivetrain_compliance_exc": "drivetrain_compliance found first, its window drop 30 % on the motor speed (25 % "
                                      "on the screw speed; < 50 %): started at the record's 47 Hz mode, the gearbox "
-                                     "stiffness is 7.0e3 N m/rad (series 5.8e3, rig-sim 8e3; from the file's start "
+                                     "stiffness is 7.0e3 N m/rad (series 6.0e3, rig-sim 8e3; from the file's start "
                                      "2.4e4, series 1.5e4) but its damping 17.6 N m s/rad (rig-sim 2): over the PRBS "
                                      "that follows the chirp the fitted mode is damped, and a remainder is flagged as "
                                      "a torque-constant error.  Cut to the chirp (rig_drivetrain_compliance) the fit "
