@@ -247,8 +247,9 @@ class TraceSettings:
     #: revolution, a friction bump at one place is not
     periodic_repeat: bool = True
     #: a candidate that made the held-out error worse is skipped in the next round (it rarely helps once another
-    #: effect is in); when that round finds nothing significant, the skipped ones are fitted on the final model
-    #: before the search stops (a retry round, ``retry`` in ``trace.json``): no stop with a candidate untried
+    #: effect is in); when that round finds nothing significant, or no other candidate is left to score, the skipped
+    #: ones are fitted on the final model before the search stops (a retry round, ``retry`` in ``trace.json``; a round
+    #: of their own when nothing else was left): no stop with a candidate untried
     retry_hurt: bool = True
     workers: int = 2
     seed: int = 0
