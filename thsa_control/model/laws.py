@@ -36,10 +36,11 @@ from dataclasses import dataclass
 
 import casadi as ca
 
-__all__ = ["Law", "LAWS", "values_of", "drivetrain_modes", "stiffness_of_output_mode", "kinematic_ratio", "torque_constant", "back_emf_constant", "motor_lag",
+__all__ = ["Law", "LAWS", "values_of", "kinematic_ratio", "torque_constant", "back_emf_constant", "motor_lag",
            "stribeck", "noback_disk_normal_forces",
            "temperature_drag_terms", "loadpath_force_law", "loadpath_static_deflection",
-           "drivetrain_stiffness", "limiter_slip_torques", "drive_coulomb_terms", "screw_angle", "motor_angle"]
+           "drivetrain_stiffness", "drivetrain_modes", "stiffness_of_output_mode", "limiter_slip_torques",
+           "drive_coulomb_terms", "screw_angle", "motor_angle"]
 
 
 def values_of(p):
