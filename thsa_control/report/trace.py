@@ -90,6 +90,7 @@ def conclusion_table_html(doc: dict) -> str:
         pars = "<br>".join(f"{esc(n)} = {_num(p['value'])} {esc(p['unit'])}{_ci(p)}"
                            + (" (profiled)" if p.get("profiled") else "") + (" (held)" if p.get("held") else "")
                            + _outside(p) for n, p in e["parameters"].items())
+        pars += "".join(f"<br><small>{esc(w)}</small>" for w in _weights_text(e.get("weight_check")))
         nd = "<br>".join([f"{esc(h['parameter'])} held at {_num(h['held_at'])} {esc(h['unit'])}: {esc(h['reason'])}"
                           for h in e.get("not_determined", [])]
                          + [f"part not shown by this run (kept at its fit): {esc(w)}"
@@ -474,6 +475,27 @@ def _start_text(start: dict) -> str:
     return f"started at {vals}, read off the runs" + (f" ({start['why']})" if start.get("why") else "")
 
 
+_WEIGHTING_NAMES = {"sensor_noise_weights": "sensor-noise weights (the search's)",
+                    "residual_scales": "channels at their residual spread",
+                    "without_structural_channels": "without {}"}
+
+
+def _weights_text(check: dict) -> list[str]:
+    """Lines: the found effect's parameters whose estimate depends on the channel weights (``weight_check``)."""
+    if not check or not check.get("depends_on_weights"):
+        return []
+    left = ", ".join(f"{c} at {_num(check['scale_over_noise'][c], '.2g')} x its noise"
+                     for c in check.get("structural_channels", []))
+    out = []
+    for n in check["depends_on_weights"]:
+        vals = "; ".join(f"{_WEIGHTING_NAMES.get(k, k).format(', '.join(check.get('structural_channels', [])))} "
+                         f"{_num(v['value'])}" for k, v in check["parameters"][n].items())
+        lo, hi = check["range"][n]
+        out.append(f"{n} depends on the channel weights ({left or 'no channel beyond twice its noise'}): {vals}; "
+                   f"range {_num(lo)} .. {_num(hi)}")
+    return out
+
+
 def format_trace_summary(doc: dict) -> str:
     """Console / report text: what was added, the ranking, the errors, the signature."""
     lines = [f"declared model: {doc['base_model']} ({', '.join(doc['declared_effects']) or 'functional'}), "
@@ -522,6 +544,7 @@ def format_trace_summary(doc: dict) -> str:
                          f"({h['reason']})")
         if e.get("start"):
             lines.append(f"    {_start_text(e['start'])}")
+        lines += [f"    {w}" for w in _weights_text(e.get("weight_check"))]
         for c, red in e["error_reduction"].items():
             b, a = e["error_before"].get(c, {}), e["error_after"].get(c, {})
             lines.append(f"    {c}: RMS {_num(b.get('rms'))} -> {_num(a.get('rms'))} ({100 * red:+.1f} % drop)")

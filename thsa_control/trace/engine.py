@@ -69,6 +69,7 @@ from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, IN
                          candidate_specs, not_candidates, nut_travel)
 from . import backward as bw
 from . import periodicity
+from . import weights as wt
 from .residual import _regime_errors, _signature
 from .scoring import (_at_edge, _base_correction, _channel_errors, _chi2_by_channel, _explainers_at_bound, _held_out,
                       _holdout_segment_changes,
@@ -285,6 +286,11 @@ class TraceSettings:
     #: one that no longer earns its place (:mod:`thsa_control.trace.backward`); report the kept ones in the order of
     #: their leave-one-out held-out drops
     backward: bool = True
+    #: after the search, fit each found effect's parameters again with every channel scaled by the larger of its
+    #: sensor noise and the final model's residual RMS on it, and report where the estimate depends on the
+    #: weighting (both values and the range they span; :mod:`thsa_control.trace.weights`).  The decisions keep
+    #: the sensor-noise weights.  Only with ``channel_weights = "sensor_noise"``
+    weight_check: bool = True
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad field."""
@@ -1046,6 +1052,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                              st.speed_sensors)
         rounds[-1]["signature_after"] = _signature_brief(cur_sig)
     order = _order_by_contribution(added, found_info, leave_one_out) if st.backward else None
+    if st.weight_check and st.channel_weights == "sensor_noise":
+        _weight_checks(added, current, cur_effects, cur_params, fit_runs, noise, st, job, say)
     sig_before = _signature(first, runs, ParameterSet.from_toml(first["params_toml"]), base_plant, st.signature,
                             sensor_noise, st.speed_sensors)
     # every change of ``current`` (the base step, an added effect, a removal) is followed by its signature
@@ -1103,6 +1111,74 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                    "backward_fits": len(backward_cpu), "backward_cpu_s": float(sum(backward_cpu))},
     }
     return TraceResult(doc, {"before": first, "after": current})
+
+
+def _weight_checks(added: list, current: dict, cur_effects, cur_params: ParameterSet, fit_runs, noise, st, job,
+                   say) -> None:
+    """Each found effect's parameters fitted again on the final model at the residual scales
+    (:mod:`thsa_control.trace.weights`); the verdict goes to its ``effects_added`` entry as ``weight_check``, and a
+    parameter whose estimate depends on the weights gets ``range_over_channel_weights``."""
+    steps = [(i, wt.checked_parameters(e, current)) for i, e in enumerate(added)
+             if not e.get("implied_by")]
+    steps = [(i, names) for i, names in steps if names]
+    if not steps:
+        return
+    scales = wt.ml_channel_scales(noise, _residual_rms(current, fit_runs))
+    if all(scales[c] <= noise[c] for c in noise):  # every channel at its noise: the same weights
+        for i, names in steps:
+            added[i]["weight_check"] = {"channel_scales": scales, "same_as_sensor_noise": True}
+        return
+    say("fitting the found effects' parameters again with the channels at their residual spread: "
+        + ", ".join(f"{c} {scales[c]:.3g} ({scales[c] / noise[c]:.2g} x its noise)" for c in scales if noise[c]))
+    # iteratively reweighted: each fit's own residual sets the next scales (the maximum-likelihood fixed point;
+    # the final model's residual alone understates a channel whose error the effect's parameters absorbed)
+    per = {i: dict(scales) for i, _ in steps}
+    fits: dict = {}
+    rounds_of = {i: 0 for i, _ in steps}
+    todo = list(steps)
+    for it in range(wt.MAX_REWEIGHTS):
+        jobs = []
+        for i, names in todo:
+            jb = job(f"weights {added[i]['name']} ({it + 1})", cur_effects, names,
+                     ParameterSet.from_toml(fits[i]["params_toml"]) if i in fits else cur_params, fit_runs,
+                     prior=False, lift=names)
+            jobs.append({**jb, "settings": dataclasses.replace(jb["settings"], noise=dict(per[i]))})
+        nxt = []
+        for (i, names), fw in zip(todo, _run_jobs(jobs, st.workers, say)):
+            fits[i] = fw
+            rounds_of[i] += 1
+            if "error" in fw:
+                continue
+            new = wt.ml_channel_scales(noise, _residual_rms(fw, fit_runs))
+            if wt.scales_settled(per[i], new):
+                continue
+            per[i] = new
+            nxt.append((i, names))
+        todo = nxt
+        if not todo:
+            break
+    # the channels the model describes to their noise alone (where some are not and some are)
+    structural = wt.structural_channels(scales, noise, st.signature.max_noise_ratio)
+    kept = tuple(c for c in noise if c not in structural)
+    alone: dict = {}
+    if structural and kept:
+        jobs = []
+        for i, names in steps:
+            jb = job(f"weights {added[i]['name']} (without {', '.join(structural)})", cur_effects, names, cur_params,
+                     fit_runs, prior=False, lift=names)
+            jobs.append({**jb, "settings": dataclasses.replace(jb["settings"], channels=kept)})
+        alone = dict(zip([i for i, _ in steps], _run_jobs(jobs, st.workers, say)))
+    for i, names in steps:
+        alts = {"residual_scales": fits[i], **({"without_structural_channels": alone[i]} if i in alone else {})}
+        v = wt.weight_verdict(current, alts, names, per[i], noise, st.determination_z, structural)
+        added[i]["weight_check"] = {**v, "fits": rounds_of[i] + (1 if i in alone else 0)}
+        for n in v["depends_on_weights"]:
+            if n in added[i]["parameters"]:
+                added[i]["parameters"][n]["range_over_channel_weights"] = v["range"][n]
+            p = v["parameters"][n]
+            say(f"{added[i]['name']}: {n} depends on the channel weights: " + "; ".join(
+                f"{k.replace('_', ' ')} {e['value']:.4g}" for k, e in p.items()) +
+                f" (range {v['range'][n][0]:.4g} .. {v['range'][n][1]:.4g})")
 
 
 def _final_parameters(fit: dict, params: ParameterSet) -> dict:
