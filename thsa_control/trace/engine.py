@@ -1052,8 +1052,10 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                              st.speed_sensors)
         rounds[-1]["signature_after"] = _signature_brief(cur_sig)
     order = _order_by_contribution(added, found_info, leave_one_out) if st.backward else None
+    t_weights = time.perf_counter()
     if st.weight_check and st.channel_weights == "sensor_noise":
         _weight_checks(added, current, cur_effects, cur_params, fit_runs, noise, st, job, say)
+    t_weights = time.perf_counter() - t_weights
     sig_before = _signature(first, runs, ParameterSet.from_toml(first["params_toml"]), base_plant, st.signature,
                             sensor_noise, st.speed_sensors)
     # every change of ``current`` (the base step, an added effect, a removal) is followed by its signature
@@ -1108,7 +1110,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         "settings": _settings_dict(st),
         "timing": {"base_fit_s": base_fit_time, "candidate_fit_s": (float(np.median(cand_times)) if cand_times else None),
                    "total_s": time.perf_counter() - t_start,
-                   "backward_fits": len(backward_cpu), "backward_cpu_s": float(sum(backward_cpu))},
+                   "backward_fits": len(backward_cpu), "backward_cpu_s": float(sum(backward_cpu)),
+                   "weight_check_s": t_weights},
     }
     return TraceResult(doc, {"before": first, "after": current})
 
