@@ -90,6 +90,12 @@ def conclusion_table_html(doc: dict) -> str:
         pars = "<br>".join(f"{esc(n)} = {_num(p['value'])} {esc(p['unit'])}{_ci(p)}"
                            + (" (profiled)" if p.get("profiled") else "") + (" (held)" if p.get("held") else "")
                            + _outside(p) for n, p in e["parameters"].items())
+        ch = e.get("changed_after_added")
+        if ch:
+            pars += ("<br><small>in the final model (refitted with " + esc(", ".join(ch["with"]) or "the later fits")
+                     + "): " + esc(", ".join(f"{n} = {_num(e['parameters_final'][n]['value'])} "
+                                             f"{e['parameters_final'][n]['unit']}" for n in ch["parameters"]))
+                     + "</small>")
         pars += "".join(f"<br><small>{esc(w)}</small>" for w in _weights_text(e.get("weight_check")))
         nd = "<br>".join([f"{esc(h['parameter'])} held at {_num(h['held_at'])} {esc(h['unit'])}: {esc(h['reason'])}"
                           for h in e.get("not_determined", [])]
@@ -544,6 +550,12 @@ def format_trace_summary(doc: dict) -> str:
                          f"({h['reason']})")
         if e.get("start"):
             lines.append(f"    {_start_text(e['start'])}")
+        ch = e.get("changed_after_added")
+        if ch:
+            lines.append("    in the final model (refitted with " + (", ".join(ch["with"]) or "the later fits") + "): "
+                         + ", ".join(f"{n} = {_num(e['parameters_final'][n]['value'])} "
+                                     f"{e['parameters_final'][n]['unit']}{_ci(e['parameters_final'][n])}"
+                                     for n in ch["parameters"]))
         lines += [f"    {w}" for w in _weights_text(e.get("weight_check"))]
         for c, red in e["error_reduction"].items():
             b, a = e["error_before"].get(c, {}), e["error_after"].get(c, {})

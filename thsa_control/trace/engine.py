@@ -669,7 +669,10 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     stop: dict = {"reason": "cap", "detail": f"{st.max_effects} found effects (max_effects)"}
     # the found effects count (``found_info``: added in a round, not removed since), not the base step's detailed
     # declared component (what the base contains) nor an effect implied by a found one
-    while len(found_info) < st.max_effects:
+    def counted() -> int:  # a declared component's detailed model, added in a round, is what the base contains
+        return sum(1 for n in found_info if not set(EFFECTS[n].supersedes) & set(declared))
+
+    while counted() < st.max_effects:
         retry_now, retry = retry, None
         hurt_skipped: list[str] = []
         specs = candidate_specs(cur_effects, cur_params, st.candidates)
@@ -691,7 +694,11 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             win = windows_cache[spec.window]
             if sum(int(w.sum()) for w in win.values()) < MIN_WINDOW_SAMPLES:
                 skipped.append({"name": spec.name, "reason": f"does not act on these runs (window '{spec.window}' empty)"})
-            elif spec.name in base_step_refused:
+            elif spec.name in base_step_refused and not found_info:
+                # offered again once a found effect changed the model: the holding margin of the rig's no-back (its
+                # static coefficients) is what keeps the screw still at a drive-off stop while the rotors ring on a
+                # drive-train compliance; level A's ideal no-back holds the load torque exactly and lets the screw
+                # slip back with each swing (docs/trace_notes.md, "A damping the stop chose")
                 skipped.append({"name": spec.name, "reason": "the detailed model of a declared component, judged in "
                                                              "the base step (not significant there)"})
             elif use_base and spec.name in RESOLVES and RESOLVES[spec.name](params, runs):
@@ -827,6 +834,9 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "window_segments"))
             win_sys = adm["window_reduction_beyond_noise"]
             plausible, why = _plausibility(f, spec, plaus)
+            at_file = _declared_detail_at_file_values(f, spec, declared, why)
+            if at_file:  # the declared component in detail at the parameter file's values: what the base contains
+                plausible, why = True, []
             for fail in (adm["channel_fail"], adm["aic_fail"]):
                 if fail:
                     plausible = False
@@ -854,7 +864,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "fit_time_s": f["time_s"], "converged": f["converged"], "prelim": prelim, "_fit": f, "_job": jb,
                 **({"starts": f["starts"]} if "starts" in f else {}),
                 **({"start": jb["start_read"]} if jb.get("start_read") else {}),
-                "not_determined": _held_out(f),
+                "not_determined": _held_out(f) + at_file,
                 "holdout_segments": _holdout_segment_changes(current, f, noise),
                 "window_segments": seg_win,
                 **({} if robust else {"not_robust": adm["robust_fail"]}),
@@ -1052,6 +1062,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                              st.speed_sensors)
         rounds[-1]["signature_after"] = _signature_brief(cur_sig)
     order = _order_by_contribution(added, found_info, leave_one_out) if st.backward else None
+    _final_values(added, current, found_info)
     t_weights = time.perf_counter()
     if st.weight_check and st.channel_weights == "sensor_noise":
         _weight_checks(added, current, cur_effects, cur_params, fit_runs, noise, st, job, say)
@@ -1114,6 +1125,50 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                    "weight_check_s": t_weights},
     }
     return TraceResult(doc, {"before": first, "after": current})
+
+
+def _final_values(added: list, current: dict, found_info: Mapping) -> None:
+    """Each found effect's parameters as the final model has them (``parameters_final``): an effect's entry holds its
+    values when it was added, and the fits after it free its parameters again with the later effects (a drive-train
+    compliance's damping, 17.6 N m s/rad when added on rig_drivetrain_compliance_exc, 2.7 once the no-back's
+    holding margin keeps the screw still at the drive-off stop).  ``changed_after_added``: the parameters that moved
+    by more than 2 combined standard errors and 10 %, with the effects added after it."""
+    for e in added:
+        if e.get("implied_by"):
+            continue
+        fin = {n: _param_entry(current["estimates"][n]) for n in e.get("parameters", {})
+               if n in current["estimates"] and not current["estimates"][n].get("held")}
+        if not fin:
+            continue
+        e["parameters_final"] = fin
+        moved = []
+        for n, p in fin.items():
+            a = e["parameters"][n]
+            sa, sb = a.get("stderr"), p.get("stderr")
+            if a.get("held") or sa is None or sb is None:
+                continue
+            shift = abs(p["value"] - a["value"])
+            if shift > 2.0 * math.hypot(sa, sb) and shift > 0.1 * max(abs(p["value"]), abs(a["value"])):
+                moved.append(n)
+        if moved:
+            rnd = found_info[e["name"]].round if e["name"] in found_info else 0
+            e["changed_after_added"] = {"parameters": moved, "with": [
+                x["name"] for x in added if not x.get("implied_by") and x["name"] in found_info
+                and found_info[x["name"]].round > rnd]}
+
+
+def _declared_detail_at_file_values(fit: dict, spec: CandidateSpec, declared, why: list) -> list[dict]:
+    """The detailed model of a declared component (the rig's no-back for level A's ideal one) whose only refusal is
+    that the run determines none of its coefficients: what it explains is the component's structure (the disks'
+    holding margin at a drive-off stop), not fitted values, so it stands at the parameter file's values, each
+    reported as not determined.  Empty where that is not the case."""
+    if not why or not set(EFFECTS[spec.name].supersedes) & set(declared) or any(w.kind != "undetermined" for w in why):
+        return []
+    held = {h["parameter"] for h in _held_out(fit)}
+    return [{"parameter": n, "held_at": fit["estimates"][n]["value"], "unit": fit["estimates"][n]["unit"],
+             "reason": "the run determines none of the declared component's coefficients: the detailed model at the "
+                       "parameter file's values", "value_if_free": None, "stderr_if_free": None}
+            for n in spec.free if n in fit["estimates"] and n not in held]
 
 
 def _weight_checks(added: list, current: dict, cur_effects, cur_params: ParameterSet, fit_runs, noise, st, job,
