@@ -1,0 +1,59 @@
+"""Two rules of the tracer's bookkeeping (thsa_control.trace.engine), on fit summaries built here:
+
+* a declared component's detailed model whose only refusal is that the run determines none of its coefficients
+  stands at the parameter file's values, each reported as not determined (what it adds is its structure: the rig
+  no-back's holding margin at a drive-off stop, docs/trace_notes.md "A damping the stop chose");
+* a found effect's entry reports its parameters as the final model has them and says which moved after it was added.
+
+The tracer's own run of both is judged on rig-sim's speed excitation in tests/test_trace_foreign.py."""
+
+from types import SimpleNamespace
+
+from thsa_control.model import CandidateSpec
+from thsa_control.trace.engine import _declared_detail_at_file_values, _final_values
+from thsa_control.trace.scoring import Reason
+
+NB = CandidateSpec("noback_quadrant_friction", ("noback.mu_coulomb_pos", "noback.mu_static_pos"), {}, "all",
+                   "motor_speed")
+
+
+def _fit(**est):
+    return {"estimates": {n: {"value": v, "stderr": sd, "unit": "N m/N", "at_bound": None, "min": 0.0, "max": 0.1}
+                          for n, (v, sd) in est.items()}}
+
+
+def test_the_detailed_no_back_stands_at_file_values_when_the_run_determines_none():
+    fit = _fit(**{"noback.mu_coulomb_pos": (0.0048, None), "noback.mu_static_pos": (0.0072, None)})
+    why = [Reason("no parameter determined by the run: noback.mu_coulomb_pos, noback.mu_static_pos", "undetermined")]
+    held = _declared_detail_at_file_values(fit, NB, ("standby_motor", "noback_ideal"), why)
+    assert [h["parameter"] for h in held] == ["noback.mu_coulomb_pos", "noback.mu_static_pos"]
+    assert held[0]["held_at"] == 0.0048 and "parameter file's values" in held[0]["reason"]
+
+
+def test_only_a_declared_components_detail_and_only_for_undetermined_coefficients():
+    fit = _fit(**{"noback.mu_coulomb_pos": (0.0048, None), "noback.mu_static_pos": (0.0072, None)})
+    undet = [Reason("no parameter determined by the run", "undetermined")]
+    # the level declares no idealised no-back it would detail: a found effect, judged as any other
+    assert _declared_detail_at_file_values(fit, NB, ("standby_motor",), undet) == []
+    # any other refusal (a determined coefficient collapsing to zero, one at a bound) stands
+    assert _declared_detail_at_file_values(fit, NB, ("noback_ideal",), undet + [
+        Reason("noback.mu_static_pos = 0 collapses to zero", "zero", "noback.mu_static_pos")]) == []
+    assert _declared_detail_at_file_values(fit, NB, ("noback_ideal",), []) == []  # nothing refused it
+
+
+def test_a_found_effect_reports_the_values_the_final_model_gives_it():
+    added = [{"name": "drivetrain_compliance",
+              "parameters": {"gear.torsional_damping": {"value": 17.6, "stderr": 0.52, "unit": "N m s/rad"},
+                             "gear.torsional_stiffness": {"value": 9700.0, "stderr": 80.0, "unit": "N m/rad"}}},
+             {"name": "noback_quadrant_friction", "parameters": {}}]
+    current = {"estimates": {
+        "gear.torsional_damping": {"value": 2.73, "stderr": 0.11, "unit": "N m s/rad", "at_bound": None, "min": 0.0},
+        "gear.torsional_stiffness": {"value": 9757.0, "stderr": 35.0, "unit": "N m/rad", "at_bound": None,
+                                     "min": 100.0}}}
+    found = {"drivetrain_compliance": SimpleNamespace(round=1), "noback_quadrant_friction": SimpleNamespace(round=2)}
+    _final_values(added, current, found)
+    e = added[0]
+    assert e["parameters_final"]["gear.torsional_damping"]["value"] == 2.73
+    # the stiffness moved 57 N m/rad: within its errors and 1 %, not a change
+    assert e["changed_after_added"] == {"parameters": ["gear.torsional_damping"], "with": ["noback_quadrant_friction"]}
+    assert "parameters_final" not in added[1]  # nothing of its own in the final fit
