@@ -10,9 +10,11 @@ The tracer's own run of both is judged on rig-sim's speed excitation in tests/te
 from types import SimpleNamespace
 
 from thsa_control.model import CandidateSpec
+from thsa_control.model.params import default_parameters
 from thsa_control.trace.engine import _declared_detail_at_file_values, _final_values
 from thsa_control.trace.scoring import Reason
 
+FILE = default_parameters()
 NB = CandidateSpec("noback_quadrant_friction", ("noback.mu_coulomb_pos", "noback.mu_static_pos"), {}, "all",
                    "motor_speed")
 
@@ -25,7 +27,7 @@ def _fit(**est):
 def test_the_detailed_no_back_stands_at_file_values_when_the_run_determines_none():
     fit = _fit(**{"noback.mu_coulomb_pos": (0.0048, None), "noback.mu_static_pos": (0.0072, None)})
     why = [Reason("no parameter determined by the run: noback.mu_coulomb_pos, noback.mu_static_pos", "undetermined")]
-    held = _declared_detail_at_file_values(fit, NB, ("standby_motor", "noback_ideal"), why)
+    held = _declared_detail_at_file_values(fit, NB, ("standby_motor", "noback_ideal"), why, FILE)
     assert [h["parameter"] for h in held] == ["noback.mu_coulomb_pos", "noback.mu_static_pos"]
     assert held[0]["held_at"] == 0.0048 and "parameter file's values" in held[0]["reason"]
 
@@ -34,11 +36,14 @@ def test_only_a_declared_components_detail_and_only_for_undetermined_coefficient
     fit = _fit(**{"noback.mu_coulomb_pos": (0.0048, None), "noback.mu_static_pos": (0.0072, None)})
     undet = [Reason("no parameter determined by the run", "undetermined")]
     # the level declares no idealised no-back it would detail: a found effect, judged as any other
-    assert _declared_detail_at_file_values(fit, NB, ("standby_motor",), undet) == []
+    assert _declared_detail_at_file_values(fit, NB, ("standby_motor",), undet, FILE) == []
     # any other refusal (a determined coefficient collapsing to zero, one at a bound) stands
     assert _declared_detail_at_file_values(fit, NB, ("noback_ideal",), undet + [
-        Reason("noback.mu_static_pos = 0 collapses to zero", "zero", "noback.mu_static_pos")]) == []
-    assert _declared_detail_at_file_values(fit, NB, ("noback_ideal",), []) == []  # nothing refused it
+        Reason("noback.mu_static_pos = 0 collapses to zero", "zero", "noback.mu_static_pos")], FILE) == []
+    assert _declared_detail_at_file_values(fit, NB, ("noback_ideal",), [], FILE) == []  # nothing refused it
+    # an undetermined coefficient the fit moved away from the file's value: not the declared component at file values
+    moved = _fit(**{"noback.mu_coulomb_pos": (0.0300, None), "noback.mu_static_pos": (0.0072, None)})
+    assert _declared_detail_at_file_values(moved, NB, ("noback_ideal",), undet, FILE) == []
 
 
 def test_a_found_effect_reports_the_values_the_final_model_gives_it():

@@ -834,7 +834,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "window_segments"))
             win_sys = adm["window_reduction_beyond_noise"]
             plausible, why = _plausibility(f, spec, plaus)
-            at_file = _declared_detail_at_file_values(f, spec, declared, why)
+            at_file = _declared_detail_at_file_values(f, spec, declared, why, params)
             if at_file:  # the declared component in detail at the parameter file's values: what the base contains
                 plausible, why = True, []
             for fail in (adm["channel_fail"], adm["aic_fail"]):
@@ -1157,12 +1157,17 @@ def _final_values(added: list, current: dict, found_info: Mapping) -> None:
                 and found_info[x["name"]].round > rnd]}
 
 
-def _declared_detail_at_file_values(fit: dict, spec: CandidateSpec, declared, why: list) -> list[dict]:
+def _declared_detail_at_file_values(fit: dict, spec: CandidateSpec, declared, why: list,
+                                    params: ParameterSet) -> list[dict]:
     """The detailed model of a declared component (the rig's no-back for level A's ideal one) whose only refusal is
     that the run determines none of its coefficients: what it explains is the component's structure (the disks'
-    holding margin at a drive-off stop), not fitted values, so it stands at the parameter file's values, each
-    reported as not determined.  Empty where that is not the case."""
+    holding margin at a drive-off stop), not fitted values, so it stands at the parameter file's values (``params``),
+    each reported as not determined.  Empty where that is not the case, or where the fit left a coefficient away
+    from the file's value."""
     if not why or not set(EFFECTS[spec.name].supersedes) & set(declared) or any(w.kind != "undetermined" for w in why):
+        return []
+    if any(abs(fit["estimates"][n]["value"] - params.value(n)) > 1e-6 * max(abs(params.value(n)), 1e-12)
+           for n in spec.free if n in fit["estimates"]):
         return []
     held = {h["parameter"] for h in _held_out(fit)}
     return [{"parameter": n, "held_at": fit["estimates"][n]["value"], "unit": fit["estimates"][n]["unit"],
