@@ -1233,11 +1233,13 @@ def _weight_checks(added: list, current: dict, cur_effects, cur_params: Paramete
         alone = dict(zip([i for i, _ in steps], _run_jobs(jobs, st.workers, say)))
     for i, names in steps:
         alts = {"residual_scales": fits[i], **({"without_structural_channels": alone[i]} if i in alone else {})}
-        v = wt.weight_verdict(current, alts, names, per[i], noise, st.determination_z, structural)
-        added[i]["weight_check"] = {**v, "fits": rounds_of[i] + (1 if i in alone else 0)}
+        # the scales reported (and the structural channels) are the final model's; the reweighted fit's are beside
+        v = wt.weight_verdict(current, alts, names, scales, noise, st.determination_z, structural)
+        added[i]["weight_check"] = {**v, "reweighted_scales": per[i], "fits": rounds_of[i] + (1 if i in alone else 0)}
         for n in v["depends_on_weights"]:
-            if n in added[i]["parameters"]:
-                added[i]["parameters"][n]["range_over_channel_weights"] = v["range"][n]
+            for key in ("parameters", "parameters_final"):  # the range is about the final model's estimate
+                if n in added[i].get(key, {}):
+                    added[i][key][n]["range_over_channel_weights"] = v["range"][n]
             p = v["parameters"][n]
             say(f"{added[i]['name']}: {n} depends on the channel weights: " + "; ".join(
                 f"{k.replace('_', ' ')} {e['value']:.4g}" for k, e in p.items()) +
