@@ -1147,8 +1147,7 @@ def _final_values(added: list, current: dict, found_info: Mapping) -> None:
             sa, sb = a.get("stderr"), p.get("stderr")
             if a.get("held") or sa is None or sb is None:
                 continue
-            shift = abs(p["value"] - a["value"])
-            if shift > 2.0 * math.hypot(sa, sb) and shift > 0.1 * max(abs(p["value"]), abs(a["value"])):
+            if wt.moved(a["value"], sa, p["value"], sb, 2.0):
                 moved.append(n)
         if moved:
             rnd = found_info[e["name"]].round if e["name"] in found_info else 0

@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 
-__all__ = ["MAX_REWEIGHTS", "SCALE_TOLERANCE", "WEIGHT_SHIFT_FLOOR", "checked_parameters", "ml_channel_scales",
+__all__ = ["MAX_REWEIGHTS", "SCALE_TOLERANCE", "WEIGHT_SHIFT_FLOOR", "checked_parameters", "ml_channel_scales", "moved",
            "scales_settled", "structural_channels", "weight_verdict"]
 
 #: Smallest relative shift between the two weightings' estimates that is reported as a dependence on the weights
@@ -69,13 +69,22 @@ def checked_parameters(step: Mapping, final_fit: Mapping) -> tuple[str, ...]:
     return tuple(out)
 
 
+def moved(va: float, sa: float, vb: float, sb: float, z: float) -> bool:
+    """Two estimates differ: by more than ``z`` combined standard errors and by more than
+    :data:`WEIGHT_SHIFT_FLOOR` of the larger magnitude (also the tracer's rule for a found effect's parameter that
+    moved after it was added)."""
+    shift = abs(va - vb)
+    return shift > z * math.hypot(sa, sb) and shift > WEIGHT_SHIFT_FLOOR * max(abs(va), abs(vb))
+
+
 def structural_channels(scales: Mapping[str, float], noise: Mapping[str, float], ratio: float) -> list[str]:
     """Channels whose residual scale exceeds ``ratio`` x their sensor noise: error the model cannot describe."""
     return [c for c in scales if noise.get(c) and scales[c] / noise[c] > ratio]
 
 
 def weight_verdict(final_fit: Mapping, alternatives: Mapping[str, Mapping], names: Sequence[str],
-                   scales: Mapping[str, float], noise: Mapping[str, float], z: float, structural: Sequence[str]) -> dict:
+                   scales: Mapping[str, float], noise: Mapping[str, float], z: float,
+                   structural: Sequence[str]) -> dict:
     """Compare the final fit's estimates of ``names`` with those of the ``alternatives`` (weighting -> fit summary:
     ``"residual_scales"``, the channels at their residual spread; ``"without_structural_channels"``, the channels
     the model leaves at their noise only).
@@ -87,7 +96,8 @@ def weight_verdict(final_fit: Mapping, alternatives: Mapping[str, Mapping], name
     out: dict = {"channel_scales": dict(scales),
                  "scale_over_noise": {c: scales[c] / noise[c] for c in scales if noise.get(c)},
                  "structural_channels": list(structural),
-                 "weightings": {k: ("error: " + f["error"]) if "error" in f else "fitted" for k, f in alternatives.items()},
+                 "weightings": {k: ("error: " + f["error"]) if "error" in f else "fitted"
+                                for k, f in alternatives.items()},
                  "parameters": {}, "depends_on_weights": [], "range": {}}
     for n in names:
         a = final_fit["estimates"][n]
@@ -102,8 +112,7 @@ def weight_verdict(final_fit: Mapping, alternatives: Mapping[str, Mapping], name
             entry[k] = {"value": vb, "stderr": sb}
             if sa is None or sb is None or abs(vb) <= z * sb:  # not determined under this weighting
                 continue
-            shift = abs(va - vb)
-            if shift > z * math.hypot(sa, sb) and shift > WEIGHT_SHIFT_FLOOR * max(abs(va), abs(vb)):
+            if moved(va, sa, vb, sb, z):
                 shifted = True
                 lo, hi = min(lo, vb - 1.96 * sb), max(hi, vb + 1.96 * sb)
         out["parameters"][n] = entry
