@@ -62,3 +62,27 @@ def test_a_found_effect_reports_the_values_the_final_model_gives_it():
     # the stiffness moved 57 N m/rad: within its errors and 1 %, not a change
     assert e["changed_after_added"] == {"parameters": ["gear.torsional_damping"], "with": ["noback_quadrant_friction"]}
     assert "parameters_final" not in added[1]  # nothing of its own in the final fit
+
+
+def test_a_move_is_judged_on_the_runs_own_errors_like_the_weight_check():
+    # posterior errors 0.1 say 1.0 -> 1.4 moved (2.8 combined errors); the run's own information (0.2 each) says it
+    # is within 2 combined errors (1.4): not a change, as the weight check would judge the same two values
+    def entry(v):
+        return {"value": v, "stderr": 0.1, "stderr_data": 0.2, "unit": "N m", "at_bound": None, "min": 0.0}
+    added = [{"name": "coulomb_friction", "parameters": {"friction.coulomb": entry(1.0)}}]
+    _final_values(added, {"estimates": {"friction.coulomb": entry(1.4)}},
+                  {"coulomb_friction": SimpleNamespace(round=1)})
+    assert "changed_after_added" not in added[0]
+    added[0]["parameters"]["friction.coulomb"]["stderr_data"] = 0.1
+    _final_values(added, {"estimates": {"friction.coulomb": {**entry(1.4), "stderr_data": 0.1}}},
+                  {"coulomb_friction": SimpleNamespace(round=1)})
+    assert added[0]["changed_after_added"]["parameters"] == ["friction.coulomb"]
+
+
+def test_the_summary_and_the_table_show_the_same_final_values():
+    from thsa_control.report.trace import _final_text
+    e = {"changed_after_added": {"parameters": ["gear.torsional_damping"], "with": ["noback_quadrant_friction"]},
+         "parameters_final": {"gear.torsional_damping": {"value": 2.725, "stderr": 0.11, "unit": "N m s/rad",
+                                                         "ci95": [2.506, 2.944]}}}
+    t = _final_text(e)
+    assert "refitted with noback_quadrant_friction" in t and "2.725 N m s/rad" in t and "2.506" in t and "2.944" in t

@@ -90,12 +90,8 @@ def conclusion_table_html(doc: dict) -> str:
         pars = "<br>".join(f"{esc(n)} = {_num(p['value'])} {esc(p['unit'])}{_ci(p)}"
                            + (" (profiled)" if p.get("profiled") else "") + (" (held)" if p.get("held") else "")
                            + _outside(p) for n, p in e["parameters"].items())
-        ch = e.get("changed_after_added")
-        if ch:
-            pars += ("<br><small>in the final model (refitted with " + esc(", ".join(ch["with"]) or "the later fits")
-                     + "): " + esc(", ".join(f"{n} = {_num(e['parameters_final'][n]['value'])} "
-                                             f"{e['parameters_final'][n]['unit']}" for n in ch["parameters"]))
-                     + "</small>")
+        if e.get("changed_after_added"):
+            pars += f"<br><small>{esc(_final_text(e))}</small>"
         pars += "".join(f"<br><small>{esc(w)}</small>" for w in _weights_text(e.get("weight_check")))
         nd = "<br>".join([f"{esc(h['parameter'])} held at {_num(h['held_at'])} {esc(h['unit'])}: {esc(h['reason'])}"
                           for h in e.get("not_determined", [])]
@@ -486,6 +482,14 @@ _WEIGHTING_NAMES = {"sensor_noise_weights": "sensor-noise weights (the search's)
                     "without_structural_channels": "without {}"}
 
 
+def _final_text(e: dict) -> str:
+    """The found effect's parameters that moved once later effects were added (``changed_after_added``), as the
+    final model has them, with their intervals."""
+    ch, fin = e["changed_after_added"], e["parameters_final"]
+    return ("in the final model (refitted with " + (", ".join(ch["with"]) or "the later fits") + "): "
+            + ", ".join(f"{n} = {_num(fin[n]['value'])} {fin[n]['unit']}{_ci(fin[n])}" for n in ch["parameters"]))
+
+
 def _weights_text(check: dict) -> list[str]:
     """Lines: the found effect's parameters whose estimate depends on the channel weights (``weight_check``)."""
     if not check or not check.get("depends_on_weights"):
@@ -550,12 +554,8 @@ def format_trace_summary(doc: dict) -> str:
                          f"({h['reason']})")
         if e.get("start"):
             lines.append(f"    {_start_text(e['start'])}")
-        ch = e.get("changed_after_added")
-        if ch:
-            lines.append("    in the final model (refitted with " + (", ".join(ch["with"]) or "the later fits") + "): "
-                         + ", ".join(f"{n} = {_num(e['parameters_final'][n]['value'])} "
-                                     f"{e['parameters_final'][n]['unit']}{_ci(e['parameters_final'][n])}"
-                                     for n in ch["parameters"]))
+        if e.get("changed_after_added"):
+            lines.append(f"    {_final_text(e)}")
         lines += [f"    {w}" for w in _weights_text(e.get("weight_check"))]
         for c, red in e["error_reduction"].items():
             b, a = e["error_before"].get(c, {}), e["error_after"].get(c, {})

@@ -1132,7 +1132,8 @@ def _final_values(added: list, current: dict, found_info: Mapping) -> None:
     values when it was added, and the fits after it free its parameters again with the later effects (a drive-train
     compliance's damping, 17.6 N m s/rad when added on rig_drivetrain_compliance_exc, 2.7 once the no-back's
     holding margin keeps the screw still at the drive-off stop).  ``changed_after_added``: the parameters that moved
-    by more than 2 combined standard errors and 10 %, with the effects added after it."""
+    by more than 2 combined standard errors (the run's own, :func:`weights.stderr_of`) and 10 %, with the effects added
+    after it."""
     for e in added:
         if e.get("implied_by"):
             continue
@@ -1144,7 +1145,7 @@ def _final_values(added: list, current: dict, found_info: Mapping) -> None:
         moved = []
         for n, p in fin.items():
             a = e["parameters"][n]
-            sa, sb = a.get("stderr"), p.get("stderr")
+            sa, sb = wt.stderr_of(a), wt.stderr_of(p)  # the weight check's errors (one rule for both)
             if a.get("held") or sa is None or sb is None:
                 continue
             if wt.moved(a["value"], sa, p["value"], sb, 2.0):

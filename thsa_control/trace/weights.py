@@ -48,7 +48,9 @@ def ml_channel_scales(noise: Mapping[str, float], residual_rms: Mapping[str, flo
     return {c: max(float(s), float(residual_rms.get(c, 0.0))) for c, s in noise.items()}
 
 
-def _sd(e: Mapping) -> float | None:
+def stderr_of(e: Mapping) -> float | None:
+    """An estimate's standard error for comparing two fits: from the run's own information (``stderr_data``), the
+    posterior one where that is missing or not finite; None where neither is finite (held, profiled)."""
     sd = e.get("stderr_data")
     if sd is None or not math.isfinite(sd):
         sd = e.get("stderr")
@@ -63,7 +65,7 @@ def checked_parameters(step: Mapping, final_fit: Mapping) -> tuple[str, ...]:
     for n, p in (step.get("parameters") or {}).items():
         if p.get("held") or p.get("profiled") or n not in free or n not in est:
             continue
-        if _sd(est[n]) is None:
+        if stderr_of(est[n]) is None:
             continue
         out.append(n)
     return tuple(out)
@@ -101,14 +103,14 @@ def weight_verdict(final_fit: Mapping, alternatives: Mapping[str, Mapping], name
                  "parameters": {}, "depends_on_weights": [], "range": {}}
     for n in names:
         a = final_fit["estimates"][n]
-        sa, va = _sd(a), float(a["value"])
+        sa, va = stderr_of(a), float(a["value"])
         entry = {"sensor_noise_weights": {"value": va, "stderr": sa}}
         lo, hi, shifted = (va - 1.96 * sa, va + 1.96 * sa, False) if sa is not None else (va, va, False)
         for k, f in alternatives.items():
             b = None if "error" in f else f["estimates"].get(n)
             if b is None:
                 continue
-            sb, vb = _sd(b), float(b["value"])
+            sb, vb = stderr_of(b), float(b["value"])
             entry[k] = {"value": vb, "stderr": sb}
             if sa is None or sb is None or abs(vb) <= z * sb:  # not determined under this weighting
                 continue
