@@ -31,6 +31,11 @@ def add_parser(subparsers) -> None:
     p.add_argument("--workers", type=int, default=2, help="parallel candidate fits (default 2)")
     p.add_argument("--substeps", type=int, default=1, help="plant steps per sample period of the fits (default 1; "
                    "a speed sensor's difference interval shorter than a sample needs more)")
+    p.add_argument("--holdout-layout", choices=("every-kth", "dithered"), default="every-kth",
+                   help="where in each block of three the held-out segment lies: the last (default) or a place drawn "
+                        "from a fixed seed, for a record whose test profile repeats every multiple of three segments "
+                        "(every third would hide the same phase of each repeat; trace.json's every_segment check "
+                        "says where that changed an estimate)")
     p.add_argument("--speed-sensors", help="how the speed sensors read, over the run JSON's declaration: "
                    "comma-separated CHANNEL=INTERVAL, CHANNEL motor_speed or screw_speed, INTERVAL a difference "
                    "interval in seconds, 'sample' (one logged sample) or 'instantaneous' (e.g. "
@@ -93,6 +98,7 @@ def run(args) -> int:
                 sensors[k.strip()] = v.strip()
         settings = TraceSettings(segment_duration=args.segment, max_effects=args.max_effects, max_nfev=args.max_nfev,
                                  workers=args.workers, substeps=args.substeps, speed_sensors=sensors,
+                                 holdout_layout=args.holdout_layout.replace("-", "_"),
                                  channel_weights=args.channel_weights.replace("-", "_"), robust_test=args.robust_test,
                                  base_corrections={"auto": None, "on": True, "off": False}[args.base_corrections], rig_hardware=not args.no_rig_hardware, uncertain=split(args.free), candidates=split(args.candidates))
         settings.validate()

@@ -64,7 +64,7 @@ from .identify_result import (
     COLLINEAR_CORRELATION, NOT_DETERMINED_REL_STDERR, IdentificationResult, ParameterEstimate,
     collinearity_safe_inverse,
 )
-from .shooting import FREE_STATE_KINDS, MECH_CHANNELS, RunProblem, estimate_noise
+from .shooting import FREE_STATE_KINDS, HOLDOUT_LAYOUTS, MECH_CHANNELS, RunProblem, estimate_noise, held_out_segments
 
 __all__ = ["IdentificationSettings", "ParameterEstimate", "IdentificationResult", "Identifier", "estimate_noise",
            "RunProblem", "MECH_CHANNELS", "NOT_DETERMINED_REL_STDERR", "COLLINEAR_CORRELATION"]
@@ -140,6 +140,11 @@ class IdentificationSettings:
         the parameter fit; its initial state is fitted afterwards at the
         identified parameters and its error reported separately (validation on
         data the parameter fit did not see).
+    holdout_layout : {"every_kth", "dithered"}
+        Where in each block of ``holdout_every`` the held-out segment lies:
+        the last (every k-th), or a place drawn from a fixed seed, so that a
+        test profile repeating every multiple of k segments does not hide the
+        same phase of each repeat (:func:`~thsa_control.fit.shooting.held_out_segments`).
     compiled : bool
         Evaluate the residuals and their Jacobian with the segment Functions compiled to C (through the
         simulator's verified build cache, one library per model structure, the data as inputs); False, or no
@@ -163,6 +168,7 @@ class IdentificationSettings:
     prior_relative_sd: float | None = None
     no_prior: tuple[str, ...] = ()
     holdout_every: int = 0
+    holdout_layout: str = "every_kth"
     quasi_static_starts: bool = False
     speed_sensors: Mapping[str, object] | None = None
     priors: Mapping[str, tuple[float, float]] | None = None
@@ -192,6 +198,9 @@ class IdentificationSettings:
             raise ValueError(f"IdentificationSettings.prior_relative_sd = {self.prior_relative_sd!r} must be positive")
         if not (isinstance(self.holdout_every, int) and (self.holdout_every == 0 or self.holdout_every >= 2)):
             raise ValueError(f"IdentificationSettings.holdout_every = {self.holdout_every!r} must be 0 or >= 2")
+        if self.holdout_layout not in HOLDOUT_LAYOUTS:
+            raise ValueError(f"IdentificationSettings.holdout_layout = {self.holdout_layout!r} must be one of "
+                             + ", ".join(HOLDOUT_LAYOUTS))
         if not self.global_span > 1:
             raise ValueError(f"IdentificationSettings.global_span = {self.global_span!r} must be > 1")
 
@@ -520,7 +529,7 @@ class Identifier:
             n_rows = sum(w.size for w in hold_w)
             # decision columns of the held-out segments' states
             cols = np.concatenate([offsets[i] + np.flatnonzero(np.repeat(
-                (np.arange(pb.M) % st.holdout_every == st.holdout_every - 1), len(pb.free_states)))
+                held_out_segments(pb.M, st.holdout_every, st.holdout_layout), len(pb.free_states)))
                 for i, pb in enumerate(problems)]) if st.holdout_every else np.array([], int)
 
             def _zh(zh):

@@ -92,7 +92,8 @@ def conclusion_table_html(doc: dict) -> str:
                            + _outside(p) for n, p in e["parameters"].items())
         if e.get("changed_after_added"):
             pars += f"<br><small>{esc(_final_text(e))}</small>"
-        pars += "".join(f"<br><small>{esc(w)}</small>" for w in _weights_text(e.get("weight_check")))
+        pars += "".join(f"<br><small>{esc(w)}</small>" for w in _weights_text(e.get("weight_check"))
+                        + _every_segment_text(e))
         nd = "<br>".join([f"{esc(h['parameter'])} held at {_num(h['held_at'])} {esc(h['unit'])}: {esc(h['reason'])}"
                           for h in e.get("not_determined", [])]
                          + [f"part not shown by this run (kept at its fit): {esc(w)}"
@@ -490,6 +491,20 @@ def _final_text(e: dict) -> str:
             + ", ".join(f"{n} = {_num(fin[n]['value'])} {fin[n]['unit']}{_ci(fin[n])}" for n in ch["parameters"]))
 
 
+def _every_segment_text(e: dict) -> list[str]:
+    """Lines: the found effect's parameters that the fit on every segment, the held-out ones too, moves
+    (``every_segment``): the held-out segments' places decide them."""
+    ev = e.get("every_segment") or {}
+    out = []
+    for n in ev.get("moved", []):
+        p, q = (e.get("parameters_final") or e["parameters"])[n], ev["parameters"][n]
+        lo, hi = p.get("range_over_segment_sets") or (None, None)
+        out.append(f"{n} = {_num(q['value'])} {q['unit']}{_ci(q)} fitted on every segment, the held-out ones too "
+                   f"({_num(p['value'])} on the training segments; range {_num(lo)} .. {_num(hi)}): the held-out "
+                   "segments' places decide it")
+    return out
+
+
 def _weights_text(check: dict) -> list[str]:
     """Lines: the found effect's parameters whose estimate depends on the channel weights (``weight_check``)."""
     if not check or not check.get("depends_on_weights"):
@@ -556,7 +571,7 @@ def format_trace_summary(doc: dict) -> str:
             lines.append(f"    {_start_text(e['start'])}")
         if e.get("changed_after_added"):
             lines.append(f"    {_final_text(e)}")
-        lines += [f"    {w}" for w in _weights_text(e.get("weight_check"))]
+        lines += [f"    {w}" for w in _weights_text(e.get("weight_check")) + _every_segment_text(e)]
         for c, red in e["error_reduction"].items():
             b, a = e["error_before"].get(c, {}), e["error_after"].get(c, {})
             lines.append(f"    {c}: RMS {_num(b.get('rms'))} -> {_num(a.get('rms'))} ({100 * red:+.1f} % drop)")

@@ -58,6 +58,7 @@ from ..data.rigdata import RigRun, measured_motor_speed
 from ..errors import ThsaError
 from ..fit.identify import IdentificationSettings, estimate_noise
 from ..fit.replay import rig_declared_effects
+from ..fit.shooting import HOLDOUT_LAYOUTS
 from ..data.rigformat import speed_sensor_intervals
 from ..fit.replay import check_run_model
 from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
@@ -107,7 +108,11 @@ class TraceSettings:
     segment_duration, substeps : float, int
         Multiple shooting (as :class:`IdentificationSettings`).
     holdout_every : int
-        Every k-th segment is held out of the parameter fits and scored.
+        One segment in each block of k is held out of the parameter fits and scored.
+    holdout_layout : {"every_kth", "dithered"}
+        Its place in the block (:func:`~thsa_control.fit.shooting.held_out_segments`): the last (default), or drawn
+        from a fixed seed, for a record whose test profile repeats every multiple of k segments (every k-th then
+        hides the same phase of each repeat from the fits; the every-segment check reports what that changed).
     max_nfev : int
         Evaluation limit of each fit.
     fit_time_budget : float or None
@@ -232,6 +237,7 @@ class TraceSettings:
     segment_duration: float = 0.05
     substeps: int = 1
     holdout_every: int = 3
+    holdout_layout: str = "every_kth"
     max_nfev: int = 40
     fit_time_budget: float | None = 120.0
     prior_relative_sd: float = 0.1
@@ -291,6 +297,12 @@ class TraceSettings:
     #: weighting (both values and the range they span; :mod:`thsa_control.trace.weights`).  The decisions keep
     #: the sensor-noise weights.  Only with ``channel_weights = "sensor_noise"``
     weight_check: bool = True
+    #: fit the final model once more on every segment, the held-out ones too, from its values, and report each found
+    #: effect's parameter that moves beyond 2 combined standard errors and 10 % (``every_segment`` in its entry,
+    #: with the range the two fits' 95 % intervals span): the held-out segments' places decided it (a test profile
+    #: that repeats every multiple of ``holdout_every`` segments hides one phase of it from the search's fits).
+    #: Reported, not used to select; the values stay the search's
+    every_segment_check: bool = True
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the bad field."""
@@ -312,6 +324,9 @@ class TraceSettings:
             raise ValueError(f"TraceSettings.substeps = {self.substeps!r} must be an integer >= 1")
         if not (isinstance(self.holdout_every, int) and self.holdout_every >= 2):
             raise ValueError(f"TraceSettings.holdout_every = {self.holdout_every!r} must be an integer >= 2")
+        if self.holdout_layout not in HOLDOUT_LAYOUTS:
+            raise ValueError(f"TraceSettings.holdout_layout = {self.holdout_layout!r} must be one of "
+                             + ", ".join(HOLDOUT_LAYOUTS))
         if not (isinstance(self.workers, int) and self.workers >= 1):
             raise ValueError(f"TraceSettings.workers = {self.workers!r} must be an integer >= 1")
         if not (0 < self.alpha < 1):
@@ -443,7 +458,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         return IdentificationSettings(no_prior=tuple(no_prior), segment_duration=st.segment_duration, substeps=st.substeps, channels=channels,
                                       noise=noise, max_nfev=st.max_nfev, tolerance=st.tolerance, time_budget=st.fit_time_budget,
                                       prior_relative_sd=st.prior_relative_sd if prior else None,
-                                      holdout_every=st.holdout_every, priors=dict(priors or {}) or None,
+                                      holdout_every=st.holdout_every, holdout_layout=st.holdout_layout,
+                                      priors=dict(priors or {}) or None,
                                       quasi_static_starts=quasi_static, speed_sensors=st.speed_sensors)
 
     plaus = {k: fn(params, runs) for k, fn in PLAUSIBLE.items()}
@@ -1067,6 +1083,10 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     if st.weight_check and st.channel_weights == "sensor_noise":
         _weight_checks(added, current, cur_effects, cur_params, fit_runs, noise, st, job, say)
     t_weights = time.perf_counter() - t_weights
+    t_every = time.perf_counter()
+    every_doc = (_every_segment_check(added, current, cur_effects, cur_free, cur_params, fit_runs, st, job, say)
+                 if st.every_segment_check else None)
+    t_every = time.perf_counter() - t_every
     sig_before = _signature(first, runs, ParameterSet.from_toml(first["params_toml"]), base_plant, st.signature,
                             sensor_noise, st.speed_sensors)
     # every change of ``current`` (the base step, an added effect, a removal) is followed by its signature
@@ -1104,6 +1124,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         "effects_removed": removed,
         "order": order,
         "base_corrections": base_doc,
+        "every_segment": every_doc,
         "error_before": _channel_errors(first),
         "error_after": _channel_errors(current),
         "error_by_regime_before": _regime_errors(first, runs),
@@ -1122,7 +1143,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         "timing": {"base_fit_s": base_fit_time, "candidate_fit_s": (float(np.median(cand_times)) if cand_times else None),
                    "total_s": time.perf_counter() - t_start,
                    "backward_fits": len(backward_cpu), "backward_cpu_s": float(sum(backward_cpu)),
-                   "weight_check_s": t_weights},
+                   "weight_check_s": t_weights, "every_segment_s": t_every},
     }
     return TraceResult(doc, {"before": first, "after": current})
 
@@ -1174,6 +1195,53 @@ def _declared_detail_at_file_values(fit: dict, spec: CandidateSpec, declared, wh
              "reason": "the run determines none of the declared component's coefficients: the detailed model at the "
                        "parameter file's values", "value_if_free": None, "stderr_if_free": None}
             for n in spec.free if n in fit["estimates"] and n not in held]
+
+
+def _every_segment_check(added: list, current: dict, cur_effects, cur_free, cur_params: ParameterSet, fit_runs, st,
+                         job, say) -> dict | None:
+    """The final model fitted again on every segment, the held-out ones too, from its values, with its free set and
+    priors (:attr:`TraceSettings.every_segment_check`).  A found effect's parameter that moves beyond 2 combined
+    standard errors (the run's own, :func:`weights.stderr_of`) and 10 % gets ``every_segment`` in its entry (both
+    values and the range their 95 % intervals span), and ``range_over_segment_sets`` on its final value: the
+    segments held out of the search's fits decided it.  Every found effect's entry gets ``every_segment``
+    (``parameters``: the every-segment fit's entries; ``moved``: the names that moved).  Returns the doc's
+    ``every_segment`` (the layout of the held-out segments, the names that moved, the fit's chi2 and convergence),
+    or None where no found effect has a parameter with a standard error."""
+    steps = [(i, wt.checked_parameters(e, current)) for i, e in enumerate(added) if not e.get("implied_by")]
+    steps = [(i, names) for i, names in steps if names]
+    if not steps:
+        return None
+    jb = job("every segment", cur_effects, cur_free, cur_params, fit_runs)
+    jb = {**jb, "settings": dataclasses.replace(jb["settings"], holdout_every=0)}
+    say("fitting the final model again on every segment, the held-out ones too")
+    f = _run_jobs([jb], 1, say)[0]
+    if "error" in f:
+        say(f"every-segment check not done: {f['error']}")
+        return {"error": f["error"]}
+    moved_all = []
+    for i, names in steps:
+        entry, moved = {}, []
+        for n in names:
+            a, b = current["estimates"][n], f["estimates"].get(n)
+            if b is None:
+                continue
+            entry[n] = _param_entry(b)
+            sa, sb = wt.stderr_of(a), wt.stderr_of(b)
+            if sa is None or sb is None or not wt.moved(a["value"], sa, b["value"], sb, st.determination_z):
+                continue
+            moved.append(n)
+            lo = min(a["value"] - 1.96 * sa, b["value"] - 1.96 * sb)
+            hi = max(a["value"] + 1.96 * sa, b["value"] + 1.96 * sb)
+            p = cur_params[n]
+            rng = [max(lo, p.min), min(hi, p.max)]
+            for key in ("parameters", "parameters_final"):
+                if n in added[i].get(key, {}):
+                    added[i][key][n]["range_over_segment_sets"] = rng
+            say(f"{added[i]['name']}: {n} = {a['value']:.4g} on the training segments, {b['value']:.4g} on every "
+                f"segment (range {rng[0]:.4g} .. {rng[1]:.4g}): the held-out segments' places decide it")
+        added[i]["every_segment"] = {"parameters": entry, "moved": moved}
+        moved_all += moved
+    return {"moved": moved_all, "chisqr": f["chisqr"], "converged": f["converged"], "holdout_layout": st.holdout_layout}
 
 
 def _weight_checks(added: list, current: dict, cur_effects, cur_params: ParameterSet, fit_runs, noise, st, job,
