@@ -9,6 +9,8 @@ The tracer's own run of both is judged on rig-sim's speed excitation in tests/te
 
 from types import SimpleNamespace
 
+import pytest
+
 from thsa_control.model import CandidateSpec
 from thsa_control.model.params import default_parameters
 from thsa_control.trace.engine import _declared_detail_at_file_values, _final_values
@@ -86,3 +88,49 @@ def test_the_summary_and_the_table_show_the_same_final_values():
                                                          "ci95": [2.506, 2.944]}}}
     t = _final_text(e)
     assert "refitted with noback_quadrant_friction" in t and "2.725 N m s/rad" in t and "2.506" in t and "2.944" in t
+
+
+def test_the_every_segment_check_reports_a_move_with_the_range_of_both_fits(monkeypatch):
+    """The final model fitted on every segment, the held-out ones too (engine._every_segment_check): a parameter
+    beyond 2 combined standard errors and 10 % is reported (the entry's every_segment, the final value's range over
+    both fits' 95 % intervals, the doc's list); one within its errors is not; a failed fit is said, nothing moved."""
+    from thsa_control.trace import engine
+
+    def est(v, sd, lo=0.0, hi=1e4):
+        return {"value": v, "stderr": sd, "stderr_data": sd, "unit": "N m s/rad", "at_bound": None, "min": lo,
+                "max": hi}
+    current = {"free": ["gear.torsional_damping", "gear.torsional_stiffness"], "estimates": {
+        "gear.torsional_damping": est(0.42, 0.10), "gear.torsional_stiffness": est(9784.0, 41.0)}}
+    added = [{"name": "drivetrain_compliance", "parameters": {
+        "gear.torsional_damping": {"value": 0.42, "stderr": 0.10, "unit": "N m s/rad"},
+        "gear.torsional_stiffness": {"value": 9784.0, "stderr": 41.0, "unit": "N m/rad"}}}]
+    every = {"chisqr": 1.0, "converged": True, "estimates": {
+        "gear.torsional_damping": est(1.62, 0.075), "gear.torsional_stiffness": est(9790.0, 40.0)}}
+    seen = {}
+
+    def job(label, effs, free, pset, data, **kw):
+        return {"label": label, "settings": SimpleNamespace(holdout_every=3)}
+
+    def run_jobs(jobs, workers, say):
+        seen["holdout_every"] = jobs[0]["settings"].holdout_every
+        return [every]
+    monkeypatch.setattr(engine, "_run_jobs", run_jobs)
+    monkeypatch.setattr(engine.dataclasses, "replace", lambda s, **kw: SimpleNamespace(**{**vars(s), **kw}))
+    st = SimpleNamespace(determination_z=2.0, holdout_layout="every_kth")
+    params = default_parameters()
+    doc = engine._every_segment_check(added, current, ("drivetrain_compliance",), tuple(current["free"]), params,
+                                      [], st, job, lambda *a: None)
+    assert seen["holdout_every"] == 0  # every segment fitted
+    assert doc["moved"] == ["gear.torsional_damping"] and doc["holdout_layout"] == "every_kth"
+    ev = added[0]["every_segment"]
+    assert ev["moved"] == ["gear.torsional_damping"] and ev["parameters"]["gear.torsional_damping"]["value"] == 1.62
+    lo, hi = added[0]["parameters"]["gear.torsional_damping"]["range_over_segment_sets"]
+    assert lo == pytest.approx(0.42 - 1.96 * 0.10) and hi == pytest.approx(1.62 + 1.96 * 0.075)
+    assert "range_over_segment_sets" not in added[0]["parameters"]["gear.torsional_stiffness"]
+    from thsa_control.report.trace import _every_segment_text
+    (line,) = _every_segment_text(added[0])
+    assert "1.62" in line and "0.42 on the training segments" in line
+    monkeypatch.setattr(engine, "_run_jobs", lambda jobs, w, say: [{"error": "solver failed"}])
+    added2 = [dict(added[0], every_segment=None)]
+    assert engine._every_segment_check(added2, current, (), tuple(current["free"]), params, [], st, job,
+                                       lambda *a: None) == {"error": "solver failed"}
