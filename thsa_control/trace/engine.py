@@ -1200,9 +1200,9 @@ def _declared_detail_at_file_values(fit: dict, spec: CandidateSpec, declared, wh
 def _every_segment_check(added: list, current: dict, cur_effects, cur_free, cur_params: ParameterSet, fit_runs, st,
                          job, say) -> dict | None:
     """The final model fitted again on every segment, the held-out ones too, from its values, with its free set and
-    priors (:attr:`TraceSettings.every_segment_check`).  A found effect's parameter that moves beyond 2 combined
-    standard errors (the run's own, :func:`weights.stderr_of`) and 10 % gets ``every_segment`` in its entry (both
-    values and the range their 95 % intervals span), and ``range_over_segment_sets`` on its final value: the
+    priors (:attr:`TraceSettings.every_segment_check`).  A found effect's parameter that the fit determines and
+    moves beyond 2 combined standard errors (the run's own) and 10 % (:func:`weights.compare`, the weight check's
+    rule) gets ``range_over_segment_sets`` on its final value (the hull of both fits' 95 % intervals): the
     segments held out of the search's fits decided it.  Every found effect's entry gets ``every_segment``
     (``parameters``: the every-segment fit's entries; ``moved``: the names that moved).  Returns the doc's
     ``every_segment`` (the layout of the held-out segments, the names that moved, the fit's chi2 and convergence),
@@ -1222,18 +1222,15 @@ def _every_segment_check(added: list, current: dict, cur_effects, cur_free, cur_
     for i, names in steps:
         entry, moved = {}, []
         for n in names:
-            a, b = current["estimates"][n], f["estimates"].get(n)
+            b = f["estimates"].get(n)
             if b is None:
                 continue
             entry[n] = _param_entry(b)
-            sa, sb = wt.stderr_of(a), wt.stderr_of(b)
-            if sa is None or sb is None or not wt.moved(a["value"], sa, b["value"], sb, st.determination_z):
+            a = current["estimates"][n]
+            _, rng = wt.compare(a, {"every_segment": b}, st.determination_z)  # the weight check's rule
+            if rng is None:
                 continue
             moved.append(n)
-            lo = min(a["value"] - 1.96 * sa, b["value"] - 1.96 * sb)
-            hi = max(a["value"] + 1.96 * sa, b["value"] + 1.96 * sb)
-            p = cur_params[n]
-            rng = [max(lo, p.min), min(hi, p.max)]
             for key in ("parameters", "parameters_final"):
                 if n in added[i].get(key, {}):
                     added[i][key][n]["range_over_segment_sets"] = rng

@@ -102,27 +102,39 @@ def weight_verdict(final_fit: Mapping, alternatives: Mapping[str, Mapping], name
                                 for k, f in alternatives.items()},
                  "parameters": {}, "depends_on_weights": [], "range": {}}
     for n in names:
-        a = final_fit["estimates"][n]
-        sa, va = stderr_of(a), float(a["value"])
-        entry = {"sensor_noise_weights": {"value": va, "stderr": sa}}
-        lo, hi, shifted = (va - 1.96 * sa, va + 1.96 * sa, False) if sa is not None else (va, va, False)
-        for k, f in alternatives.items():
-            b = None if "error" in f else f["estimates"].get(n)
-            if b is None:
-                continue
-            sb, vb = stderr_of(b), float(b["value"])
-            entry[k] = {"value": vb, "stderr": sb}
-            if sa is None or sb is None or abs(vb) <= z * sb:  # not determined under this weighting
-                continue
-            if moved(va, sa, vb, sb, z):
-                shifted = True
-                lo, hi = min(lo, vb - 1.96 * sb), max(hi, vb + 1.96 * sb)
-        out["parameters"][n] = entry
-        if shifted:
-            if a.get("min") is not None:  # inside the parameter's physical range
-                lo = max(lo, float(a["min"]))
-            if a.get("max") is not None:
-                hi = min(hi, float(a["max"]))
+        entry, rng = compare(final_fit["estimates"][n], {k: None if "error" in f else f["estimates"].get(n)
+                                                          for k, f in alternatives.items()}, z)
+        out["parameters"][n] = {"sensor_noise_weights": entry.pop("reference"), **entry}
+        if rng is not None:
             out["depends_on_weights"].append(n)
-            out["range"][n] = [lo, hi]
+            out["range"][n] = rng
     return out
+
+
+def compare(a: Mapping, others: Mapping[str, Mapping | None], z: float) -> tuple[dict, list[float] | None]:
+    """One estimate ``a`` (an estimate entry: value, standard errors, min, max) against the same parameter from
+    other fits (name -> entry, None where that fit has none): ``(entry, range)``.  ``entry``: ``"reference"`` and
+    each other fit's value and standard error (:func:`stderr_of`).  ``range``: where a fit that determines it
+    (estimate beyond ``z`` standard errors from zero) differs by more than ``z`` combined standard errors and
+    :data:`WEIGHT_SHIFT_FLOOR` (:func:`moved`), the hull of the 95 % intervals (value +- 1.96 standard errors) of
+    ``a`` and of those fits, inside the parameter's physical range; else None."""
+    sa, va = stderr_of(a), float(a["value"])
+    entry = {"reference": {"value": va, "stderr": sa}}
+    lo, hi, shifted = (va - 1.96 * sa, va + 1.96 * sa, False) if sa is not None else (va, va, False)
+    for k, b in others.items():
+        if b is None:
+            continue
+        sb, vb = stderr_of(b), float(b["value"])
+        entry[k] = {"value": vb, "stderr": sb}
+        if sa is None or sb is None or abs(vb) <= z * sb:  # not determined by that fit
+            continue
+        if moved(va, sa, vb, sb, z):
+            shifted = True
+            lo, hi = min(lo, vb - 1.96 * sb), max(hi, vb + 1.96 * sb)
+    if not shifted:
+        return entry, None
+    if a.get("min") is not None:  # inside the parameter's physical range
+        lo = max(lo, float(a["min"]))
+    if a.get("max") is not None:
+        hi = min(hi, float(a["max"]))
+    return entry, [lo, hi]
