@@ -62,7 +62,8 @@ def main() -> None:
         print(f"processor time: {cpu[0]:.1f} s in this process + {cpu[1]:.1f} s in the workers = {sum(cpu):.1f} s "
               f"({sum(cpu) / wall:.2f} cores busy on average; load average over 1, 5, 15 min at the end: {_load()})")
         print(f"one base-model fit: {tm['base_fit_s']:.1f} s; one candidate fit (median): {tm['candidate_fit_s']:.1f} s; "
-              f"the found effects' weight check: {tm.get('weight_check_s', 0.0):.1f} s")
+              f"the found effects' weight check: {tm.get('weight_check_s', 0.0):.1f} s; "
+              f"the every-segment check: {tm.get('every_segment_s', 0.0):.1f} s")
         print(f"whole trace: {wall:.1f} s (target < 60 s on 2 quiet cores): {'OK' if wall < 60 else 'OVER'}")
         print(f"added: {res.effects_added}; unexplained: {res.unexplained}")
         if wall >= 60:  # a speed judged is not a success when the limit is missed
