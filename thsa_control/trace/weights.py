@@ -24,8 +24,8 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 
-__all__ = ["MAX_REWEIGHTS", "SCALE_TOLERANCE", "WEIGHT_SHIFT_FLOOR", "checked_parameters", "ml_channel_scales", "moved",
-           "scales_settled", "structural_channels", "weight_verdict"]
+__all__ = ["MAX_REWEIGHTS", "SCALE_TOLERANCE", "WEIGHT_SHIFT_FLOOR", "checked_parameters", "compare", "ml_channel_scales",
+           "moved", "scales_settled", "stderr_of", "structural_channels", "weight_verdict"]
 
 #: Smallest relative shift between the two weightings' estimates that is reported as a dependence on the weights
 #: (beside the statistical test): smaller ones are inside what the tracer's other ranges already carry.
