@@ -1197,6 +1197,22 @@ def _declared_detail_at_file_values(fit: dict, spec: CandidateSpec, declared, wh
             for n in spec.free if n in fit["estimates"] and n not in held]
 
 
+def _checked_steps(added: list, current: dict) -> list[tuple[int, tuple[str, ...]]]:
+    """``(index, names)`` of each found effect (not an implied one) with parameters the final fit ``current``
+    estimated with a standard error (:func:`weights.checked_parameters`): what the weight and every-segment checks
+    fit again."""
+    steps = [(i, wt.checked_parameters(e, current)) for i, e in enumerate(added) if not e.get("implied_by")]
+    return [(i, names) for i, names in steps if names]
+
+
+def _put_range(step: dict, name: str, key: str, rng) -> None:
+    """A range (``key``: ``range_over_channel_weights``, ``range_over_segment_sets``) on the parameter's entry as
+    added and as the final model has it: the range is about the final model's estimate."""
+    for which in ("parameters", "parameters_final"):
+        if name in step.get(which, {}):
+            step[which][name][key] = rng
+
+
 def _every_segment_check(added: list, current: dict, cur_effects, cur_free, cur_params: ParameterSet, fit_runs, st,
                          job, say) -> dict | None:
     """The final model fitted again on every segment, the held-out ones too, from its values, with its free set and
@@ -1207,8 +1223,7 @@ def _every_segment_check(added: list, current: dict, cur_effects, cur_free, cur_
     (``parameters``: the every-segment fit's entries; ``moved``: the names that moved).  Returns the doc's
     ``every_segment`` (the layout of the held-out segments, the names that moved, the fit's chi2 and convergence),
     or None where no found effect has a parameter with a standard error."""
-    steps = [(i, wt.checked_parameters(e, current)) for i, e in enumerate(added) if not e.get("implied_by")]
-    steps = [(i, names) for i, names in steps if names]
+    steps = _checked_steps(added, current)
     if not steps:
         return None
     jb = job("every segment", cur_effects, cur_free, cur_params, fit_runs)
@@ -1231,9 +1246,7 @@ def _every_segment_check(added: list, current: dict, cur_effects, cur_free, cur_
             if rng is None:
                 continue
             moved.append(n)
-            for key in ("parameters", "parameters_final"):
-                if n in added[i].get(key, {}):
-                    added[i][key][n]["range_over_segment_sets"] = rng
+            _put_range(added[i], n, "range_over_segment_sets", rng)
             say(f"{added[i]['name']}: {n} = {a['value']:.4g} on the training segments, {b['value']:.4g} on every "
                 f"segment (range {rng[0]:.4g} .. {rng[1]:.4g}): the held-out segments' places decide it")
         added[i]["every_segment"] = {"parameters": entry, "moved": moved}
@@ -1246,9 +1259,7 @@ def _weight_checks(added: list, current: dict, cur_effects, cur_params: Paramete
     """Each found effect's parameters fitted again on the final model at the residual scales
     (:mod:`thsa_control.trace.weights`); the verdict goes to its ``effects_added`` entry as ``weight_check``, and a
     parameter whose estimate depends on the weights gets ``range_over_channel_weights``."""
-    steps = [(i, wt.checked_parameters(e, current)) for i, e in enumerate(added)
-             if not e.get("implied_by")]
-    steps = [(i, names) for i, names in steps if names]
+    steps = _checked_steps(added, current)
     if not steps:
         return
     scales = wt.ml_channel_scales(noise, _residual_rms(current, fit_runs))
@@ -1302,9 +1313,7 @@ def _weight_checks(added: list, current: dict, cur_effects, cur_params: Paramete
         v = wt.weight_verdict(current, alts, names, scales, noise, st.determination_z, structural)
         added[i]["weight_check"] = {**v, "reweighted_scales": per[i], "fits": rounds_of[i] + (1 if i in alone else 0)}
         for n in v["depends_on_weights"]:
-            for key in ("parameters", "parameters_final"):  # the range is about the final model's estimate
-                if n in added[i].get(key, {}):
-                    added[i][key][n]["range_over_channel_weights"] = v["range"][n]
+            _put_range(added[i], n, "range_over_channel_weights", v["range"][n])
             p = v["parameters"][n]
             say(f"{added[i]['name']}: {n} depends on the channel weights: " + "; ".join(
                 f"{k.replace('_', ' ')} {e['value']:.4g}" for k, e in p.items()) +
