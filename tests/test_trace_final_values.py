@@ -118,8 +118,9 @@ def test_the_every_segment_check_reports_a_move_with_the_range_of_both_fits(monk
     monkeypatch.setattr(engine.dataclasses, "replace", lambda s, **kw: SimpleNamespace(**{**vars(s), **kw}))
     st = SimpleNamespace(determination_z=2.0, holdout_layout="every_kth")
     params = default_parameters()
-    doc = engine._every_segment_check(added, current, ("drivetrain_compliance",), tuple(current["free"]), params,
-                                      [], st, job, lambda *a: None)
+    doc, fit = engine._every_segment_check(added, current, ("drivetrain_compliance",), tuple(current["free"]),
+                                           params, [], st, job, lambda *a: None)
+    assert fit is every
     assert seen["holdout_every"] == 0  # every segment fitted
     assert doc["moved"] == ["gear.torsional_damping"] and doc["holdout_layout"] == "every_kth"
     ev = added[0]["every_segment"]
@@ -133,4 +134,51 @@ def test_the_every_segment_check_reports_a_move_with_the_range_of_both_fits(monk
     monkeypatch.setattr(engine, "_run_jobs", lambda jobs, w, say: [{"error": "solver failed"}])
     added2 = [dict(added[0], every_segment=None)]
     assert engine._every_segment_check(added2, current, (), tuple(current["free"]), params, [], st, job,
-                                       lambda *a: None) == {"error": "solver failed"}
+                                       lambda *a: None) == ({"error": "solver failed"}, None)
+
+
+def _adoption_case(monkeypatch, chi2_search, chi2_every, converged=True):
+    from thsa_control.trace import engine
+
+    def est(v, sd):
+        return {"value": v, "stderr": sd, "stderr_data": sd, "unit": "N m s/rad", "at_bound": None, "min": 0.0}
+    current = {"chi2_all": chi2_search, "estimates": {"gear.torsional_damping": est(0.42, 0.10)}}
+    every = {"chi2_all": chi2_every, "converged": converged, "estimates": {"gear.torsional_damping": est(1.62, 0.075)}}
+    monkeypatch.setattr(engine, "_chi2_by_channel", lambda fit, noise, select, w=None: {"motor_speed": fit["chi2_all"]})
+    fin = {"value": 0.42, "stderr": 0.10, "unit": "N m s/rad", "range_over_segment_sets": [0.22, 1.77],
+           "range_over_channel_weights": [0.3, 0.5]}
+    added = [{"name": "drivetrain_compliance", "parameters_final": {"gear.torsional_damping": dict(fin)},
+              "every_segment": {"moved": ["gear.torsional_damping"]}},
+             {"name": "noback_quadrant_friction", "implied_by": "noback_backlash", "parameters": {}}]
+    return engine, current, every, added
+
+
+def test_the_final_values_are_the_every_segment_fits_where_it_fits_every_sample_at_least_as_well(monkeypatch):
+    """Once the held-out segments decided the effects, every sample estimates their values
+    (engine._adopt_every_segment): the final model is the every-segment fit, each found effect's parameters_final
+    its values with the ranges kept; a fit that did not converge, fits every sample worse than the search's last fit
+    (it started there), failed, or was not asked for leaves the search's values, and the reason is said."""
+    said = []
+    engine, current, every, added = _adoption_case(monkeypatch, 100.0, 80.0)
+    doc = {"moved": ["gear.torsional_damping"]}
+    st = SimpleNamespace(final_on_every_segment=True)
+    assert engine._adopt_every_segment(added, current, every, doc, {}, st, said.append) is every
+    p = added[0]["parameters_final"]["gear.torsional_damping"]
+    assert p["value"] == 1.62 and p["stderr"] == 0.075 and p["range_over_segment_sets"] == [0.22, 1.77]
+    assert p["range_over_channel_weights"] == [0.3, 0.5] and doc["adopted"] is True
+    assert added[0]["every_segment"]["adopted"] is True and "parameters_final" not in added[1]
+    for args, why in (((100.0, 100.5), "above the search's"), ((100.0, 80.0, False), "did not converge")):
+        engine, current, every, added = _adoption_case(monkeypatch, *args)
+        doc = {}
+        assert engine._adopt_every_segment(added, current, every, doc, {}, st, said.append) is current
+        assert doc["adopted"] is False and why in doc["why"] and why in said[-1]
+        assert added[0]["parameters_final"]["gear.torsional_damping"]["value"] == 0.42
+    engine, current, every, added = _adoption_case(monkeypatch, 100.0, 80.0)
+    doc = {"error": "solver failed"}
+    assert engine._adopt_every_segment(added, current, None, doc, {}, st, said.append) is current
+    assert "solver failed" in doc["why"]
+    doc = {}
+    off = SimpleNamespace(final_on_every_segment=False)
+    assert engine._adopt_every_segment(added, current, every, doc, {}, off, said.append) is current
+    assert doc["adopted"] is False and "final_on_every_segment" in doc["why"]
+    assert engine._adopt_every_segment(added, current, every, None, {}, st, said.append) is current

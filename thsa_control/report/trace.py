@@ -498,10 +498,12 @@ def _every_segment_text(e: dict) -> list[str]:
     out = []
     for n in ev.get("moved", []):
         p, q = (e.get("parameters_final") or e["parameters"])[n], ev["parameters"][n]
+        t = (ev.get("training") or {}).get(n, p)  # a trace.json before "training" kept the search's value there
         lo, hi = p.get("range_over_segment_sets") or (None, None)
         out.append(f"{n} = {_num(q['value'])} {q['unit']}{_ci(q)} fitted on every segment, the held-out ones too "
-                   f"({_num(p['value'])} on the training segments; range {_num(lo)} .. {_num(hi)}): the held-out "
-                   "segments' places decide it")
+                   f"({_num(t['value'])} on the training segments; range {_num(lo)} .. {_num(hi)}): the held-out "
+                   "segments' places decide it" + ("; the final value is the every-segment fit's"
+                                                   if ev.get("adopted") else ""))
     return out
 
 
