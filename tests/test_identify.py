@@ -13,6 +13,7 @@ import math
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import json
@@ -107,15 +108,20 @@ def test_recovers_truth_within_intervals(record, params, level, which):
 def test_interval_coverage(record, params):
     """Over 8 noise seeds x 4 parameters of level A, the 95 % intervals hold the truth at least 26 times in 32
     (binomial: a true coverage of 95 % gives fewer than 26 with probability 0.3 %; a stderr
-    underestimated by 2x would give about 20)."""
+    underestimated by 2x would give about 20).  The residual is the sensor noise, so the segment-clustered standard
+    error (stderr_segments) is the information's on average: the mean ratio over the 32 estimates within 0.6 .. 1.4
+    (measured 0.56 .. 1.33 for single estimates on seeds 10-13; on rig-sim records with a model mismatch it is
+    several times it, 21 for a drive-train damping pulled by stops)."""
     free = FREE["A"]
-    hits = 0
+    hits, ratios = 0, []
     for seed in range(10, 18):
         res = Identifier("A", _start(params, free), free, settings=SETTINGS).fit(record("A", params, seed, 3.0))
         for n in free:
             lo, hi = res.estimates[n].interval(0.95)
             hits += lo <= params.value(n) <= hi
+            ratios.append(res.estimates[n].stderr_segments / res.estimates[n].stderr)
     assert hits >= 26, hits
+    assert 0.6 < np.mean(ratios) < 1.4, ratios
 
 
 @pytest.mark.slow

@@ -202,10 +202,13 @@ def test_cli_trace_writes_json_and_report(record, params, tmp_path, capsys):
     run = record(("coulomb_friction",), {"drive.coulomb_torque": 0.05})
     out = tmp_path / "tr"
     assert main(["trace", str(run.csv_path), "--model", "A", "--candidates", "coulomb_friction",
-                 "--max-nfev", "30", "--robust-test", "sign", "--quiet", "--out", str(out)]) == 0
+                 "--max-nfev", "30", "--robust-test", "sign", "--final-values", "training", "--quiet",
+                 "--out", str(out)]) == 0
     doc = json.loads((out / "trace.json").read_text())
     assert doc["format"] == "thsa-trace/1" and doc["base_model"] == "A"
-    assert doc["settings"]["robust_test"] == "sign"  # the flag reaches the settings the trace ran with
+    assert doc["settings"]["robust_test"] == "sign"  # the flags reach the settings the trace ran with
+    assert doc["settings"]["final_on_every_segment"] is False
+    assert doc["every_segment"]["adopted"] is False and "final_on_every_segment" in doc["every_segment"]["why"]
     assert [e["name"] for e in doc["effects_added"]] == ["coulomb_friction"]
     for key in ("datasets", "error_before", "error_after", "unexplained", "residual_signature", "candidates"):
         assert key in doc

@@ -182,3 +182,23 @@ def test_the_final_values_are_the_every_segment_fits_where_it_fits_every_sample_
     assert engine._adopt_every_segment(added, current, every, doc, {}, off, said.append) is current
     assert doc["adopted"] is False and "final_on_every_segment" in doc["why"]
     assert engine._adopt_every_segment(added, current, every, None, {}, st, said.append) is current
+
+
+def test_a_final_value_the_segments_spread_wider_is_said_with_their_interval():
+    """A final value whose segment-clustered standard error is more than twice the information's gets a line with
+    the interval the segments support (report.trace._segments_text); one within that, or without it, none; and the
+    interval is from the larger of the two standard errors, inside the physical range (scoring._segments_entry)."""
+    from thsa_control.report.trace import _segments_text
+    from thsa_control.trace.scoring import _param_entry
+
+    def entry(sd, ss):
+        return _param_entry({"value": 9.7, "stderr": sd, "stderr_segments": ss, "unit": "N m s/rad",
+                             "at_bound": None, "min": 0.0})
+    e = {"parameters_final": {"gear.torsional_damping": entry(0.27, 5.8), "gear.torsional_stiffness": entry(76.0, 90.0)}}
+    (line,) = _segments_text(e)
+    lo, hi = e["parameters_final"]["gear.torsional_damping"]["ci95_segments"]
+    assert lo == 0.0 and hi == pytest.approx(9.7 + 1.96 * 5.8)  # inside the physical range: not below zero
+    assert "gear.torsional_damping" in line and "21.5 x" in line and f"{hi:.4g}" in line
+    narrow = entry(0.27, 0.1)["ci95_segments"]  # the larger of the two: never narrower than the information's
+    assert narrow == pytest.approx([9.7 - 1.96 * 0.27, 9.7 + 1.96 * 0.27])
+    assert _segments_text({"parameters": {"x": entry(0.27, None)}}) == []

@@ -36,6 +36,10 @@ def add_parser(subparsers) -> None:
                         "from a fixed seed, for a record whose test profile repeats every multiple of three segments "
                         "(every third would hide the same phase of each repeat; trace.json's every_segment check "
                         "says where that changed an estimate)")
+    p.add_argument("--final-values", choices=("every-segment", "training"), default="every-segment",
+                   help="what estimates the final model's values once the held-out segments decided its effects: a "
+                        "fit on every segment, the held-out ones too (default; kept only where it converged and fits "
+                        "every sample at least as well), or the search's last fit on the training segments")
     p.add_argument("--speed-sensors", help="how the speed sensors read, over the run JSON's declaration: "
                    "comma-separated CHANNEL=INTERVAL, CHANNEL motor_speed or screw_speed, INTERVAL a difference "
                    "interval in seconds, 'sample' (one logged sample) or 'instantaneous' (e.g. "
@@ -99,6 +103,7 @@ def run(args) -> int:
         settings = TraceSettings(segment_duration=args.segment, max_effects=args.max_effects, max_nfev=args.max_nfev,
                                  workers=args.workers, substeps=args.substeps, speed_sensors=sensors,
                                  holdout_layout=args.holdout_layout.replace("-", "_"),
+                                 final_on_every_segment=args.final_values == "every-segment",
                                  channel_weights=args.channel_weights.replace("-", "_"), robust_test=args.robust_test,
                                  base_corrections={"auto": None, "on": True, "off": False}[args.base_corrections], rig_hardware=not args.no_rig_hardware, uncertain=split(args.free), candidates=split(args.candidates))
         settings.validate()

@@ -205,6 +205,67 @@ class IdentificationSettings:
             raise ValueError(f"IdentificationSettings.global_span = {self.global_span!r} must be > 1")
 
 
+def segment_information(J, layout, nf: int, offsets, r=None) -> tuple[dict, dict]:
+    """Where a fit's parameter values come from, segment by segment: ``(shares, influence)``, each run name ->
+    ``(segments, nf)``.
+
+    ``J`` the weighted Jacobian of a multiple-shooting fit at its optimum and ``r`` its weighted residuals (rows:
+    each run's channel-major residuals, ``nc x L x M``, then any prior rows; columns: the ``nf`` free parameters,
+    then each run's segment start states, ``nfs`` per segment from ``offsets[i]``); ``layout``: per run ``(name,
+    nc, L, M, nfs)``.  A segment's start states act on its own rows only, so the information on the parameters
+    with every segment's states profiled out is the sum over segments of ``I_m = Jp' Jp`` with ``Jp`` the
+    segment's parameter columns projected off its state columns, plus the priors'.
+
+    ``shares[m, k]``: segment ``m``'s part of the information on parameter ``k`` (its diagonal entry of ``I_m`` over
+    the total's).  ``influence[m, k]``: how far the estimate of ``k`` moves, in its standard errors (of the
+    information), when segment ``m`` is left out, to first order (``C Jp' r_m``, ``C`` the inverse of the total
+    information): an estimate that one segment moves by several of its standard errors rests on one event of the
+    record, whatever its standard error says (a damping pulled by one stop).  Held-out segments carry neither;
+    ``influence`` is empty without ``r``."""
+    import scipy.sparse as sps
+
+    if nf == 0:
+        return {}, {}
+    J = sps.csr_matrix(J) if not sps.issparse(J) else J.tocsr()
+    diag, grads = {}, {}
+    total = np.zeros((nf, nf))
+    row0 = 0
+    for i, (name, nc, L, M, nfs) in enumerate(layout):
+        N = L * M
+        block = J[row0:row0 + nc * N]
+        r_block = None if r is None else np.asarray(r[row0:row0 + nc * N], float)
+        row0 += nc * N
+        info = np.zeros((M, nf))
+        grad = np.zeros((M, nf))
+        for m in range(M):
+            rows = (np.arange(nc)[:, None] * N + m * L + np.arange(L)[None, :]).ravel()
+            Jm = block[rows]
+            Jp = Jm[:, :nf].toarray()
+            if not Jp.any():
+                continue
+            s0 = int(offsets[i]) + m * nfs
+            Js = Jm[:, s0:s0 + nfs].toarray()
+            if Js.size and Js.any():  # the parameter columns projected off the segment's own state columns
+                coef, *_ = np.linalg.lstsq(Js, Jp, rcond=None)
+                Jp = Jp - Js @ coef
+            Im = Jp.T @ Jp
+            total += Im
+            info[m] = np.diag(Im)
+            if r_block is not None:
+                grad[m] = Jp.T @ r_block[rows]
+        diag[name], grads[name] = info, grad
+    prior = J[row0:, :nf].toarray() if row0 < J.shape[0] else np.zeros((0, nf))
+    total += prior.T @ prior
+    tot = np.diag(total)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        shares = {n: np.where(tot > 0, x / tot, 0.0) for n, x in diag.items()}
+    if r is None:
+        return shares, {}
+    C = np.linalg.pinv(total)
+    sd = np.sqrt(np.clip(np.diag(C), 1e-300, None))
+    return shares, {n: (g @ C.T) / sd for n, g in grads.items()}
+
+
 class Identifier:
     """Fit free parameters of a model to rig runs (multi-experiment).
 
@@ -576,11 +637,21 @@ class Identifier:
         dof = max(n_data - n_varys, 1)
         sigmas = new_sig  # the covariance uses the residual RMS of each channel (lmfit: scale_covar)
         J = jacobian(z)
+        nfev, on = counters["nfev"], tracking["on"]
+        tracking["on"] = False
+        r_cov = residuals(z)  # weighted as the Jacobian (the residual RMS of each channel); not a solver evaluation
+        counters["nfev"], tracking["on"] = nfev, on
+        seg_info, seg_infl = segment_information(J, [(pb.run.name, pb._nc, pb.L, pb._M, pb._nfs) for pb in problems],
+                                                 nf, offsets, r_cov)
+        # the segments as clusters: the sandwich over the information's standard error is the root sum of squares
+        # of the segments' first-order influences (each in those standard errors)
+        seg_ratio = np.sqrt(sum((x ** 2).sum(axis=0) for x in seg_infl.values())) if seg_infl else np.full(nf, np.nan)
         JTJ = J.T @ J
         cov_all, unresolved = collinearity_safe_inverse(JTJ.toarray() if hasattr(JTJ, "toarray") else JTJ)
         cov_d = cov_all[:nf, :nf] * (n_data / dof)
         cov = cov_d * np.outer(scale, scale)
         sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+        sd_seg = sd * seg_ratio
         regularising = [k for k, n in enumerate(self.free) if n in priors and n not in (st.priors or {})]
         if regularising:
             # what the runs say (with the explicit priors, external knowledge such as a catalogue spread): the
@@ -609,7 +680,8 @@ class Identifier:
             stderr = float(sd[k]) if not unresolved[k] else math.inf
             at_init = bool(st.max_nfev > 0 and abs(values[k] - par.value) <= 1e-6 * scale[k])
             estimates[n] = ParameterEstimate(n, par.unit, float(values[k]), stderr, par.value, par.min, par.max,
-                                             at_bound, at_init, float(sd_data[k]))
+                                             at_bound, at_init, float(sd_data[k]),
+                                             float(sd_seg[k]) if at_bound is None and not unresolved[k] else math.nan)
         high = []
         for i in range(nf):
             for j in range(i + 1, nf):
@@ -649,4 +721,5 @@ class Identifier:
             noise=MappingProxyType(noise_after), success=success, status=status, nfev=counters["nfev"],
             njev=counters["njev"], time_s=time.perf_counter() - t_start, predictions=MappingProxyType(preds),
             settings=st, global_stage=global_info, converged=converged, priors=MappingProxyType(priors),
-            holdout_fits=MappingProxyType(hold), warnings=run_warnings)
+            holdout_fits=MappingProxyType(hold), warnings=run_warnings,
+            segment_information=MappingProxyType(seg_info), segment_influence=MappingProxyType(seg_infl))

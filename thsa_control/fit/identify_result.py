@@ -65,6 +65,13 @@ class ParameterEstimate:
         initial values) left out of the Fisher information: inf where only such a prior determines the
         parameter, or only together with another parameter.  ``stderr`` is the posterior one (with
         every prior); nan where not computed.
+    stderr_segments : float
+        Standard error [SI] with the segments as independent clusters (the sandwich ``C (sum_m g_m g_m') C``,
+        ``g_m`` a segment's gradient with its start states profiled out, :func:`thsa_control.fit.identify.
+        segment_information`): the spread the estimate would have if the record's segments were drawn again,
+        whatever the residual's structure within a segment.  About ``stderr`` where the residual is the sensor
+        noise; several times it where a model mismatch makes the residual structured (a value pulled by a few
+        events).  nan where not computed (at a bound, where the gradient is not zero).
     """
 
     name: str
@@ -77,6 +84,7 @@ class ParameterEstimate:
     at_bound: str | None
     at_initial: bool
     stderr_data: float = math.nan
+    stderr_segments: float = math.nan
 
     @property
     def relative_stderr(self) -> float:
@@ -95,6 +103,7 @@ class ParameterEstimate:
         d = dict(self.__dict__)
         d["stderr"] = self.stderr if math.isfinite(self.stderr) else None
         d["stderr_data"] = self.stderr_data if math.isfinite(self.stderr_data) else None
+        d["stderr_segments"] = self.stderr_segments if math.isfinite(self.stderr_segments) else None
         d["min"] = self.min if math.isfinite(self.min) else None
         d["max"] = self.max if math.isfinite(self.max) else None
         return d
@@ -151,6 +160,13 @@ class IdentificationResult:
         Error on the held-out segments (empty when none held out).
     warnings : tuple of str
         What the model only approximates in these runs.
+    segment_information : mapping run -> ndarray (segments x free parameters)
+        Each segment's share of the data's information on each free parameter, its own start states profiled
+        out (:func:`thsa_control.fit.identify.segment_information`): where a value comes from.  Held-out segments
+        carry none.
+    segment_influence : mapping run -> ndarray (segments x free parameters)
+        How far each estimate moves, in its standard errors, with each segment left out (first order; same
+        function).
     """
 
     method: str
@@ -182,6 +198,8 @@ class IdentificationResult:
     priors: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
     holdout_fits: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
     warnings: tuple[str, ...] = ()
+    segment_information: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
+    segment_influence: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
 
     @property
     def names(self) -> tuple[str, ...]:

@@ -93,7 +93,7 @@ def conclusion_table_html(doc: dict) -> str:
         if e.get("changed_after_added"):
             pars += f"<br><small>{esc(_final_text(e))}</small>"
         pars += "".join(f"<br><small>{esc(w)}</small>" for w in _weights_text(e.get("weight_check"))
-                        + _every_segment_text(e))
+                        + _every_segment_text(e) + _segments_text(e))
         nd = "<br>".join([f"{esc(h['parameter'])} held at {_num(h['held_at'])} {esc(h['unit'])}: {esc(h['reason'])}"
                           for h in e.get("not_determined", [])]
                          + [f"part not shown by this run (kept at its fit): {esc(w)}"
@@ -507,6 +507,24 @@ def _every_segment_text(e: dict) -> list[str]:
     return out
 
 
+#: a final value whose segment-clustered standard error exceeds its information's by this factor gets a line
+SEGMENTS_WIDER = 2.0
+
+
+def _segments_text(e: dict) -> list[str]:
+    """Lines: the found effect's final values whose segment-clustered standard error (``stderr_segments``) is more
+    than :data:`SEGMENTS_WIDER` times the information's: the interval the record's segments support
+    (``ci95_segments``), the residual being structured there."""
+    out = []
+    for n, p in (e.get("parameters_final") or e.get("parameters") or {}).items():
+        sd, ss, ci = p.get("stderr"), p.get("stderr_segments"), p.get("ci95_segments")
+        if sd and ss and ci and ss > SEGMENTS_WIDER * sd:
+            out.append(f"{n} = {_num(p['value'])} {p['unit']} [{_num(ci[0])}, {_num(ci[1])}] over the record's "
+                       f"segments (standard error {ss / sd:.3g} x the information's: the residual is structured, "
+                       "a few events pull this value)")
+    return out
+
+
 def _weights_text(check: dict) -> list[str]:
     """Lines: the found effect's parameters whose estimate depends on the channel weights (``weight_check``)."""
     if not check or not check.get("depends_on_weights"):
@@ -573,7 +591,8 @@ def format_trace_summary(doc: dict) -> str:
             lines.append(f"    {_start_text(e['start'])}")
         if e.get("changed_after_added"):
             lines.append(f"    {_final_text(e)}")
-        lines += [f"    {w}" for w in _weights_text(e.get("weight_check")) + _every_segment_text(e)]
+        lines += [f"    {w}" for w in _weights_text(e.get("weight_check")) + _every_segment_text(e)
+                  + _segments_text(e)]
         for c, red in e["error_reduction"].items():
             b, a = e["error_before"].get(c, {}), e["error_after"].get(c, {})
             lines.append(f"    {c}: RMS {_num(b.get('rms'))} -> {_num(a.get('rms'))} ({100 * red:+.1f} % drop)")
