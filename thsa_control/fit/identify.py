@@ -231,29 +231,25 @@ def segment_information(J, layout, nf: int, offsets, r=None) -> tuple[dict, dict
     total = np.zeros((nf, nf))
     row0 = 0
     for i, (name, nc, L, M, nfs) in enumerate(layout):
-        N = L * M
-        block = J[row0:row0 + nc * N]
-        r_block = None if r is None else np.asarray(r[row0:row0 + nc * N], float)
+        N, n = L * M, nc * L
+        # the run's rows in segment-major order (segment, channel, sample): a segment's rows are one block
+        perm = row0 + ((np.arange(nc)[None, :, None] * N + np.arange(M)[:, None, None] * L
+                        + np.arange(L)[None, None, :]).ravel())
+        block = J[perm]
+        Jp = block[:, :nf].toarray().reshape(M, n, nf)
+        Js = np.zeros((M, n, nfs))
+        if nfs:  # each segment's start-state columns act on its own rows only: gather them block by block
+            st = block[:, int(offsets[i]):int(offsets[i]) + M * nfs].tocoo()
+            m, j = np.divmod(st.col, nfs)
+            ok = m == st.row // n
+            Js[m[ok], st.row[ok] % n, j[ok]] = st.data[ok]
+            Jp = Jp - Js @ (np.linalg.pinv(Js) @ Jp)  # the parameter columns projected off the segment's states
+        Im = np.einsum("mik,mil->mkl", Jp, Jp)
+        total += Im.sum(axis=0)
+        diag[name] = np.einsum("mkk->mk", Im).copy()
+        if r is not None:
+            grads[name] = np.einsum("mik,mi->mk", Jp, np.asarray(r, float)[perm].reshape(M, n))
         row0 += nc * N
-        info = np.zeros((M, nf))
-        grad = np.zeros((M, nf))
-        for m in range(M):
-            rows = (np.arange(nc)[:, None] * N + m * L + np.arange(L)[None, :]).ravel()
-            Jm = block[rows]
-            Jp = Jm[:, :nf].toarray()
-            if not Jp.any():
-                continue
-            s0 = int(offsets[i]) + m * nfs
-            Js = Jm[:, s0:s0 + nfs].toarray()
-            if Js.size and Js.any():  # the parameter columns projected off the segment's own state columns
-                coef, *_ = np.linalg.lstsq(Js, Jp, rcond=None)
-                Jp = Jp - Js @ coef
-            Im = Jp.T @ Jp
-            total += Im
-            info[m] = np.diag(Im)
-            if r_block is not None:
-                grad[m] = Jp.T @ r_block[rows]
-        diag[name], grads[name] = info, grad
     prior = J[row0:, :nf].toarray() if row0 < J.shape[0] else np.zeros((0, nf))
     total += prior.T @ prior
     tot = np.diag(total)
