@@ -100,9 +100,11 @@ def _physical(doc: dict) -> list[dict]:
 KNOWN_FAILING = {
     "rig_drivetrain_compliance_rev": "drivetrain_compliance found first among the physical effects (by what it "
                                      "explains; the base's load path added before it), gearbox 9.8e3 N m/rad (series "
-                                     "7.9e3, rig-sim 8e3), damping 0.42: its window (every sample) drops by 22 % on "
-                                     "the screw speed, 9 % on the motor speed: the ringing after each reversal is a "
-                                     "small part of a record whose motor-speed error the detailed no-back explains",
+                                     "7.9e3, rig-sim 8e3), damping 0.42 in the search (the held-out segments hold "
+                                     "each breakaway out; 1.62 in the final model, fitted on every segment): its "
+                                     "window (every sample) drops by 22 % on the screw speed, 9 % on the motor speed "
+                                     "with the search's values: the ringing after each reversal is a small part of a "
+                                     "record whose motor-speed error the detailed no-back explains",
     "rig_drivetrain_compliance_exc": "drivetrain_compliance found first, its window drop when added 30 % on the motor "
                                      "speed (25 % on the screw speed; < 50 %): started at the record's 47 Hz mode.  "
                                      "When added its damping was 17.6 N m s/rad (rig-sim 2), gearbox 7.0e3: the "
@@ -935,3 +937,44 @@ def test_trace_json_and_report_say_what_was_done(traced_result, tmp_path):
     html = (tmp_path / "report.html").read_text()
     assert ">Conclusion</h2>" in html and "<table>" in html and "base correction" in html
     assert "held-out chi2 drops" in html and "signature of the remaining residual" in html
+
+
+@pytest.mark.campaign
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ALL_RUNS)
+def test_the_segments_interval_is_never_narrower_and_stays_in_the_physical_range(traced, name):
+    """Every found effect's final value with a segment-clustered standard error (stderr_segments) has an interval
+    over the segments (ci95_segments) that holds its information interval (ci95) within the physical range, and
+    the report says it where the segments spread it more than twice (report.trace._segments_text)."""
+    from thsa_control.report.trace import SEGMENTS_WIDER, _segments_text
+
+    doc = traced(name)
+    for e in doc["effects_added"]:
+        if e.get("implied_by"):
+            continue
+        lines = " ".join(_segments_text(e))
+        for n, p in (e.get("parameters_final") or e["parameters"]).items():
+            if p.get("stderr_segments") is None or not p.get("ci95"):
+                continue
+            lo, hi = p["ci95_segments"]
+            tol = 1e-12 * abs(p["value"])
+            assert lo <= p["value"] <= hi and hi >= p["ci95"][1] - tol, (n, p)
+            assert lo <= p["ci95"][0] + tol or lo == 0.0, (n, p)  # or cut at a zero lower bound
+            assert (n in lines) == (p["stderr_segments"] > SEGMENTS_WIDER * p["stderr"]), (n, p, lines)
+
+
+@pytest.mark.campaign
+@pytest.mark.slow
+def test_the_segments_hold_the_compliance_damping_the_information_interval_misses(traced):
+    """rig-sim's drive-train compliance over position steps (rig_drivetrain_compliance_steps): the final damping
+    2.49 N m s/rad has an information interval of +-0.29 that misses rig-sim's 2; the residual the rig's base leaves
+    is structured (the steps' starts and stops carry the damping), and over the record's segments the standard error
+    is three times that: the interval the segments support holds rig-sim's 2 (docs/trace_notes.md, "The interval
+    the segments support")."""
+    name = "rig_drivetrain_compliance_steps"
+    d_true = _truth(name)["effects"]["drivetrain_compliance"]["params"]["d_Nm_s_rad"]["si"]
+    doc = traced(name)
+    step = next(e for e in doc["effects_added"] if e["name"] == "drivetrain_compliance")
+    p = step["parameters_final"]["gear.torsional_damping"]
+    assert not p["ci95"][0] <= d_true <= p["ci95"][1], p
+    assert p["stderr_segments"] > 2.0 * p["stderr"] and p["ci95_segments"][0] <= d_true <= p["ci95_segments"][1], p
