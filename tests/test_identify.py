@@ -122,6 +122,15 @@ def test_interval_coverage(record, params):
             ratios.append(res.estimates[n].stderr_segments / res.estimates[n].stderr)
     assert hits >= 26, hits
     assert 0.6 < np.mean(ratios) < 1.4, ratios
+    # the report flags an estimate the segments spread more than twice, and only such a one
+    import dataclasses
+    from types import MappingProxyType
+
+    assert ("OVER THE SEGMENTS" in res.fit_report()) == any(r > 2 for r in ratios[-len(free):])
+    e = res.estimates[free[0]]
+    wide = dataclasses.replace(res, estimates=MappingProxyType(
+        {**res.estimates, free[0]: dataclasses.replace(e, stderr_segments=3.0 * e.stderr)}))
+    assert f"+/- {3.0 * e.stderr:.4g} OVER THE SEGMENTS (3 x)" in wide.fit_report()
 
 
 @pytest.mark.slow

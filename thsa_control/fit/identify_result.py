@@ -320,6 +320,9 @@ class IdentificationResult:
                 flags.append("AT INITIAL VALUE")
             if n in self.not_identifiable:
                 flags.append("NOT IDENTIFIABLE")
+            if math.isfinite(e.stderr_segments) and math.isfinite(e.stderr) and e.stderr_segments > 2.0 * e.stderr:
+                # the residual is structured: a few segments pull the value (stderr_segments)
+                flags.append(f"+/- {e.stderr_segments:.4g} OVER THE SEGMENTS ({e.stderr_segments / e.stderr:.3g} x)")
             partners = [b if a == n else a for a, b, _ in self.high_correlations if n in (a, b)]
             if partners:
                 flags.append(f"CORRELATED WITH {', '.join(partners)}")
