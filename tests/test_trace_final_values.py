@@ -9,6 +9,7 @@ The tracer's own run of both is judged on rig-sim's speed excitation in tests/te
 
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 from thsa_control.model import CandidateSpec
@@ -202,3 +203,28 @@ def test_a_final_value_the_segments_spread_wider_is_said_with_their_interval():
     narrow = entry(0.27, 0.1)["ci95_segments"]  # the larger of the two: never narrower than the information's
     assert narrow == pytest.approx([9.7 - 1.96 * 0.27, 9.7 + 1.96 * 0.27])
     assert _segments_text({"parameters": {"x": entry(0.27, None)}}) == []
+
+
+def test_the_segments_that_pull_a_value_most_are_named_where_one_moves_it_by_two_standard_errors():
+    """scoring._pulled_by: the three segments whose leaving out moves an estimate most (the fit's first-order
+    segment influence, in standard errors), with their run and times, where one moves it by 2 or more; none where
+    every segment moves it less; the report's segments line says which way and by how much."""
+    from types import MappingProxyType
+    from thsa_control.report.trace import _segments_text
+    from thsa_control.trace.scoring import _param_entry, _pulled_by
+
+    infl = np.zeros((6, 2))
+    infl[2, 0], infl[4, 0], infl[1, 0], infl[3, 1] = 13.0, -11.0, 3.0, 1.5
+    res = SimpleNamespace(estimates=MappingProxyType({"gear.torsional_damping": None, "gear.torsional_stiffness": None}),
+                          segment_influence={"run": infl},
+                          predictions={"run": {"segment_starts": np.arange(6) * 0.05 + 5.5}},
+                          settings=SimpleNamespace(segment_duration=0.05))
+    got = _pulled_by(res, "gear.torsional_damping")["pulled_by"]
+    assert [q["moves_by_stderr"] for q in got] == [13.0, -11.0, 3.0]
+    assert got[0]["run"] == "run" and got[0]["t0"] == pytest.approx(5.6) and got[0]["t1"] == pytest.approx(5.65)
+    assert _pulled_by(res, "gear.torsional_stiffness") == {}  # 1.5 standard errors at most: not named
+    assert _pulled_by(SimpleNamespace(estimates={}, segment_influence={}), "x") == {}
+    p = _param_entry({"value": 9.95, "stderr": 0.29, "stderr_segments": 5.8, "unit": "N m s/rad", "at_bound": None,
+                      "min": 0.0, "pulled_by": got})
+    (line,) = _segments_text({"parameters_final": {"gear.torsional_damping": p}})
+    assert "up by 13 without 5.60-5.65 s" in line and "down by 11 without 5.70-5.75 s" in line

@@ -519,9 +519,14 @@ def _segments_text(e: dict) -> list[str]:
     for n, p in (e.get("parameters_final") or e.get("parameters") or {}).items():
         sd, ss, ci = p.get("stderr"), p.get("stderr_segments"), p.get("ci95_segments")
         if sd and ss and ci and ss > SEGMENTS_WIDER * sd:
+            pulled = p.get("pulled_by") or []
+            several = len({q["run"] for q in pulled}) > 1  # name the run where the pulls lie in more than one
+            pulls = "; ".join(f"{'up' if q['moves_by_stderr'] > 0 else 'down'} by {abs(q['moves_by_stderr']):.2g} "
+                              f"without {q['run'] + ' ' if several else ''}{q['t0']:.2f}-{q['t1']:.2f} s"
+                              for q in pulled)
             out.append(f"{n} = {_num(p['value'])} {p['unit']} [{_num(ci[0])}, {_num(ci[1])}] over the record's "
                        f"segments (standard error {ss / sd:.3g} x the information's: the residual is structured, "
-                       "a few events pull this value)")
+                       "a few events pull this value" + (f"; in standard errors, {pulls}" if pulls else "") + ")")
     return out
 
 

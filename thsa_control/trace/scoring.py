@@ -35,6 +35,32 @@ from .signature import split_remainder
 from .threads import limit_blas_threads
 
 
+#: a segment that moves an estimate by at least this many standard errors when left out is named (``pulled_by``)
+PULL_NAMED = 2.0
+
+
+def _pulled_by(res, name: str, top: int = 3) -> dict:
+    """``{"pulled_by": [...]}``: the ``top`` segments that move the estimate of ``name`` most when left out, each
+    ``{"run", "t0", "t1", "moves_by_stderr"}`` (first order, in its standard errors:
+    :attr:`~thsa_control.fit.identify_result.IdentificationResult.segment_influence`; positive: without that
+    segment the value would be higher, the segment pulls it down), where one moves it by :data:`PULL_NAMED` or
+    more; empty otherwise.  Where a value comes from when a model mismatch leaves the residual structured."""
+    infl = getattr(res, "segment_influence", None) or {}
+    if name not in res.estimates or not infl:
+        return {}
+    k = list(res.estimates).index(name)
+    rows = []
+    for run, x in infl.items():
+        starts = np.asarray(res.predictions[run]["segment_starts"], float)
+        step = float(starts[1] - starts[0]) if starts.size > 1 else float(res.settings.segment_duration)
+        rows += [(abs(float(v)), run, float(starts[m]), float(starts[m]) + step, float(v))
+                 for m, v in enumerate(x[:, k]) if np.isfinite(v)]
+    rows.sort(key=lambda r: -r[0])
+    if not rows or rows[0][0] < PULL_NAMED:
+        return {}
+    return {"pulled_by": [{"run": r, "t0": t0, "t1": t1, "moves_by_stderr": v} for _, r, t0, t1, v in rows[:top]]}
+
+
 # ----------------------------------------------------------------------------- fits (run in workers)
 def _fit_job(job: dict) -> dict:
     """One identification, summarised (picklable in and out)."""
@@ -75,6 +101,7 @@ def _fit_job(job: dict) -> dict:
     est = {n: {"value": e.value, "stderr": e.stderr if math.isfinite(e.stderr) else None,
                "stderr_data": _data_stderr(e), "init": e.init,
                **({"stderr_segments": e.stderr_segments} if math.isfinite(e.stderr_segments) else {}),
+               **_pulled_by(res, n),
                "at_bound": e.at_bound, "min": e.min, "max": e.max, "unit": e.unit}
            for n, e in res.estimates.items()}
     if prof is not None:  # profiled: a value with an interval from the profile, no stderr
@@ -701,7 +728,8 @@ def _param_entry(e: dict) -> dict:
                if e.get("profiled") else {}),
             **({"held": True} if e.get("held") else {}),
             **({"stderr_data": e["stderr_data"]} if "stderr_data" in e and not e.get("held") else {}),
-            **(_segments_entry(e) if e.get("stderr_segments") is not None and not e.get("held") else {})}
+            **(_segments_entry(e) if e.get("stderr_segments") is not None and not e.get("held") else {}),
+            **({"pulled_by": e["pulled_by"]} if e.get("pulled_by") and not e.get("held") else {})}
 
 
 def _segments_entry(e: dict) -> dict:
