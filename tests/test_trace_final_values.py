@@ -100,13 +100,15 @@ def test_the_every_segment_check_reports_a_move_with_the_range_of_both_fits(monk
     def est(v, sd, lo=0.0, hi=1e4):
         return {"value": v, "stderr": sd, "stderr_data": sd, "unit": "N m s/rad", "at_bound": None, "min": lo,
                 "max": hi}
-    current = {"free": ["gear.torsional_damping", "gear.torsional_stiffness"], "estimates": {
-        "gear.torsional_damping": est(0.42, 0.10), "gear.torsional_stiffness": est(9784.0, 41.0)}}
+    current = {"free": ["gear.torsional_damping", "gear.torsional_stiffness", "drive.coulomb_torque"], "estimates": {
+        "gear.torsional_damping": est(0.42, 0.10), "gear.torsional_stiffness": est(9784.0, 41.0),
+        "drive.coulomb_torque": est(0.05, 0.002)}}
     added = [{"name": "drivetrain_compliance", "parameters": {
         "gear.torsional_damping": {"value": 0.42, "stderr": 0.10, "unit": "N m s/rad"},
         "gear.torsional_stiffness": {"value": 9784.0, "stderr": 41.0, "unit": "N m/rad"}}}]
     every = {"chisqr": 1.0, "converged": True, "estimates": {
-        "gear.torsional_damping": est(1.62, 0.075), "gear.torsional_stiffness": est(9790.0, 40.0)}}
+        "gear.torsional_damping": est(1.62, 0.075), "gear.torsional_stiffness": est(9790.0, 40.0),
+        "drive.coulomb_torque": est(0.03, 0.002)}}
     seen = {}
 
     def job(label, effs, free, pset, data, **kw):
@@ -124,6 +126,17 @@ def test_the_every_segment_check_reports_a_move_with_the_range_of_both_fits(monk
     assert fit is every
     assert seen["holdout_every"] == 0  # every segment fitted
     assert doc["moved"] == ["gear.torsional_damping"] and doc["holdout_layout"] == "every_kth"
+    # a base correction is no found effect: its move goes to the doc's moved_other, with its range
+    assert list(doc["moved_other"]) == ["drive.coulomb_torque"]
+    lo_c, hi_c = doc["moved_other"]["drive.coulomb_torque"]["range"]
+    assert lo_c == pytest.approx(0.03 - 1.96 * 0.002) and hi_c == pytest.approx(0.05 + 1.96 * 0.002)
+    from thsa_control.report.trace import _every_segment_other_text
+    (other,) = _every_segment_other_text({"every_segment": doc})
+    assert "drive.coulomb_torque = 0.03" in other and "0.05 on the training segments" in other
+    # a final model with base corrections only (no found effect) is fitted on every segment too
+    doc_b, fit_b = engine._every_segment_check([], current, (), tuple(current["free"]), params, [], st, job,
+                                               lambda *a: None)
+    assert fit_b is every and set(doc_b["moved_other"]) == {"gear.torsional_damping", "drive.coulomb_torque"}
     ev = added[0]["every_segment"]
     assert ev["moved"] == ["gear.torsional_damping"] and ev["parameters"]["gear.torsional_damping"]["value"] == 1.62
     lo, hi = added[0]["parameters"]["gear.torsional_damping"]["range_over_segment_sets"]

@@ -530,6 +530,22 @@ def _segments_text(e: dict) -> list[str]:
     return out
 
 
+def _every_segment_other_text(doc: dict) -> list[str]:
+    """Lines: the final model's other fitted parameters (base corrections, the declared uncertain set) that the fit
+    on every segment moves (``every_segment.moved_other``), and whether the final values are that fit's."""
+    ev = doc.get("every_segment") or {}
+    out = []
+    for n, m in (ev.get("moved_other") or {}).items():
+        a, b = m["training"], m["every_segment"]
+        out.append(f"{n} = {_num(b['value'])} {b['unit']}{_ci(b)} fitted on every segment, the held-out ones too "
+                   f"({_num(a['value'])} on the training segments; range {_num(m['range'][0])} .. "
+                   f"{_num(m['range'][1])}): the held-out segments' places decide it")
+    if ev and "adopted" in ev:
+        out.append("final values: the fit on every segment" if ev["adopted"] else
+                   f"final values: the search's last fit ({ev.get('why', '')})")
+    return out
+
+
 def _weights_text(check: dict) -> list[str]:
     """Lines: the found effect's parameters whose estimate depends on the channel weights (``weight_check``)."""
     if not check or not check.get("depends_on_weights"):
@@ -563,6 +579,7 @@ def format_trace_summary(doc: dict) -> str:
         for c in bc.get("corrections", []):
             lines.append(f"    {c['effect']:<20} {c['parameter']} = {_num(c['value'])} {c['unit']}{_ci(c)}, bound "
                          f"[{_num(c['bound'][0])}, {_num(c['bound'][1])}]{'  AT BOUND' if c['at_plausible_bound'] else ''}")
+    lines += [f"    {w}" for w in _every_segment_other_text(doc)]
     for d in (bc or {}).get("declared_components_detailed", []):
         lines.append(f"    declared component detailed: {d['name']} (for {', '.join(d.get('refines', []))}): "
                      f"{'kept' if d['accepted'] else 'not kept'}, {d.get('reason', '')}")

@@ -299,9 +299,10 @@ class TraceSettings:
     weight_check: bool = True
     #: fit the final model once more on every segment, the held-out ones too, from its values, and report each found
     #: effect's parameter that moves beyond 2 combined standard errors and 10 % (``every_segment`` in its entry,
-    #: with the range the two fits' 95 % intervals span): the held-out segments' places decided it (a test profile
-    #: that repeats every multiple of ``holdout_every`` segments hides one phase of it from the search's fits).
-    #: Reported, not used to select
+    #: with the range the two fits' 95 % intervals span; the base corrections' and declared parameters' moves in the
+    #: doc's ``every_segment.moved_other``): the held-out segments' places decided it (a test profile that repeats
+    #: every multiple of ``holdout_every`` segments hides one phase of it from the search's fits).  Reported, not
+    #: used to select
     every_segment_check: bool = True
     #: the final model's values (``final_parameters``, each found effect's ``parameters_final``, ``error_after``)
     #: are the every-segment fit's where it converged and fits every segment at least as well as the search's last
@@ -1227,12 +1228,18 @@ def _every_segment_check(added: list, current: dict, cur_effects, cur_free, cur_
     moves beyond 2 combined standard errors (the run's own) and 10 % (:func:`weights.compare`, the weight check's
     rule) gets ``range_over_segment_sets`` on its final value (the hull of both fits' 95 % intervals): the
     segments held out of the search's fits decided it.  Every found effect's entry gets ``every_segment``
-    (``parameters``: the every-segment fit's entries; ``moved``: the names that moved).  Returns the doc's
-    ``every_segment`` (the layout of the held-out segments, the names that moved, the fit's chi2 and convergence)
-    and the fit (None where it failed), or ``(None, None)`` where no found effect has a parameter with a standard
-    error."""
+    (``parameters``: the every-segment fit's entries; ``moved``: the names that moved).  The final model's other
+    fitted parameters (base corrections, the declared uncertain set) that move by the same rule go to the doc's
+    ``moved_other`` (name -> both entries and the range).  Returns the doc's ``every_segment`` (the layout of the
+    held-out segments, the names that moved, the fit's chi2 and convergence) and the fit (None where it failed), or
+    ``(None, None)`` where the final model has no parameter with a standard error."""
     steps = _checked_steps(added, current)
-    if not steps:
+    in_steps = {n for _, names in steps for n in names}
+    # the final model's other fitted parameters (base corrections, the declared uncertain set): their moves are
+    # reported too, and with the fit adopted their final values are its
+    others = [n for n in cur_free if n not in in_steps and n in current["estimates"]
+              and not current["estimates"][n].get("held") and wt.stderr_of(current["estimates"][n]) is not None]
+    if not steps and not others:
         return None, None
     jb = job("every segment", cur_effects, cur_free, cur_params, fit_runs)
     jb = {**jb, "settings": dataclasses.replace(jb["settings"], holdout_every=0)}
@@ -1260,7 +1267,19 @@ def _every_segment_check(added: list, current: dict, cur_effects, cur_free, cur_
         added[i]["every_segment"] = {"parameters": entry, "moved": moved,
                                      "training": {n: _param_entry(current["estimates"][n]) for n in moved}}
         moved_all += moved
-    return {"moved": moved_all, "chisqr": f["chisqr"], "converged": f["converged"],
+    moved_other = {}
+    for n in others:
+        b = f["estimates"].get(n)
+        if b is None:
+            continue
+        a = current["estimates"][n]
+        _, rng = wt.compare(a, {"every_segment": b}, st.determination_z)
+        if rng is None:
+            continue
+        moved_other[n] = {"training": _param_entry(a), "every_segment": _param_entry(b), "range": rng}
+        say(f"{n} = {a['value']:.4g} on the training segments, {b['value']:.4g} on every segment (range "
+            f"{rng[0]:.4g} .. {rng[1]:.4g}): the held-out segments' places decide it")
+    return {"moved": moved_all, "moved_other": moved_other, "chisqr": f["chisqr"], "converged": f["converged"],
             "holdout_layout": st.holdout_layout}, f
 
 
