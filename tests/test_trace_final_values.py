@@ -91,24 +91,29 @@ def test_the_summary_and_the_table_show_the_same_final_values():
     assert "refitted with noback_quadrant_friction" in t and "2.725 N m s/rad" in t and "2.506" in t and "2.944" in t
 
 
-def test_the_every_segment_check_reports_a_move_with_the_range_of_both_fits(monkeypatch):
-    """The final model fitted on every segment, the held-out ones too (engine._every_segment_check): a parameter
-    beyond 2 combined standard errors and 10 % is reported (the entry's every_segment, the final value's range over
-    both fits' 95 % intervals, the doc's list); one within its errors is not; a failed fit is said, nothing moved."""
+def _est(v, sd, lo=0.0, hi=1e4):
+    return {"value": v, "stderr": sd, "stderr_data": sd, "unit": "N m s/rad", "at_bound": None, "min": lo, "max": hi}
+
+
+def _every_case(monkeypatch, chi2_search=100.0, chi2_every=80.0, converged=True):
+    """A final model (a drive-train compliance, a Coulomb base correction) and a stubbed fit on every segment that
+    moves the damping and the Coulomb torque; each fit's error over every sample is its ``chi2_all``."""
     from thsa_control.trace import engine
 
-    def est(v, sd, lo=0.0, hi=1e4):
-        return {"value": v, "stderr": sd, "stderr_data": sd, "unit": "N m s/rad", "at_bound": None, "min": lo,
-                "max": hi}
-    current = {"free": ["gear.torsional_damping", "gear.torsional_stiffness", "drive.coulomb_torque"], "estimates": {
-        "gear.torsional_damping": est(0.42, 0.10), "gear.torsional_stiffness": est(9784.0, 41.0),
-        "drive.coulomb_torque": est(0.05, 0.002)}}
+    current = {"chi2_all": chi2_search, "free": ["gear.torsional_damping", "gear.torsional_stiffness",
+                                                 "drive.coulomb_torque"], "estimates": {
+        "gear.torsional_damping": _est(0.42, 0.10), "gear.torsional_stiffness": _est(9784.0, 41.0),
+        "drive.coulomb_torque": _est(0.05, 0.002)}}
     added = [{"name": "drivetrain_compliance", "parameters": {
         "gear.torsional_damping": {"value": 0.42, "stderr": 0.10, "unit": "N m s/rad"},
-        "gear.torsional_stiffness": {"value": 9784.0, "stderr": 41.0, "unit": "N m/rad"}}}]
-    every = {"chisqr": 1.0, "converged": True, "estimates": {
-        "gear.torsional_damping": est(1.62, 0.075), "gear.torsional_stiffness": est(9790.0, 40.0),
-        "drive.coulomb_torque": est(0.03, 0.002)}}
+        "gear.torsional_stiffness": {"value": 9784.0, "stderr": 41.0, "unit": "N m/rad"}}},
+             {"name": "noback_quadrant_friction", "implied_by": "noback_backlash", "parameters": {}}]
+    added[0]["parameters_final"] = {n: {**p, **({"range_over_channel_weights": [0.3, 0.5]}
+                                                if n == "gear.torsional_damping" else {})}
+                                    for n, p in added[0]["parameters"].items()}
+    every = {"chi2_all": chi2_every, "chisqr": chi2_every, "converged": converged, "estimates": {
+        "gear.torsional_damping": _est(1.62, 0.075), "gear.torsional_stiffness": _est(9790.0, 40.0),
+        "drive.coulomb_torque": _est(0.03, 0.002)}}
     seen = {}
 
     def job(label, effs, free, pset, data, **kw):
@@ -119,83 +124,82 @@ def test_the_every_segment_check_reports_a_move_with_the_range_of_both_fits(monk
         return [every]
     monkeypatch.setattr(engine, "_run_jobs", run_jobs)
     monkeypatch.setattr(engine.dataclasses, "replace", lambda s, **kw: SimpleNamespace(**{**vars(s), **kw}))
-    st = SimpleNamespace(determination_z=2.0, holdout_layout="every_kth")
-    params = default_parameters()
-    doc, fit = engine._every_segment_check(added, current, ("drivetrain_compliance",), tuple(current["free"]),
-                                           params, [], st, job, lambda *a: None)
-    assert fit is every
+    monkeypatch.setattr(engine, "_chi2_by_channel", lambda fit, noise, select, w=None: {"motor_speed": fit["chi2_all"]})
+    st = SimpleNamespace(determination_z=2.0, holdout_layout="every_kth", final_on_every_segment=True)
+
+    def check(added_=None, effects=("drivetrain_compliance",)):
+        return engine._every_segment_check(added if added_ is None else added_, current, effects,
+                                           tuple(current["free"]), default_parameters(), [], {}, st, job,
+                                           lambda *a: None)
+    return engine, current, every, added, st, seen, check
+
+
+def test_the_every_segment_check_reports_a_move_with_the_range_of_both_fits(monkeypatch):
+    """The final model fitted on every segment, the held-out ones too (engine._every_segment_check): a parameter
+    beyond 2 combined standard errors and 10 % is reported (the entry's every_segment, the final value's range over
+    both fits' 95 % intervals, the doc's list); one within its errors is not; a base correction's move goes to the
+    doc's moved_other; a final model without a found effect is fitted too; a failed fit is said, nothing moved."""
+    engine, current, every, added, st, seen, check = _every_case(monkeypatch)
+    doc, fit = check()
+    assert fit is every and doc["sound"] is True
     assert seen["holdout_every"] == 0  # every segment fitted
     assert doc["moved"] == ["gear.torsional_damping"] and doc["holdout_layout"] == "every_kth"
-    # a base correction is no found effect: its move goes to the doc's moved_other, with its range
     assert list(doc["moved_other"]) == ["drive.coulomb_torque"]
     lo_c, hi_c = doc["moved_other"]["drive.coulomb_torque"]["range"]
     assert lo_c == pytest.approx(0.03 - 1.96 * 0.002) and hi_c == pytest.approx(0.05 + 1.96 * 0.002)
-    from thsa_control.report.trace import _every_segment_other_text
+    from thsa_control.report.trace import _every_segment_other_text, _every_segment_text
     (other,) = _every_segment_other_text({"every_segment": doc})
     assert "drive.coulomb_torque = 0.03" in other and "0.05 on the training segments" in other
-    # a final model with base corrections only (no found effect) is fitted on every segment too
-    doc_b, fit_b = engine._every_segment_check([], current, (), tuple(current["free"]), params, [], st, job,
-                                               lambda *a: None)
-    assert fit_b is every and set(doc_b["moved_other"]) == {"gear.torsional_damping", "drive.coulomb_torque"}
     ev = added[0]["every_segment"]
     assert ev["moved"] == ["gear.torsional_damping"] and ev["parameters"]["gear.torsional_damping"]["value"] == 1.62
     lo, hi = added[0]["parameters"]["gear.torsional_damping"]["range_over_segment_sets"]
     assert lo == pytest.approx(0.42 - 1.96 * 0.10) and hi == pytest.approx(1.62 + 1.96 * 0.075)
     assert "range_over_segment_sets" not in added[0]["parameters"]["gear.torsional_stiffness"]
-    from thsa_control.report.trace import _every_segment_text
     (line,) = _every_segment_text(added[0])
     assert "1.62" in line and "0.42 on the training segments" in line
+    # a final model with base corrections only (no found effect) is fitted on every segment too
+    doc_b, fit_b = check([], ())
+    assert fit_b is every and set(doc_b["moved_other"]) == {"gear.torsional_damping", "drive.coulomb_torque"}
     monkeypatch.setattr(engine, "_run_jobs", lambda jobs, w, say: [{"error": "solver failed"}])
-    added2 = [dict(added[0], every_segment=None)]
-    assert engine._every_segment_check(added2, current, (), tuple(current["free"]), params, [], st, job,
-                                       lambda *a: None) == ({"error": "solver failed"}, None)
+    doc_e, fit_e = check([dict(added[0], every_segment=None)], ())
+    assert fit_e is None and doc_e["error"] == "solver failed" and doc_e["sound"] is False
 
 
-def _adoption_case(monkeypatch, chi2_search, chi2_every, converged=True):
-    from thsa_control.trace import engine
-
-    def est(v, sd):
-        return {"value": v, "stderr": sd, "stderr_data": sd, "unit": "N m s/rad", "at_bound": None, "min": 0.0}
-    current = {"chi2_all": chi2_search, "estimates": {"gear.torsional_damping": est(0.42, 0.10)}}
-    every = {"chi2_all": chi2_every, "converged": converged, "estimates": {"gear.torsional_damping": est(1.62, 0.075)}}
-    monkeypatch.setattr(engine, "_chi2_by_channel", lambda fit, noise, select, w=None: {"motor_speed": fit["chi2_all"]})
-    fin = {"value": 0.42, "stderr": 0.10, "unit": "N m s/rad", "range_over_segment_sets": [0.22, 1.77],
-           "range_over_channel_weights": [0.3, 0.5]}
-    added = [{"name": "drivetrain_compliance", "parameters_final": {"gear.torsional_damping": dict(fin)},
-              "every_segment": {"moved": ["gear.torsional_damping"]}},
-             {"name": "noback_quadrant_friction", "implied_by": "noback_backlash", "parameters": {}}]
-    return engine, current, every, added
+def test_an_every_segment_fit_that_went_astray_is_not_read(monkeypatch):
+    """A fit on every segment that did not converge, or whose error over every sample is above the search's last
+    fit's (it starts there: rig_ratchet_backlash's went to 680716 against 130073), is not read: no move is said, no
+    range put, and the doc says why."""
+    for args, why in (((100.0, 100.5), "above the search's"), ((100.0, 80.0, False), "did not converge")):
+        engine, current, every, added, st, seen, check = _every_case(monkeypatch, *args)
+        doc, fit = check()
+        assert fit is None and doc["sound"] is False and why in doc["why"], doc
+        assert doc["moved"] == [] and doc["moved_other"] == {} and "every_segment" not in added[0]
+        assert "range_over_segment_sets" not in added[0]["parameters"]["gear.torsional_damping"]
 
 
-def test_the_final_values_are_the_every_segment_fits_where_it_fits_every_sample_at_least_as_well(monkeypatch):
+def test_the_final_values_are_the_every_segment_fits_where_it_is_sound(monkeypatch):
     """Once the held-out segments decided the effects, every sample estimates their values
     (engine._adopt_every_segment): the final model is the every-segment fit, each found effect's parameters_final
-    its values with the ranges kept; a fit that did not converge, fits every sample worse than the search's last fit
-    (it started there), failed, or was not asked for leaves the search's values, and the reason is said."""
+    its values with the ranges kept; a fit not read or not asked for leaves the search's values, and says why."""
     said = []
-    engine, current, every, added = _adoption_case(monkeypatch, 100.0, 80.0)
-    doc = {"moved": ["gear.torsional_damping"]}
-    st = SimpleNamespace(final_on_every_segment=True)
-    assert engine._adopt_every_segment(added, current, every, doc, {}, st, said.append) is every
+    engine, current, every, added, st, seen, check = _every_case(monkeypatch)
+    doc, fit = check()
+    assert engine._adopt_every_segment(added, current, fit, doc, st, said.append) is every
     p = added[0]["parameters_final"]["gear.torsional_damping"]
-    assert p["value"] == 1.62 and p["stderr"] == 0.075 and p["range_over_segment_sets"] == [0.22, 1.77]
+    assert p["value"] == 1.62 and p["stderr"] == 0.075 and p["range_over_segment_sets"][1] == pytest.approx(1.767)
     assert p["range_over_channel_weights"] == [0.3, 0.5] and doc["adopted"] is True
     assert added[0]["every_segment"]["adopted"] is True and "parameters_final" not in added[1]
-    for args, why in (((100.0, 100.5), "above the search's"), ((100.0, 80.0, False), "did not converge")):
-        engine, current, every, added = _adoption_case(monkeypatch, *args)
-        doc = {}
-        assert engine._adopt_every_segment(added, current, every, doc, {}, st, said.append) is current
-        assert doc["adopted"] is False and why in doc["why"] and why in said[-1]
-        assert added[0]["parameters_final"]["gear.torsional_damping"]["value"] == 0.42
-    engine, current, every, added = _adoption_case(monkeypatch, 100.0, 80.0)
-    doc = {"error": "solver failed"}
-    assert engine._adopt_every_segment(added, current, None, doc, {}, st, said.append) is current
-    assert "solver failed" in doc["why"]
-    doc = {}
+    engine, current, every, added, st, seen, check = _every_case(monkeypatch, 100.0, 100.5)
+    doc, fit = check()
+    assert engine._adopt_every_segment(added, current, fit, doc, st, said.append) is current
+    assert doc["adopted"] is False and "above the search's" in doc["why"] and "above the search's" in said[-1]
+    assert added[0]["parameters_final"]["gear.torsional_damping"]["value"] == 0.42
+    engine, current, every, added, st, seen, check = _every_case(monkeypatch)
+    doc, fit = check()
     off = SimpleNamespace(final_on_every_segment=False)
-    assert engine._adopt_every_segment(added, current, every, doc, {}, off, said.append) is current
+    assert engine._adopt_every_segment(added, current, fit, doc, off, said.append) is current
     assert doc["adopted"] is False and "final_on_every_segment" in doc["why"]
-    assert engine._adopt_every_segment(added, current, every, None, {}, st, said.append) is current
+    assert engine._adopt_every_segment(added, current, fit, None, st, said.append) is current
 
 
 def test_a_final_value_the_segments_spread_wider_is_said_with_their_interval():

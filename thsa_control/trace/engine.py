@@ -1091,9 +1091,9 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         _weight_checks(added, current, cur_effects, cur_params, fit_runs, noise, st, job, say)
     t_weights = time.perf_counter() - t_weights
     t_every = time.perf_counter()
-    every_doc, every_fit = (_every_segment_check(added, current, cur_effects, cur_free, cur_params, fit_runs, st, job,
-                                                 say) if st.every_segment_check else (None, None))
-    final = _adopt_every_segment(added, current, every_fit, every_doc, noise, st, say)
+    every_doc, every_fit = (_every_segment_check(added, current, cur_effects, cur_free, cur_params, fit_runs, noise,
+                                                 st, job, say) if st.every_segment_check else (None, None))
+    final = _adopt_every_segment(added, current, every_fit, every_doc, st, say)
     t_every = time.perf_counter() - t_every
     sig_before = _signature(first, runs, ParameterSet.from_toml(first["params_toml"]), base_plant, st.signature,
                             sensor_noise, st.speed_sensors)
@@ -1221,8 +1221,8 @@ def _put_range(step: dict, name: str, key: str, rng) -> None:
             step[which][name][key] = rng
 
 
-def _every_segment_check(added: list, current: dict, cur_effects, cur_free, cur_params: ParameterSet, fit_runs, st,
-                         job, say) -> dict | None:
+def _every_segment_check(added: list, current: dict, cur_effects, cur_free, cur_params: ParameterSet, fit_runs,
+                         noise: Mapping[str, float], st, job, say) -> tuple[dict | None, dict | None]:
     """The final model fitted again on every segment, the held-out ones too, from its values, with its free set and
     priors (:attr:`TraceSettings.every_segment_check`).  A found effect's parameter that the fit determines and
     moves beyond 2 combined standard errors (the run's own) and 10 % (:func:`weights.compare`, the weight check's
@@ -1230,8 +1230,11 @@ def _every_segment_check(added: list, current: dict, cur_effects, cur_free, cur_
     segments held out of the search's fits decided it.  Every found effect's entry gets ``every_segment``
     (``parameters``: the every-segment fit's entries; ``moved``: the names that moved).  The final model's other
     fitted parameters (base corrections, the declared uncertain set) that move by the same rule go to the doc's
-    ``moved_other`` (name -> both entries and the range).  Returns the doc's ``every_segment`` (the layout of the
-    held-out segments, the names that moved, the fit's chi2 and convergence) and the fit (None where it failed), or
+    ``moved_other`` (name -> both entries and the range).  Only a sound fit is read: one that converged and whose
+    noise-weighted error over every sample is not above the search's last fit's (it starts there; a higher one went
+    astray: a pawl clearance's on rig_ratchet_backlash, 680716 against 130073); otherwise nothing is said to move and
+    the doc says why.  Returns the doc's ``every_segment`` (the layout of the held-out segments, the names that
+    moved, the fit's chi2 and convergence, ``sound``) and the fit (None where it failed or is not sound), or
     ``(None, None)`` where the final model has no parameter with a standard error."""
     steps = _checked_steps(added, current)
     in_steps = {n for _, names in steps for n in names}
@@ -1247,7 +1250,18 @@ def _every_segment_check(added: list, current: dict, cur_effects, cur_free, cur_
     f = _run_jobs([jb], 1, say)[0]
     if "error" in f:
         say(f"every-segment check not done: {f['error']}")
-        return {"error": f["error"]}, None
+        return {"error": f["error"], "sound": False, "why": f"the fit failed: {f['error']}"}, None
+    doc = {"moved": [], "moved_other": {}, "chisqr": f["chisqr"], "converged": f["converged"],
+           "holdout_layout": st.holdout_layout}
+    why = "the fit did not converge" if not f.get("converged") else None
+    if why is None:
+        a = sum(_chi2_by_channel(current, noise, "all").values())
+        b = sum(_chi2_by_channel(f, noise, "all").values())
+        if not b <= a * (1 + 1e-9):
+            why = f"its error over every sample ({b:.6g}) is above the search's last fit's ({a:.6g})"
+    if why is not None:
+        say(f"every-segment fit not read: {why}")
+        return {**doc, "sound": False, "why": why}, None
     moved_all = []
     for i, names in steps:
         entry, moved = {}, []
@@ -1279,15 +1293,12 @@ def _every_segment_check(added: list, current: dict, cur_effects, cur_free, cur_
         moved_other[n] = {"training": _param_entry(a), "every_segment": _param_entry(b), "range": rng}
         say(f"{n} = {a['value']:.4g} on the training segments, {b['value']:.4g} on every segment (range "
             f"{rng[0]:.4g} .. {rng[1]:.4g}): the held-out segments' places decide it")
-    return {"moved": moved_all, "moved_other": moved_other, "chisqr": f["chisqr"], "converged": f["converged"],
-            "holdout_layout": st.holdout_layout}, f
+    return {**doc, "moved": moved_all, "moved_other": moved_other, "sound": True}, f
 
 
-def _adopt_every_segment(added: list, current: dict, every: dict | None, every_doc: dict | None,
-                         noise: Mapping[str, float], st, say) -> dict:
+def _adopt_every_segment(added: list, current: dict, every: dict | None, every_doc: dict | None, st, say) -> dict:
     """The final model's fit: the every-segment fit ``every`` where :attr:`TraceSettings.final_on_every_segment`
-    asks for it, it converged and its noise-weighted error over every sample is not above the search's last fit's
-    (``current``; it started from those values, so a higher one is a failed fit); ``current`` otherwise.
+    asks for it and :func:`_every_segment_check` found it sound; ``current`` (the search's last fit) otherwise.
 
     The held-out segments are there to decide which effects the model has; once that is decided, they are data
     like the others.  Left out of the values, they decide them wherever a test profile repeats a phase in the same
@@ -1298,20 +1309,14 @@ def _adopt_every_segment(added: list, current: dict, every: dict | None, every_d
     ``adopted`` and, where not, ``why``."""
     if every_doc is None:
         return current
-    why = ("not asked (TraceSettings.final_on_every_segment = False)" if not st.final_on_every_segment else
-           f"the fit failed: {every_doc['error']}" if every is None else
-           "the fit did not converge" if not every.get("converged") else None)
-    if why is None:
-        a = sum(_chi2_by_channel(current, noise, "all").values())
-        b = sum(_chi2_by_channel(every, noise, "all").values())
-        if not b <= a * (1 + 1e-9):
-            why = f"its error over every sample ({b:.6g}) is above the search's last fit's ({a:.6g})"
-    every_doc["adopted"] = why is None
-    if why is not None:
-        every_doc["why"] = why
-        if st.final_on_every_segment:
-            say(f"final values stay the search's: {why}")
+    if every is None or not st.final_on_every_segment:
+        every_doc["adopted"] = False
+        if every is not None:
+            every_doc["why"] = "not asked (TraceSettings.final_on_every_segment = False)"
+        else:
+            say(f"final values stay the search's: {every_doc.get('why')}")
         return current
+    every_doc["adopted"] = True
     for e in added:
         if e.get("implied_by") or "parameters_final" not in e:
             continue
