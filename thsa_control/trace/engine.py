@@ -1262,37 +1262,33 @@ def _every_segment_check(added: list, current: dict, cur_effects, cur_free, cur_
     if why is not None:
         say(f"every-segment fit not read: {why}")
         return {**doc, "sound": False, "why": why}, None
+    def move(n: str, who: str = ""):
+        """The range both fits span where ``n`` moved (the weight check's rule, :func:`weights.compare`), said."""
+        a, b = current["estimates"][n], f["estimates"][n]
+        _, rng = wt.compare(a, {"every_segment": b}, st.determination_z)
+        if rng is not None:
+            say(f"{who}{n} = {a['value']:.4g} on the training segments, {b['value']:.4g} on every segment (range "
+                f"{rng[0]:.4g} .. {rng[1]:.4g}): the held-out segments' places decide it")
+        return rng
+
     moved_all = []
     for i, names in steps:
         entry, moved = {}, []
-        for n in names:
-            b = f["estimates"].get(n)
-            if b is None:
-                continue
-            entry[n] = _param_entry(b)
-            a = current["estimates"][n]
-            _, rng = wt.compare(a, {"every_segment": b}, st.determination_z)  # the weight check's rule
-            if rng is None:
-                continue
-            moved.append(n)
-            _put_range(added[i], n, "range_over_segment_sets", rng)
-            say(f"{added[i]['name']}: {n} = {a['value']:.4g} on the training segments, {b['value']:.4g} on every "
-                f"segment (range {rng[0]:.4g} .. {rng[1]:.4g}): the held-out segments' places decide it")
+        for n in (n for n in names if n in f["estimates"]):
+            entry[n] = _param_entry(f["estimates"][n])
+            rng = move(n, f"{added[i]['name']}: ")
+            if rng is not None:
+                moved.append(n)
+                _put_range(added[i], n, "range_over_segment_sets", rng)
         added[i]["every_segment"] = {"parameters": entry, "moved": moved,
                                      "training": {n: _param_entry(current["estimates"][n]) for n in moved}}
         moved_all += moved
     moved_other = {}
-    for n in others:
-        b = f["estimates"].get(n)
-        if b is None:
-            continue
-        a = current["estimates"][n]
-        _, rng = wt.compare(a, {"every_segment": b}, st.determination_z)
-        if rng is None:
-            continue
-        moved_other[n] = {"training": _param_entry(a), "every_segment": _param_entry(b), "range": rng}
-        say(f"{n} = {a['value']:.4g} on the training segments, {b['value']:.4g} on every segment (range "
-            f"{rng[0]:.4g} .. {rng[1]:.4g}): the held-out segments' places decide it")
+    for n in (n for n in others if n in f["estimates"]):
+        rng = move(n)
+        if rng is not None:
+            moved_other[n] = {"training": _param_entry(current["estimates"][n]),
+                              "every_segment": _param_entry(f["estimates"][n]), "range": rng}
     return {**doc, "moved": moved_all, "moved_other": moved_other, "sound": True}, f
 
 
