@@ -737,7 +737,7 @@ def _segments_entry(e: dict) -> dict:
     ParameterEstimate.stderr_segments`) and ``ci95_segments``, the 95 % interval (the same form as ``ci95``) from the
     larger of it and ``stderr``: where a model mismatch leaves a structured residual, the interval the record's
     segments support, not the one white sensor noise would give (rig-sim's drive-train damping under trim stops:
-    9.7 +- 0.27 N m s/rad from the information, +- 5.8 over the segments, rig-sim's 2).  The larger of the two,
+    9.95 +- 0.29 N m s/rad from the information, +- 5.8 over the segments, rig-sim's 2).  The larger of the two,
     because with the information in a few segments the clustered one is itself uncertain (on noise alone 0.56 ..
     1.33 times ``stderr``).  Reported; the decisions keep ``stderr``."""
     sd = max(e["stderr_segments"], e["stderr"] or 0.0)
