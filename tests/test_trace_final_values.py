@@ -177,6 +177,39 @@ def test_an_every_segment_fit_that_went_astray_is_not_read(monkeypatch):
         assert "range_over_segment_sets" not in added[0]["parameters"]["gear.torsional_damping"]
 
 
+def test_the_every_segment_fit_starts_at_the_search_and_goes_on_past_its_evaluation_limit(monkeypatch):
+    """The fit on every segment starts from the search's optimum, its segment states included (from the measured
+    states it found other optima: rig_cogging 4990 against the search's 4176); stopped by the evaluation limit it
+    goes on from where it stopped (its values and states), at most EVERY_SEGMENT_FITS fits; a time budget is not
+    retried."""
+    engine, current, every, added, st, seen, check = _every_case(monkeypatch)
+    st.max_nfev = 40
+    current["segment_states"] = {"r": np.arange(4.0)}
+    stopped = {**every, "converged": False, "params_toml": default_parameters().to_toml(),
+               "status": "not converged: status 0: maximum number of function evaluations (40) exceeded; best point",
+               "segment_states": {"r": np.arange(4.0) + 1}}
+    calls = []
+
+    def run_jobs(jobs, workers, say, queue=[stopped, every]):
+        calls.append(jobs[0])
+        return [queue[min(len(calls), len(queue)) - 1]]
+    monkeypatch.setattr(engine, "_run_jobs", run_jobs)
+    doc, fit = check()
+    assert fit is every and doc["sound"] is True and doc["fits"] == 2
+    assert calls[0]["initial_states"] is current["segment_states"]
+    assert calls[1]["initial_states"] is stopped["segment_states"] and calls[1]["settings"].holdout_every == 0
+    calls.clear()
+    monkeypatch.setattr(engine, "_run_jobs", lambda jobs, w, say: calls.append(1) or [stopped])
+    doc, fit = check()
+    assert fit is None and len(calls) == engine.EVERY_SEGMENT_FITS and "did not converge (not converged: status 0"\
+        in doc["why"]
+    calls.clear()
+    budget = {**stopped, "status": "not converged: time budget 120 s reached; best point of 31 evaluations"}
+    monkeypatch.setattr(engine, "_run_jobs", lambda jobs, w, say: calls.append(1) or [budget])
+    doc, fit = check()
+    assert fit is None and len(calls) == 1 and "time budget" in doc["why"]
+
+
 def test_the_final_values_are_the_every_segment_fits_where_it_is_sound(monkeypatch):
     """Once the held-out segments decided the effects, every sample estimates their values
     (engine._adopt_every_segment): the final model is the every-segment fit, each found effect's parameters_final

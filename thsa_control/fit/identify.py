@@ -370,7 +370,8 @@ class Identifier:
         return {**{n: (self.params[n].value, float(r * s)) for n, s in zip(self.free, scale)
                    if n not in self.settings.no_prior}, **explicit}
 
-    def fit(self, runs: RigRun | Sequence[RigRun], *, progress=None) -> IdentificationResult:
+    def fit(self, runs: RigRun | Sequence[RigRun], *, progress=None,
+            initial_states: Mapping[str, np.ndarray] | None = None) -> IdentificationResult:
         """Fit the free parameters to ``runs`` together.
 
         Parameters
@@ -381,6 +382,13 @@ class Identifier:
         progress : callable, optional
             ``progress(nfev, cost, elapsed_s)`` after each residual evaluation
             of the optimiser (the command line prints it).
+        initial_states : mapping run name -> ndarray, optional
+            Segment start states to start from instead of the measured
+            values: an earlier fit's ``segment_states`` of the same runs and
+            segment layout (a refit from its optimum: on every segment, or
+            going on after the evaluation limit).  A run it does not name
+            starts from its measurements; a length that does not match the
+            run's layout is an error.
 
         Returns
         -------
@@ -495,7 +503,18 @@ class Identifier:
             J.data = np.nan_to_num(J.data)
             return J if sparse_jac else J.toarray()
 
-        z0 = np.concatenate([np.zeros(nf)] + [pb.initial_decision() for pb in problems])
+        starts = []
+        for pb in problems:
+            x = pb.initial_decision()
+            if initial_states is not None and pb.run.name in initial_states:
+                given = np.asarray(initial_states[pb.run.name], float).ravel()
+                if given.shape != x.shape or not np.all(np.isfinite(given)):
+                    raise ValueError(f"initial_states[{pb.run.name!r}]: {given.size} values"
+                                     f"{'' if np.all(np.isfinite(given)) else ' (not all finite)'}, the run's "
+                                     f"segment layout has {x.size}")
+                x = given
+            starts.append(x)
+        z0 = np.concatenate([np.zeros(nf)] + starts)
         # many segment states: the Jacobian is block-sparse; an iterative trust-region solver (lsmr) on the
         # sparse matrix instead of a dense SVD (a 10 s, 1 kHz run in 50 ms segments has 600 states)
         sparse_jac = z0.size > 150
@@ -718,4 +737,5 @@ class Identifier:
             njev=counters["njev"], time_s=time.perf_counter() - t_start, predictions=MappingProxyType(preds),
             settings=st, global_stage=global_info, converged=converged, priors=MappingProxyType(priors),
             holdout_fits=MappingProxyType(hold), warnings=run_warnings,
-            segment_information=MappingProxyType(seg_info), segment_influence=MappingProxyType(seg_infl))
+            segment_information=MappingProxyType(seg_info), segment_influence=MappingProxyType(seg_infl),
+            segment_states=MappingProxyType({pb.run.name: np.array(d[nf:]) for pb, d in zip(problems, parts_z)}))

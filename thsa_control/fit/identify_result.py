@@ -167,6 +167,9 @@ class IdentificationResult:
     segment_influence : mapping run -> ndarray (segments x free parameters)
         How far each estimate moves, in its standard errors, with each segment left out (first order; same
         function).
+    segment_states : mapping run -> ndarray
+        Each run's fitted segment start states (held-out segments' included), the decision vector a later fit of
+        the same layout starts from (:meth:`Identifier.fit`'s ``initial_states``).
     """
 
     method: str
@@ -200,6 +203,7 @@ class IdentificationResult:
     warnings: tuple[str, ...] = ()
     segment_information: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
     segment_influence: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
+    segment_states: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
 
     @property
     def names(self) -> tuple[str, ...]:

@@ -1221,6 +1221,10 @@ def _put_range(step: dict, name: str, key: str, rng) -> None:
             step[which][name][key] = rng
 
 
+#: the every-segment fit's tries in all when the evaluation limit stops it (each from where the last stopped)
+EVERY_SEGMENT_FITS = 3
+
+
 def _every_segment_check(added: list, current: dict, cur_effects, cur_free, cur_params: ParameterSet, fit_runs,
                          noise: Mapping[str, float], st, job, say) -> tuple[dict | None, dict | None]:
     """The final model fitted again on every segment, the held-out ones too, from its values, with its free set and
@@ -1244,16 +1248,36 @@ def _every_segment_check(added: list, current: dict, cur_effects, cur_free, cur_
               and not current["estimates"][n].get("held") and wt.stderr_of(current["estimates"][n]) is not None]
     if not steps and not others:
         return None, None
+    # from the search's optimum, its segments' states included (the held-out ones fitted at its values): started
+    # from the measured states instead, the fit found other optima on 5 of 45 rig-sim records, above the search's
+    # error over every sample (rig_cogging 4990 against 4176; rig_ratchet_backlash 680716 against 130073)
     jb = job("every segment", cur_effects, cur_free, cur_params, fit_runs)
-    jb = {**jb, "settings": dataclasses.replace(jb["settings"], holdout_every=0)}
+    jb = {**jb, "settings": dataclasses.replace(jb["settings"], holdout_every=0),
+          "initial_states": current.get("segment_states")}
     say("fitting the final model again on every segment, the held-out ones too")
     f = _run_jobs([jb], 1, say)[0]
+    fits = 1
+    # it starts at the search's values, so a fit the evaluation limit stopped is still on its way (rig_cogging's
+    # phase, rig_loadpath_backlash's soft zone): it goes on from where it stopped, at most EVERY_SEGMENT_FITS fits
+    # in all; a time budget or a solver failure is not retried
+    while ("error" not in f and not f.get("converged") and fits < EVERY_SEGMENT_FITS
+           and "function evaluations" in str(f.get("status", ""))):
+        say(f"every-segment fit stopped at its evaluation limit ({st.max_nfev}); going on from where it stopped")
+        jb = job(f"every segment ({fits + 1})", cur_effects, cur_free, ParameterSet.from_toml(f["params_toml"]),
+                 fit_runs)
+        jb = {**jb, "settings": dataclasses.replace(jb["settings"], holdout_every=0),
+              "initial_states": f.get("segment_states")}
+        nxt = _run_jobs([jb], 1, say)[0]
+        fits += 1
+        if "error" in nxt:
+            break
+        f = nxt
     if "error" in f:
         say(f"every-segment check not done: {f['error']}")
         return {"error": f["error"], "sound": False, "why": f"the fit failed: {f['error']}"}, None
     doc = {"moved": [], "moved_other": {}, "chisqr": f["chisqr"], "converged": f["converged"],
-           "holdout_layout": st.holdout_layout}
-    why = "the fit did not converge" if not f.get("converged") else None
+           "status": f.get("status"), "fits": fits, "holdout_layout": st.holdout_layout}
+    why = f"the fit did not converge ({f.get('status')})" if not f.get("converged") else None
     if why is None:
         a = sum(_chi2_by_channel(current, noise, "all").values())
         b = sum(_chi2_by_channel(f, noise, "all").values())

@@ -92,9 +92,12 @@ def _fit_job(job: dict) -> dict:
             # an empty free set: the declared model whose uncertain parameters the runs do not determine
             ident = Identifier(None, params, job["free"], effects=job["effects"], settings=job["settings"],
                                states_only=not job["free"])
-            res = ident.fit(job["runs"])
+            # a refit of an earlier fit's model starts its segments where that fit left them (job "initial_states":
+            # the every-segment fit from the search's optimum); the refits below of the same layout too
+            warm = job.get("initial_states")
+            res = ident.fit(job["runs"], initial_states=warm)
             res, job, params, held = _hold_undetermined(job, res, params, lambda p, keep, st: Identifier(
-                None, p, keep, effects=job["effects"], settings=st).fit(job["runs"]))
+                None, p, keep, effects=job["effects"], settings=st).fit(job["runs"], initial_states=warm))
             res, job, params, held = _second_stage(job, res, params, held)
     except (ThsaError, ValueError, RuntimeError) as exc:  # casadi raises RuntimeError
         return {"label": job["label"], "error": str(exc), "time_s": time.perf_counter() - t0}
@@ -130,7 +133,7 @@ def _fit_job(job: dict) -> dict:
             "held": {n: h for n, h in held.items() if h.get("held_at") is not None},
             "aic": res.aic, "bic": res.bic, "chisqr": res.chisqr, "nfev": res.nfev, "converged": res.converged,
             "status": res.status, "time_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
-            "predictions": preds,
+            "predictions": preds, "segment_states": dict(res.segment_states),
             "params_toml": res.to_parameter_set().to_toml(), "profile": prof.to_dict() if prof is not None else None}
 
 
@@ -274,7 +277,8 @@ def _second_stage(job: dict, res, params: ParameterSet, held: dict):
         return not_freed("the run does not determine " + ", ".join(unknown) + ", which it is freed from")
     free = tuple(job["free"]) + second
     start = params.replace({n: e.value for n, e in res.estimates.items()})
-    res2 = Identifier(None, start, free, effects=job["effects"], settings=job["settings"]).fit(job["runs"])
+    res2 = Identifier(None, start, free, effects=job["effects"], settings=job["settings"]).fit(
+        job["runs"], initial_states=job.get("initial_states"))
     und = _undetermined(res2, judge, z, absent)
     edge = [n for n in second if res2.estimates[n].at_bound]
     if edge and not und:  # a share of 0 or 1 is no estimate (its standard error is not that of a value inside)
