@@ -280,3 +280,33 @@ def test_the_screen_sums_the_training_samples_only(stops_record, params):
         np.testing.assert_array_equal(e_tr, e_all[kept])
     # the pitch still matters on the training samples of this record (five stops, some in training segments)
     assert np.ptp(training.chi2_many(sets)) > 0
+
+
+def test_a_refit_from_a_fits_optimum_starts_at_its_predictions(stops_record, params):
+    """The pawl clearances at the segment starts are not decision variables: they follow the model's map at the
+    fit's initial values.  A refit of a fit's model on every segment (the tracer's final values) starts at that
+    fit's predictions only with its segment states and its clearances (``initial_states``, ``custom_states``);
+    with the clearances tracked again at the fitted values it starts elsewhere (rig_ratchet_backlash: 1.34e6
+    against the search's 1.30e5, and the refit ended at 6.7e5).  A clearance array of another layout is named."""
+    from thsa_control.fit.identify import IdentificationSettings, Identifier
+
+    run = stops_record("C")
+    free = ("gear.viscous_friction", "screw.efficiency_inverse")
+    start = params.replace({PITCH: TRUE_PITCH, "gear.viscous_friction": 2.0 * params.value("gear.viscous_friction"),
+                            "screw.efficiency_inverse": 0.7})
+    s = IdentificationSettings(channels=("motor_speed", "nut_position"), noise=dict(NOISE), holdout_every=3)
+    first = Identifier("C", start, free, settings=s).fit(run)
+    assert first.custom_states[run.name].shape[0] == 2  # both pawls, every segment
+    at = first.to_parameter_set()
+    still = dataclasses.replace(s, holdout_every=0, max_nfev=0)
+    warm = Identifier("C", at, free, settings=still).fit(run, initial_states=first.segment_states,
+                                                         custom_states=first.custom_states)
+    states_only = Identifier("C", at, free, settings=still).fit(run, initial_states=first.segment_states)
+    for c in ("motor_speed", "nut_position"):
+        a, b = first.predictions[run.name]["simulated"][c], warm.predictions[run.name]["simulated"][c]
+        np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-12 * np.max(np.abs(a)))
+    moved = np.max(np.abs(np.asarray(states_only.predictions[run.name]["simulated"]["motor_speed"])
+                          - np.asarray(first.predictions[run.name]["simulated"]["motor_speed"])))
+    assert moved > 1.0, moved  # rad/s (measured 11.3): the stops back-drive through other clearances
+    with pytest.raises(ValueError, match=f"custom_states\\['{run.name}'\\]: shape \\(2, 3\\)"):
+        Identifier("C", at, free, settings=still).fit(run, custom_states={run.name: np.zeros((2, 3))})

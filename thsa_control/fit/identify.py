@@ -371,7 +371,8 @@ class Identifier:
                    if n not in self.settings.no_prior}, **explicit}
 
     def fit(self, runs: RigRun | Sequence[RigRun], *, progress=None,
-            initial_states: Mapping[str, np.ndarray] | None = None) -> IdentificationResult:
+            initial_states: Mapping[str, np.ndarray] | None = None,
+            custom_states: Mapping[str, np.ndarray] | None = None) -> IdentificationResult:
         """Fit the free parameters to ``runs`` together.
 
         Parameters
@@ -389,6 +390,11 @@ class Identifier:
             going on after the evaluation limit).  A run it does not name
             starts from its measurements; a length that does not match the
             run's layout is an error.
+        custom_states : mapping run name -> ndarray, optional
+            The custom states (pawl clearances) at the segment starts, which
+            are not decision variables but follow the model's map at the
+            initial parameters: an earlier fit's ``custom_states``, so that a
+            refit from its optimum starts with its predictions exactly.
 
         Returns
         -------
@@ -422,6 +428,9 @@ class Identifier:
 
         run_warnings = tuple(w for r in runs for w in check_run_model(r, plant, mode="open_loop"))
         problems = [RunProblem(r, plant, mech, self.params, self.free, st) for r in runs]
+        for pb in problems:
+            if custom_states is not None and pb.run.name in custom_states:
+                pb.use_custom_starts(custom_states[pb.run.name])
         nf = len(self.free)
         scale = self._scales()
         priors = self._priors(scale)
@@ -738,4 +747,6 @@ class Identifier:
             settings=st, global_stage=global_info, converged=converged, priors=MappingProxyType(priors),
             holdout_fits=MappingProxyType(hold), warnings=run_warnings,
             segment_information=MappingProxyType(seg_info), segment_influence=MappingProxyType(seg_infl),
-            segment_states=MappingProxyType({pb.run.name: np.array(d[nf:]) for pb, d in zip(problems, parts_z)}))
+            segment_states=MappingProxyType({pb.run.name: np.array(d[nf:]) for pb, d in zip(problems, parts_z)}),
+            custom_states=MappingProxyType({pb.run.name: c for pb in problems
+                                            if (c := pb.custom_starts()) is not None}))

@@ -170,6 +170,9 @@ class IdentificationResult:
     segment_states : mapping run -> ndarray
         Each run's fitted segment start states (held-out segments' included), the decision vector a later fit of
         the same layout starts from (:meth:`Identifier.fit`'s ``initial_states``).
+    custom_states : mapping run -> ndarray
+        Each run's custom states (pawl clearances) at the segment starts (states x segments), where the model has
+        any: with ``segment_states`` what a refit needs to start at this fit's predictions (``custom_states``).
     """
 
     method: str
@@ -204,6 +207,7 @@ class IdentificationResult:
     segment_information: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
     segment_influence: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
     segment_states: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
+    custom_states: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
 
     @property
     def names(self) -> tuple[str, ...]:

@@ -369,6 +369,27 @@ class RunProblem:
     def initial_decision(self) -> np.ndarray:
         return self.x_guess[self.free_states, :].ravel(order="F")
 
+    def custom_starts(self) -> np.ndarray | None:
+        """The custom states (pawl clearances) at every segment start (states x segments), None without any: not
+        decision variables, they follow the model's map at the problem's initial parameters."""
+        from .segment_states import custom_state_indices
+
+        idx = custom_state_indices(self.plant)
+        return np.array(self.x_guess[idx, :], float) if idx else None
+
+    def use_custom_starts(self, starts) -> None:
+        """Start the segments' custom states at ``starts`` (another problem's :meth:`custom_starts` over the same
+        run and layout: a refit from that fit's optimum sees the same segments)."""
+        from .segment_states import custom_state_indices
+
+        idx = custom_state_indices(self.plant)
+        given = np.asarray(starts, float)
+        if not idx or given.shape != (len(idx), self.x_guess.shape[1]) or not np.all(np.isfinite(given)):
+            raise ValueError(f"custom_states[{self.run.name!r}]: shape {given.shape}, the run's segment layout has "
+                             f"{(len(idx), self.x_guess.shape[1])}{'' if np.all(np.isfinite(given)) else ' (not all finite)'}")
+        self.x_guess[idx, :] = given
+        self._seg_data["xg"] = np.array(self.x_guess, float)
+
     def residuals(self, dec, p0, scale, sigma) -> np.ndarray:
         """The channel-major residual rows (the measured channels minus the segment predictions, each divided by
         ``sigma`` of its channel; zero where a sample is not measured) as a flat array."""

@@ -1248,12 +1248,14 @@ def _every_segment_check(added: list, current: dict, cur_effects, cur_free, cur_
               and not current["estimates"][n].get("held") and wt.stderr_of(current["estimates"][n]) is not None]
     if not steps and not others:
         return None, None
-    # from the search's optimum, its segments' states included (the held-out ones fitted at its values): started
-    # from the measured states instead, the fit found other optima on 5 of 45 rig-sim records, above the search's
-    # error over every sample (rig_cogging 4990 against 4176; rig_ratchet_backlash 680716 against 130073)
+    # from the search's optimum, its segments' states included (the held-out ones fitted at its values) and the pawl
+    # clearances its segments started with (tracked at that fit's initial values, not decision variables): started
+    # from the measured states, or with the clearances tracked again at the search's values, the fit found other
+    # optima, above the search's error over every sample (rig_cogging 4990 against 4176; rig_ratchet_backlash 680716
+    # and, with the states only, 665856 against 130073)
     jb = job("every segment", cur_effects, cur_free, cur_params, fit_runs)
     jb = {**jb, "settings": dataclasses.replace(jb["settings"], holdout_every=0),
-          "initial_states": current.get("segment_states")}
+          "initial_states": current.get("segment_states"), "custom_states": current.get("custom_states")}
     say("fitting the final model again on every segment, the held-out ones too")
     f = _run_jobs([jb], 1, say)[0]
     fits = 1
@@ -1266,7 +1268,7 @@ def _every_segment_check(added: list, current: dict, cur_effects, cur_free, cur_
         jb = job(f"every segment ({fits + 1})", cur_effects, cur_free, ParameterSet.from_toml(f["params_toml"]),
                  fit_runs)
         jb = {**jb, "settings": dataclasses.replace(jb["settings"], holdout_every=0),
-              "initial_states": f.get("segment_states")}
+              "initial_states": f.get("segment_states"), "custom_states": f.get("custom_states")}
         nxt = _run_jobs([jb], 1, say)[0]
         fits += 1
         if "error" in nxt:

@@ -94,10 +94,10 @@ def _fit_job(job: dict) -> dict:
                                states_only=not job["free"])
             # a refit of an earlier fit's model starts its segments where that fit left them (job "initial_states":
             # the every-segment fit from the search's optimum); the refits below of the same layout too
-            warm = job.get("initial_states")
-            res = ident.fit(job["runs"], initial_states=warm)
+            warm = {"initial_states": job.get("initial_states"), "custom_states": job.get("custom_states")}
+            res = ident.fit(job["runs"], **warm)
             res, job, params, held = _hold_undetermined(job, res, params, lambda p, keep, st: Identifier(
-                None, p, keep, effects=job["effects"], settings=st).fit(job["runs"], initial_states=warm))
+                None, p, keep, effects=job["effects"], settings=st).fit(job["runs"], **warm))
             res, job, params, held = _second_stage(job, res, params, held)
     except (ThsaError, ValueError, RuntimeError) as exc:  # casadi raises RuntimeError
         return {"label": job["label"], "error": str(exc), "time_s": time.perf_counter() - t0}
@@ -134,6 +134,7 @@ def _fit_job(job: dict) -> dict:
             "aic": res.aic, "bic": res.bic, "chisqr": res.chisqr, "nfev": res.nfev, "converged": res.converged,
             "status": res.status, "time_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
             "predictions": preds, "segment_states": dict(res.segment_states),
+            "custom_states": dict(res.custom_states),
             "params_toml": res.to_parameter_set().to_toml(), "profile": prof.to_dict() if prof is not None else None}
 
 
@@ -278,7 +279,7 @@ def _second_stage(job: dict, res, params: ParameterSet, held: dict):
     free = tuple(job["free"]) + second
     start = params.replace({n: e.value for n, e in res.estimates.items()})
     res2 = Identifier(None, start, free, effects=job["effects"], settings=job["settings"]).fit(
-        job["runs"], initial_states=job.get("initial_states"))
+        job["runs"], initial_states=job.get("initial_states"), custom_states=job.get("custom_states"))
     und = _undetermined(res2, judge, z, absent)
     edge = [n for n in second if res2.estimates[n].at_bound]
     if edge and not und:  # a share of 0 or 1 is no estimate (its standard error is not that of a value inside)
