@@ -491,6 +491,17 @@ def _final_text(e: dict) -> str:
             + ", ".join(f"{n} = {_num(fin[n]['value'])} {fin[n]['unit']}{_ci(fin[n])}" for n in ch["parameters"]))
 
 
+def _amplitude_text(a: dict) -> str:
+    """A ripple's amplitude with its interval and its phase, or that the run does not determine the phase (the
+    parts' intervals then span zero although the amplitude is determined)."""
+    ci = a.get("ci95")
+    txt = f"amplitude {_num(a['value'])} {a['unit']}" + (f"  95 % CI [{_num(ci[0])}, {_num(ci[1])}]" if ci else "")
+    if a.get("phase_determined"):
+        return txt + f", phase {a['phase_deg']:.0f} +- {a['phase_stderr_deg']:.0f} deg"
+    return txt + (", phase not determined by this run (the segments' start angles take it: the cosine and sine "
+                  "parts' intervals span zero, the amplitude's does not)")
+
+
 def _every_segment_text(e: dict) -> list[str]:
     """Lines: the found effect's parameters that the fit on every segment, the held-out ones too, moves
     (``every_segment``): the held-out segments' places decide them."""
@@ -606,6 +617,8 @@ def format_trace_summary(doc: dict) -> str:
             lines.append(f"    {n} = {_num(p['value'])} {p['unit']}" + (f"  95 % CI [{_num(ci[0])}, {_num(ci[1])}]" if ci else "")
                          + (" (profiled)" if p.get("profiled") else "") + (" (held)" if p.get("held") else "")
                          + _outside(p))
+        if e.get("amplitude"):
+            lines.append(f"    {_amplitude_text(e['amplitude'])}")
         for h in e.get("not_determined", []):
             lines.append(f"    not determined by this run: {h['parameter']} held at {_num(h['held_at'])} {h['unit']} "
                          f"({h['reason']})")

@@ -72,7 +72,7 @@ from . import backward as bw
 from . import periodicity
 from . import weights as wt
 from .residual import _regime_errors, _signature
-from .scoring import (_at_edge, _base_correction, _channel_errors, _chi2_by_channel, _explainers_at_bound, _held_out,
+from .scoring import (_amplitude_out, _at_edge, _base_correction, _channel_errors, _chi2_by_channel, _explainers_at_bound, _held_out,
                       _holdout_segment_changes,
                       _held_params, _null_runs, _param_entry, _plausibility, reason_kind,
                       _run_jobs,
@@ -884,6 +884,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "window_reduction_beyond_noise": win_sys, "aic_drop": aic_drop, "bic_drop": current["bic"] - f["bic"],
                 **({"window_on_all_samples": adm["window_on_all_samples"]} if adm["window_on_all_samples"] else {}),
                 "plausible": plausible, "implausible_because": why, "parameters": _params_out(f, spec),
+                **_amplitude_out(f, spec),
                 "fit_time_s": f["time_s"], "converged": f["converged"], "prelim": prelim, "_fit": f, "_job": jb,
                 **({"starts": f["starts"]} if "starts" in f else {}),
                 **({"start": jb["start_read"]} if jb.get("start_read") else {}),
@@ -1025,7 +1026,9 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         say(f"added {best['name']}: held-out chi2 drop {best['holdout_chi2_drop']:.4g} "
             f"(null {best.get('null_chi2_drop', float('nan')):.3g})")
         f = best["_fit"]
-        step = {"name": best["name"], "parameters": best["parameters"], "error_reduction": best["error_reduction"],
+        step = {"name": best["name"], "parameters": best["parameters"],
+                **({"amplitude": best["amplitude"]} if "amplitude" in best else {}),
+                "error_reduction": best["error_reduction"],
                 "aic_drop": best["aic_drop"], "bic_drop": best["bic_drop"], "score": best["score"],
                 "window": best["window"], "window_reduction": best["window_reduction"],
                 "window_reduction_beyond_noise": best.get("window_reduction_beyond_noise"),
