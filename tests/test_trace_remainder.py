@@ -454,6 +454,31 @@ def test_a_window_whose_events_fell_in_training_segments_is_judged_on_all_its_sa
     assert adm3["window_reduction"]["motor_speed"] < 0.01 and not adm3["window_ok"]
 
 
+def test_an_effect_that_buys_its_window_with_the_rest_of_the_record_is_refused():
+    """The window's drop is scored on part of the record (outside the base's transients): an effect that explains its
+    window but makes the held-out error over every held-out sample larger stands for something else and is refused
+    (rig-sim, fresh trim record with an axial force: a drive-train compliance at 175 N m s/rad, drop 189 in its
+    window, -73721 over every held-out sample).  The same effect that leaves the rest as it was passes; the base
+    step's bars (whole_record False) do not ask it."""
+    n, seg = 3000, 50
+    t, k, hold, starts, _, _ = _held_out_record(n, seg)
+    rng = np.random.default_rng(5)
+    meas = np.where(k < 30, 1.0, 0.0) + rng.standard_normal(n)
+    window = {"r": k < 30}
+    common = dict(k=2, alpha=1e-3, mask=window, window=window, channel="motor_speed", min_window_reduction=0.05,
+                  max_channel_increase=0.1)
+    before = {**_fit(np.zeros(n), meas, hold, starts, t), "aic": 1.0}
+    fits = np.where(k < 30, 1.0, 0.0)
+    good = admission_tests(before, {**_fit(fits, meas, hold, starts, t), "aic": 0.0}, {"motor_speed": 1.0}, **common)
+    assert good["significant"] and good["all_samples_fail"] is None
+    costly = fits + np.where(k >= 30, 2.0, 0.0)  # outside the window it moves the prediction by twice the noise
+    bad = admission_tests(before, {**_fit(costly, meas, hold, starts, t), "aic": 0.0}, {"motor_speed": 1.0}, **common)
+    assert bad["significant"] and bad["holdout_chi2_drop"] == pytest.approx(good["holdout_chi2_drop"])
+    assert bad["holdout_chi2_drop_all_samples"] < 0 and "over every held-out sample grows" in bad["all_samples_fail"]
+    assert admission_tests(before, {**_fit(costly, meas, hold, starts, t), "aic": 0.0}, {"motor_speed": 1.0},
+                           whole_record=False, **common)["all_samples_fail"] is None
+
+
 def _reversal_xd(passes=8, dt=2e-3, speed=6e-3, period=1.2, settle=0.35):
     """Speed reversals without stops (rig-sim's reversals_under_load): the nut goes 0 -> 7.2 mm and back every 1.2 s;
     the first and last ``settle`` s of each pass are the base's transients (NaN), so a pass's steady part is 3 mm."""

@@ -114,7 +114,7 @@ def judge_removal(a: Added, full: dict, reduced: dict, *, noise, mask, window_ma
     if not adm["window_ok"]:
         why.append(f"window '{spec.window}' error drop {max(win_red.values(), default=0.0):.1%} < "
                    f"{min_window_reduction:.0%}")
-    why += [w for w in (adm["channel_fail"], adm["aic_fail"]) if w]
+    why += [w for w in (adm["channel_fail"], adm["all_samples_fail"], adm["aic_fail"]) if w]
     # its parameters in the current fit: determined, not collapsing to zero (the candidates' one test, on the runs'
     # own information; a parameter held when it was admitted stays held and is not judged)
     judge, absent = a.job.get("judge") or {}, a.job.get("absent") or {}

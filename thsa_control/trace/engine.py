@@ -860,7 +860,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             at_file = _declared_detail_at_file_values(f, spec, declared, why, params)
             if at_file:  # the declared component in detail at the parameter file's values: what the base contains
                 plausible, why = True, []
-            for fail in (adm["channel_fail"], adm["aic_fail"]):
+            for fail in (adm["channel_fail"], adm["all_samples_fail"], adm["aic_fail"]):
                 if fail:
                     plausible = False
                     why.append(fail)
