@@ -90,6 +90,8 @@ def conclusion_table_html(doc: dict) -> str:
         pars = "<br>".join(f"{esc(n)} = {_num(p['value'])} {esc(p['unit'])}{_ci(p)}"
                            + (" (profiled)" if p.get("profiled") else "") + (" (held)" if p.get("held") else "")
                            + _outside(p) for n, p in e["parameters"].items())
+        if e.get("amplitude"):
+            pars += f"<br>{esc(_amplitude_text(e['amplitude']))}"
         if e.get("changed_after_added"):
             pars += f"<br><small>{esc(_final_text(e))}</small>"
         pars += "".join(f"<br><small>{esc(w)}</small>" for w in _weights_text(e.get("weight_check"))
