@@ -220,7 +220,10 @@ def test_the_final_values_are_the_every_segment_fits_where_it_is_sound(monkeypat
     assert engine._adopt_every_segment(added, current, fit, doc, st, said.append) is every
     p = added[0]["parameters_final"]["gear.torsional_damping"]
     assert p["value"] == 1.62 and p["stderr"] == 0.075 and p["range_over_segment_sets"][1] == pytest.approx(1.767)
-    assert p["range_over_channel_weights"] == [0.3, 0.5] and doc["adopted"] is True
+    # the weight check's range was about the search's value (0.42): the final 1.62 lies outside it, so it is kept
+    # as the training fit's, not shown as the final value's
+    assert "range_over_channel_weights" not in p and p["range_over_channel_weights_training"] == [0.3, 0.5]
+    assert any("lies outside it" in m for m in said) and doc["adopted"] is True
     assert added[0]["every_segment"]["adopted"] is True and "parameters_final" not in added[1]
     engine, current, every, added, st, seen, check = _every_case(monkeypatch, 100.0, 100.5)
     doc, fit = check()
@@ -278,3 +281,18 @@ def test_the_segments_that_pull_a_value_most_are_named_where_one_moves_it_by_two
                       "min": 0.0, "pulled_by": got})
     (line,) = _segments_text({"parameters_final": {"gear.torsional_damping": p}})
     assert "up by 13 without 5.60-5.65 s" in line and "down by 11 without 5.70-5.75 s" in line
+
+
+def test_a_move_to_zero_on_every_segment_is_a_move(monkeypatch):
+    """The every-segment fit of the same model determines its values as the search's did: one it puts at zero within
+    its errors has moved, and gets its range (rig_sensor_gain_lvdt: the soft zone 16.8 +- 0.23 um on the training
+    segments, 0 +- 0.24 um on every segment; rig-sim's load path is linear).  The weight check keeps its rule (an
+    estimate at zero there says the weighting does not determine it)."""
+    engine, current, every, added, st, seen, check = _every_case(monkeypatch)
+    every["estimates"]["gear.torsional_damping"] = _est(0.0, 0.075)
+    doc, fit = check()
+    assert "gear.torsional_damping" in doc["moved"], doc
+    lo, hi = added[0]["parameters"]["gear.torsional_damping"]["range_over_segment_sets"]
+    assert lo == pytest.approx(0.0) and hi == pytest.approx(0.42 + 1.96 * 0.10)  # clipped at the physical minimum
+    from thsa_control.trace import weights as wt
+    assert wt.compare(_est(0.42, 0.10), {"w": _est(0.0, 0.075)}, 2.0)[1] is None

@@ -1294,7 +1294,7 @@ def _every_segment_check(added: list, current: dict, cur_effects, cur_free, cur_
     def move(n: str, who: str = ""):
         """The range both fits span where ``n`` moved (the weight check's rule, :func:`weights.compare`), said."""
         a, b = current["estimates"][n], f["estimates"][n]
-        _, rng = wt.compare(a, {"every_segment": b}, st.determination_z)
+        _, rng = wt.compare(a, {"every_segment": b}, st.determination_z, determined_only=False)
         if rng is not None:
             say(f"{who}{n} = {a['value']:.4g} on the training segments, {b['value']:.4g} on every segment (range "
                 f"{rng[0]:.4g} .. {rng[1]:.4g}): the held-out segments' places decide it")
@@ -1353,6 +1353,13 @@ def _adopt_every_segment(added: list, current: dict, every: dict | None, every_d
                 continue
             fin[n] = {**_param_entry(q), **{k: p[k] for k in ("range_over_channel_weights",
                                                               "range_over_segment_sets") if k in p}}
+            w = fin[n].get("range_over_channel_weights")
+            if w is not None and not w[0] <= fin[n]["value"] <= w[1]:
+                # the weight check refitted the search's model from its values: its range is about the search's
+                # estimate, and where the every-segment value lies outside it, it says nothing about that value
+                fin[n]["range_over_channel_weights_training"] = fin[n].pop("range_over_channel_weights")
+                say(f"{e['name']}: {n}'s range over the channel weights ({w[0]:.4g} .. {w[1]:.4g}) is about the "
+                    f"search's value; the final value {fin[n]['value']:.4g} lies outside it")
         e["parameters_final"] = fin
         if "every_segment" in e:
             e["every_segment"]["adopted"] = True

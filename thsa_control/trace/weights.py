@@ -111,13 +111,16 @@ def weight_verdict(final_fit: Mapping, alternatives: Mapping[str, Mapping], name
     return out
 
 
-def compare(a: Mapping, others: Mapping[str, Mapping | None], z: float) -> tuple[dict, list[float] | None]:
+def compare(a: Mapping, others: Mapping[str, Mapping | None], z: float,
+            determined_only: bool = True) -> tuple[dict, list[float] | None]:
     """One estimate ``a`` (an estimate entry: value, standard errors, min, max) against the same parameter from
     other fits (name -> entry, None where that fit has none): ``(entry, range)``.  ``entry``: ``"reference"`` and
     each other fit's value and standard error (:func:`stderr_of`).  ``range``: where a fit that determines it
     (estimate beyond ``z`` standard errors from zero) differs by more than ``z`` combined standard errors and
     :data:`WEIGHT_SHIFT_FLOOR` (:func:`moved`), the hull of the 95 % intervals (value +- 1.96 standard errors) of
-    ``a`` and of those fits, inside the parameter's physical range; else None."""
+    ``a`` and of those fits, inside the parameter's physical range; else None.  ``determined_only`` False: a fit
+    whose estimate is within ``z`` standard errors of zero counts too (the every-segment fit of the same model: a
+    soft zone it puts at zero, 0 +- 0.24 um against the search's 16.8 +- 0.23 um, has moved)."""
     sa, va = stderr_of(a), float(a["value"])
     entry = {"reference": {"value": va, "stderr": sa}}
     lo, hi, shifted = (va - 1.96 * sa, va + 1.96 * sa, False) if sa is not None else (va, va, False)
@@ -126,7 +129,7 @@ def compare(a: Mapping, others: Mapping[str, Mapping | None], z: float) -> tuple
             continue
         sb, vb = stderr_of(b), float(b["value"])
         entry[k] = {"value": vb, "stderr": sb}
-        if sa is None or sb is None or abs(vb) <= z * sb:  # not determined by that fit
+        if sa is None or sb is None or (determined_only and abs(vb) <= z * sb):  # not determined by that fit
             continue
         if moved(va, sa, vb, sb, z):
             shifted = True
