@@ -295,7 +295,8 @@ def test_library_effect_on_the_rig_base_is_found_first(traced, name, expected):
 
 @pytest.mark.campaign
 @pytest.mark.slow
-def test_cogging_on_a_position_loop_record_is_found_first(traced):
+@pytest.mark.parametrize("name", ["rig_cogging_steps", "rig_cogging_steps_s70495"])
+def test_cogging_on_a_position_loop_record_is_found_first(traced, name):
     """rig base + cogging on a closed position loop logged at 500 Hz (rig_cogging_steps): its 18th harmonic is
     resolved only in the approach and the creep (a fifth of the record), aliased in the 15 mm/s travel.  The cogging
     is found first among the physical effects, with its count and its amplitude within 20 %.  (The 50 % bar of the
@@ -304,16 +305,23 @@ def test_cogging_on_a_position_loop_record_is_found_first(traced):
     noise and what the rig base leaves at creep; docs/trace_notes.md "Cogging on records with little low-speed
     motion" and "What limits the window drop"; two more seeds of the scenario: ceiling 44 / 42 %, "Scenarios that excite
     the effect".  The record that shows the cogging beyond the bar is the slow check, rig_cogging, in the library
-    test.)"""
-    doc = traced("rig_cogging_steps")
-    assert _truth_effects("rig_cogging_steps") == ["cogging"]
+    test.)  rig_cogging_steps_s70495 (a blind set's seed): beside the rig's own load path, whose compliance lets each
+    segment's start angle take the phase, the cogging was refused as "amplitude 0.0524 collapses to zero (stderr
+    0.14)"; judged along the radius it is found, and reported with the phase not determined."""
+    doc = traced(name)
+    assert _truth_effects(name) == ["cogging"]
     phys = [e["name"] for e in _physical(doc)]
     assert phys and phys[0] == "cogging_torque", doc["rounds"]
     step = next(e for e in doc["effects_added"] if e["name"] == "cogging_torque")
     assert step["parameters"]["drive.cogging_periods"]["value"] == 18, step["parameters"]
     p = step["parameters"]
     amp = math.hypot(p["drive.cogging_torque_cos"]["value"], p["drive.cogging_torque_sin"]["value"])
-    assert amp == pytest.approx(_truth("rig_cogging_steps")["effects"]["cogging"]["params"]["A_Nm"]["si"], rel=0.2), p
+    truth = _truth(name)["effects"]["cogging"]["params"]["A_Nm"]["si"]
+    assert amp == pytest.approx(truth, rel=0.2), p
+    a = step["amplitude"]  # what the report gives: the amplitude along the radius, its interval clear of zero
+    assert a["value"] == pytest.approx(amp) and a["ci95"][0] > 0.5 * truth and a["ci95"][1] < 1.5 * truth, a
+    if name == "rig_cogging_steps_s70495":
+        assert not a["phase_determined"], a
 
 
 @pytest.mark.campaign

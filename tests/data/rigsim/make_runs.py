@@ -121,6 +121,10 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     # kN tensile): the LVDT reads the load path's deflection across the preload zone and both contacts, nothing else
     # moves; the sweep above changes the load within a replay segment by a few kN only (window ceiling 44 %)
     "rig_loadpath_preload_hold": ("check_hold", "rig", "loadpath_preload", 601, None, "library"),
+    # --- from a blind set (seeds drawn from os.urandom, docs/trace_notes.md "A blind set"): the cogging on the position
+    # loop beside the rig's own load path, whose compliance lets each segment's start angle take the cogging's phase
+    # (refused as "amplitude 0.0524 collapses to zero (stderr 0.14)" before the amplitude was judged along the radius)
+    "rig_cogging_steps_s70495": ("position_steps", "rig", "cogging", 70495, None, "library"),
     # the drive-train compliance on the position loop, which stops the drive three times under 10 kN: the no-back
     # holds the screw and the released rotors ring on the compliance at the motor-side mode (10 Hz) through each hold
     # (the committed speed excitation never stops the drive: window ceiling 46 % / 41 %)
