@@ -72,7 +72,8 @@ from . import backward as bw
 from . import periodicity
 from . import weights as wt
 from .residual import _regime_errors, _signature
-from .scoring import (_amplitude_out, _at_edge, _base_correction, _channel_errors, _chi2_by_channel, _explainers_at_bound, _held_out,
+from .scoring import (_amplitude_out, _at_edge, _base_correction, _channel_errors, _chi2_by_channel,
+                      _explainers_at_bound, _held_out,
                       _holdout_segment_changes,
                       _held_params, _null_runs, _param_entry, _plausibility, reason_kind,
                       _run_jobs,
@@ -1262,8 +1263,8 @@ def _every_segment_check(added: list, current: dict, cur_effects, cur_free, cur_
     say("fitting the final model again on every segment, the held-out ones too")
     f = _run_jobs([jb], 1, say)[0]
     fits = 1
-    # it starts at the search's values, so a fit the evaluation limit stopped is still on its way (rig_cogging's
-    # phase, rig_loadpath_backlash's soft zone): it goes on from where it stopped, at most EVERY_SEGMENT_FITS fits
+    # it starts at the search's values, so a fit the evaluation limit stopped is still on its way (rig_loadpath_backlash
+    # and rig_loadpath_preload took a second fit): it goes on from where it stopped, at most EVERY_SEGMENT_FITS fits
     # in all; a time budget or a solver failure is not retried
     while ("error" not in f and not f.get("converged") and fits < EVERY_SEGMENT_FITS
            and "function evaluations" in str(f.get("status", ""))):

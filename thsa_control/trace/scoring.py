@@ -484,7 +484,8 @@ def admission_tests(before: dict, after: dict, noise: Mapping[str, float], *, k:
     return {"holdout_chi2_before": hb, "holdout_chi2_drop": drop, "holdout_chi2_drop_all_samples": drop_all,
             "chi2_threshold": thr, "significant": drop > thr, "window_reduction": win_red,
             "window_ok": max(win_red.values(), default=0.0) >= min_window_reduction, "error_reduction": err_red,
-            "aic_drop": aic_drop, "window_segments": seg, "channel_fail": channel_fail, "all_samples_fail": all_fail, "aic_fail": aic_fail,
+            "aic_drop": aic_drop, "window_segments": seg, "channel_fail": channel_fail, "all_samples_fail": all_fail,
+            "aic_fail": aic_fail,
             "robust_fail": robust_fail, "window_on_all_samples": on_all,
             "window_reduction_beyond_noise": _window_beyond_noise(used)}
 
