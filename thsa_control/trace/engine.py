@@ -1257,11 +1257,14 @@ def _every_segment_check(added: list, current: dict, cur_effects, cur_free, cur_
     # from the measured states, or with the clearances tracked again at the search's values, the fit found other
     # optima, above the search's error over every sample (rig_cogging 4990 against 4176; rig_ratchet_backlash 680716
     # and, with the states only, 665856 against 130073)
-    jb = job("every segment", cur_effects, cur_free, cur_params, fit_runs)
-    jb = {**jb, "settings": dataclasses.replace(jb["settings"], holdout_every=0),
-          "initial_states": current.get("segment_states"), "custom_states": current.get("custom_states")}
+    def every_job(label: str, pset: ParameterSet, start: dict) -> dict:
+        """The final model's fit on every segment from ``pset`` and the fit ``start``'s segment starts."""
+        jb = job(label, cur_effects, cur_free, pset, fit_runs)
+        return {**jb, "settings": dataclasses.replace(jb["settings"], holdout_every=0),
+                "initial_states": start.get("segment_states"), "custom_states": start.get("custom_states")}
+
     say("fitting the final model again on every segment, the held-out ones too")
-    f = _run_jobs([jb], 1, say)[0]
+    f = _run_jobs([every_job("every segment", cur_params, current)], 1, say)[0]
     fits = 1
     # it starts at the search's values, so a fit the evaluation limit stopped is still on its way (rig_loadpath_backlash
     # and rig_loadpath_preload took a second fit): it goes on from where it stopped, at most EVERY_SEGMENT_FITS fits
@@ -1269,11 +1272,8 @@ def _every_segment_check(added: list, current: dict, cur_effects, cur_free, cur_
     while ("error" not in f and not f.get("converged") and fits < EVERY_SEGMENT_FITS
            and "function evaluations" in str(f.get("status", ""))):
         say(f"every-segment fit stopped at its evaluation limit ({st.max_nfev}); going on from where it stopped")
-        jb = job(f"every segment ({fits + 1})", cur_effects, cur_free, ParameterSet.from_toml(f["params_toml"]),
-                 fit_runs)
-        jb = {**jb, "settings": dataclasses.replace(jb["settings"], holdout_every=0),
-              "initial_states": f.get("segment_states"), "custom_states": f.get("custom_states")}
-        nxt = _run_jobs([jb], 1, say)[0]
+        nxt = _run_jobs([every_job(f"every segment ({fits + 1})", ParameterSet.from_toml(f["params_toml"]), f)], 1,
+                        say)[0]
         fits += 1
         if "error" in nxt:
             break
