@@ -35,6 +35,9 @@ from .signature import split_remainder
 from .threads import limit_blas_threads
 
 
+#: the candidates whose two free parameters are a cosine and sine pair: judged and reported by their amplitude
+PAIR_CANDIDATES = ("screw_friction_ripple", "cogging_torque")
+
 #: a segment that moves an estimate by at least this many standard errors when left out is named (``pulled_by``)
 PULL_NAMED = 2.0
 
@@ -692,7 +695,7 @@ def _plausibility(fit: dict, spec: CandidateSpec, plaus: Mapping | None = None) 
             why.append(Reason(f"{n} at the {e['at_bound']} end of its profile range", "bound", n))
         elif e["interval"] is not None and e.get("determined", True):  # a profile set that does not determine it
             determined += 1
-    pairs = spec.name in ("screw_friction_ripple", "cogging_torque")
+    pairs = spec.name in PAIR_CANDIDATES
     # "collapses to zero" says the effect is absent: only for a parameter whose zero is the effect's neutral value
     # (a friction torque, a coefficient); a compliance's damping or a signed free play at zero still leaves the
     # effect there (its neutral is none: NoNeutral), so there zero is a value like another
@@ -748,7 +751,7 @@ def _amplitude_out(fit: dict, spec: CandidateSpec) -> dict:
     ripple's size is, with its standard error along the radius (:func:`_amplitude_stderr`) and its 95 % interval,
     and the phase with its standard error, ``phase_determined`` False where that exceeds 1 rad (the segments' free
     start angles take it: the parts' own intervals then span zero though the amplitude is determined)."""
-    if spec.name not in ("screw_friction_ripple", "cogging_torque"):
+    if spec.name not in PAIR_CANDIDATES:
         return {}
     est = fit.get("estimates") or {}
     names = [n for n in spec.free if n in est]
