@@ -33,6 +33,7 @@ from .candidates import (
 from .periodicity import run_segment_drops
 from .signature import split_remainder
 from .threads import limit_blas_threads
+from .weights import within_range
 
 
 #: the candidates whose two free parameters are a cosine and sine pair: judged and reported by their amplitude
@@ -824,9 +825,7 @@ def _segments_entry(e: dict) -> dict:
     sd = max(e["stderr_segments"], e["stderr"] or 0.0)
     ci, _ = _ci95(e["value"], sd, e.get("min"))
     if ci:  # inside the physical range (a damping's interval does not reach below zero)
-        lo, hi = e.get("min"), e.get("max")
-        ci = [max(ci[0], lo) if lo is not None and math.isfinite(lo) else ci[0],
-              min(ci[1], hi) if hi is not None and math.isfinite(hi) else ci[1]]
+        ci = within_range(ci[0], ci[1], e)
     return {"stderr_segments": e["stderr_segments"], "ci95_segments": ci}
 
 

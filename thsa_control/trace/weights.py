@@ -136,8 +136,12 @@ def compare(a: Mapping, others: Mapping[str, Mapping | None], z: float,
             lo, hi = min(lo, vb - 1.96 * sb), max(hi, vb + 1.96 * sb)
     if not shifted:
         return entry, None
-    if a.get("min") is not None:  # inside the parameter's physical range
-        lo = max(lo, float(a["min"]))
-    if a.get("max") is not None:
-        hi = min(hi, float(a["max"]))
-    return entry, [lo, hi]
+    return entry, within_range(lo, hi, a)
+
+
+def within_range(lo: float, hi: float, e: Mapping) -> list[float]:
+    """``[lo, hi]`` inside an estimate entry's physical range (its ``min`` and ``max`` where finite): a range or
+    an interval reported for a value never reaches where the parameter cannot be (a damping below zero)."""
+    mn, mx = e.get("min"), e.get("max")
+    return [max(lo, float(mn)) if mn is not None and math.isfinite(mn) else lo,
+            min(hi, float(mx)) if mx is not None and math.isfinite(mx) else hi]
