@@ -1239,8 +1239,9 @@ def _every_segment_check(added: list, current: dict, cur_effects, cur_free, cur_
     (``parameters``: the every-segment fit's entries; ``moved``: the names that moved).  The final model's other
     fitted parameters (base corrections, the declared uncertain set) that move by the same rule go to the doc's
     ``moved_other`` (name -> both entries and the range).  Only a sound fit is read: one that converged and whose
-    noise-weighted error over every sample is not above the search's last fit's (it starts there; a higher one went
-    astray: a pawl clearance's on rig_ratchet_backlash, 680716 against 130073); otherwise nothing is said to move and
+    noise-weighted error over every sample is not above the search's last fit's (it starts at that fit's values,
+    segment states and pawl clearances, so a higher one is a failed fit; started from the measured states it once
+    went astray: rig_ratchet_backlash, 680716 against 130073); otherwise nothing is said to move and
     the doc says why.  Returns the doc's ``every_segment`` (the layout of the held-out segments, the names that
     moved, the fit's chi2 and convergence, ``sound``) and the fit (None where it failed or is not sound), or
     ``(None, None)`` where the final model has no parameter with a standard error."""
