@@ -296,3 +296,36 @@ def test_a_move_to_zero_on_every_segment_is_a_move(monkeypatch):
     assert lo == pytest.approx(0.0) and hi == pytest.approx(0.42 + 1.96 * 0.10)  # clipped at the physical minimum
     from thsa_control.trace import weights as wt
     assert wt.compare(_est(0.42, 0.10), {"w": _est(0.0, 0.075)}, 2.0)[1] is None
+
+
+def test_a_ripples_final_amplitude_is_the_final_models():
+    """A cosine and sine pair's amplitude is reported as the final model has it (``amplitude_final``, the every-segment
+    fit where adopted: engine._put_amplitude_final), beside the amplitude when it was added; the summary and the table
+    say the final one where it differs; a held part gives none, and an effect that is no pair none."""
+    from thsa_control.report.trace import _amplitude_lines
+    from thsa_control.trace.candidates import CANDIDATES
+    from thsa_control.trace.engine import _put_amplitude_final
+    from thsa_control.trace.scoring import _amplitude_out
+
+    spec = CANDIDATES["cogging_torque"]
+    a, b = spec.free
+
+    def fit(c, s, sd=0.002):
+        entry = dict(stderr=sd, unit="N m", at_bound=None, min=-1.0, max=1.0)
+        return {"estimates": {a: {**entry, "value": c, "corr": {b: 0.0}}, b: {**entry, "value": s, "corr": {a: 0.0}}}}
+
+    e = {"name": "cogging_torque", **_amplitude_out(fit(0.03, 0.04), spec)}
+    _put_amplitude_final(e, fit(0.0, 0.05, 0.001))
+    assert e["amplitude"]["value"] == pytest.approx(0.05) and e["amplitude_final"]["value"] == pytest.approx(0.05)
+    assert e["amplitude_final"]["stderr"] == pytest.approx(0.001)  # along the radius: the one part's alone
+    assert _amplitude_lines(e) == _amplitude_lines({"amplitude": e["amplitude"]})  # the same size: one line
+    _put_amplitude_final(e, fit(0.0, 0.062))
+    lines = _amplitude_lines(e)
+    assert len(lines) == 2 and lines[1].startswith("in the final model: amplitude 0.062")
+    held = fit(0.0, 0.062)
+    held["estimates"][a]["held"] = True
+    _put_amplitude_final(e, held)
+    assert "amplitude_final" not in e
+    other = {"name": "noback_quadrant_friction"}
+    _put_amplitude_final(other, fit(0.03, 0.04))
+    assert "amplitude_final" not in other

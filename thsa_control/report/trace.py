@@ -90,8 +90,7 @@ def conclusion_table_html(doc: dict) -> str:
         pars = "<br>".join(f"{esc(n)} = {_num(p['value'])} {esc(p['unit'])}{_ci(p)}"
                            + (" (profiled)" if p.get("profiled") else "") + (" (held)" if p.get("held") else "")
                            + _outside(p) for n, p in e["parameters"].items())
-        if e.get("amplitude"):
-            pars += f"<br>{esc(_amplitude_text(e['amplitude']))}"
+        pars += "".join(f"<br>{esc(t)}" for t in _amplitude_lines(e))
         if e.get("changed_after_added"):
             pars += f"<br><small>{esc(_final_text(e))}</small>"
         pars += "".join(f"<br><small>{esc(w)}</small>" for w in _weights_text(e.get("weight_check"))
@@ -504,6 +503,16 @@ def _amplitude_text(a: dict) -> str:
                   "parts' intervals span zero, the amplitude's does not)")
 
 
+def _amplitude_lines(e: dict) -> list[str]:
+    """A ripple's amplitude when it was added and, where the final model's differs (``amplitude_final``: the
+    every-segment fit, the later effects), the final one."""
+    a, f = e.get("amplitude"), e.get("amplitude_final")
+    out = [_amplitude_text(a)] if a else []
+    if f and (not a or _num(f["value"]) != _num(a["value"])):
+        out.append("in the final model: " + _amplitude_text(f))
+    return out
+
+
 def _every_segment_text(e: dict) -> list[str]:
     """Lines: the found effect's parameters that the fit on every segment, the held-out ones too, moves
     (``every_segment``): the held-out segments' places decide them."""
@@ -619,8 +628,7 @@ def format_trace_summary(doc: dict) -> str:
             lines.append(f"    {n} = {_num(p['value'])} {p['unit']}" + (f"  95 % CI [{_num(ci[0])}, {_num(ci[1])}]" if ci else "")
                          + (" (profiled)" if p.get("profiled") else "") + (" (held)" if p.get("held") else "")
                          + _outside(p))
-        if e.get("amplitude"):
-            lines.append(f"    {_amplitude_text(e['amplitude'])}")
+        lines += [f"    {t}" for t in _amplitude_lines(e)]
         for h in e.get("not_determined", []):
             lines.append(f"    not determined by this run: {h['parameter']} held at {_num(h['held_at'])} {h['unit']} "
                          f"({h['reason']})")

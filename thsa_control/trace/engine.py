@@ -1175,6 +1175,7 @@ def _final_values(added: list, current: dict, found_info: Mapping) -> None:
         if not fin:
             continue
         e["parameters_final"] = fin
+        _put_amplitude_final(e, current)
         moved = []
         for n, p in fin.items():
             a = e["parameters"][n]
@@ -1188,6 +1189,17 @@ def _final_values(added: list, current: dict, found_info: Mapping) -> None:
             e["changed_after_added"] = {"parameters": moved, "with": [
                 x["name"] for x in added if not x.get("implied_by") and x["name"] in found_info
                 and found_info[x["name"]].round > rnd]}
+
+
+def _put_amplitude_final(e: dict, fit: dict) -> None:
+    """A cosine and sine pair's amplitude as the final model ``fit`` has it (``amplitude_final``, the form of
+    ``amplitude``, which stays the one when the effect was added): the size of a ripple is what a user reads off the
+    final model, and the fits after it (the every-segment fit, the later effects) move it like any other value."""
+    amp = _amplitude_out(fit, CANDIDATES[e["name"]]).get("amplitude") if e["name"] in CANDIDATES else None
+    if amp is None:
+        e.pop("amplitude_final", None)
+    else:
+        e["amplitude_final"] = amp
 
 
 def _declared_detail_at_file_values(fit: dict, spec: CandidateSpec, declared, why: list,
@@ -1363,6 +1375,7 @@ def _adopt_every_segment(added: list, current: dict, every: dict | None, every_d
                 say(f"{e['name']}: {n}'s range over the channel weights ({w[0]:.4g} .. {w[1]:.4g}) is about the "
                     f"search's value; the final value {fin[n]['value']:.4g} lies outside it")
         e["parameters_final"] = fin
+        _put_amplitude_final(e, every)
         if "every_segment" in e:
             e["every_segment"]["adopted"] = True
     say("final values: the fit on every segment (the held-out segments decided the effects)")
