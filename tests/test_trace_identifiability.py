@@ -135,6 +135,36 @@ def test_a_declared_components_coefficient_at_zero_is_a_part_not_shown_only_besi
     assert parts_not_shown(held, spec, why) == (why, [])
 
 
+def test_a_coefficient_at_a_zero_bound_is_the_same_part_not_shown():
+    """A coefficient whose search bound is its zero and which the fit puts there is "at its min bound" and "collapses
+    to zero" at once: one statement, the part not shown (engine.parts_not_shown), not a refusal of its own (measured
+    on a blind rig-sim position-loop record: the light disk's static coefficient at 1.9e-8 +- 0.001, bound 0,
+    refused the detailed no-back and a pawl clearance was added for the no-back it brings).  A bound that is not the
+    parameter's zero, or one at the other end, stays a reason; so does the bound where nothing else shows."""
+    spec = CANDIDATES["noback_quadrant_friction"]
+
+    def fit(lo=0.0, end="min", other="determined"):
+        est = {n: {"value": 1e-4, "stderr": None, "stderr_data": None, "at_bound": None, "min": 0.0,
+                   "determination": "not determined"} for n in spec.free}
+        est["noback.mu_static_pos"].update(value=1.87e-8, stderr=0.00103, stderr_data=0.00103, at_bound=end, min=lo,
+                                           determination="zero")
+        est["noback.mu_coulomb_neg"].update(value=0.0046, stderr=1e-4, stderr_data=1e-4, determination=other)
+        return {"estimates": est}
+
+    f = fit()
+    why = _plausibility(f, spec)[1]
+    assert [w.kind for w in why] == ["bound", "zero"] and {w.param for w in why} == {"noback.mu_static_pos"}
+    kept, parts = parts_not_shown(f, spec, why)
+    assert kept == [] and parts == [why[1]] and "collapses to zero" in parts[0]
+    for other_case in (fit(lo=1e-6), fit(end="max")):  # a bound that is not the zero, or the other end: a reason
+        w2 = _plausibility(other_case, spec)[1]
+        kept, parts = parts_not_shown(other_case, spec, w2)
+        assert [w.kind for w in kept] == ["bound"] and [w.kind for w in parts] == ["zero"]
+    nothing = fit(other="zero")  # nothing else shows: both stay
+    w3 = _plausibility(nothing, spec)[1]
+    assert parts_not_shown(nothing, spec, w3) == (w3, [])
+
+
 def test_a_load_share_outside_its_assumed_range_is_said_not_refused():
     """A share the run determines beyond the assumed 0.4..0.6 (rig-sim's rig-base no-back, no disk pair, read 0.61
     on two run sets) is reported with the range it leaves, in trace.json and the report's line; inside the range and

@@ -1645,14 +1645,22 @@ def parts_not_shown(fit: dict, spec: CandidateSpec, why: list) -> tuple[list, li
     zero (``determination == "zero"``) says that part of it does not show in this run (the light disk set's static
     hump on a rig whose light disk drags by other means), no verdict that the component is absent, provided another
     of its coefficients is determined away from zero (the component shows).  Those reasons move to ``parts``; with
-    every determined coefficient at zero they stay (the detail would be a component without friction)."""
+    every determined coefficient at zero they stay (the detail would be a component without friction).
+
+    A coefficient whose search bound is its zero says the same thing twice when the fit puts it there: "at its min
+    bound" and "collapses to zero".  The bound is then no reason of its own and goes with the part (measured on a
+    blind rig-sim record, the position loop with a cogging beside a drive-train compliance: the light disk's static
+    coefficient at 1.9e-8 +- 0.001 N m/N, its bound 0, refused the detailed no-back in the base step, and a pawl
+    clearance whose pitch the record did not determine was added in round 1 for the no-back it brings with it)."""
     est = {n: fit["estimates"].get(n) or {} for n in spec.free}
     zero = [n for n, e in est.items() if e.get("determination") == "zero" and not e.get("held")]
     shows = [n for n, e in est.items() if e.get("determination") == "determined" and not e.get("held")]
     if not zero or not shows:
         return list(why), []
     parts = [w for w in why if reason_kind(w) == "zero" and w.param in zero]
-    return [w for w in why if w not in parts], parts
+    at_zero = {w.param for w in parts if est[w.param].get("at_bound") == "min" and est[w.param].get("min") == 0.0}
+    same = [w for w in why if reason_kind(w) == "bound" and w.param in at_zero]
+    return [w for w in why if w not in parts and w not in same], parts
 
 
 def _detail_declared(refinements, current: dict, cur_effects, cur_free, fit_runs, noise, st, job, say, plaus,
