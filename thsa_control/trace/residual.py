@@ -25,6 +25,7 @@ from .candidates import CANDIDATES, PERIODS
 from .scoring import _rms_by_channel
 from .signature import (
     SignatureSettings,
+    angle_test_samples,
     base_transients,
     breakaway_events,
     breakaway_position_test,
@@ -192,7 +193,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         # torque's own speed ripple is not a transient: ``sustained``)
         transients[run.name] = base_transients(t, w, load, s.transient_time)
         steady.append(~transients[run.name])
-        steady_angle = ~base_transients(t, w, load, s.transient_time, sustained=True)
+        steady_angle = angle_test_samples(t, w, load, s.transient_time)
         # the angle the steady samples span; under two revolutions the harmonics are not told from a dependence on
         # position (below) and a Fourier series on less than a revolution is degenerate: the test then keeps every
         # sample, for the report only (its remainder is "base")

@@ -12,8 +12,9 @@ Usage::
     THSA_SHARED_DIR=/path/to/shared python tests/data/rigsim/make_runs.py [--only NAME ...]
 
 The shared folder defaults to ``../shared`` beside the repository.  The runs are logged at 500 Hz
-and cut to the part of the scenario where the effect shows (``t_end``), so that the committed data
-stay small and the traces short; the cut keeps the start of the record (``time_s`` from 0).  The run sets
+(:data:`RECORD_HZ_OF` names the few at another rate) and cut to the part of the scenario where the effect shows
+(``t_end``), so that the committed data stay small and the traces short; the cut keeps the start of the record
+(``time_s`` from 0).  The run sets
 (:data:`SETS`, several runs of one rig traced together) go to ``sets/``.
 """
 
@@ -30,6 +31,8 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parents[2]
 RECORD_HZ = 500
+#: runs logged at another rate than :data:`RECORD_HZ`: where a rate shows what the catalogue's does not
+RECORD_HZ_OF: dict[str, int] = {"null_rig_cold_s10716255": 1000}
 
 #: name -> (scenario, base, effects (rigsim --effects syntax, "" for none), seed, t_end [s] or None, purpose)
 RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
@@ -72,6 +75,10 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     # the static load reversal with the drive off: the null of rig_loadpath_preload_hold (the rig base's own linear
     # load path, 1.2e8 N/m, is what it may name)
     "null_rig_hold_s603": ("check_hold", "rig", "", 603, None, "null"),
+    # the whole cold ramp logged at 1 kHz (its two drive-off holds kept): the screw-angle test read the holds' residual,
+    # at two angles, against the moving samples' as a harmonic series (p 3.1e-8, flagged unexplained; at 500 Hz the
+    # same seed is not); drawn for a blind set from os.urandom (docs/trace_notes.md "The angle tests on moving samples")
+    "null_rig_cold_s10716255": ("cold_ramp", "rig", "", 10716255, None, "null"),
     "null_papers_trim_s1": ("trim_ramp_compressive", "papers", "", 1, None, "null"),
     "null_papers_reversals_s2": ("reversals_under_load", "papers", "", 2, 5.0, "null"),
     "null_papers_bipolar_s3": ("bipolar_ramp_tensile", "papers", "", 3, 9.0, "null"),
@@ -195,7 +202,7 @@ def make(name: str, out: Path, rigsim: Path) -> None:
     scenario, base, effects, seed, t_end, _purpose = {**RUNS, **set_runs()}[name]
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [sys.executable, str(rigsim), "--scenario", scenario, "--base", base, "--seed", str(seed),
-               "--out", tmp, "--name", name, "--record-hz", str(RECORD_HZ)]
+               "--out", tmp, "--name", name, "--record-hz", str(RECORD_HZ_OF.get(name, RECORD_HZ))]
         if effects:
             cmd += ["--effects", effects]
         subprocess.run(cmd, check=True, capture_output=True, text=True)
