@@ -373,3 +373,18 @@ def test_a_ripples_amplitude_is_judged_along_the_radius_not_over_its_phase():
     for ratio, expected in ((2.7, False), (2.95, True)):
         sd = amp / ratio
         assert _plausibility(fit(-0.0442, 0.0218, sd, sd, 0.0), spec)[0] is expected, ratio
+
+
+def test_a_reported_interval_stays_inside_the_physical_range():
+    """An estimate's 95 % interval in trace.json (scoring._param_entry) stays where the parameter can be, as its
+    interval over the segments does: the every-segment fit put a light disk's static coefficient at 0.0126 +- 0.108
+    N m/N (range 0 .. 0.1), whose Wald interval reached -0.199 .. 0.225 while the segments' was cut to 0 .. 0.1
+    (campaign: the segments' interval then looked narrower than the information's).  Inside the range an interval
+    is untouched."""
+    e = {"value": 0.0126, "stderr": 0.108, "unit": "N m/N", "at_bound": None, "min": 0.0, "max": 0.1,
+         "stderr_segments": 0.1026}
+    p = _param_entry(e)
+    assert p["ci95"] == [0.0, 0.1] and p["ci95_segments"] == [0.0, 0.1]
+    q = _param_entry({**e, "stderr": 0.001, "stderr_segments": 0.002})
+    assert q["ci95"] == pytest.approx([0.0126 - 1.96 * 0.001, 0.0126 + 1.96 * 0.001])
+    assert q["ci95_segments"] == pytest.approx([0.0126 - 1.96 * 0.002, 0.0126 + 1.96 * 0.002])
