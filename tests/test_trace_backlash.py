@@ -310,3 +310,33 @@ def test_a_refit_from_a_fits_optimum_starts_at_its_predictions(stops_record, par
     assert moved > 1.0, moved  # rad/s (measured 11.3): the stops back-drive through other clearances
     with pytest.raises(ValueError, match=f"custom_states\\['{run.name}'\\]: shape \\(2, 3\\)"):
         Identifier("C", at, free, settings=still).fit(run, custom_states={run.name: np.zeros((2, 3))})
+
+
+def test_the_one_step_screen_compares_what_the_motor_speed_sensor_reads():
+    """The one-step screen's predicted speed is the state the motor-speed sensor reads (segment_states.
+    one_step_function: ``plant.sensor_state("motor_speed")``).  With a compliant drive train that is the rotors' speed;
+    it was the gear output's, which a torque on the rotors does not move within one step, so the cogging period's
+    screen was flat and held the period at its grid's first value (a rig-sim position loop with a cogging beside a
+    drive-train compliance: 6 per revolution against rig-sim's 18).  On rig-sim's cogging record (check_slow, 18 per
+    revolution) the screen with a compliant drive train declared picks 18, as the rigid one does."""
+    from pathlib import Path
+
+    from thsa_control.data.rigdata import read_run
+    from thsa_control.fit.kinematics import run_kinematics
+    from thsa_control.model import resolve_effects
+    from thsa_control.model.params import default_parameters
+
+    params = default_parameters()
+    run = run_kinematics(read_run(Path(__file__).parent / "data" / "rigsim" / "rig_cogging.csv"), params)
+    amp = params.replace({"drive.cogging_torque_cos": 0.0, "drive.cogging_torque_sin": 0.05})
+    for extra in ((), ("drivetrain_compliance",)):
+        plant = build_plant(effects=resolve_effects("A", add=["cogging_torque", *extra]), params=amp)
+        assert (plant.sensor_state("motor_speed") == "rotor_speed") == bool(extra)
+        screen = OneStepScreen([run], plant, amp)
+        counts = [6.0, 12.0, 18.0, 24.0, 36.0]
+        chi2 = [screen.chi2(amp.replace({"drive.cogging_periods": c}),
+                            solve=("drive.cogging_torque_cos", "drive.cogging_torque_sin")) for c in counts]
+        assert counts[int(np.argmin(chi2))] == 18.0, (extra, chi2)
+        # the count matters: the next best lies beyond the one-step chi-square's noise (176 rigid, 781 compliant;
+        # the flat screen gave one value, 215169, for every count)
+        assert sorted(chi2)[1] - min(chi2) > 100.0, (extra, chi2)

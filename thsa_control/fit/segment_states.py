@@ -121,7 +121,14 @@ def one_step_map(plant: Plant, mech: ca.Function, n: int) -> ca.Function:
 
 
 def one_step_function(plant: Plant, mech: ca.Function) -> ca.Function:
-    """``f(c, u, p) -> (c_next, w_next)``: one step of :func:`one_step_map` (``u``: one column of its ``U``)."""
+    """``f(c, u, p) -> (c_next, w_next)``: one step of :func:`one_step_map` (``u``: one column of its ``U``).
+
+    ``w_next`` is the state the motor-speed sensor reads (``plant.sensor_state("motor_speed")``: the rotors' speed
+    with a compliant drive train, the motor speed otherwise), so that the one-step error compares the model's
+    prediction with what the sensor measured.  It was the gear output's speed on a compliant drive train, which a
+    torque on the rotors (a cogging) does not move within one step: the cogging period's screen was flat there and
+    held the period at the grid's first value (measured on a rig-sim position loop with a cogging beside a
+    drive-train compliance: 6 per revolution against rig-sim's 18, and the cogging refused)."""
     idx = custom_state_indices(plant)
     nx = len(plant.states)
     nv = mech.size1_in(1)
@@ -134,7 +141,7 @@ def one_step_function(plant: Plant, mech: ca.Function) -> ca.Function:
     for k, i in enumerate(idx):
         parts[i] = c[k]
     xn, _ = mech(ca.vertcat(*parts), v, ps, h)
-    w_next = xn[plant.index("state", "motor_speed")]
+    w_next = xn[plant.index("state", plant.sensor_state("motor_speed"))]
     return ca.Function("custom_step", [c, ca.vertcat(xm, v, h), ps], [xn[idx] if idx else ca.SX(0, 1), w_next])
 
 
