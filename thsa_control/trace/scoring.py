@@ -799,7 +799,7 @@ def _ci95(value: float, sd: float, lower_bound: float | None) -> tuple[list[floa
 def _param_entry(e: dict) -> dict:
     """An estimate as trace.json reports it; its 95 % interval (:func:`_ci95`, or a profile's) inside the parameter's
     physical range, as every interval and range reported for a value is (:func:`weights.within_range`: a Wald
-    interval of a disk coefficient, 0.0126 +- 0.21, reached below its zero and beyond its 0.1)."""
+    interval of a disk coefficient, 0.0126 +- 0.108 N m/N in the range 0 .. 0.1, was -0.199 .. 0.225)."""
     sd = e["stderr"]
     scale = None
     if sd is not None:
