@@ -675,6 +675,33 @@ def test_a_clearance_crossed_only_in_training_segments_is_judged_where_it_acts(t
     assert set(found) & INVENTED == {"noback_backlash"}, found  # nothing else a rig-sim base lacks
 
 
+@pytest.mark.campaign
+@pytest.mark.slow
+def test_a_cogging_beside_a_soft_compliance_both_found_and_no_backlash_invented(traced, params):
+    """rig-sim's cogging (0.069 N m, 18 per revolution) beside a drive-train compliance of 5333 N m/rad on the position
+    loop, 1 kHz (rig_pair_cogging_compliance, a blind set's draw).  Before: the base step refused the detailed no-back
+    for a disk coefficient at its zero bound ("at its min bound" beside "collapses to zero"), a pawl clearance whose
+    pitch the record did not determine was added for the no-back it brings, and beside the compliance the cogging's
+    period screen was flat (it predicted the gear output's speed) and held the count at 6.  Now the no-back in the
+    base step, then the compliance, then the cogging at its own count and size; no backlash."""
+    name = "rig_pair_cogging_compliance"
+    assert set(_truth_effects(name)) == {"cogging", "drivetrain_compliance"}
+    doc = traced(name)
+    found = _found(doc)
+    assert {"drivetrain_compliance", "cogging_torque"} <= set(found), doc["rounds"]
+    assert set(found) & INVENTED == {"drivetrain_compliance", "cogging_torque"}, found
+    assert found.index("drivetrain_compliance") < found.index("cogging_torque")  # in the order of what they explain
+    truth = _truth(name)["effects"]
+    cog = next(e for e in doc["effects_added"] if e["name"] == "cogging_torque")
+    assert cog["parameters_final"]["drive.cogging_periods"]["value"] == truth["cogging"]["params"]["n_per_rev"]["si"]
+    assert cog["amplitude_final"]["value"] == pytest.approx(truth["cogging"]["params"]["A_Nm"]["si"], rel=0.2)
+    dtc = next(e for e in doc["effects_added"] if e["name"] == "drivetrain_compliance")
+    kg = dtc["parameters_final"]["gear.torsional_stiffness"]["value"]
+    series = 1.0 / (1.0 / kg + 1.0 / params.value("screw.torsional_stiffness"))  # what the record determines
+    assert series == pytest.approx(truth["drivetrain_compliance"]["params"]["k_Nm_rad"]["si"], rel=0.2), (kg, series)
+    assert not doc["unexplained"], doc["residual_signature"]["structured"]
+
+
 #: one-load records of a constant-torque library effect (one load magnitude and sign, both directions or a trim):
 #: the per-(load sign, direction) constants are spanned by the base's explainers (trace.json ``separability``), so
 #: the planted effect may be named, left ambiguous with others, or not named; never another constant torque alone

@@ -32,7 +32,7 @@ HERE = Path(__file__).resolve().parent
 REPO = HERE.parents[2]
 RECORD_HZ = 500
 #: runs logged at another rate than :data:`RECORD_HZ`: where a rate shows what the catalogue's does not
-RECORD_HZ_OF: dict[str, int] = {"null_rig_cold_s10716255": 1000}
+RECORD_HZ_OF: dict[str, int] = {"null_rig_cold_s10716255": 1000, "rig_pair_cogging_compliance": 1000}
 
 #: name -> (scenario, base, effects (rigsim --effects syntax, "" for none), seed, t_end [s] or None, purpose)
 RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
@@ -110,6 +110,13 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     "rig_friction_bump_reversals": ("reversals_under_load", "rig", "friction_bump", 643, None, "foreign"),
     # --- a pair of library effects
     "rig_pair_coulomb_ripple": ("trim_ramp_compressive", "rig", "coulomb,screw_ripple", 41, None, "pair"),
+    # the cogging beside a soft drive-train compliance on the position loop, logged at 1 kHz (a blind set's draw from
+    # os.urandom): the base step refused the detailed no-back for a disk coefficient at its zero bound, a pawl
+    # clearance with an undetermined pitch was added for the no-back it brings, and beside the compliance the
+    # cogging's period screen was flat (it predicted the gear output, not the rotors the sensor reads)
+    # (docs/trace_notes.md "A second blind set")
+    "rig_pair_cogging_compliance": ("position_steps", "rig", "cogging=A_Nm:0.069,phase_deg:267.6,drivetrain_compliance="
+                                    "k_Nm_rad:5333.0,d_Nm_s_rad:3.65", 8699984, None, "pair"),
     # rig-sim's disk-pair no-back and a screw ripple on the trim record: the ripple is fitted short (0.040 N m at the
     # motor where the current shows 0.050), and the once-per-lead friction it leaves, repeated over both passes, was
     # taken for a local effect the model lacks (docs/trace_notes.md "An added ripple's own shape")
