@@ -321,7 +321,6 @@ def test_the_one_step_screen_compares_what_the_motor_speed_sensor_reads():
     revolution) the screen with a compliant drive train declared picks 18, as the rigid one does."""
     from pathlib import Path
 
-    from thsa_control.data.rigdata import read_run
     from thsa_control.fit.kinematics import run_kinematics
     from thsa_control.model import resolve_effects
     from thsa_control.model.params import default_parameters
