@@ -471,21 +471,27 @@ def moves_beyond_noise(speed) -> bool:
     v = np.nan_to_num(np.asarray(speed, float))
     if v.size < 3:
         return False
-    return bool(sustained_motion(motion_sign(v, motion_band(v))).any())
+    return bool(motion_beyond_noise(v).any())
+
+
+def motion_beyond_noise(speed) -> np.ndarray:
+    """Per sample, whether a measured speed moves: two successive samples of one sign beyond :func:`motion_band`
+    (:func:`sustained_motion`).  The one rule for :func:`moves_beyond_noise` and :func:`angle_test_samples`."""
+    v = np.nan_to_num(np.asarray(speed, float))
+    return sustained_motion(motion_sign(v, motion_band(v)))
 
 
 def angle_test_samples(time, speed, load, transient_time: float = 0.3) -> np.ndarray:
     """Per sample, whether the angle tests (periodic in the motor or screw angle) use it: outside the base's
     transients (:func:`base_transients`, ``sustained``: a periodic torque's own speed ripple is no transient) and
-    where the angle moves, two successive samples of one sign beyond the speed's noise (:func:`sustained_motion`
-    beyond :func:`motion_band`; a creep of a fiftieth of the record's top speed moves).  A drive-off hold keeps one
+    where the angle moves, two successive samples of one sign beyond the speed's noise (:func:`motion_beyond_noise`;
+    a creep of a fiftieth of the record's top speed moves).  A drive-off hold keeps one
     angle for as long as it lasts, and its residual against the moving samples' projects on every harmonic of that
     one angle (measured on two rig-sim cold ramps at 1 kHz, a null and a worn spot, two holds after two ramps: 943 of
     3931 tested samples at two screw angles, screw angle p 3.1e-8 and 6.8e-7 with amplitudes on all 24 harmonics,
     the null flagged unexplained; on the moving samples p 0.15 and 0.077)."""
     w = np.nan_to_num(np.asarray(speed, float))
-    return ~base_transients(time, w, load, transient_time, sustained=True) & sustained_motion(
-        motion_sign(w, motion_band(w)))
+    return ~base_transients(time, w, load, transient_time, sustained=True) & motion_beyond_noise(w)
 
 
 def still_pair(regressor: str) -> str:
