@@ -253,7 +253,7 @@ def _position_test(sig: dict) -> dict | None:
 
 def misfit_shapes(sig: dict) -> list[str]:
     """Sentences for an added periodic drag whose own shape the residual still holds (the pass-replicated position
-    test, ``added_shapes``): its fitted size is off, which is no effect the model lacks."""
+    test's and the angle tests' ``added_shapes``): its fitted size is off, which is no effect the model lacks."""
     loc = _position_test(sig)
     out = []
     for name, a in ((loc or {}).get("added_shapes") or {}).items():
@@ -266,6 +266,17 @@ def misfit_shapes(sig: dict) -> list[str]:
         out.append(f"the residual still holds {_num(a['amplitude'], '.2g')} N m of the added {name}'s own shape "
                    f"(period {_num(1e3 * a['period'], '.3g')} mm, p {_num(a['p_value'], '.2g')}), {what}: its fitted "
                    "size is off, not an effect the model lacks (the position test is made beyond that shape)")
+    # the angle tests: what the residual holds at an added ripple's or cogging's own harmonic (tested beyond it)
+    for t in sig.get("tests", []):
+        for name, a in (t.get("added_shapes") or {}).items() if t.get("kind") == "periodic" else ():
+            if not a.get("significant"):
+                continue
+            fit = a.get("fitted_amplitude")
+            share = f", {100 * a['amplitude'] / fit:.0f} % of the {_num(fit, '.2g')} N m fitted" if fit else ""
+            out.append(f"the residual still holds {_num(a['amplitude'], '.2g')} N m at the added {name}'s own harmonic "
+                       f"({a['harmonic']} per revolution of the {t['variable'].replace('_', ' ')}, p "
+                       f"{_num(a['p_value'], '.2g')}{share}): its fitted size or phase is off, not an effect the model "
+                       "lacks (the angle test is made beyond that harmonic)")
     return out
 
 

@@ -342,6 +342,11 @@ PERIODS: dict[str, Callable] = {"screw_friction_ripple": _ripple_period, "coggin
 #: (:func:`~thsa_control.trace.signature.signature_tests`: the harmonics of that angle).
 ANGLE_OF: dict[str, str] = {"screw_friction_ripple": "screw_angle", "cogging_torque": "motor_angle"}
 
+#: The harmonic of :data:`ANGLE_OF`'s angle an added periodic effect's torque has (name -> function(fitted params)):
+#: the signature tests that angle beyond it (``signature_tests``' ``added``).
+ANGLE_HARMONIC: dict[str, Callable] = {"screw_friction_ripple": lambda params: 1,
+                                       "cogging_torque": lambda params: int(round(params.value("drive.cogging_periods")))}
+
 def _start_drivetrain(params: ParameterSet, runs) -> ReadStart:
     from ..fit.resonance_screen import drivetrain_resonance_start
 

@@ -21,7 +21,7 @@ from ..data.rigformat import speed_sensor_delays
 from ..fit.residuals import quadrant, reversal_proximity
 from ..model.laws import kinematic_ratio, torque_constant
 from ..model.params import ParameterSet
-from .candidates import CANDIDATES, PERIODS
+from .candidates import ANGLE_HARMONIC, ANGLE_OF, CANDIDATES, PERIODS
 from .scoring import _rms_by_channel
 from .signature import (
     SignatureSettings,
@@ -248,8 +248,16 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         return {"missing_torque_rms": None, "tests": [], "sensors": []}
     e_all = np.concatenate(torque)
     variables = {n: (k, np.concatenate(v)) for n, (k, v) in vars_.items()}
+    # the model's own periodic torques in an angle (an added ripple or cogging): the angle tests look beyond them
+    own: dict[str, dict[str, int]] = {}
+    for n in fit.get("effects", ()):
+        if n in ANGLE_OF:
+            own.setdefault(ANGLE_OF[n], {})[n] = ANGLE_HARMONIC[n](params)
     tests = signature_tests(e_all, variables, unit="N m", settings=s,
-                            given={"motor_current (torque constant)": np.concatenate(accel)})
+                            given={"motor_current (torque constant)": np.concatenate(accel)}, added=own)
+    for t in tests:
+        for name, a in (t.get("added_shapes") or {}).items() if t.get("kind") == "periodic" else ():
+            _against_fitted(a, name, params, phase=False)
     xs = variables["nut_position"][1]
     # the model's own periodic drags (an added screw ripple): their shape misfitted is no effect the model lacks
     shapes = {n: PERIODS[n](params) for n in fit.get("effects", ()) if n in PERIODS}
@@ -333,12 +341,13 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
                        "hold_load": hold_curve}}
 
 
-def _against_fitted(along: dict, name: str, params: ParameterSet) -> None:
+def _against_fitted(along: dict, name: str, params: ParameterSet, phase: bool = True) -> None:
     """What the residual holds along an added periodic drag's shape (:func:`position_local_test`'s ``added_shapes``:
     the residual times the direction against a cosine and a sine of the nut position over the period) compared with
     the drag as fitted (its cosine and sine parameters, the same angle ``2 pi x / period``): ``in_phase`` [N m] > 0
     where the model's drag is short of the rig's (less friction than measured, in its phase), < 0 where it is too
-    large; ``fitted_amplitude`` its own."""
+    large; ``fitted_amplitude`` its own.  For an angle test's ``added_shapes`` (``phase=False``) the fitted amplitude
+    only: the test's angle is the motor speed's integral from the run's start, the effect's the nut position's."""
     spec = CANDIDATES.get(name)
     pair = [n for n in (spec.free if spec else ()) if spec.plausible.get(n) == "periodic" and n in params]
     if len(pair) != 2:
@@ -346,6 +355,8 @@ def _against_fitted(along: dict, name: str, params: ParameterSet) -> None:
     c, s = (params.value(n) for n in pair)
     amp = math.hypot(c, s)
     along["fitted_amplitude"] = amp
+    if not phase:  # an angle test's angle starts at the run's start, the effect's at its nut position: no phase
+        return
     # a friction the model lacks slows the motion: the missing torque opposes it, so times the direction it is < 0
     along["in_phase"] = -(along["cos"] * c + along["sin"] * s) / amp if amp > 0 else None
 
