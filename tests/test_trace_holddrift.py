@@ -132,3 +132,29 @@ def test_rigsim_loadcell_drift_is_found_from_the_record_and_the_nulls_are_clean(
     for name in ("null_rig_trim_s1", "null_papers_trim_s1", "null_rig_bipolar_s3", "rig_kt_temperature"):
         r = hold_drift_of_runs([read_run(DATA / f"{name}.csv")])
         assert r is not None and not r["significant"] and r["p_value"] > 1e-3, (name, r)
+
+
+def test_a_record_that_never_moves_has_holds_between_its_load_changes():
+    """The drive off for the whole record while the load is applied and held (rig-sim's ``check_hold`` kind): the
+    speed is its sensor's noise, whose 5 % of its own largest value is crossed every few samples; those crossings are
+    no starts or stops, so the holds are the samples 0.3 s clear of the load changes, and a drifting reading there is
+    flagged (before: every sample a transient, no hold, the drift test not run)."""
+    from thsa_control.trace.signature import base_transients
+
+    rng = np.random.default_rng(7)
+    dt = 2e-3
+    t = np.arange(0.0, 6.0, dt)
+    w = 0.3 * rng.standard_normal(t.size)  # the resolver's noise, drive off
+    f_true = 30e3 * np.clip((t - 0.1) / 0.4, 0.0, 1.0)
+    x = COMPLIANCE * f_true + 2e-6 * rng.standard_normal(t.size)
+    cmd = np.zeros(t.size)
+    tr = base_transients(t, w, f_true, 0.3)
+    assert tr[(t > 0.1) & (t < 0.5)].all() and not tr[t > 1.2].any()  # 0.3 s after the last 0.3 s of change
+    for drift, flagged in ((40.0, True), (0.0, False)):
+        f = f_true + drift * t + 25.0 * rng.standard_normal(t.size)
+        held = hold_samples(t, w, f, cmd)
+        assert held[t > 1.2].all() and not held[t < 0.5].any()
+        r = hold_drift_test(t, f, x, held, compliance_samples=np.abs(w) < 5.0)
+        assert r is not None and r["significant"] == flagged, r
+        if flagged:
+            assert r["slope"] == pytest.approx(drift, abs=4 * r["stderr"])
