@@ -65,3 +65,24 @@ def test_signature_figure_has_the_nine_panels_and_marks_the_position_test():
     labels = pos.get_legend_handles_labels()[1]
     assert any(lb.startswith("extending") for lb in labels) and any(lb.startswith("retracting") for lb in labels)
     assert "p 1e-09" in pos.get_title() and "dissipative" in pos.get_title()  # under the title: no legend covers it
+
+
+def test_the_angle_panels_say_the_test_beyond_an_added_effects_harmonic_and_the_breakaway_sits_under_the_title():
+    """The screw-angle panel of a model with a ripple says its test is beyond the ripple's harmonic and what is left
+    there (the panel shows the leftover, so the reader sees why it is not flagged); the motor-angle panel gives its
+    plain p-value; the breakaway test's line is under the nut-position title, where no legend covers it."""
+    sig = _doc()["residual_signature"]
+    sig["tests"] += [
+        {"variable": "screw_angle", "kind": "periodic", "p_value": 0.025, "significant": False, "beyond_added": [1],
+         "added_shapes": {"screw_friction_ripple": {"harmonic": 1, "amplitude": 0.0041, "p_value": 4e-28,
+                                                    "significant": True, "fitted_amplitude": 0.050}}},
+        {"variable": "motor_angle", "kind": "periodic", "p_value": 3e-9, "significant": True},
+        {"variable": "nut_position (breakaway)", "kind": "breakaway", "p_value": 3.4e-7, "significant": True,
+         "places": [{"position": 0.0}, {"position": 0.02}], "peak_position": 0.0, "peak_deviation": 0.24}]
+    titles = [a.get_title() for a in plot_signature(sig).get_axes()]
+    screw = next(t for t in titles if "screw angle" in t)
+    assert "beyond screw_friction_ripple (harmonic 1): p 0.025" in screw and "8 % of the fitted" in screw, screw
+    assert "STRUCTURED" not in screw
+    assert "harmonics: p 3e-09 (STRUCTURED)" in next(t for t in titles if "motor angle" in t)
+    pos = next(t for t in titles if "nut position" in t)
+    assert "breakaway current at starts/reversals: p 3.4e-07 (STRUCTURED)" in pos and "+0.24 A at 0.0 mm" in pos, pos

@@ -280,6 +280,25 @@ def misfit_shapes(sig: dict) -> list[str]:
     return out
 
 
+def _angle_note(sig: dict, name: str) -> str:
+    """The angle test's verdict under its panel's title: its p-value, and where the model has a ripple or cogging in
+    that angle, that the test is beyond its harmonic and what the residual holds at it (the panel shows it all)."""
+    t = next((d for d in sig.get("tests", []) if d.get("variable") == name and d.get("kind") == "periodic"), None)
+    if t is None:
+        return ""
+    flag = " (STRUCTURED)" if t.get("significant") else ""
+    if not t.get("beyond_added"):
+        return f"\nharmonics: p {_num(t['p_value'], '.2g')}{flag}"
+    own = t.get("added_shapes") or {}
+    which = ", ".join(f"{k} (harmonic {a['harmonic']})" for k, a in own.items())
+    lines = [f"\nbeyond {which}: p {_num(t['p_value'], '.2g')}{flag}"]
+    for k, a in own.items():
+        fit = a.get("fitted_amplitude")
+        lines.append(f"\nleft at its harmonic: {_num(a['amplitude'], '.2g')} N m"
+                     + (f", {100 * a['amplitude'] / fit:.0f} % of the fitted" if fit else ""))
+    return "".join(lines)
+
+
 def plot_signature(sig: dict):
     """The remaining residual's signature: binned by nut position, by motor and screw angle, the redundant
     sensors' cross-correlation, the per-segment torque against time (the drift test's data), the residual
@@ -312,10 +331,11 @@ def plot_signature(sig: dict):
             for pl in bk["places"]:
                 ax.axvline(1e3 * pl["position"], color="C3" if pl["position"] == bk["peak_position"] and bk["significant"]
                            else "0.8", lw=0.8, ls=":")
-            ax.text(0.02, 0.90, f"breakaway current at starts/reversals: p {_num(bk['p_value'], '.2g')}"
-                    + (" (STRUCTURED)" if bk["significant"] else "")
-                    + f"\n{bk['peak_deviation']:+.2f} A at {1e3 * bk['peak_position']:.1f} mm against the same kind of "
-                    "event elsewhere", transform=ax.transAxes, va="top", fontsize=7)
+            # under the title with the position test's note (inside the axes the legend covered it)
+            local_note += (f"\nbreakaway current at starts/reversals: p {_num(bk['p_value'], '.2g')}"
+                           + (" (STRUCTURED)" if bk["significant"] else "")
+                           + f"\n{bk['peak_deviation']:+.2f} A at {1e3 * bk['peak_position']:.1f} mm against the same "
+                           "kind of event elsewhere")
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7, loc="best")
     else:  # trace.residual bins the nut position only over a travel of at least two bins
@@ -332,7 +352,7 @@ def plot_signature(sig: dict):
         ax.axhline(0, color="0.5", lw=0.5)
         ax.set_xlabel(f"{name.replace('_', ' ')} modulo one revolution [deg]")
         ax.set_ylabel("missing torque [N m]")
-        ax.set_title(f"residual binned by {name.replace('_', ' ')}", fontsize=9)
+        ax.set_title(f"residual binned by {name.replace('_', ' ')}" + _angle_note(sig, name), fontsize=9)
     ax = axes[1, 1]
     for label, c in (curves.get("cross_correlation") or {}).items():
         ax.plot(1e3 * np.asarray(c["lag_s"]), c["correlation"], lw=0.9, label=label.split(": ", 1)[-1])
