@@ -255,8 +255,8 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             own.setdefault(ANGLE_OF[n], {})[n] = ANGLE_HARMONIC[n](params)
     tests = signature_tests(e_all, variables, unit="N m", settings=s,
                             given={"motor_current (torque constant)": np.concatenate(accel)}, added=own)
-    for t in tests:
-        for name, a in (t.get("added_shapes") or {}).items() if t.get("kind") == "periodic" else ():
+    for t in tests:  # the angle tests' (the position test's below)
+        for name, a in (t.get("added_shapes") or {}).items():
             _against_fitted(a, name, params, phase=False)
     xs = variables["nut_position"][1]
     # the model's own periodic drags (an added screw ripple): their shape misfitted is no effect the model lacks

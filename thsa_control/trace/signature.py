@@ -135,7 +135,7 @@ def base_transients(time, speed, load, duration: float = 0.3, sustained: bool = 
     A record whose speed never moves beyond its noise (:func:`moves_beyond_noise`: the drive off while the load is
     ramped) has no starts, stops, reversals or speed changes, only its load changes: its largest speed is noise, and
     5 % of it is crossed by the noise at every few samples (measured on rig-sim's ``check_hold``: every sample a
-    transient, so the load cell's holds were never tested and a load-cell drift of 40 N/s went unflagged)."""
+    transient, so its holds were never tested for a drifting load cell)."""
     t = np.asarray(time, float)
     w = np.nan_to_num(np.asarray(speed, float))
     f = np.nan_to_num(np.asarray(load, float))
