@@ -158,3 +158,16 @@ def test_a_record_that_never_moves_has_holds_between_its_load_changes():
         assert r is not None and r["significant"] == flagged, r
         if flagged:
             assert r["slope"] == pytest.approx(drift, abs=4 * r["stderr"])
+
+
+def test_a_load_step_is_a_transient_for_the_transient_time_either_side():
+    """A load step (the loading actuator's 4 ms) on a still drive: the base transient is the 0.3 s either side of it,
+    not 0.6 s after it (a window over which the load changed was marked at its end and widened again)."""
+    from thsa_control.trace.signature import base_transients
+
+    dt = 1e-3
+    t = np.arange(0.0, 4.0, dt)
+    f = np.where(t >= 2.0, 20e3, 0.0)
+    tr = base_transients(t, np.zeros(t.size), f, 0.3)
+    on = t[tr]
+    assert on.min() == pytest.approx(1.7, abs=2 * dt) and on.max() == pytest.approx(2.3, abs=2 * dt), (on.min(), on.max())
