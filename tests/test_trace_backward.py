@@ -125,6 +125,32 @@ def test_a_parameter_collapsing_to_zero_given_the_others_is_a_reason_not_an_unde
     assert rec["prelim"], rec["fails"]
 
 
+def test_a_ripple_is_judged_on_its_amplitude_given_the_others_not_on_one_part(record):
+    """A screw ripple whose phase puts one part near zero: the cosine part alone is within 2 standard errors of zero
+    and far from its reference (the per-parameter verdict "zero"), the amplitude 0.05 N m is determined to about
+    0.002 along the radius.  It still explains its part, so it is kept (before, the cosine part's verdict took it
+    out: a blind cold ramp's 3.5 N m ripple, 86 % of its window explained).  A pair whose amplitude is within its
+    error of zero is taken out, with the amplitude named."""
+    t, signal, part, y, starts, hold = record
+    without = _fit(y, signal, hold, starts, t, aic=5000.0)
+    cos, sin = "drive.screw_ripple_torque_cos", "drive.screw_ripple_torque_sin"
+    job = {"judge": {cos: 0.05, sin: 0.05}, "absent": {cos: True, sin: True}}
+    a = _added("screw_friction_ripple", job=job)
+    phase = {cos: {"value": -0.002, "stderr_data": 0.01, "at_bound": None, "corr": {sin: 0.0}},
+             sin: {"value": 0.05, "stderr_data": 0.002, "at_bound": None, "corr": {cos: 0.0}}}
+    rec = _judge(a, _fit(y, signal + part, hold, starts, t, aic=0.0, estimates=phase), without)
+    assert rec["determination"][cos] == "zero"  # the one part alone reads as absent ...
+    assert rec["prelim"], rec["fails"]  # ... the ripple is not
+    gone = {cos: {"value": 0.001, "stderr_data": 0.01, "at_bound": None, "corr": {sin: 0.0}},
+            sin: {"value": -0.002, "stderr_data": 0.01, "at_bound": None, "corr": {cos: 0.0}}}
+    rec = _judge(a, _fit(y, signal + part, hold, starts, t, aic=0.0, estimates=gone), without)
+    assert any(w.startswith("amplitude 0.00224 collapses to zero") and w.endswith("given the others")
+               for w in rec["fails"]), rec["fails"]
+    undetermined = {**phase, cos: {**phase[cos], "stderr_data": None}}
+    rec = _judge(a, _fit(y, signal + part, hold, starts, t, aic=0.0, estimates=undetermined), without)
+    assert rec["prelim"], rec["fails"]  # a part the final fit does not determine is no reason
+
+
 @pytest.mark.slow
 def test_a_removed_effect_leaves_the_model_and_is_said_so(tmp_path, rig_1khz, params, monkeypatch):
     """The engine's side of a removal, on the plain screw drive of tests/test_trace.py (Coulomb 0.1 N m + offset

@@ -140,8 +140,8 @@ def conclusion_table_html(doc: dict) -> str:
 
 def _removed_sentence(r: dict) -> str:
     """One removal by the backward check, in words with its numbers."""
-    return (f"{r['name']} removed after round {r['removed_after_round']} (added in round {r['round_added']}): what it "
-            f"explained is explained by {', '.join(r['explained_by']) or 'the others'}; held-out chi2 drop "
+    return (f"{r['name']} removed after round {r['removed_after_round']} (added in round {r['round_added']}): no longer "
+            f"earns its place given {', '.join(r['explained_by']) or 'the others'}; held-out chi2 drop "
             f"{_num(r['holdout_chi2_drop_when_added'], '.4g')} when added, {_num(r['holdout_chi2_drop_given_others'], '.4g')}"
             f" given the others (threshold {_num(r['chi2_threshold'], '.3g')}, null {_num(r.get('null_chi2_drop'), '.3g')}): "
             + "; ".join(r["why"]))

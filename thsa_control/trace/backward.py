@@ -33,11 +33,13 @@ from dataclasses import dataclass, field
 from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
 from ..model.params import ParameterSet
 from .scoring import (
+    PAIR_CANDIDATES,
     _null_runs,
     admission_tests,
     beats_null,
     determination,
     null_drop,
+    pair_amplitude_zero,
 )
 
 #: how the kept effects are ordered (trace.json ``order.measure``)
@@ -132,8 +134,17 @@ def judge_removal(a: Added, full: dict, reduced: dict, *, noise, mask, window_ma
     # property (measured on rig_drivetrain_compliance: the load path's three parameters all of infinite standard
     # error in the final fit while taking it out raised the held-out error by 3026, 1179 when it was added).  An
     # effect whose part another explains fails on the drop and its null calibration.
-    why += [f"{n} = {full['estimates'][n]['value']:.3g} collapses to zero given the others"
-            for n, v in verdicts.items() if v == "zero"]
+    if spec.name in PAIR_CANDIDATES:
+        # a cosine and sine pair is absent when its amplitude is, not when one part is (the forward rule, one copy);
+        # a part the final fit's information does not determine: reported, not a reason, as for any parameter
+        est = full["estimates"]
+        if len(verdicts) == 2 and all(est[n].get("stderr_data") is not None for n in verdicts):
+            na, nb = verdicts
+            zero = pair_amplitude_zero(est[na], est[nb], nb, stderr=lambda e: e.get("stderr_data"))
+            why += [f"{zero} given the others"] if zero else []
+    else:
+        why += [f"{n} = {full['estimates'][n]['value']:.3g} collapses to zero given the others"
+                for n, v in verdicts.items() if v == "zero"]
     if adm["robust_fail"]:
         why.append(adm["robust_fail"])
     return {"name": a.name, "round_added": a.round, "holdout_chi2_drop_when_added": a.drop_when_added,

@@ -678,7 +678,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                             "chi2_threshold": worst["chi2_threshold"], "null_chi2_drop": worst.get("null_chi2_drop"),
                             "window_reduction_given_others": worst["window_reduction"], "why": worst["fails"],
                             "step": step})
-            say(f"removed {a.name} after round {after_round}: what it explained is explained by "
+            say(f"removed {a.name} after round {after_round}: no longer earns its place given "
                 f"{', '.join(later) or 'the others'} (held-out chi2 drop {a.drop_when_added:.4g} when added, "
                 f"{worst['holdout_chi2_drop']:.4g} given the others: {'; '.join(worst['fails'])})")
             current, cur_effects = f, tuple(f["effects"])
