@@ -125,7 +125,7 @@ def conclusion_table_html(doc: dict) -> str:
     misfit = misfit_shapes(doc["residual_signature"])
     tail = (f"<p>unexplained: <b>{doc['unexplained']}</b>"
             + (f" (structured: {esc(', '.join(doc['residual_signature']['structured']))})" if doc["unexplained"] else "")
-            + "".join(f"<br><small>{esc(m)}</small>" for m in misfit)
+            + "".join(f"<br><small>{esc(m)}</small>" for m in misfit + not_tested_lines(doc["residual_signature"]))
             + (f"<br><small>left as a declared model of another rig's base leaves it (starts, stops, reversals, "
                f"quadrant; not counted as unexplained): {esc('; '.join(base_like))}</small>" if base_like else "")
             + "</p>")
@@ -615,6 +615,16 @@ def _weights_text(check: dict) -> list[str]:
     return out
 
 
+def not_tested_lines(sig: dict) -> list[str]:
+    """The signature tests this record could not make, each with what it would have shown and why not: an
+    ``unexplained: False`` says nothing of a current-sensor offset on a record whose drive is never off."""
+    out = []
+    for t in sig.get("not_tested") or []:
+        where = f" on {t['run']}" if t.get("run") else ""
+        out.append(f"not tested: {t['test']}{where} ({t['would_show']} would show there): {t['why']}")
+    return out
+
+
 def format_trace_summary(doc: dict) -> str:
     """Console / report text: what was added, the ranking, the errors, the signature."""
     lines = [f"declared model: {doc['base_model']} ({', '.join(doc['declared_effects']) or 'functional'}), "
@@ -737,6 +747,7 @@ def format_trace_summary(doc: dict) -> str:
         lines.append("left as a declared model of another rig's base leaves it (not unexplained): "
                      + "; ".join(sig["base_like"]))
     lines += misfit_shapes(sig)
+    lines += not_tested_lines(sig)
     for t in sig["tests"][:6] + sig["sensors"]:
         extra = ""
         if t["kind"] == "periodic":

@@ -24,6 +24,7 @@ from ..model.params import ParameterSet
 from .candidates import ANGLE_HARMONIC, ANGLE_OF, CANDIDATES, PERIODS
 from .scoring import _rms_by_channel
 from .signature import (
+    MIN_DRIVE_OFF_SAMPLES,
     SignatureSettings,
     angle_test_samples,
     base_transients,
@@ -278,7 +279,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     bk = breakaway_of_runs(runs, s)
     if bk is not None:
         tests.insert(0, bk) if bk["significant"] else tests.append(bk)
-    sensors = []
+    sensors, not_tested = [], []
     for run in runs:
         measured = {c: run.signals[c] for c in ("motor_speed", "screw_speed", "nut_position") if c in run.source_columns}
         # the redundant sensors' lag at the replicate-based level (signature.LAG_ALPHA), the chains' declared
@@ -294,11 +295,25 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         if co is not None:
             co["run"] = run.name
             sensors.append(co)
+        elif "motor_current" in run.source_columns:
+            # said, not silent: with the drive on throughout (a rig that keeps it energised at zero command) an offset
+            # reads as a constant torque at the motor, which the constant-torque explainers share (measured on a blind
+            # rig-sim record, --no-gating, 0.36 A planted: absorbed by the base corrections, nothing flagged)
+            not_tested.append({"test": "motor_current with the drive off", "run": run.name,
+                               "would_show": "a current-sensor offset",
+                               "why": f"the drive is off on {int(np.count_nonzero(~on))} samples (fewer than "
+                                      f"{MIN_DRIVE_OFF_SAMPLES}); with the drive on, an offset reads as a constant "
+                                      "torque at the motor, which the constant-torque explainers share"})
     # the load cell where the physics holds the load (drive stopped, nut held): a reading trending with time, which
     # the structure's deflection (LVDT) does not follow, is a drifting sensor (from the records alone)
     hd = hold_drift_of_runs(runs, s, transients)
     hold_curve = None
-    if hd is not None:
+    if hd is None:
+        not_tested.append({"test": "time (slow drift) of the load reading in the holds", "run": None,
+                           "would_show": "a drifting load cell",
+                           "why": "no hold of the load of 0.2 s or more (the drive stopped, the nut still, outside "
+                                  "the base's transients)"})
+    else:
         hold_curve = {**hd.pop("curve"), "slope": hd["slope"], "p_value": hd["p_value"], "significant": hd["significant"]}
         sensors.append(hd)
     # the current at one operating point (same direction, command, load and nut positions) drifting in proportion to
@@ -329,7 +344,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     return {"residual": "missing torque at the motor shaft, J d(speed residual)/dt", "unit": "N m",
             "reflected_inertia": inertia, "missing_torque_rms": float(np.sqrt(np.mean(e_all[ok] ** 2))),
             "residual_to_noise": ratio, "max_noise_ratio": s.max_noise_ratio,
-            "tests": tests, "sensors": sensors,
+            "tests": tests, "sensors": sensors, "not_tested": not_tested,
             # the nut-position curves in the position test's bins (narrower on short passes), so that they share them
             "curves": {**_signature_curves(e_all, variables, runs, s if loc is None else dataclasses.replace(
                            s, position_bin=loc["bin_width"]), np.concatenate(steady)),

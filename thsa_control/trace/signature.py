@@ -69,7 +69,7 @@ import numpy as np
 from ..data.rigformat import motion_sign, stop_band
 from ..model.laws import kinematic_ratio
 
-__all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missing_torque", "current_offset_test",
+__all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missing_torque", "current_offset_test", "MIN_DRIVE_OFF_SAMPLES",
            "binned_mean", "cross_correlation", "position_local_test", "lag_test", "base_transients", "remainder_kind",
            "STRUCTURED_VARIABLES", "split_remainder", "segment_torques", "drift_test",
            "time_or_position_test", "hold_samples", "still_band", "stretches", "travel_passes",
@@ -1062,6 +1062,10 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
     return out
 
 
+#: drive-off samples the current-offset test needs (:func:`current_offset_test`)
+MIN_DRIVE_OFF_SAMPLES = 50
+
+
 def current_offset_test(current, drive_off, *, alpha: float = 1e-6, min_offset: float = 0.05) -> dict | None:
     """Mean of the measured current while the drive is off: a current-sensor offset.
 
@@ -1075,7 +1079,7 @@ def current_offset_test(current, drive_off, *, alpha: float = 1e-6, min_offset: 
 
     i = np.asarray(current, float)
     off = np.asarray(drive_off, bool) & np.isfinite(i)
-    if off.sum() < 50:
+    if off.sum() < MIN_DRIVE_OFF_SAMPLES:
         return None
     x = i[off]
     mu = float(x.mean())
