@@ -171,3 +171,25 @@ def test_a_load_step_is_a_transient_for_the_transient_time_either_side():
     tr = base_transients(t, np.zeros(t.size), f, 0.3)
     on = t[tr]
     assert on.min() == pytest.approx(1.7, abs=2 * dt) and on.max() == pytest.approx(2.3, abs=2 * dt), (on.min(), on.max())
+
+
+def test_a_motor_speed_read_through_the_screw_speed_sensor_keeps_its_holds():
+    """Without a motor-speed column the motor speed is the gear ratio times the screw-speed sensor's reading, with
+    65.61 times its noise (3 rad/s against the resolver's 0.3): the 50 ms speed-change test must not call that noise a
+    transient.  It did at one sample in about fourteen, so the stops' holds fell apart into stretches of tens of
+    milliseconds and the load-cell drift test never ran (a blind rig-sim cold ramp); now the stops are holds as with a
+    resolver, and a planted 60 N/s drift is found."""
+    from thsa_control.trace.signature import base_transients, stretches
+
+    t, w, f, x, cmd = _trim(9, drift=60.0)
+    rng = np.random.default_rng(10)
+    w = w + 4.0 * rng.standard_normal(t.size)  # the screw-speed sensor's 0.06 rad/s times 65.61, over the resolver's
+    h = hold_samples(t, w, f, cmd)
+    longest = max(t[q[-1]] - t[q[0]] for q in stretches(h))
+    assert longest > 0.8, longest  # the 4.5-5.5 s and 9-10 s stops, 0.3 s clear of their ends
+    # the real speed changes stay transients: the 0.5 s ramps (1030 rad/s^2 at the motor) beyond the noise's floor
+    ramps = ((t > 0.85) & (t < 1.15)) | ((t > 3.85) & (t < 4.15))
+    assert base_transients(t, w, f, 0.3)[ramps].all()
+    d = _test(t, w, f, x, cmd)
+    assert d is not None and d["holds"] == 2 and d["significant"], d
+    assert d["slope"] == pytest.approx(60.0, abs=4 * d["stderr"])

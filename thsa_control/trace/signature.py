@@ -106,10 +106,16 @@ def split_remainder(sig: dict) -> tuple[list[dict], list[dict]]:
     return structured, [t for t in sig_tests if t not in structured]
 
 
+#: a speed change counts as one (:func:`base_transients`) beyond this many standard deviations of the difference of two
+#: noisy readings (about 6e-7 per sample under white Gaussian noise)
+SPEED_CHANGE_SIGMA = 5.0
+
+
 def base_transients(time, speed, load, duration: float = 0.3, sustained: bool = False,
                     load_steps: bool = False, motion_band: float | None = None) -> np.ndarray:
     """Samples within ``duration`` of a start, stop, reversal or load change, or while the speed changes fast
-    (a speed step taking less than 2 s over the record's speed range): where a declared model of another rig's
+    (a speed step taking less than 2 s over the record's speed range, and a change over 50 ms beyond
+    :data:`SPEED_CHANGE_SIGMA` of the speed's own noise): where a declared model of another rig's
     base leaves structure (its stiction, Stribeck curve and loop settling).
 
     ``sustained``: judge the speed change on the speed averaged over ``duration`` (a step or a ramp of the
@@ -176,12 +182,20 @@ def base_transients(time, speed, load, duration: float = 0.3, sustained: bool = 
         near = np.minimum(near, np.abs(t - ev[np.clip(i - 1, 0, ev.size - 1)]))
         out |= near <= duration
     m = max(round(0.05 / dt), 1)  # speed change rate over 50 ms
+    from ..fit.identify import estimate_noise
+
+    sd = estimate_noise(w) if moves else 0.0  # the speed sensor's own noise (before any averaging)
     if sustained and n > k:
         w = np.convolve(w, np.ones(k) / k, mode="same")  # the speed averaged over ``duration``
+        sd /= math.sqrt(k)
     if n > m and moves:
         acc = np.zeros(n)
         acc[m:] = np.abs(w[m:] - w[:-m]) / (m * dt)
-        out |= acc > 0.5 * wmax
+        # a speed change beyond the noise of the difference of two readings too: a motor speed read as the gear ratio
+        # times a screw-speed sensor carries 65.61 times that sensor's noise (3 rad/s on a rig-sim cold ramp without
+        # its motor-speed column), which crossed the 50 ms rate threshold at one sample in fourteen and cut every
+        # drive-off hold into stretches of a few tens of milliseconds (no hold for the load-cell drift test)
+        out |= acc > max(0.5 * wmax, SPEED_CHANGE_SIGMA * math.sqrt(2.0) * sd / (m * dt))
     return out
 
 
