@@ -176,7 +176,7 @@ def test_a_load_step_is_a_transient_for_the_transient_time_either_side():
 def test_a_motor_speed_read_through_the_screw_speed_sensor_keeps_its_holds():
     """Without a motor-speed column the motor speed is the gear ratio times the screw-speed sensor's reading, with
     65.61 times its noise (3 rad/s against the resolver's 0.3): the 50 ms speed-change test must not call that noise a
-    transient.  It did at one sample in about fourteen, so the stops' holds fell apart into stretches of tens of
+    transient.  It did at 4.6 % of a stop's samples, so the stops' holds fell apart into stretches of tens of
     milliseconds and the load-cell drift test never ran (a blind rig-sim cold ramp); now the stops are holds as with a
     resolver, and a planted 60 N/s drift is found."""
     from thsa_control.trace.signature import base_transients, stretches

@@ -193,7 +193,7 @@ def base_transients(time, speed, load, duration: float = 0.3, sustained: bool = 
         acc[m:] = np.abs(w[m:] - w[:-m]) / (m * dt)
         # a speed change beyond the noise of the difference of two readings too: a motor speed read as the gear ratio
         # times a screw-speed sensor carries 65.61 times that sensor's noise (3 rad/s on a rig-sim cold ramp without
-        # its motor-speed column), which crossed the 50 ms rate threshold at one sample in fourteen and cut every
+        # its motor-speed column), which crossed the 50 ms rate threshold at 4.6 % of a stop's samples and cut every
         # drive-off hold into stretches of a few tens of milliseconds (no hold for the load-cell drift test)
         out |= acc > max(0.5 * wmax, SPEED_CHANGE_SIGMA * math.sqrt(2.0) * sd / (m * dt))
     return out
