@@ -25,6 +25,7 @@ from .candidates import ANGLE_HARMONIC, ANGLE_OF, CANDIDATES, PERIODS
 from .scoring import _rms_by_channel
 from .signature import (
     MIN_DRIVE_OFF_SAMPLES,
+    MIN_HOLD,
     SignatureSettings,
     angle_test_samples,
     base_transients,
@@ -311,8 +312,8 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     if hd is None:
         not_tested.append({"test": "time (slow drift) of the load reading in the holds", "run": None,
                            "would_show": "a drifting load cell",
-                           "why": "no hold of the load of 0.2 s or more (the drive stopped, the nut still, outside "
-                                  "the base's transients)"})
+                           "why": f"no hold of the load of {MIN_HOLD:g} s or more (the drive stopped, the nut still, "
+                                  "outside the base's transients)"})
     else:
         hold_curve = {**hd.pop("curve"), "slope": hd["slope"], "p_value": hd["p_value"], "significant": hd["significant"]}
         sensors.append(hd)

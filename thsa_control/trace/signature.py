@@ -69,7 +69,7 @@ import numpy as np
 from ..data.rigformat import motion_sign, stop_band
 from ..model.laws import kinematic_ratio
 
-__all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missing_torque", "current_offset_test", "MIN_DRIVE_OFF_SAMPLES",
+__all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missing_torque", "current_offset_test", "MIN_DRIVE_OFF_SAMPLES", "MIN_HOLD",
            "binned_mean", "cross_correlation", "position_local_test", "lag_test", "base_transients", "remainder_kind",
            "STRUCTURED_VARIABLES", "split_remainder", "segment_torques", "drift_test",
            "time_or_position_test", "hold_samples", "still_band", "stretches", "travel_passes",
@@ -1473,7 +1473,11 @@ def _pooled_slope(x: np.ndarray, y: np.ndarray, groups: list[np.ndarray], tau: f
     return {"slope": b, "stderr": math.sqrt(s2 * tau / sxx), "iact": tau, "s2": s2, "sxx": sxx, "n": n, "residual": r}
 
 
-def hold_drift_test(time, load, position, held, *, alpha: float = 1e-6, min_hold: float = 0.2,
+#: the shortest hold the load-cell drift test uses [s] (:func:`hold_drift_test`)
+MIN_HOLD = 0.2
+
+
+def hold_drift_test(time, load, position, held, *, alpha: float = 1e-6, min_hold: float = MIN_HOLD,
                     min_samples: int = 20, z_seen: float = 3.09, compliance_samples=None) -> dict | None:
     """A load reading that trends with time where the physics holds the load constant: a drifting load cell.
 
