@@ -185,3 +185,75 @@ def test_a_leftover_at_an_added_effects_own_harmonic_is_its_size_not_a_new_struc
         test = next(d for d in _signature(fit, [run], params, _Plant(), SignatureSettings())["tests"]
                     if d["variable"] == "motor_angle")
         assert test["significant"] and test["dominant_harmonic"] == 2, (seed, test["p_value"])
+
+
+def _trim_record(seed: int, missing_torque):
+    """rig-sim's trim at 1 kHz, stand-in fit: +15 mm/s 1-4 s, stop, -15 mm/s 5.5-8.5 s (ramps of 30 mm/s^2) at
+    30 kN; 50 ms segments are 0.75 mm of travel, 1/16 of a screw revolution.  The outward pass is 0.3 mm longer
+    than a whole number of segments' travel, so that the two directions pass the segment grid at different screw
+    angles (on a record whose passes are whole numbers of segments long both meet it at one angle).  ``missing_torque(t, v, screw_angle)``
+    [N m] is integrated into the speed residual, with the resolver's noise."""
+    fs = 1000.0
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 10.0, 1 / fs)
+    v = 0.015 * (np.clip((t - 1.0) / 0.5, 0, 1) - np.clip((t - 3.52) / 0.5, 0, 1)
+                 - np.clip((t - 5.5) / 0.5, 0, 1) + np.clip((t - 8.0) / 0.5, 0, 1))
+    w = v * 2 * math.pi * RATIO / LEAD
+    screw = np.cumsum(w) / fs / RATIO
+    e_w = np.cumsum(missing_torque(t, v, screw)) / fs / J + 0.2 * rng.standard_normal(t.size)
+    w_meas = w + 0.2 * rng.standard_normal(t.size)
+    sig = {"motor_speed": w_meas, "nut_position": np.cumsum(v) / fs + 2e-6 * rng.standard_normal(t.size),
+           "load_force": np.full(t.size, 3e4), "motor_current": 4.0 * np.sign(v),
+           "temperature": np.full(t.size, 25.0), "primary_enable": (v != 0).astype(float),
+           "standby_enable": np.zeros(t.size), "speed_cmd": v}
+    run = RigRun("synthetic_trim", Path("synthetic.csv"), Path("synthetic.json"), {}, t, sig, gear_ratio=RATIO,
+                 screw_lead=LEAD, source_columns={c: c for c in ("motor_speed", "nut_position", "motor_current")})
+    fit = {"predictions": {run.name: {"measured": {"motor_speed": w_meas}, "simulated": {"motor_speed": w_meas - e_w},
+                                      "segment_starts": np.arange(0.0, 10.0, SEG),
+                                      "holdout": (np.floor(t / SEG) % 3 == 2)}}}
+    return run, fit
+
+
+def test_a_level_of_each_direction_is_not_a_harmonic_at_the_segment_rate():
+    """A torque of one size per direction of motion (rig-sim's pawl backlash record: the directions' levels 6.8 mN m
+    apart at the motor after the fit) is no periodic torque.  The missing torque is NaN near each segment's edges, so
+    at a constant speed the tested samples are a comb at the segment rate, 16 per screw revolution here, and the
+    directions' step projects on that harmonic: tested against the mean alone it is significant at the 16th (a
+    blind pawl record was flagged so, p 4e-7; this record's step is 3.7 mN m on the 16th against 0.2 at most on the
+    others, not significant here as on three fresh pawl records, whose residual keeps the step's autocorrelation).
+    The engine's test is given a level per run and direction: nothing there, and a real ripple on the same record is
+    still found with its harmonic and amplitude."""
+    from thsa_control.trace.signature import missing_torque, signature_tests
+
+    def step(t, v, a):
+        return 0.0068 * (v > 0)
+
+    for seed in (1, 2, 3):
+        run, fit = _trim_record(seed, step)
+        sig = _signature(fit, [run], default_parameters(), _Plant(), SignatureSettings())
+        test = next(d for d in sig["tests"] if d["variable"] == "screw_angle")
+        assert not test["significant"], (seed, test["p_value"], test["dominant_harmonic"])
+        assert "screw_angle" not in [d["variable"] for d in split_remainder(sig)[0]]
+        # the same residual and samples against the mean alone: the comb's harmonic
+        pr = fit["predictions"][run.name]
+        m = missing_torque(run.time, pr["measured"]["motor_speed"] - pr["simulated"]["motor_speed"],
+                           np.searchsorted(run.time, pr["segment_starts"]), J, 21)
+        from thsa_control.trace.signature import angle_test_samples
+        w = run.signals["motor_speed"]
+        steady = angle_test_samples(run.time, w, run.signals["load_force"], 0.3)
+        angle = np.where(steady, np.cumsum(w) / 1000.0 / RATIO, np.nan)
+        plain = signature_tests(m, {"screw_angle": ("angle", angle)})[0]
+        assert plain["dominant_harmonic"] == 16, plain["harmonic_amplitudes"]
+        assert plain["dominant_amplitude"] > 3e-3  # about half the step (the comb keeps 60 % of a segment)
+        # given the directions' levels the 16th is at the noise, as every other harmonic
+        assert max(test["harmonic_amplitudes"]) < 0.1 * plain["dominant_amplitude"], test["harmonic_amplitudes"]
+        assert test["given_levels"] == 2  # the tested samples move out or in
+
+    def ripple(t, v, a):
+        return step(t, v, a) + 0.003 * np.sin(3 * a)
+
+    run, fit = _trim_record(4, ripple)
+    test = next(d for d in _signature(fit, [run], default_parameters(), _Plant(), SignatureSettings())["tests"]
+                if d["variable"] == "screw_angle")
+    assert test["significant"] and test["dominant_harmonic"] == 3, test["p_value"]
+    assert test["dominant_amplitude"] == pytest.approx(0.003, rel=0.15)

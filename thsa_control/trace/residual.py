@@ -173,6 +173,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     drift_in: list = []  # (time, segment torque, direction)
     drift_at: list = []  # (nut position, run number) of each drift segment: time told from position
     accel: list = []  # J x the measured motor acceleration, per run
+    levels: list = []  # the group of each sample (run and direction of motion), per run
     t_offset = 0.0
     for run in runs:
         pr = fit["predictions"][run.name]
@@ -232,6 +233,8 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             spans[name] = max(spans.get(name, 0.0), span)
         for name, (kind, v) in cols.items():
             vars_.setdefault(name, (kind, []))[1].append(np.asarray(v, float))
+        # the angle tests' levels: one per run and direction of motion (signature_tests' ``levels``)
+        levels.append(3.0 * len(levels) + 1.0 + np.asarray(cols["speed_sign"][1], float))
         # the pass-replicated position test (runs separated by a gap that ends every pass), on the residual
         # outside the base's transients: a declared model whose base differs from the rig's leaves structure at
         # starts, stops, reversals and load changes, and a trim run starts and stops at the same positions
@@ -256,7 +259,8 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         if n in ANGLE_OF:
             own.setdefault(ANGLE_OF[n], {})[n] = ANGLE_HARMONIC[n](params)
     tests = signature_tests(e_all, variables, unit="N m", settings=s,
-                            given={"motor_current (torque constant)": np.concatenate(accel)}, added=own)
+                            given={"motor_current (torque constant)": np.concatenate(accel)}, added=own,
+                            levels=np.concatenate(levels))
     for t in tests:  # the angle tests' (the position test's below)
         for name, a in (t.get("added_shapes") or {}).items():
             _against_fitted(a, name, params, phase=False)
