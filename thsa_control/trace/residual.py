@@ -206,9 +206,10 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             span = steady_span / (run.gear_ratio if name == "screw_angle" else 1.0)
             tested[name] = (np.where(steady_angle, a, np.nan) if span >= 4 * math.pi else a, span)
         dv = stop_band(w)
+        load_band = max(0.02 * float(np.max(np.abs(load))), 1.0)  # an unloaded sample: the quadrant's 0
         on = drive_on(run)
         cols = {
-            "quadrant": ("category", quadrant(w, load, (dv, max(0.02 * float(np.max(np.abs(load))), 1.0)))),
+            "quadrant": ("category", quadrant(w, load, (dv, load_band))),
             "motor_on": ("category", on.astype(float)),
             "temperature": ("quantile", np.asarray(run.signals["temperature"], float)),
             "time_since_reversal": ("quantile", np.minimum(reversal_proximity(t, w, deadband=dv), 10.0)),
@@ -233,8 +234,10 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             spans[name] = max(spans.get(name, 0.0), span)
         for name, (kind, v) in cols.items():
             vars_.setdefault(name, (kind, []))[1].append(np.asarray(v, float))
-        # the angle tests' levels: one per run and direction of motion (signature_tests' ``levels``)
-        levels.append(3.0 * len(levels) + 1.0 + np.asarray(cols["speed_sign"][1], float))
+        # the angle tests' levels (signature_tests' ``levels``): one per run, direction of motion and sign of the
+        # load, the pieces the no-back's and the constant-torque explainers' torques are constant on
+        load_sign = np.where(np.abs(load) > load_band, np.sign(load), 0.0)
+        levels.append(9.0 * len(levels) + 3.0 * (1.0 + np.asarray(cols["speed_sign"][1], float)) + 1.0 + load_sign)
         # the pass-replicated position test (runs separated by a gap that ends every pass), on the residual
         # outside the base's transients: a declared model whose base differs from the rig's leaves structure at
         # starts, stops, reversals and load changes, and a trim run starts and stops at the same positions

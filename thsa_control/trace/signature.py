@@ -410,7 +410,7 @@ def signature_tests(residual, variables: dict, *, unit: str = "N m",
     levels : array_like, optional
         Labels (one per residual sample) of the groups whose own constant level an ``"angle"`` test is conditioned
         on: the residual and the harmonics are regressed on a level per group first (and on the added harmonics).
-        The engine gives one group per run and direction of motion.  A torque of one constant size per direction
+        The engine gives one group per run, direction of motion and sign of the load.  A torque of one constant size per direction
         (a Coulomb-like drag misestimated) is no periodic torque, but the samples an angle test sees are not spread
         evenly over the angle: the missing torque is NaN near every multiple-shooting segment's edges, so at a
         constant speed the tested samples are a comb at the segment rate, and the harmonic at that rate does not
