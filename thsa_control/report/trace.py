@@ -280,6 +280,15 @@ def misfit_shapes(sig: dict) -> list[str]:
     return out
 
 
+def segment_rate_text(t: dict) -> str:
+    """`` beyond the segment rate's harmonic 24`` for an angle test that left harmonics at the segment rate out
+    (:func:`~thsa_control.trace.signature.segment_rate_harmonics`), else empty."""
+    hs = t.get("segment_rate_harmonics") or []
+    if not hs:
+        return ""
+    return f" beyond the segment rate's harmonic{'s' if len(hs) > 1 else ''} {', '.join(str(h) for h in hs)}"
+
+
 def _angle_note(sig: dict, name: str) -> str:
     """The angle test's verdict under its panel's title: its p-value, and where the model has a ripple or cogging in
     that angle, that the test is beyond its harmonic and what the residual holds at it (the panel shows it all)."""
@@ -287,11 +296,12 @@ def _angle_note(sig: dict, name: str) -> str:
     if t is None:
         return ""
     flag = " (STRUCTURED)" if t.get("significant") else ""
+    comb = segment_rate_text(t)
     if not t.get("beyond_added"):
-        return f"\nharmonics: p {_num(t['p_value'], '.2g')}{flag}"
+        return f"\nharmonics{comb}: p {_num(t['p_value'], '.2g')}{flag}"
     own = t.get("added_shapes") or {}
     which = ", ".join(f"{k} (harmonic {a['harmonic']})" for k, a in own.items())
-    lines = [f"\nbeyond {which}: p {_num(t['p_value'], '.2g')}{flag}"]
+    lines = [f"\nbeyond {which}{comb}: p {_num(t['p_value'], '.2g')}{flag}"]
     for k, a in own.items():
         fit = a.get("fitted_amplitude")
         lines.append(f"\nleft at its harmonic: {_num(a['amplitude'], '.2g')} N m"
@@ -751,7 +761,8 @@ def format_trace_summary(doc: dict) -> str:
     for t in sig["tests"][:6] + sig["sensors"]:
         extra = ""
         if t["kind"] == "periodic":
-            extra = (f", dominant harmonic {t['dominant_harmonic']} per revolution" if t.get("dominant_harmonic")
+            extra = (f", dominant harmonic {t['dominant_harmonic']} per revolution{segment_rate_text(t)}"
+                     if t.get("dominant_harmonic")
                      else f", no harmonics over {t.get('why_no_harmonics', 'less than a revolution')}")
         elif t["kind"] == "local":
             extra = f", peak in {1e3 * t['peak_bin'][0]:.1f}..{1e3 * t['peak_bin'][1]:.1f} mm" + (

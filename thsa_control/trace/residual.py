@@ -173,7 +173,9 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     drift_in: list = []  # (time, segment torque, direction)
     drift_at: list = []  # (nut position, run number) of each drift segment: time told from position
     accel: list = []  # J x the measured motor acceleration, per run
-    levels: list = []  # the group of each sample (run and direction of motion), per run
+    levels: list = []  # the group of each sample (run, direction of motion, sign of the load), per run
+    cycles: dict[str, list] = {}  # angle -> its revolutions per multiple-shooting segment at each sample, per run
+    phase: list = []  # each sample's place in its segment (0..1), per run
     t_offset = 0.0
     for run in runs:
         pr = fit["predictions"][run.name]
@@ -238,6 +240,13 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         # load, the pieces the no-back's and the constant-torque explainers' torques are constant on
         load_sign = np.where(np.abs(load) > load_band, np.sign(load), 0.0)
         levels.append(9.0 * len(levels) + 3.0 * (1.0 + np.asarray(cols["speed_sign"][1], float)) + 1.0 + load_sign)
+        # each angle's revolutions per segment (signature_tests' ``segment_cycles``: its harmonics at the segment rate)
+        seg_len = float(np.median(np.diff(pr["segment_starts"]))) if len(pr["segment_starts"]) > 1 else 0.0
+        for name, ratio in (("motor_angle", 1.0), ("screw_angle", run.gear_ratio)):
+            cycles.setdefault(name, []).append(np.abs(w) * seg_len / (2 * math.pi * ratio))
+        first = np.asarray(pr["segment_starts"], float)[np.maximum(np.searchsorted(starts, np.arange(n), side="right")
+                                                                   - 1, 0)]
+        phase.append((t - first) / seg_len if seg_len > 0 else np.full(n, np.nan))
         # the pass-replicated position test (runs separated by a gap that ends every pass), on the residual
         # outside the base's transients: a declared model whose base differs from the rig's leaves structure at
         # starts, stops, reversals and load changes, and a trim run starts and stops at the same positions
@@ -263,7 +272,9 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             own.setdefault(ANGLE_OF[n], {})[n] = ANGLE_HARMONIC[n](params)
     tests = signature_tests(e_all, variables, unit="N m", settings=s,
                             given={"motor_current (torque constant)": np.concatenate(accel)}, added=own,
-                            levels=np.concatenate(levels))
+                            levels=np.concatenate(levels),
+                            segment_cycles={n: np.concatenate(c) for n, c in cycles.items()},
+                            segment_phase=np.concatenate(phase))
     for t in tests:  # the angle tests' (the position test's below)
         for name, a in (t.get("added_shapes") or {}).items():
             _against_fitted(a, name, params, phase=False)

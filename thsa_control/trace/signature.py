@@ -71,7 +71,7 @@ from ..model.laws import kinematic_ratio
 
 __all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missing_torque", "current_offset_test", "MIN_DRIVE_OFF_SAMPLES", "MIN_HOLD",
            "binned_mean", "cross_correlation", "position_local_test", "lag_test", "base_transients", "remainder_kind",
-           "STRUCTURED_VARIABLES", "split_remainder", "segment_torques", "drift_test",
+           "STRUCTURED_VARIABLES", "split_remainder", "segment_torques", "drift_test", "segment_rate_harmonics",
            "time_or_position_test", "hold_samples", "still_band", "stretches", "travel_passes",
            "hold_drift_test", "breakaway_events", "breakaway_position_test", "current_noise",
            "current_drift_test", "TORQUE_CONSTANT_DRIFT", "BREAKAWAY_VARIABLE"]
@@ -365,6 +365,48 @@ def _result(name, kind, size, r2, p, s: SignatureSettings, unit, **extra):
             "significant": bool(p < s.alpha and r2 >= s.min_r2), **extra}
 
 
+#: The angle tests' harmonics at the segment rate: a harmonic whose phase keeps in step with the multiple-shooting
+#: segments' (its ``k``-th harmonic, ``k`` >= 1 the harmonic's whole cycles per segment) over the tested samples, a
+#: coherence of at least this (:func:`segment_rate_harmonics`).  The tested samples are a comb at the segment rate
+#: (the missing torque is NaN near each segment's edges), and a pattern that repeats in every segment (an error in a
+#: state the segments start from, decaying the same way in each) is periodic in angle at such a harmonic; a level
+#: per direction seen through the comb is too (the levels take that part).  Measured on rig-sim's no-back load sweep
+#: at 10 mm/s (1/24 of a screw revolution per segment), given the levels: 4.6 mN m on the screw angle's 24th
+#: harmonic against 2.1 at most on the others.  Such a harmonic is left out of the test (regressed out first, as an
+#: added effect's own) and named (``segment_rate_harmonics``): a periodic torque there cannot be told from the
+#: segment grid on that record.  Half: a harmonic slipping against the grid leaks at most half as much.
+SEGMENT_RATE_COHERENCE = 0.5
+
+
+def segment_rate_harmonics(angle, cycles_per_segment, segment_phase, harmonics: int, groups=None) -> list[int]:
+    """The harmonics (1..``harmonics``) of ``angle`` [rad] at the segment rate: the coherence of ``h angle - 2 pi k
+    segment_phase`` (``k`` the nearest whole number of the harmonic's cycles per segment, ``h x
+    cycles_per_segment``, at least one; ``segment_phase`` each sample's place in its segment, 0..1) over the samples
+    of each group (``groups`` labels, e.g. the levels: each direction passes the grid at its own phase), weighted by
+    the groups' sizes, at least :data:`SEGMENT_RATE_COHERENCE`."""
+    a = np.asarray(angle, float)
+    c = np.abs(np.asarray(cycles_per_segment, float))
+    f = np.asarray(segment_phase, float)
+    g = np.zeros(a.size) if groups is None else np.asarray(groups, float)
+    ok = np.isfinite(a) & np.isfinite(c) & np.isfinite(f) & np.isfinite(g)
+    a, c, f, g = a[ok], c[ok], f[ok], g[ok]
+    if a.size == 0:
+        return []
+    labels = np.unique(g)
+    out = []
+    for h in range(1, harmonics + 1):
+        k = np.round(h * c)
+        z = np.exp(1j * (h * a - 2 * math.pi * k * f))
+        coh = 0.0
+        for lab in labels:
+            m = (g == lab) & (k >= 1)
+            if m.any():
+                coh += float(np.abs(np.mean(z[m]))) * np.count_nonzero(m)
+        if coh / a.size >= SEGMENT_RATE_COHERENCE:
+            out.append(h)
+    return out
+
+
 def _level_columns(levels, ok: np.ndarray) -> np.ndarray:
     """Indicator columns of the groups ``levels`` labels on the samples ``ok`` (one column of ones without labels or
     with one group; NaN labels join no group beyond the mean's)."""
@@ -380,7 +422,8 @@ def _level_columns(levels, ok: np.ndarray) -> np.ndarray:
 
 def signature_tests(residual, variables: dict, *, unit: str = "N m",
                     settings: SignatureSettings | None = None, given: dict | None = None,
-                    added: Mapping[str, Mapping[str, int]] | None = None, levels=None) -> list[dict]:
+                    added: Mapping[str, Mapping[str, int]] | None = None, levels=None,
+                    segment_cycles: Mapping[str, object] | None = None, segment_phase=None) -> list[dict]:
     """Dependence of ``residual`` on each variable, strongest first.
 
     Parameters
@@ -419,6 +462,11 @@ def signature_tests(residual, variables: dict, *, unit: str = "N m",
         15 mm/s, 50 ms segments, 1/16 of a screw revolution per segment: a direction step of 6.8 mN m at the motor
         put 3.5 mN m on the screw angle's 16th harmonic (the others 0.7 at most), 20th with 40 ms segments, and set
         ``unexplained`` on one record of four (p 4e-7); given the levels 0.17 mN m.
+    segment_cycles : dict name -> array, optional
+        For an ``"angle"`` variable: the revolutions of that angle per multiple-shooting segment at each sample
+        (speed x segment length / 2 pi); with ``segment_phase`` (each sample's place in its segment, 0..1) the
+        harmonics at the segment rate (:func:`segment_rate_harmonics`, over the ``levels`` groups) are left out of
+        the test like an added effect's own and named (``segment_rate_harmonics``).
     """
     s = settings or SignatureSettings()
     e_all = np.asarray(residual, float)
@@ -444,28 +492,40 @@ def signature_tests(residual, variables: dict, *, unit: str = "N m",
             amps = np.hypot(coef[0::2], coef[1::2])
             own = {k: int(h) for k, h in ((added or {}).get(name) or {}).items() if 1 <= int(h) <= s.harmonics}
             extra = {"given_levels": L.shape[1]} if grouped else {}
-            if own and float(np.ptp(v)) >= 2 * math.pi:
-                # beyond the model's own harmonics: both sides regressed on them (and the levels) first
+            comb = (segment_rate_harmonics(v, np.asarray(segment_cycles[name], float)[ok],
+                                           np.asarray(segment_phase, float)[ok], s.harmonics,
+                                           None if levels is None else np.asarray(levels, float)[ok])
+                    if segment_cycles is not None and segment_phase is not None and name in segment_cycles else [])
+            comb = [h for h in comb if h not in own.values()]
+            if (own or comb) and float(np.ptp(v)) >= 2 * math.pi:
+                # beyond the model's own harmonics and the segment rate's: both sides regressed on them (and the
+                # levels) first
                 hs = sorted(set(own.values()))
                 mine = np.zeros(X.shape[1], bool)
                 for h in hs:
                     mine[2 * (h - 1): 2 * h] = True
-                N = np.column_stack([L, X[:, mine]])
+                excl = mine.copy()
+                for h in comb:
+                    excl[2 * (h - 1): 2 * h] = True
+                N = np.column_stack([L, X[:, excl]])
                 x = e - N @ np.linalg.lstsq(N, e, rcond=None)[0]
-                Xb = X[:, ~mine] - N @ np.linalg.lstsq(N, X[:, ~mine], rcond=None)[0]
+                Xb = X[:, ~excl] - N @ np.linalg.lstsq(N, X[:, ~excl], rcond=None)[0]
                 cb, *_ = np.linalg.lstsq(Xb, x, rcond=None)
                 fitted = Xb @ cb
                 size, r2, p = _f_test(x, fitted, Xb.shape[1])
-                # along the own harmonics: their columns alone given the levels (what the residual holds there)
-                Xa = X[:, mine] - (L @ np.linalg.lstsq(L, X[:, mine], rcond=None)[0] if grouped else
-                                   X[:, mine].mean(axis=0))
-                ea = e - L @ np.linalg.lstsq(L, e, rcond=None)[0] if grouped else e - e.mean()
-                ca_, *_ = np.linalg.lstsq(Xa, ea, rcond=None)
-                sa, r2a, pa = _f_test(ea if grouped else e, Xa @ ca_, Xa.shape[1])
-                extra = {**extra, "beyond_added": hs, "added_shapes": {
-                    k: {"harmonic": h, "amplitude": float(amps[h - 1]), "size": sa, "r2": r2a, "p_value": pa,
-                        "significant": bool(pa < s.alpha and r2a >= s.min_r2)} for k, h in own.items()}}
-                best = int(np.argmax(np.where(mine[0::2], 0.0, amps))) + 1  # the strongest harmonic beyond
+                if own:
+                    # along the own harmonics: their columns alone given the levels (what the residual holds there)
+                    Xa = X[:, mine] - (L @ np.linalg.lstsq(L, X[:, mine], rcond=None)[0] if grouped else
+                                       X[:, mine].mean(axis=0))
+                    ea = e - L @ np.linalg.lstsq(L, e, rcond=None)[0] if grouped else e - e.mean()
+                    ca_, *_ = np.linalg.lstsq(Xa, ea, rcond=None)
+                    sa, r2a, pa = _f_test(ea if grouped else e, Xa @ ca_, Xa.shape[1])
+                    extra = {**extra, "beyond_added": hs, "added_shapes": {
+                        k: {"harmonic": h, "amplitude": float(amps[h - 1]), "size": sa, "r2": r2a, "p_value": pa,
+                            "significant": bool(pa < s.alpha and r2a >= s.min_r2)} for k, h in own.items()}}
+                if comb:
+                    extra["segment_rate_harmonics"] = comb
+                best = int(np.argmax(np.where(excl[0::2], 0.0, amps))) + 1  # the strongest harmonic beyond
             else:
                 fitted = XL @ coef
                 size, r2, p = _f_test(x if grouped else e, fitted, X.shape[1])
