@@ -191,8 +191,8 @@ def _trim_record(seed: int, missing_torque):
     """rig-sim's trim at 1 kHz, stand-in fit: +15 mm/s 1-4 s, stop, -15 mm/s 5.5-8.5 s (ramps of 30 mm/s^2) at
     30 kN; 50 ms segments are 0.75 mm of travel, 1/16 of a screw revolution.  The outward pass is 0.3 mm longer
     than a whole number of segments' travel, so that the two directions pass the segment grid at different screw
-    angles (on a record whose passes are whole numbers of segments long both meet it at one angle).  ``missing_torque(t, v, screw_angle)``
-    [N m] is integrated into the speed residual, with the resolver's noise."""
+    angles (on a record whose passes are whole numbers of segments long both meet it at one angle).
+    ``missing_torque(t, v, screw_angle)`` [N m] is integrated into the speed residual, with the resolver's noise."""
     fs = 1000.0
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, 10.0, 1 / fs)
@@ -265,8 +265,8 @@ def test_a_pattern_of_every_segment_is_not_a_harmonic_at_the_segment_rate():
     speed it is periodic in angle at the segment rate: 16 per screw revolution at 15 mm/s with 50 ms segments
     (rig-sim's no-back load sweep at 10 mm/s, given the levels: 4.6 mN m on the screw angle's 24th harmonic against
     2.1 at most on the others).  A periodic torque there cannot be told from the segment grid: that harmonic is left
-    out of the test and named; the rest is tested as before (a ripple at the third harmonic beside the same pattern
-    is found, with its amplitude)."""
+    out of the test, named, and listed as not tested; the rest is tested as before (a ripple at the third harmonic
+    beside the same pattern is found, with its amplitude)."""
     from thsa_control.trace.signature import missing_torque, segment_rate_harmonics, signature_tests
 
     def ringing(t, v, a):
@@ -295,6 +295,8 @@ def test_a_pattern_of_every_segment_is_not_a_harmonic_at_the_segment_rate():
         assert plain["dominant_harmonic"] == 16, plain["harmonic_amplitudes"]
         assert plain["dominant_amplitude"] > 5 * float(np.median(plain["harmonic_amplitudes"]))
         assert test["segment_rate_harmonics"] == [16]
+        said = [d for d in sig["not_tested"] if d["test"] == "screw_angle at harmonic 16"]
+        assert len(said) == 1 and said[0]["would_show"] == "a periodic torque at 16 per revolution", sig["not_tested"]
         assert test["dominant_harmonic"] != 16 and test["dominant_amplitude"] < 0.3 * plain["dominant_amplitude"]
         assert not test["significant"], test["p_value"]
 

@@ -323,6 +323,19 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
                                "why": f"the drive is off on {int(np.count_nonzero(~on))} samples (fewer than "
                                       f"{MIN_DRIVE_OFF_SAMPLES}); with the drive on, an offset reads as a constant "
                                       "torque at the motor, which the constant-torque explainers share"})
+    # an angle test's harmonics in step with the fit segments: a periodic torque there is not told from the grid
+    seg = float(np.median([np.median(np.diff(fit["predictions"][r.name]["segment_starts"])) for r in runs
+                           if r.name in fit["predictions"] and len(fit["predictions"][r.name]["segment_starts"]) > 1]
+                          or [0.0]))
+    for t in tests:
+        hs = t.get("segment_rate_harmonics") or []
+        if hs:
+            which = ", ".join(str(h) for h in hs)
+            not_tested.append({"test": f"{t['variable']} at harmonic{'s' if len(hs) > 1 else ''} {which}", "run": None,
+                               "would_show": f"a periodic torque at {which} per revolution",
+                               "why": f"in step with the {seg:g} s fit segments at this record's speed (the tested "
+                                      "samples are a comb at the segment rate, and a pattern repeated in every "
+                                      "segment is periodic there); another --segment moves it"})
     # the load cell where the physics holds the load (drive stopped, nut held): a reading trending with time, which
     # the structure's deflection (LVDT) does not follow, is a drifting sensor (from the records alone)
     hd = hold_drift_of_runs(runs, s, transients)
