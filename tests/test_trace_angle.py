@@ -214,6 +214,19 @@ def _trim_record(seed: int, missing_torque):
     return run, fit
 
 
+def _trim_angle_samples(run, fit):
+    """The stand-in fit's missing torque, the screw angle on the angle tests' samples (NaN elsewhere) and the motor
+    speed, as the engine's signature computes them."""
+    from thsa_control.trace.signature import angle_test_samples, missing_torque
+
+    pr = fit["predictions"][run.name]
+    m = missing_torque(run.time, pr["measured"]["motor_speed"] - pr["simulated"]["motor_speed"],
+                       np.searchsorted(run.time, pr["segment_starts"]), J, 21)
+    w = run.signals["motor_speed"]
+    steady = angle_test_samples(run.time, w, run.signals["load_force"], 0.3)
+    return m, np.where(steady, np.cumsum(w) / 1000.0 / RATIO, np.nan), w
+
+
 def test_a_level_of_each_direction_is_not_a_harmonic_at_the_segment_rate():
     """A torque of one size per direction of motion (rig-sim's pawl backlash record: the directions' levels 6.8 mN m
     apart at the motor after the fit) is no periodic torque.  The missing torque is NaN near each segment's edges, so
@@ -223,7 +236,7 @@ def test_a_level_of_each_direction_is_not_a_harmonic_at_the_segment_rate():
     others, not significant here as on three fresh pawl records, whose residual keeps the step's autocorrelation).
     The engine's test is given a level per run and direction: nothing there, and a real ripple on the same record is
     still found with its harmonic and amplitude."""
-    from thsa_control.trace.signature import missing_torque, signature_tests
+    from thsa_control.trace.signature import signature_tests
 
     def step(t, v, a):
         return 0.0068 * (v > 0)
@@ -235,13 +248,7 @@ def test_a_level_of_each_direction_is_not_a_harmonic_at_the_segment_rate():
         assert not test["significant"], (seed, test["p_value"], test["dominant_harmonic"])
         assert "screw_angle" not in [d["variable"] for d in split_remainder(sig)[0]]
         # the same residual and samples against the mean alone: the comb's harmonic
-        pr = fit["predictions"][run.name]
-        m = missing_torque(run.time, pr["measured"]["motor_speed"] - pr["simulated"]["motor_speed"],
-                           np.searchsorted(run.time, pr["segment_starts"]), J, 21)
-        from thsa_control.trace.signature import angle_test_samples
-        w = run.signals["motor_speed"]
-        steady = angle_test_samples(run.time, w, run.signals["load_force"], 0.3)
-        angle = np.where(steady, np.cumsum(w) / 1000.0 / RATIO, np.nan)
+        m, angle, w = _trim_angle_samples(run, fit)
         plain = signature_tests(m, {"screw_angle": ("angle", angle)})[0]
         assert plain["dominant_harmonic"] == 16, plain["harmonic_amplitudes"]
         assert plain["dominant_amplitude"] > 3e-3  # about half the step (the comb keeps 60 % of a segment)
@@ -267,7 +274,7 @@ def test_a_pattern_of_every_segment_is_not_a_harmonic_at_the_segment_rate():
     2.1 at most on the others).  A periodic torque there cannot be told from the segment grid: that harmonic is left
     out of the test, named, and listed as not tested; the rest is tested as before (a ripple at the third harmonic
     beside the same pattern is found, with its amplitude)."""
-    from thsa_control.trace.signature import missing_torque, segment_rate_harmonics, signature_tests
+    from thsa_control.trace.signature import segment_rate_harmonics, signature_tests
 
     def ringing(t, v, a):
         return 0.004 * np.cos(2 * np.pi * (t % SEG) / SEG) * (v > 0)  # extending (one quadrant)
@@ -283,13 +290,7 @@ def test_a_pattern_of_every_segment_is_not_a_harmonic_at_the_segment_rate():
         sig = _signature(fit, [run], default_parameters(), _Plant(), SignatureSettings())
         test = next(d for d in sig["tests"] if d["variable"] == "screw_angle")
         # the same residual given the levels but not the segment rate: the 16th stands out
-        pr = fit["predictions"][run.name]
-        m = missing_torque(run.time, pr["measured"]["motor_speed"] - pr["simulated"]["motor_speed"],
-                           np.searchsorted(run.time, pr["segment_starts"]), J, 21)
-        from thsa_control.trace.signature import angle_test_samples
-        w = run.signals["motor_speed"]
-        steady = angle_test_samples(run.time, w, run.signals["load_force"], 0.3)
-        angle = np.where(steady, np.cumsum(w) / 1000.0 / RATIO, np.nan)
+        m, angle, w = _trim_angle_samples(run, fit)
         levels = 1.0 + np.sign(w) * (np.abs(w) > 1.0)
         plain = signature_tests(m, {"screw_angle": ("angle", angle)}, levels=levels)[0]
         assert plain["dominant_harmonic"] == 16, plain["harmonic_amplitudes"]
