@@ -254,6 +254,13 @@ def test_a_level_of_each_direction_is_not_a_harmonic_at_the_segment_rate():
         assert plain["dominant_amplitude"] > 3e-3  # about half the step (the comb keeps 60 % of a segment)
         # given the directions' levels the 16th is at the noise, as every other harmonic
         assert max(test["harmonic_amplitudes"]) < 0.1 * plain["dominant_amplitude"], test["harmonic_amplitudes"]
+        # the report's curve binned by screw angle is of the residual less its levels, as the test sees it: the
+        # step's zigzag through the comb is not drawn
+        from thsa_control.trace.signature import binned_mean
+        raw = binned_mean(m, np.mod(angle, 2 * np.pi), np.linspace(0, 2 * np.pi, 37))
+        drawn = sig["curves"]["screw_angle"]
+        assert drawn["given_levels"] and np.std(drawn["mean"]) < 0.5 * np.std(raw["mean"]), (np.std(drawn["mean"]),
+                                                                                             np.std(raw["mean"]))
         assert test["given_levels"] == 2  # the tested samples move out or in
 
     def ripple(t, v, a):

@@ -361,7 +361,7 @@ def plot_signature(sig: dict):
             _binned(ax, c, 180.0 / np.pi, fmt="o-", ms=3, lw=0.8)
         ax.axhline(0, color="0.5", lw=0.5)
         ax.set_xlabel(f"{name.replace('_', ' ')} modulo one revolution [deg]")
-        ax.set_ylabel("missing torque [N m]")
+        ax.set_ylabel("missing torque less its level [N m]" if (c or {}).get("given_levels") else "missing torque [N m]")
         ax.set_title(f"residual binned by {name.replace('_', ' ')}" + _angle_note(sig, name), fontsize=9)
     ax = axes[1, 1]
     for label, c in (curves.get("cross_correlation") or {}).items():

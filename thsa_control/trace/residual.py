@@ -379,7 +379,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             "tests": tests, "sensors": sensors, "not_tested": not_tested,
             # the nut-position curves in the position test's bins (narrower on short passes), so that they share them
             "curves": {**_signature_curves(e_all, variables, runs, s if loc is None else dataclasses.replace(
-                           s, position_bin=loc["bin_width"]), np.concatenate(steady)),
+                           s, position_bin=loc["bin_width"]), np.concatenate(steady), np.concatenate(levels)),
                        # the drift test's data: one torque per steady segment (runs one after another in time)
                        "segment_torque": {"time": [d[0] for d in drift_in], "torque": [d[1] for d in drift_in],
                                           "direction": [d[2] for d in drift_in],
@@ -452,9 +452,15 @@ def _holdout_chi2_and_count(fit: dict, noise: Mapping[str, float]) -> dict:
     return out
 
 
-def _signature_curves(e: np.ndarray, variables: dict, runs, s: SignatureSettings, steady: np.ndarray | None = None) -> dict:
+def _signature_curves(e: np.ndarray, variables: dict, runs, s: SignatureSettings, steady: np.ndarray | None = None,
+                      levels: np.ndarray | None = None) -> dict:
     """Binned residual against nut position and motor / screw angle, and the redundant sensors'
     cross-correlation: the data of the report's signature plots.
+
+    The angle curves are of the residual less its level in each ``levels`` group (run, direction, load sign), as the
+    angle tests see it (``given_levels``): binned by angle, a step between the directions' levels seen through the
+    tested samples' comb draws a pattern at the segment rate that is no periodic torque (rig-sim's pawl record:
+    a zigzag of +-4 mN m at 16 per screw revolution).
 
     The nut-position curve is also given per direction of motion on the samples outside the base's transients
     (``by_direction``: what the pass-replicated position test uses): a friction feature changes sign with the
@@ -471,7 +477,18 @@ def _signature_curves(e: np.ndarray, variables: dict, runs, s: SignatureSettings
             label: binned_mean(np.where(keep & (d == sgn), e, np.nan), x, edges)
             for label, sgn in (("extending", 1.0), ("retracting", -1.0)) if np.any(keep & (d == sgn))}
     for name in ("motor_angle", "screw_angle"):
-        out[name] = binned_mean(e, np.mod(variables[name][1], 2 * math.pi), np.linspace(0, 2 * math.pi, 37))
+        a = np.asarray(variables[name][1], float)
+        ea = np.asarray(e, float)
+        if levels is not None:
+            ok = np.isfinite(ea) & np.isfinite(a)
+            lab = np.asarray(levels, float)
+            ea = ea.copy()
+            for g in np.unique(lab[ok]):
+                m = ok & (lab == g)
+                ea[m] -= float(np.mean(ea[m]))
+        out[name] = binned_mean(ea, np.mod(a, 2 * math.pi), np.linspace(0, 2 * math.pi, 37))
+        if levels is not None:
+            out[name]["given_levels"] = True
     cc = {}
     for run in runs:
         t = np.asarray(run.time, float)
