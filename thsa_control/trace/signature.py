@@ -447,16 +447,16 @@ def signature_tests(residual, variables: dict, *, unit: str = "N m",
         effect's size or phase misestimated, not an effect the model lacks (as :func:`position_local_test`'s
         ``shapes``): the test is of the other harmonics, beyond the added ones (both regressed on ``[1, added
         harmonics]`` first, and on ``levels``), and what the residual holds at an added harmonic is reported
-        (``added_shapes``: its amplitude with its own F test).  Measured on rig-sim's screw ripple on -40 degC cold ramps (0.043 N m at the
-        motor, fitted 0.040-0.042): the residual's first harmonic, 0.0023-0.0028 N m, set ``unexplained`` (p 5e-7 ..
-        5e-14) with or without the cold friction and whatever the ripple's phase or size.
+        (``added_shapes``: its amplitude with its own F test).  Measured on rig-sim's screw ripple on -40 degC cold
+        ramps (0.043 N m at the motor, fitted 0.040-0.042): the residual's first harmonic, 0.0023-0.0028 N m, set
+        ``unexplained`` (p 5e-7 .. 5e-14) with or without the cold friction and whatever the ripple's phase or size.
     levels : array_like, optional
         Labels (one per residual sample) of the groups whose own constant level an ``"angle"`` test is conditioned
         on: the residual and the harmonics are regressed on a level per group first (and on the added harmonics).
-        The engine gives one group per run, direction of motion and sign of the load.  A torque of one constant size per direction
-        (a Coulomb-like drag misestimated) is no periodic torque, but the samples an angle test sees are not spread
-        evenly over the angle: the missing torque is NaN near every multiple-shooting segment's edges, so at a
-        constant speed the tested samples are a comb at the segment rate, and the harmonic at that rate does not
+        The engine gives one group per run, direction of motion and sign of the load.  A torque of one constant size
+        per direction (a Coulomb-like drag misestimated) is no periodic torque, but the samples an angle test sees are
+        not spread evenly over the angle: the missing torque is NaN near every multiple-shooting segment's edges, so
+        at a constant speed the tested samples are a comb at the segment rate, and the harmonic at that rate does not
         average out over them.  Each direction runs through the comb at its own phase, so a step between the
         directions' levels projects on that harmonic.  Measured on rig-sim's pawl backlash on a trim record at
         15 mm/s, 50 ms segments, 1/16 of a screw revolution per segment: a direction step of 6.8 mN m at the motor
@@ -486,9 +486,9 @@ def signature_tests(residual, variables: dict, *, unit: str = "N m",
             # the constant levels the test is conditioned on: the mean, or a level per group (``levels``)
             L = _level_columns(levels, ok)
             grouped = L.shape[1] > 1
-            x = e - L @ np.linalg.lstsq(L, e, rcond=None)[0] if grouped else e - e.mean()
+            xl = e - L @ np.linalg.lstsq(L, e, rcond=None)[0] if grouped else e - e.mean()  # less its levels
             XL = X - L @ np.linalg.lstsq(L, X, rcond=None)[0] if grouped else X
-            coef, *_ = np.linalg.lstsq(XL, x, rcond=None)
+            coef, *_ = np.linalg.lstsq(XL, xl, rcond=None)
             amps = np.hypot(coef[0::2], coef[1::2])
             own = {k: int(h) for k, h in ((added or {}).get(name) or {}).items() if 1 <= int(h) <= s.harmonics}
             extra = {"given_levels": L.shape[1]} if grouped else {}
@@ -515,11 +515,9 @@ def signature_tests(residual, variables: dict, *, unit: str = "N m",
                 size, r2, p = _f_test(x, fitted, Xb.shape[1])
                 if own:
                     # along the own harmonics: their columns alone given the levels (what the residual holds there)
-                    Xa = X[:, mine] - (L @ np.linalg.lstsq(L, X[:, mine], rcond=None)[0] if grouped else
-                                       X[:, mine].mean(axis=0))
-                    ea = e - L @ np.linalg.lstsq(L, e, rcond=None)[0] if grouped else e - e.mean()
-                    ca_, *_ = np.linalg.lstsq(Xa, ea, rcond=None)
-                    sa, r2a, pa = _f_test(ea if grouped else e, Xa @ ca_, Xa.shape[1])
+                    Xa = XL[:, mine] if grouped else X[:, mine] - X[:, mine].mean(axis=0)
+                    ca_, *_ = np.linalg.lstsq(Xa, xl, rcond=None)
+                    sa, r2a, pa = _f_test(xl if grouped else e, Xa @ ca_, Xa.shape[1])
                     extra = {**extra, "beyond_added": hs, "added_shapes": {
                         k: {"harmonic": h, "amplitude": float(amps[h - 1]), "size": sa, "r2": r2a, "p_value": pa,
                             "significant": bool(pa < s.alpha and r2a >= s.min_r2)} for k, h in own.items()}}
@@ -528,7 +526,7 @@ def signature_tests(residual, variables: dict, *, unit: str = "N m",
                 best = int(np.argmax(np.where(excl[0::2], 0.0, amps))) + 1  # the strongest harmonic beyond
             else:
                 fitted = XL @ coef
-                size, r2, p = _f_test(x if grouped else e, fitted, X.shape[1])
+                size, r2, p = _f_test(xl if grouped else e, fitted, X.shape[1])
                 best = int(np.argmax(amps)) + 1
             if float(np.ptp(v)) < 2 * math.pi:
                 # less than a revolution: the harmonics are nearly collinear and their coefficients cancel (measured:
