@@ -176,6 +176,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     levels: list = []  # the group of each sample (run, direction of motion, sign of the load), per run
     cycles: dict[str, list] = {}  # angle -> its revolutions per multiple-shooting segment at each sample, per run
     phase: list = []  # each sample's place in its segment (0..1), per run
+    seg_lens: list = []  # each run's segment length [s]
     t_offset = 0.0
     for run in runs:
         pr = fit["predictions"][run.name]
@@ -242,6 +243,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         levels.append(9.0 * len(levels) + 3.0 * (1.0 + np.asarray(cols["speed_sign"][1], float)) + 1.0 + load_sign)
         # each angle's revolutions per segment (signature_tests' ``segment_cycles``: its harmonics at the segment rate)
         seg_len = float(np.median(np.diff(pr["segment_starts"]))) if len(pr["segment_starts"]) > 1 else 0.0
+        seg_lens.append(seg_len)
         for name, ratio in (("motor_angle", 1.0), ("screw_angle", run.gear_ratio)):
             cycles.setdefault(name, []).append(np.abs(w) * seg_len / (2 * math.pi * ratio))
         first = np.asarray(pr["segment_starts"], float)[np.maximum(np.searchsorted(starts, np.arange(n), side="right")
@@ -270,9 +272,10 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     for n in fit.get("effects", ()):
         if n in ANGLE_OF:
             own.setdefault(ANGLE_OF[n], {})[n] = ANGLE_HARMONIC[n](params)
+    level_of = np.concatenate(levels)
     tests = signature_tests(e_all, variables, unit="N m", settings=s,
                             given={"motor_current (torque constant)": np.concatenate(accel)}, added=own,
-                            levels=np.concatenate(levels),
+                            levels=level_of,
                             segment_cycles={n: np.concatenate(c) for n, c in cycles.items()},
                             segment_phase=np.concatenate(phase))
     for t in tests:  # the angle tests' (the position test's below)
@@ -324,9 +327,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
                                       f"{MIN_DRIVE_OFF_SAMPLES}); with the drive on, an offset reads as a constant "
                                       "torque at the motor, which the constant-torque explainers share"})
     # an angle test's harmonics in step with the fit segments: a periodic torque there is not told from the grid
-    seg = float(np.median([np.median(np.diff(fit["predictions"][r.name]["segment_starts"])) for r in runs
-                           if r.name in fit["predictions"] and len(fit["predictions"][r.name]["segment_starts"]) > 1]
-                          or [0.0]))
+    seg = float(np.median([x for x in seg_lens if x > 0] or [0.0]))
     for t in tests:
         hs = t.get("segment_rate_harmonics") or []
         if hs:
@@ -379,7 +380,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             "tests": tests, "sensors": sensors, "not_tested": not_tested,
             # the nut-position curves in the position test's bins (narrower on short passes), so that they share them
             "curves": {**_signature_curves(e_all, variables, runs, s if loc is None else dataclasses.replace(
-                           s, position_bin=loc["bin_width"]), np.concatenate(steady), np.concatenate(levels)),
+                           s, position_bin=loc["bin_width"]), np.concatenate(steady), level_of),
                        # the drift test's data: one torque per steady segment (runs one after another in time)
                        "segment_torque": {"time": [d[0] for d in drift_in], "torque": [d[1] for d in drift_in],
                                           "direction": [d[2] for d in drift_in],
