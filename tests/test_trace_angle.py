@@ -187,12 +187,13 @@ def test_a_leftover_at_an_added_effects_own_harmonic_is_its_size_not_a_new_struc
         assert test["significant"] and test["dominant_harmonic"] == 2, (seed, test["p_value"])
 
 
-def _trim_record(seed: int, missing_torque):
+def _trim_record(seed: int, missing_torque, seg: float = SEG):
     """rig-sim's trim at 1 kHz, stand-in fit: +15 mm/s 1-4 s, stop, -15 mm/s 5.5-8.5 s (ramps of 30 mm/s^2) at
     30 kN; 50 ms segments are 0.75 mm of travel, 1/16 of a screw revolution.  The outward pass is 0.3 mm longer
     than a whole number of segments' travel, so that the two directions pass the segment grid at different screw
     angles (on a record whose passes are whole numbers of segments long both meet it at one angle).
-    ``missing_torque(t, v, screw_angle)`` [N m] is integrated into the speed residual, with the resolver's noise."""
+    ``missing_torque(t, v, screw_angle)`` [N m] is integrated into the speed residual, with the resolver's noise;
+    ``seg`` the stand-in fit's segment length [s]."""
     fs = 1000.0
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, 10.0, 1 / fs)
@@ -209,7 +210,7 @@ def _trim_record(seed: int, missing_torque):
     run = RigRun("synthetic_trim", Path("synthetic.csv"), Path("synthetic.json"), {}, t, sig, gear_ratio=RATIO,
                  screw_lead=LEAD, source_columns={c: c for c in ("motor_speed", "nut_position", "motor_current")})
     fit = {"predictions": {run.name: {"measured": {"motor_speed": w_meas}, "simulated": {"motor_speed": w_meas - e_w},
-                                      "segment_starts": np.arange(0.0, 10.0, SEG),
+                                      "segment_starts": np.arange(0.0, 10.0, seg),
                                       "holdout": (np.floor(t / SEG) % 3 == 2)}}}
     return run, fit
 
@@ -313,3 +314,48 @@ def test_a_pattern_of_every_segment_is_not_a_harmonic_at_the_segment_rate():
                 if d["variable"] == "screw_angle")
     assert test["significant"] and test["dominant_harmonic"] == 3, test["p_value"]
     assert test["dominant_amplitude"] == pytest.approx(0.003, rel=0.15)
+
+
+def test_the_harmonic_at_the_segment_rate_is_tested_on_a_second_grid():
+    """The harmonic an angle test leaves out at the segment rate (16 per screw revolution at 15 mm/s with 50 ms
+    segments) is tested on a second grid: the signature names a segment length on which it is not in step
+    (``second_grid``), and the same model's residual on that grid is tested at that harmonic alone.  A periodic torque
+    there (a friction ripple 16 times per screw revolution, 4 mN m at the motor) stays at its harmonic on the second
+    grid and is found with its amplitude; a pattern of every segment (a segment start state's error decaying alike in
+    each) moves with the grid and is not.  Before the second grid the record said only "not tested"."""
+    from thsa_control.trace.signature import segment_rate_harmonics, sg_derivative
+
+    def ripple16(t, v, a):
+        return 0.004 * np.sin(16 * a + 0.7) * (v != 0)
+
+    def ringing_of(seg):
+        return lambda t, v, a: 0.004 * np.cos(2 * np.pi * (t % seg) / seg) * (v > 0)
+
+    params = default_parameters()
+    for seed in (1, 2):
+        for name, torque_of, found in (("ripple", lambda seg: ripple16, True), ("ringing", ringing_of, False)):
+            run, fit = _trim_record(seed, torque_of(SEG))
+            sig = _signature(fit, [run], params, _Plant(), SignatureSettings())
+            test = next(d for d in sig["tests"] if d["variable"] == "screw_angle")
+            assert test["segment_rate_harmonics"] == [16] and not test["significant"], (name, test["p_value"])
+            grid = sig["second_grid"]
+            assert grid["harmonics"]["screw_angle"] == [16] and grid["in_step_there"]["screw_angle"] == []
+            length = grid["segment_s"]
+            assert abs(length - SEG) > 0.1 * SEG
+            # on the second grid's own segments the 16th is out of step
+            cyc = 0.015 * length / LEAD
+            tt = np.arange(0.0, 2.5, 1e-3)
+            assert 16 not in segment_rate_harmonics(2 * np.pi * cyc * tt / length, np.full(tt.size, cyc),
+                                                    (tt % length) / length, 24)
+            run2, fit2 = _trim_record(seed, torque_of(length), seg=length)
+            chk = _signature(fit2, [run2], params, _Plant(), SignatureSettings(),
+                             harmonics_only=grid["harmonics"])["harmonics_only"]["screw_angle"]
+            assert chk["harmonics"] == [16] and chk["in_step_here"] == []
+            assert chk["significant"] is found, (name, seed, chk["p_value"], chk["amplitudes"])
+            if found:
+                # at the derivative filter's gain at the ripple's 20 Hz (16 x 1.25 rev/s; 21 samples at 1 kHz: 0.84)
+                tt = np.arange(0.0, 2.0, 1e-3)
+                gain = np.max(np.abs(sg_derivative(np.sin(2 * np.pi * 20 * tt) / (2 * np.pi * 20), 21, 1e-3)[100:-100]))
+                assert chk["amplitudes"][0] == pytest.approx(0.004 * gain, rel=0.1), (chk["amplitudes"], gain)
+            else:
+                assert chk["amplitudes"][0] < 0.2 * 0.004, chk["amplitudes"]

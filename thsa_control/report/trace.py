@@ -282,11 +282,18 @@ def misfit_shapes(sig: dict) -> list[str]:
 
 def segment_rate_text(t: dict) -> str:
     """`` beyond the segment rate's harmonic 24`` for an angle test that left harmonics at the segment rate out
-    (:func:`~thsa_control.trace.signature.segment_rate_harmonics`), else empty."""
+    (:func:`~thsa_control.trace.signature.segment_rate_harmonics`), with what the second grid found there
+    (``segment_rate_check``: ``; harmonic 24 on 0.065 s segments: 0.35 mN m, p 0.82``), else empty."""
     hs = t.get("segment_rate_harmonics") or []
     if not hs:
         return ""
-    return f" beyond the segment rate's harmonic{'s' if len(hs) > 1 else ''} {', '.join(str(h) for h in hs)}"
+    out = f" beyond the segment rate's harmonic{'s' if len(hs) > 1 else ''} {', '.join(str(h) for h in hs)}"
+    chk = t.get("segment_rate_check") or {}
+    if chk.get("harmonics"):
+        out += (f"; harmonic{'s' if len(chk['harmonics']) > 1 else ''} {', '.join(str(h) for h in chk['harmonics'])} "
+                f"on {chk['segment_s']:.3g} s segments: {', '.join(f'{1e3 * a:.2g}' for a in chk['amplitudes'])} mN m, "
+                f"p {_num(chk['p_value'], '.2g')}{' (STRUCTURED)' if chk.get('significant') else ''}")
+    return out
 
 
 def _angle_note(sig: dict, name: str) -> str:

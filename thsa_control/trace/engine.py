@@ -71,7 +71,7 @@ from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, IN
 from . import backward as bw
 from . import periodicity
 from . import weights as wt
-from .residual import _regime_errors, _signature
+from .residual import _regime_errors, _segment_rate_not_tested, _signature
 from .scoring import (_amplitude_out, _at_edge, _base_correction, _channel_errors, _chi2_by_channel,
                       _explainers_at_bound, _held_out,
                       _holdout_segment_changes,
@@ -305,6 +305,11 @@ class TraceSettings:
     #: every multiple of ``holdout_every`` segments hides one phase of it from the search's fits).  Reported, not
     #: used to select
     every_segment_check: bool = True
+    #: an angle test's harmonics in step with the fit segments (``segment_rate_harmonics``: at a constant speed the
+    #: tested samples are a comb at the segment rate) tested once more on the final model fitted (segment states
+    #: only) on a second grid of another segment length where they are not in step (``segment_rate_check`` in the
+    #: test; :func:`_segment_rate_check`)
+    segment_rate_check: bool = True
     #: the final model's values (``final_parameters``, each found effect's ``parameters_final``, ``error_after``)
     #: are the every-segment fit's where it converged and fits every segment at least as well as the search's last
     #: fit: the held-out segments decide which effects the model has, then every sample estimates their values
@@ -1105,6 +1110,11 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     sig_after = cur_sig if cur_sig is not None else _signature(current, runs, cur_params,
                                                                plant_of(cur_effects, cur_params), st.signature,
                                                                sensor_noise, st.speed_sensors)
+    t_grid = time.perf_counter()
+    if st.segment_rate_check and sig_after.get("second_grid"):
+        sig_after = _segment_rate_check(sig_after, cur_effects, cur_params, plant_of(cur_effects, cur_params),
+                                        fit_runs, runs, st, job, sensor_noise, say)
+    t_grid = time.perf_counter() - t_grid
     if rounds and "signature_after" not in rounds[-1]:  # a round that added nothing leaves the model as it was
         rounds[-1]["signature_after"] = _signature_brief(sig_after)
     # unexplained: structure an unmodelled-but-declared base does not leave; a residual above noise with only the
@@ -1155,7 +1165,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         "timing": {"base_fit_s": base_fit_time, "candidate_fit_s": (float(np.median(cand_times)) if cand_times else None),
                    "total_s": time.perf_counter() - t_start,
                    "backward_fits": len(backward_cpu), "backward_cpu_s": float(sum(backward_cpu)),
-                   "weight_check_s": t_weights, "every_segment_s": t_every},
+                   "weight_check_s": t_weights, "every_segment_s": t_every, "segment_rate_check_s": t_grid},
     }
     return TraceResult(doc, {"before": first, "after": final})
 
@@ -1239,6 +1249,66 @@ def _put_range(step: dict, name: str, key: str, rng) -> None:
 
 #: the every-segment fit's tries in all when the evaluation limit stops it (each from where the last stopped)
 EVERY_SEGMENT_FITS = 3
+
+
+def _segment_rate_check(sig: dict, cur_effects, cur_params: ParameterSet, plant, fit_runs, runs, st,
+                        job, sensor_noise: Mapping[str, float], say) -> dict:
+    """The harmonics an angle test of ``sig`` (the final signature) left out because they are in step with the fit
+    segments, tested on a second grid: the final model (``cur_effects`` at ``cur_params``) fitted again with the
+    segment states only on segments of ``sig["second_grid"]["segment_s"]``, where they are not in step
+    (:func:`~thsa_control.trace.signature.second_grid_ratio`), and its residual's dependence on those harmonics
+    alone, given its levels, the model's own harmonics and the second grid's own (:func:`~thsa_control.trace.
+    signature.harmonics_test`).  A pattern of every segment (a segment start state's error decaying alike in each)
+    moves with the grid; a periodic torque stays at its harmonic.  Each such test gets ``segment_rate_check``; a
+    significant one makes the test significant (``flagged_by``: each part at the angle test's level, so the
+    test's family-wise level is at most twice it).  ``not_tested`` keeps only the harmonics still untested (in
+    step on both grids, or the fit failed).  Returns the signature so updated."""
+    grid = sig["second_grid"]
+    length = float(grid["segment_s"])
+    say(f"the angle tests' harmonics at the segment rate "
+        f"({'; '.join(f'{n} {h}' for n, h in grid['harmonics'].items())}): the final model's segment states fitted "
+        f"again on {length:.3g} s segments")
+    jb = job(f"segment states on {length:.3g} s segments", cur_effects, (), cur_params, fit_runs)
+    jb = {**jb, "settings": dataclasses.replace(jb["settings"], segment_duration=length)}
+    f2 = _run_jobs([jb], 1, say)[0]
+    only = {}
+    if "error" not in f2:
+        only = _signature(f2, runs, cur_params, plant, st.signature, sensor_noise,
+                          st.speed_sensors, harmonics_only=grid["harmonics"])["harmonics_only"]
+    else:
+        say(f"the second grid's fit failed: {f2['error']}; those harmonics stay untested")
+    tests = list(sig["tests"])
+    left: dict[str, list[int]] = {}
+    for t in tests:
+        hs = grid["harmonics"].get(t["variable"])
+        if not hs or t.get("kind") != "periodic":
+            continue
+        chk = only.get(t["variable"])
+        if chk is None:  # its not_tested entry stands as the first grid's
+            t["segment_rate_check"] = {"segment_s": length, "harmonics": list(hs), "tested": [],
+                                       "why": f2.get("error") or "fewer than 50 samples or a revolution left"}
+            continue
+        t["segment_rate_check"] = {"segment_s": length, **chk}
+        left[t["variable"]] = [h for h in hs if h not in chk["harmonics"]]
+        if chk["significant"] and not t["significant"]:
+            t["significant"] = True
+            t["flagged_by"] = (f"harmonic{'s' if len(chk['harmonics']) > 1 else ''} "
+                               f"{', '.join(str(h) for h in chk['harmonics'])} on {length:.3g} s segments "
+                               f"(p {chk['p_value']:.2g})")
+        say(f"{t['variable']} at harmonic{'s' if len(chk['harmonics']) > 1 else ''} "
+            f"{', '.join(str(h) for h in chk['harmonics'])} on {length:.3g} s segments: "
+            f"{', '.join(f'{1e3 * a:.2g}' for a in chk['amplitudes'])} mN m, p {chk['p_value']:.2g}"
+            f"{' (significant)' if chk['significant'] else ''}")
+    tests.sort(key=lambda d: not d["significant"])  # stable: the significant ones first, each kind in its order
+    not_tested = []
+    for d in sig.get("not_tested", []):
+        name = d.get("variable")
+        if name in left and d.get("harmonics") is not None:
+            if not left[name]:
+                continue
+            d = {**d, **_segment_rate_not_tested(name, left[name], d["segment_s"], length)}
+        not_tested.append(d)
+    return {**sig, "tests": tests, "not_tested": not_tested}
 
 
 def _every_segment_check(added: list, current: dict, cur_effects, cur_free, cur_params: ParameterSet, fit_runs,

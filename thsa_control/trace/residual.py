@@ -37,11 +37,14 @@ from .signature import (
     current_drift_test,
     current_offset_test,
     drift_test,
+    harmonics_test,
     hold_drift_test,
     hold_samples,
     missing_torque,
     position_local_test,
     remainder_kind,
+    second_grid_ratio,
+    segment_rate_harmonics,
     segment_torques,
     sensor_consistency,
     sg_derivative,
@@ -162,7 +165,14 @@ def current_drift_of_runs(runs: Sequence[RigRun], params: ParameterSet, s: Signa
 
 # ----------------------------------------------------------------------------- signature
 def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s: SignatureSettings,
-               noise: Mapping[str, float] | None = None, speed_sensors: Mapping[str, object] | None = None) -> dict:
+               noise: Mapping[str, float] | None = None, speed_sensors: Mapping[str, object] | None = None,
+               harmonics_only: Mapping[str, Sequence[int]] | None = None) -> dict:
+    """The residual signature of ``fit`` (its predictions of ``runs``): the tests, the sensors, what was not tested,
+    the report's curves.  Where an angle test leaves harmonics out because they are in step with the fit's segments,
+    ``second_grid`` names a segment length on which they are not (:func:`~thsa_control.trace.signature.
+    second_grid_ratio`).  ``harmonics_only`` (angle name -> harmonics): the angle tests of those harmonics alone on
+    this fit (:func:`~thsa_control.trace.signature.harmonics_test`; a fit of the same model on that second grid),
+    returned as ``{"harmonics_only": {name: test or None}}`` and nothing else."""
     inertia = plant.inertia(params)[1]  # the signature's missing torque at the motor shaft (what the current drives)
     torque: list = []
     vars_: dict = {}
@@ -176,6 +186,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     levels: list = []  # the group of each sample (run, direction of motion, sign of the load), per run
     cycles: dict[str, list] = {}  # angle -> its revolutions per multiple-shooting segment at each sample, per run
     phase: list = []  # each sample's place in its segment (0..1), per run
+    t_run: list = []  # each sample's time from its run's first sample [s], per run (the segments start there)
     seg_lens: list = []  # each run's segment length [s]
     t_offset = 0.0
     for run in runs:
@@ -249,6 +260,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         first = np.asarray(pr["segment_starts"], float)[np.maximum(np.searchsorted(starts, np.arange(n), side="right")
                                                                    - 1, 0)]
         phase.append((t - first) / seg_len if seg_len > 0 else np.full(n, np.nan))
+        t_run.append(t - t[0])
         # the pass-replicated position test (runs separated by a gap that ends every pass), on the residual
         # outside the base's transients: a declared model whose base differs from the rig's leaves structure at
         # starts, stops, reversals and load changes, and a trim run starts and stops at the same positions
@@ -273,11 +285,22 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         if n in ANGLE_OF:
             own.setdefault(ANGLE_OF[n], {})[n] = ANGLE_HARMONIC[n](params)
     level_of = np.concatenate(levels)
+    seg_cycles = {n: np.concatenate(c) for n, c in cycles.items()}
+    seg_phase = np.concatenate(phase)
+    if harmonics_only is not None:  # the second grid's tests of the harmonics the first could not test
+        only = {}
+        for name, hs in harmonics_only.items():
+            v = variables[name][1]
+            ok = np.isfinite(e_all) & np.isfinite(v)
+            in_step = segment_rate_harmonics(v[ok], seg_cycles[name][ok], seg_phase[ok], s.harmonics, level_of[ok])
+            only[name] = harmonics_test(e_all, v, hs, levels=level_of, settings=s,
+                                        given_harmonics=sorted(set(own.get(name, {}).values()) | set(in_step)))
+            if only[name] is not None:
+                only[name]["in_step_here"] = [h for h in hs if h in in_step]
+        return {"harmonics_only": only}
     tests = signature_tests(e_all, variables, unit="N m", settings=s,
                             given={"motor_current (torque constant)": np.concatenate(accel)}, added=own,
-                            levels=level_of,
-                            segment_cycles={n: np.concatenate(c) for n, c in cycles.items()},
-                            segment_phase=np.concatenate(phase))
+                            levels=level_of, segment_cycles=seg_cycles, segment_phase=seg_phase)
     for t in tests:  # the angle tests' (the position test's below)
         for name, a in (t.get("added_shapes") or {}).items():
             _against_fitted(a, name, params, phase=False)
@@ -331,12 +354,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     for t in tests:
         hs = t.get("segment_rate_harmonics") or []
         if hs:
-            which = ", ".join(str(h) for h in hs)
-            not_tested.append({"test": f"{t['variable']} at harmonic{'s' if len(hs) > 1 else ''} {which}", "run": None,
-                               "would_show": f"a periodic torque at {which} per revolution",
-                               "why": f"in step with the {seg:g} s fit segments at this record's speed (the tested "
-                                      "samples are a comb at the segment rate, and a pattern repeated in every "
-                                      "segment is periodic there); another --segment moves it"})
+            not_tested.append(_segment_rate_not_tested(t["variable"], hs, seg))
     # the load cell where the physics holds the load (drive stopped, nut held): a reading trending with time, which
     # the structure's deflection (LVDT) does not follow, is a drifting sensor (from the records alone)
     hd = hold_drift_of_runs(runs, s, transients)
@@ -372,12 +390,24 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
                              "outside the base's transients: not told from a dependence on position")
     for d in sensors:
         d["remainder"] = "structured"
+    # the harmonics an angle test left out at the segment rate: a segment length on which they are not in step
+    comb = {d["variable"]: d["segment_rate_harmonics"] for d in tests
+            if d.get("segment_rate_harmonics") and d["remainder"] == "structured"}
+    second = None
+    if comb and seg > 0:
+        ok = np.isfinite(e_all)
+        for name in comb:
+            ok &= np.isfinite(variables[name][1])
+        ratio_, still = second_grid_ratio({n: (variables[n][1][ok], seg_cycles[n][ok]) for n in comb}, comb,
+                                          np.concatenate(t_run)[ok], seg, level_of[ok])
+        second = {"segment_s": ratio_ * seg, "ratio": ratio_, "harmonics": comb, "in_step_there": still}
     ok = np.isfinite(e_all)
     ratio = {c: math.sqrt(v / n) for c, (v, n) in _holdout_chi2_and_count(fit, noise or {}).items() if n > 0}
     return {"residual": "missing torque at the motor shaft, J d(speed residual)/dt", "unit": "N m",
             "reflected_inertia": inertia, "missing_torque_rms": float(np.sqrt(np.mean(e_all[ok] ** 2))),
             "residual_to_noise": ratio, "max_noise_ratio": s.max_noise_ratio,
             "tests": tests, "sensors": sensors, "not_tested": not_tested,
+            **({"second_grid": second} if second is not None else {}),
             # the nut-position curves in the position test's bins (narrower on short passes), so that they share them
             "curves": {**_signature_curves(e_all, variables, runs, s if loc is None else dataclasses.replace(
                            s, position_bin=loc["bin_width"]), np.concatenate(steady), level_of),
@@ -387,6 +417,20 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
                                           "nut_position": [d[0] for d in drift_at]},
                        # the load-cell drift test's data: the load reading and the LVDT in the holds
                        "hold_load": hold_curve}}
+
+
+def _segment_rate_not_tested(name: str, harmonics: Sequence[int], segment_s: float,
+                             second_s: float | None = None) -> dict:
+    """The ``not_tested`` entry of an angle test's harmonics in step with the ``segment_s`` fit segments (and, where
+    a second grid was fitted, ``second_s``: still in step there, or its fit failed)."""
+    which = ", ".join(str(h) for h in harmonics)
+    there = (f" and with the {second_s:.3g} s segments of the second grid" if second_s is not None else "")
+    return {"test": f"{name} at harmonic{'s' if len(harmonics) > 1 else ''} {which}", "run": None,
+            "variable": name, "harmonics": list(harmonics), "segment_s": segment_s,
+            "would_show": f"a periodic torque at {which} per revolution",
+            "why": f"in step with the {segment_s:g} s fit segments{there} at this record's speed (the tested samples "
+                   "are a comb at the segment rate, and a pattern repeated in every segment is periodic there); "
+                   "another --segment moves it"}
 
 
 def _against_fitted(along: dict, name: str, params: ParameterSet, phase: bool = True) -> None:

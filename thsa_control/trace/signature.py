@@ -61,7 +61,7 @@ Numerics only (numpy, scipy); no matplotlib.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -72,6 +72,7 @@ from ..model.laws import kinematic_ratio
 __all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missing_torque", "current_offset_test", "MIN_DRIVE_OFF_SAMPLES", "MIN_HOLD",
            "binned_mean", "cross_correlation", "position_local_test", "lag_test", "base_transients", "remainder_kind",
            "STRUCTURED_VARIABLES", "split_remainder", "segment_torques", "drift_test", "segment_rate_harmonics",
+           "harmonics_test", "second_grid_ratio", "SECOND_GRID_RATIOS",
            "time_or_position_test", "hold_samples", "still_band", "stretches", "travel_passes",
            "hold_drift_test", "breakaway_events", "breakaway_position_test", "current_noise",
            "current_drift_test", "TORQUE_CONSTANT_DRIFT", "BREAKAWAY_VARIABLE"]
@@ -407,6 +408,71 @@ def segment_rate_harmonics(angle, cycles_per_segment, segment_phase, harmonics: 
     return out
 
 
+#: The segment lengths, as multiples of the fit's, a second grid is tried at for the harmonics in step with the first
+#: (:func:`second_grid_ratio`), in this order: a fourth to a third longer or shorter moves a harmonic of one to three
+#: whole cycles per segment by a fourth of a cycle or more.
+SECOND_GRID_RATIOS = (1.3, 0.75, 1.45, 0.65, 1.2)
+
+
+def second_grid_ratio(angles: Mapping[str, tuple], harmonics: Mapping[str, Sequence[int]], time_in_run,
+                      segment_length: float, groups=None, ratios: Sequence[float] = SECOND_GRID_RATIOS
+                      ) -> tuple[float, dict[str, list[int]]]:
+    """The segment length (a multiple of ``segment_length`` [s], from ``ratios``) on which the most of ``harmonics``
+    (angle name -> the harmonics in step with the fit's segments: :func:`segment_rate_harmonics`) are not in step,
+    and, per angle, those still in step there.  ``angles``: name -> (angle [rad], its revolutions per segment of
+    ``segment_length`` at each sample), the tested samples; ``time_in_run`` each sample's time from its run's first
+    sample [s] (the segments start there every segment length: :meth:`~thsa_control.fit.identify.Identifier.fit`).
+    The first ratio that frees them all, else the one that frees the most."""
+    t = np.asarray(time_in_run, float)
+    best = None
+    for r in ratios:
+        length = r * segment_length
+        phase = np.mod(t / length, 1.0)
+        still = {}
+        for name, hs in harmonics.items():
+            a, c = angles[name]
+            in_step = set(segment_rate_harmonics(a, r * np.asarray(c, float), phase, max(hs), groups))
+            still[name] = [h for h in hs if h in in_step]
+        n_still = sum(len(v) for v in still.values())
+        if best is None or n_still < best[0]:
+            best = (n_still, r, still)
+        if n_still == 0:
+            break
+    return best[1], best[2]
+
+
+def harmonics_test(residual, angle, harmonics: Sequence[int], *, levels=None, given_harmonics: Sequence[int] = (),
+                   settings: SignatureSettings | None = None) -> dict | None:
+    """The residual's dependence on the ``harmonics`` of ``angle`` alone, given a level per ``levels`` group and the
+    ``given_harmonics`` (an added effect's own, the segment rate's of this residual's own grid): both sides regressed
+    on those first, an F test of the harmonics' cosine and sine columns.  The angle test of a second segment grid
+    for the harmonics in step with the first (:func:`signature_tests`' ``segment_rate_harmonics``).  None where
+    fewer than 50 samples or less than a revolution are left, or no harmonic is left to test."""
+    s = settings or SignatureSettings()
+    e, v = np.asarray(residual, float), np.asarray(angle, float)
+    ok = np.isfinite(e) & np.isfinite(v)
+    e, v = e[ok], v[ok]
+    given = sorted({int(h) for h in given_harmonics})
+    hs = [int(h) for h in sorted(set(harmonics)) if int(h) not in given]
+    if e.size < 50 or not hs or float(np.ptp(v)) < 2 * math.pi:
+        return None
+
+    def columns(hh):
+        return [f(h * v) for h in hh for f in (np.cos, np.sin)]
+
+    N = np.column_stack([_level_columns(levels, ok)] + columns(given))
+    x, Xb = _given(N, e, np.column_stack(columns(hs)))
+    cb, *_ = np.linalg.lstsq(Xb, x, rcond=None)
+    size, r2, p = _f_test(x, Xb @ cb, Xb.shape[1])
+    return {"harmonics": hs, "amplitudes": [float(a) for a in np.hypot(cb[0::2], cb[1::2])], "size": size, "r2": r2,
+            "p_value": p, "significant": bool(p < s.alpha and r2 >= s.min_r2), "given_harmonics": given}
+
+
+def _given(N: np.ndarray, e: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``e`` and the columns ``X`` less their least-squares fits on the columns ``N`` (Frisch-Waugh)."""
+    return (e - N @ np.linalg.lstsq(N, e, rcond=None)[0], X - N @ np.linalg.lstsq(N, X, rcond=None)[0])
+
+
 def _level_columns(levels, ok: np.ndarray) -> np.ndarray:
     """Indicator columns of the groups ``levels`` labels on the samples ``ok`` (one column of ones without labels or
     with one group; NaN labels join no group beyond the mean's)."""
@@ -486,8 +552,7 @@ def signature_tests(residual, variables: dict, *, unit: str = "N m",
             # the constant levels the test is conditioned on: the mean, or a level per group (``levels``)
             L = _level_columns(levels, ok)
             grouped = L.shape[1] > 1
-            xl = e - L @ np.linalg.lstsq(L, e, rcond=None)[0] if grouped else e - e.mean()  # less its levels
-            XL = X - L @ np.linalg.lstsq(L, X, rcond=None)[0] if grouped else X
+            xl, XL = _given(L, e, X) if grouped else (e - e.mean(), X)  # less its levels
             coef, *_ = np.linalg.lstsq(XL, xl, rcond=None)
             amps = np.hypot(coef[0::2], coef[1::2])
             own = {k: int(h) for k, h in ((added or {}).get(name) or {}).items() if 1 <= int(h) <= s.harmonics}
@@ -507,9 +572,7 @@ def signature_tests(residual, variables: dict, *, unit: str = "N m",
                 excl = mine.copy()
                 for h in comb:
                     excl[2 * (h - 1): 2 * h] = True
-                N = np.column_stack([L, X[:, excl]])
-                x = e - N @ np.linalg.lstsq(N, e, rcond=None)[0]
-                Xb = X[:, ~excl] - N @ np.linalg.lstsq(N, X[:, ~excl], rcond=None)[0]
+                x, Xb = _given(np.column_stack([L, X[:, excl]]), e, X[:, ~excl])
                 cb, *_ = np.linalg.lstsq(Xb, x, rcond=None)
                 fitted = Xb @ cb
                 size, r2, p = _f_test(x, fitted, Xb.shape[1])
