@@ -1067,6 +1067,29 @@ def test_the_segments_interval_is_never_narrower_and_stays_in_the_physical_range
 
 @pytest.mark.campaign
 @pytest.mark.slow
+@pytest.mark.parametrize("name", ALL_RUNS)
+def test_every_harmonic_left_out_at_the_segment_rate_is_tested_on_the_second_grid_or_said_not_tested(traced, name):
+    """An angle test's harmonics in step with the fit segments are tested on a second grid (the final model's
+    segment states on segments of another length, where they are not in step), and what neither grid tests is listed
+    under not_tested: no harmonic is silently untested, and one the second grid tests is not listed."""
+    sig = traced(name)["residual_signature"]
+    said = {(d["variable"], h) for d in sig["not_tested"] if d.get("harmonics") for h in d["harmonics"]}
+    for t in sig["tests"]:
+        hs = t.get("segment_rate_harmonics") or []
+        if not hs or t["remainder"] != "structured":
+            continue
+        chk = t["segment_rate_check"]
+        assert abs(chk["segment_s"] / sig["second_grid"]["segment_s"] - 1.0) < 1e-9
+        tested = set(chk.get("harmonics") or [])
+        for h in hs:
+            assert (h in tested) != ((t["variable"], h) in said), (t["variable"], h, chk, sig["not_tested"])
+        assert t["significant"] or not chk.get("significant"), chk  # a significant check flags the test
+        if chk.get("significant"):
+            assert t["flagged_by"].startswith("harmonic")
+
+
+@pytest.mark.campaign
+@pytest.mark.slow
 def test_the_segments_hold_the_compliance_damping_the_information_interval_misses(traced):
     """rig-sim's drive-train compliance over position steps (rig_drivetrain_compliance_steps): the final damping
     2.49 N m s/rad has an information interval of +-0.29 that misses rig-sim's 2; the residual the rig's base leaves
@@ -1104,3 +1127,10 @@ def test_a_pawl_records_direction_step_is_no_harmonic_at_the_segment_rate(traced
     assert amps[h - 1] < 2.0 * float(np.median(others)), (amps[h - 1], float(np.median(others)))
     assert test["dominant_harmonic"] != h
     assert test["given_levels"] >= 2
+    # that harmonic is tested on the second grid (segments about a third longer, where it is not in step): nothing
+    # there either, and the record no longer lists it as not tested
+    chk = test["segment_rate_check"]
+    assert test["segment_rate_harmonics"] == [h] and chk["harmonics"] == [h], chk
+    assert abs(chk["segment_s"] / doc["settings"]["segment_duration"] - 1.0) > 0.2
+    assert not chk["significant"] and chk["amplitudes"][0] < 2.0 * float(np.median(others)), chk
+    assert not any(d["test"].startswith("screw_angle at harmonic") for d in doc["residual_signature"]["not_tested"])
