@@ -1285,7 +1285,7 @@ def _segment_rate_check(sig: dict, cur_effects, cur_params: ParameterSet, plant,
             continue
         chk = only.get(t["variable"])
         if chk is None:  # its not_tested entry stands as the first grid's
-            t["segment_rate_check"] = {"segment_s": length, "harmonics": list(hs), "tested": [],
+            t["segment_rate_check"] = {"segment_s": length, "harmonics": [], "untested": list(hs),
                                        "why": f2.get("error") or "fewer than 50 samples or a revolution left"}
             continue
         t["segment_rate_check"] = {"segment_s": length, **chk}
