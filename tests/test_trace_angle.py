@@ -359,3 +359,27 @@ def test_the_harmonic_at_the_segment_rate_is_tested_on_a_second_grid():
                 assert chk["amplitudes"][0] == pytest.approx(0.004 * gain, rel=0.1), (chk["amplitudes"], gain)
             else:
                 assert chk["amplitudes"][0] < 0.2 * 0.004, chk["amplitudes"]
+
+
+def test_a_second_grid_whose_fit_fails_leaves_its_harmonics_said_not_tested(monkeypatch):
+    """Where the second grid's fit fails, the harmonics it was to test stay listed as not tested (the first grid's
+    entry), the test is not made significant, and its check names them untested with the solver's reason."""
+    import dataclasses
+
+    from thsa_control.trace import engine
+
+    run, fit = _trim_record(1, lambda t, v, a: 0.004 * np.sin(16 * a) * (v != 0))
+    sig = _signature(fit, [run], default_parameters(), _Plant(), SignatureSettings())
+    assert sig["second_grid"]["harmonics"] == {"screw_angle": [16]}
+    monkeypatch.setattr(engine, "_run_jobs", lambda jobs, workers, say: [{"error": "solver failed: Infeasible"}])
+
+    def job(label, effs, free, pset, data):
+        return {"label": label, "settings": engine.IdentificationSettings()}
+
+    st = dataclasses.replace(engine.TraceSettings(), signature=SignatureSettings())
+    out = engine._segment_rate_check(sig, (), default_parameters(), _Plant(), [run], [run], st, job, {},
+                                     lambda m: None)
+    test = next(d for d in out["tests"] if d["variable"] == "screw_angle")
+    assert not test["significant"] and test["segment_rate_check"]["harmonics"] == []
+    assert test["segment_rate_check"]["untested"] == [16] and "Infeasible" in test["segment_rate_check"]["why"]
+    assert [d["test"] for d in out["not_tested"] if d.get("variable") == "screw_angle"] == ["screw_angle at harmonic 16"]
