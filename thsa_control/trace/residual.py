@@ -422,7 +422,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
 def _segment_rate_not_tested(name: str, harmonics: Sequence[int], segment_s: float,
                              second_s: float | None = None) -> dict:
     """The ``not_tested`` entry of an angle test's harmonics in step with the ``segment_s`` fit segments (and, where
-    a second grid was fitted, ``second_s``: still in step there, or its fit failed)."""
+    a second grid was fitted, ``second_s``: still in step there; where its fit failed the first grid's entry stands)."""
     which = ", ".join(str(h) for h in harmonics)
     there = (f" and with the {second_s:.3g} s segments of the second grid" if second_s is not None else "")
     return {"test": f"{name} at harmonic{'s' if len(harmonics) > 1 else ''} {which}", "run": None,
