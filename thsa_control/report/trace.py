@@ -288,12 +288,19 @@ def segment_rate_text(t: dict) -> str:
     if not hs:
         return ""
     out = f" beyond the segment rate's harmonic{'s' if len(hs) > 1 else ''} {', '.join(str(h) for h in hs)}"
+    chk = _second_grid_text(t)
+    return out + (f"; {chk}" if chk else "")
+
+
+def _second_grid_text(t: dict) -> str:
+    """``harmonic 16 on 0.065 s segments: 0.35 mN m, p 0.82`` for an angle test whose harmonics at the segment rate
+    were tested on the second grid (``segment_rate_check``), else empty."""
     chk = t.get("segment_rate_check") or {}
-    if chk.get("harmonics"):
-        out += (f"; harmonic{'s' if len(chk['harmonics']) > 1 else ''} {', '.join(str(h) for h in chk['harmonics'])} "
-                f"on {chk['segment_s']:.3g} s segments: {', '.join(f'{1e3 * a:.2g}' for a in chk['amplitudes'])} mN m, "
-                f"p {_num(chk['p_value'], '.2g')}{' (STRUCTURED)' if chk.get('significant') else ''}")
-    return out
+    if not chk.get("harmonics"):
+        return ""
+    return (f"harmonic{'s' if len(chk['harmonics']) > 1 else ''} {', '.join(str(h) for h in chk['harmonics'])} "
+            f"on {chk['segment_s']:.3g} s segments: {', '.join(f'{1e3 * a:.2g}' for a in chk['amplitudes'])} mN m, "
+            f"p {_num(chk['p_value'], '.2g')}{' (STRUCTURED)' if chk.get('significant') else ''}")
 
 
 def _angle_note(sig: dict, name: str) -> str:
@@ -302,13 +309,18 @@ def _angle_note(sig: dict, name: str) -> str:
     t = next((d for d in sig.get("tests", []) if d.get("variable") == name and d.get("kind") == "periodic"), None)
     if t is None:
         return ""
-    flag = " (STRUCTURED)" if t.get("significant") else ""
-    comb = segment_rate_text(t)
+    flag = " (STRUCTURED)" if t.get("significant") and not t.get("flagged_by") else ""
+    # the segment rate's harmonics left out on this line, what the second grid found there on a line of its own (a
+    # title is not wrapped: one line held both and ran past the panel's edges)
+    hs = t.get("segment_rate_harmonics") or []
+    comb = f" beyond the segment rate's {', '.join(str(h) for h in hs)}" if hs else ""
+    grid = _second_grid_text(t)
+    grid = f"\nsecond grid: {grid}" if grid else ""
     if not t.get("beyond_added"):
-        return f"\nharmonics{comb}: p {_num(t['p_value'], '.2g')}{flag}"
+        return f"\nharmonics{comb}: p {_num(t['p_value'], '.2g')}{flag}{grid}"
     own = t.get("added_shapes") or {}
     which = ", ".join(f"{k} (harmonic {a['harmonic']})" for k, a in own.items())
-    lines = [f"\nbeyond {which}{comb}: p {_num(t['p_value'], '.2g')}{flag}"]
+    lines = [f"\nbeyond {which}{comb}: p {_num(t['p_value'], '.2g')}{flag}{grid}"]
     for k, a in own.items():
         fit = a.get("fitted_amplitude")
         lines.append(f"\nleft at its harmonic: {_num(a['amplitude'], '.2g')} N m"
