@@ -81,7 +81,17 @@ def row(folder: Path) -> dict | None:
                                            if v is not None], default=0.0)
                            for e in doc["effects_added"] if not e.get("implied_by")},
             "beyond": [e["name"] for e in doc["effects_added"] if e.get("beyond_base_correction")],
+            # the record's answer to "a constant torque beyond a plausible base?" (absent in older trace.json files)
+            "answer": doc.get("beyond_plausible_base") or {},
             "channel": channel}
+
+
+def _answer_text(a: dict) -> str:
+    """The table's note of the record's answer beyond a plausible base (only where a joint lift passed)."""
+    if a.get("status") not in ("named", "not_named", "no_carrier"):
+        return ""
+    names = [("base efficiencies" if c["base"] else c["name"]) for c in a.get("carriers") or []]
+    return f" beyond base: {a['status'].replace('_', ' ')}" + (f" {names}" if names else "")
 
 
 def main(argv=None) -> int:
@@ -93,11 +103,12 @@ def main(argv=None) -> int:
           "held (not determined) | unexplained: structured | time [s] |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     right = right_bn = lib = null_clean = nulls = 0
-    first, clean, flagged, foreign = [], [], [], []
+    first, clean, flagged, foreign, among = [], [], [], [], []
     for r in rows:
         print(f"| {r['run']} | {r['base']} | {r['scenario']} | {', '.join(r['truth']) or '-'} | "
               f"{', '.join(r['corr']) or '-'} | {'; '.join(r['added']) or '-'}"
-              f"{' ambiguous ' + str(r['ambiguous']) if r['ambiguous'] else ''} | {', '.join(r['held']) or '-'} | "
+              f"{' ambiguous ' + str(r['ambiguous']) if r['ambiguous'] else ''}"
+              f"{_answer_text(r['answer'])} | {', '.join(r['held']) or '-'} | "
               f"{r['unexplained']}: {'; '.join(s[:40] for s in r['structured'][:4])}"
               f"{' (base-like: ' + str(len(r['base_like'])) + ')' if r['base_like'] else ''} | {r['time']:.0f} |")
         if len(r["truth"]) == 1 and r["truth"][0] in LIBRARY:
@@ -112,6 +123,10 @@ def main(argv=None) -> int:
                 # the error beyond the sensor noise halves (an RMS that halves does: noise only lowers the RMS drop;
                 # the beyond-noise drop is not computed where the window is at the noise)
                 right_bn += max(r["windows"].get(want, 0.0), r["windows_bn"].get(want, 0.0)) >= 0.5
+            # a constant torque the record cannot attribute: said so, the truth among its explanations
+            a = r["answer"]
+            if a.get("status") == "not_named" and want in [c["name"] for c in a.get("carriers") or []]:
+                among.append(r["run"])
         if not r["truth"]:
             nulls += 1
             ok = set(r["found"]) <= BASE_CONTENT | BASE_COMPLIANCE | EXPLAINERS and not r["beyond"]
@@ -128,7 +143,9 @@ def main(argv=None) -> int:
           f"{len(first)}: {', '.join(first) or '-'}); nulls adding only what the base contains (the detailed no-back, "
           f"constant-torque explainers within their bounds): {null_clean} / {nulls} ({', '.join(clean) or '-'}); "
           f"out-of-library flagged with the right signature, nothing invented: {len(flagged)} / {len(foreign)} "
-          f"({', '.join(flagged) or '-'})")
+          f"({', '.join(flagged) or '-'}); library runs not named first where the record says a constant torque "
+          f"beyond the base is present and not attributed, the truth among its explanations: {len(among)} "
+          f"({', '.join(x for x in among if x not in first) or '-'})")
     return 0
 
 

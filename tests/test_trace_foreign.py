@@ -801,6 +801,44 @@ def test_nothing_wrong_is_named_where_one_load_cannot_separate_the_constant_torq
 
 @pytest.mark.campaign
 @pytest.mark.slow
+@pytest.mark.parametrize("name, planted", ONE_LOAD_CONSTANT_TORQUE)
+def test_a_constant_torque_beyond_the_base_that_one_load_cannot_attribute_is_said_with_the_planted_among_them(
+        traced, name, planted):
+    """The record's top-level answer (``beyond_plausible_base``): where it says a constant torque beyond a plausible
+    base is present (named or not attributed), the planted torque is among its explanations; where it names one, that
+    is the planted one; and its explanations are the last joint lift's carriers."""
+    doc = traced(name)
+    b = doc["beyond_plausible_base"]
+    assert b["status"] != "failed", b
+    if b["status"] in ("named", "not_named"):
+        names = [c["name"] for c in b["carriers"]]
+        assert planted in names, b
+        assert [c["name"] for c in b["carriers"] if c["named"]] in ([], [planted]), b
+        last = [r for r in doc["rounds"] if r.get("joint_lift")][-1]["joint_lift"]
+        assert names == last["carriers"], (names, last)
+        for c in b["carriers"]:  # an explainer lifted carries the drop with a size beyond its plausible bound
+            for n, v in c["values"].items():
+                if v.get("plausible_bound") and not c["base"]:
+                    lo, hi = v["plausible_bound"]
+                    edge = 0.02 * (hi - lo)
+                    assert not lo + edge < v["value"] < hi - edge, (c["name"], n, v)
+
+
+@pytest.mark.campaign
+@pytest.mark.slow
+@pytest.mark.parametrize("name", _cases([(n,) for n in NULLS]))
+def test_a_null_never_hears_of_a_constant_torque_beyond_the_base_without_a_lossier_base_beside_it(traced, name):
+    """Nothing planted: the record's answer names no constant torque beyond the base, and where a joint lift passes
+    with carriers the base's own efficiencies beyond their catalogue spread are among them (the rig base's no-back
+    drags while driven: a lossier base, no effect) or no single torque carries it."""
+    b = traced(name)["beyond_plausible_base"]
+    assert b["status"] in ("not_fitted", "within", "not_named", "no_carrier"), b
+    if b["status"] == "not_named":
+        assert any(c["base"] for c in b["carriers"]), b
+
+
+@pytest.mark.campaign
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["rig_drivetrain_compliance", "rig_screw_ripple", "rig_pair_coulomb_ripple"])
 def test_found_effects_are_reported_in_the_order_of_what_they_explain(traced, name):
     """Runs where two or more found effects are kept (a planted one and the bases' load path): each still earns its

@@ -13,6 +13,8 @@ from handcalc import RIG_NOISE
 from thsa_control.data.rigdata import read_run
 from thsa_control.fit.virtual_rig import VirtualRig, excitation_inputs
 from thsa_control.trace import TraceSettings, trace
+from thsa_control.trace.engine import EFFICIENCY_LIFT as EFF
+from thsa_control.trace.lift import beyond_base
 from thsa_control.trace.signature import base_transients
 
 
@@ -97,6 +99,9 @@ def test_joint_lift_is_carried_by_the_planted_drag(coulomb_beyond):
     assert j["significant"], j
     assert j["carriers"] == ["coulomb_friction"], j  # alone: neither the efficiencies nor another torque
     assert j["holdout_chi2_drop"] - j["single_drops"]["coulomb_friction"] < j["carry_gap"], j
+    b = doc["beyond_plausible_base"]  # the record's answer: named, by the drag added in that round
+    assert b["status"] == "named" and [c["name"] for c in b["carriers"] if c["named"]] == ["coulomb_friction"], b
+    assert b["carriers"][0]["values"]["drive.coulomb_torque"]["value"] > 0.057, b
 
 
 @pytest.mark.slow
@@ -109,6 +114,7 @@ def test_a_drag_inside_its_bound_names_nothing_beyond_the_base(tmp_path_factory,
     assert not [e for e in doc["effects_added"] if e.get("beyond_base_correction")], doc["effects_added"]
     assert not doc["effects_added"] and not doc["ambiguous"], doc["rounds"]
     assert not [r["joint_lift"] for r in doc["rounds"] if (r.get("joint_lift") or {}).get("significant")]
+    assert doc["beyond_plausible_base"]["status"] in ("not_fitted", "within"), doc["beyond_plausible_base"]
 
 
 def test_report_shows_the_whole_contribution_and_the_joint_lift():
@@ -135,3 +141,73 @@ def test_report_shows_the_whole_contribution_and_the_joint_lift():
     for out in (text, html):
         assert "whole contribution" in out and "98 %" in out and "38 % of the value" in out
         assert "carried by coulomb_friction alone" in out
+
+
+def _rounds(joint: dict, model=("standby_motor",), added_round=None, refusal=None) -> list[dict]:
+    cands = [{"name": "coulomb_friction", "holdout_chi2_drop": 39.7, "beyond_base_correction": True,
+              "parameters": {"drive.coulomb_torque": {"value": 0.096, "ci95": [0.022, 0.17], "unit": "N m"}},
+              **({"not_robust": refusal} if refusal else {})},
+             {"name": "direction_friction", "holdout_chi2_drop": 37.2,
+              "parameters": {"drive.direction_coulomb_torque": {"value": 0.19, "ci95": [0.11, 0.27], "unit": "N m"}}}]
+    return [{"round": 1, "model": list(model), "candidates": cands, "joint_lift": joint}]
+
+
+BASE = {"accepted": True, "corrections": [{"parameter": "drive.coulomb_torque", "bound": [0.0, 0.057]},
+                                          {"parameter": "screw.efficiency_direct", "bound": [0.831, 0.969]}]}
+
+
+def _joint(significant=True, carriers=("coulomb_friction", "direction_friction", EFF)):
+    return {"significant": significant, "holdout_chi2_drop": 42.1 if significant else 12.0, "chi2_threshold": 28.5,
+            "carriers": list(carriers) if significant else [],
+            "single_drops": {"coulomb_friction": 39.7, "direction_friction": 37.2, EFF: 42.1},
+            "carrier_values": {EFF: {"screw.efficiency_direct": {"value": 0.80, "ci95": [0.78, 0.82], "unit": "-"}}}}
+
+
+def test_the_records_answer_beyond_a_plausible_base_follows_the_last_joint_lift():
+    """``beyond_plausible_base`` reads the last round's joint lift: no lift fitted, a lift that does not pass, one
+    that passes carried by several (each with its own values against the plausible bound and why it was not named),
+    one carried by the effect added in that round, and one with no carrier."""
+    final = ["standby_motor"]
+    b = beyond_base([{"round": 1, "model": final, "candidates": []}], final, BASE, [], EFF)
+    assert b["status"] == "not_fitted" and "plausible bound" in b["why"]
+    assert beyond_base([], final, None, [], EFF)["status"] == "not_fitted"
+    b = beyond_base(_rounds(_joint(significant=False)), final, BASE, [], EFF)
+    assert b["status"] == "within" and b["on_final_model"]
+    b = beyond_base(_rounds(_joint(), refusal="improves 10 of 15"), final, BASE, [], EFF)
+    assert b["status"] == "not_named"
+    by = {c["name"]: c for c in b["carriers"]}
+    assert set(by) == {"coulomb_friction", "direction_friction", EFF} and by[EFF]["base"]
+    assert by["coulomb_friction"]["values"]["drive.coulomb_torque"]["plausible_bound"] == [0.0, 0.057]
+    assert "plausible_bound" not in by["direction_friction"]["values"]["drive.direction_coulomb_torque"]
+    assert by[EFF]["values"]["screw.efficiency_direct"]["plausible_bound"] == [0.831, 0.969]
+    assert by["coulomb_friction"]["not_named_because"] == "improves 10 of 15"
+    assert not any(c["named"] for c in b["carriers"])
+    added = [{"name": "coulomb_friction", "round_added": 1}]
+    b = beyond_base(_rounds(_joint(carriers=("coulomb_friction",))), final + ["coulomb_friction"], BASE, added, EFF)
+    assert b["status"] == "named" and not b["on_final_model"] and b["carriers"][0]["named"]
+    b = beyond_base(_rounds(_joint(carriers=())), final, BASE, [], EFF)
+    assert b["status"] == "no_carrier" and b["carriers"] == []
+    b = beyond_base(_rounds({"error": "solver stopped"}), final, BASE, [], EFF)
+    assert b["status"] == "failed" and "solver stopped" in b["why"]
+
+
+def test_the_summary_says_what_is_beyond_a_plausible_base_and_what_each_explanation_would_be():
+    """The console summary and the report's conclusion give the answer under 'unexplained', each carrier with its
+    value, interval and plausible bound."""
+    from thsa_control.report.trace import beyond_base_lines, conclusion_table_html, format_trace_summary
+
+    err = {"motor_speed": {"rms": 1.0, "unit": "rad/s", "fit_percent": 90.0}}
+    doc = {"base_model": "A", "declared_effects": [], "uncertain_parameters": [], "effects_added": [],
+           "ambiguous": [], "rounds": [], "error_before": err, "error_after": err,
+           "unexplained": False, "separability": {"sentences": []},
+           "residual_signature": {"structured": [], "base_like": [], "tests": [], "sensors": []}}
+    doc["beyond_plausible_base"] = beyond_base(_rounds(_joint()), [], BASE, [], EFF)
+    lines = beyond_base_lines(doc)
+    assert lines[0].startswith("beyond a plausible base (constant torques): PRESENT, NOT ATTRIBUTED")
+    assert any("drive.coulomb_torque = 0.096 N m [0.022, 0.17] (plausible 0.057 at most)" in x for x in lines)
+    assert any("screw.efficiency_direct = 0.8 - [0.78, 0.82] (plausible 0.831 .. 0.969)" in x for x in lines)
+    text, html = format_trace_summary(doc), conclusion_table_html(doc)
+    assert lines[0] in text and "PRESENT, NOT ATTRIBUTED" in html
+    doc["beyond_plausible_base"] = {"status": "not_fitted", "why": "no base correction reached its plausible bound"}
+    assert beyond_base_lines(doc) == ["beyond a plausible base (constant torques): not tested: no base correction "
+                                      "reached its plausible bound"]

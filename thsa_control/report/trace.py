@@ -112,7 +112,8 @@ def conclusion_table_html(doc: dict) -> str:
         rows.append(("removed (backward check)", r["name"],
                      esc(_removed_sentence(r)), "-", "-", "-"))
     if not rows:
-        return "<p>Nothing added: no base correction and no candidate effect is significant.</p>"
+        return ("<p>Nothing added: no base correction and no candidate effect is significant."
+                + "".join(f"<br>{esc(m.strip())}" for m in beyond_base_lines(doc)) + "</p>")
     head = ("<table><tr><th>kind</th><th>effect</th><th>parameters (95 % interval)</th>"
             "<th>channel RMS before &rarr; after</th><th>error drop in its window</th>"
             "<th>not determined by this run</th></tr>")
@@ -125,6 +126,7 @@ def conclusion_table_html(doc: dict) -> str:
     misfit = misfit_shapes(doc["residual_signature"])
     tail = (f"<p>unexplained: <b>{doc['unexplained']}</b>"
             + (f" (structured: {esc(', '.join(doc['residual_signature']['structured']))})" if doc["unexplained"] else "")
+            + "".join(f"<br>{esc(m.strip())}" for m in beyond_base_lines(doc))
             + "".join(f"<br><small>{esc(m)}</small>" for m in misfit + not_tested_lines(doc["residual_signature"]))
             + (f"<br><small>left as a declared model of another rig's base leaves it (starts, stops, reversals, "
                f"quadrant; not counted as unexplained): {esc('; '.join(base_like))}</small>" if base_like else "")
@@ -654,6 +656,45 @@ def not_tested_lines(sig: dict) -> list[str]:
     return out
 
 
+def _bound_text(b) -> str:
+    lo, hi = b
+    return f"plausible {_num(hi)} at most" if lo == 0 else f"plausible {_num(lo)} .. {_num(hi)}"
+
+
+def beyond_base_lines(doc: dict) -> list[str]:
+    """The record's answer to "a constant torque beyond a plausible base?" (trace.json ``beyond_plausible_base``):
+    a headline, and for a joint lift that passed, each single explanation with its own lifted values against the
+    plausible bound and why it was not named."""
+    b = doc.get("beyond_plausible_base")
+    if not b:
+        return []
+    head = "beyond a plausible base (constant torques): "
+    if b["status"] in ("not_fitted", "failed"):
+        return [head + f"not tested: {b['why']}"]
+    lift = (f"round {b['round']}'s joint lift, held-out chi2 drop {_num(b['holdout_chi2_drop'], '.4g')} against "
+            f"{_num(b['chi2_threshold'], '.3g')}" + ("" if b["on_final_model"] else
+                                                     ", on the model before that round's addition"))
+    if b["status"] == "within":
+        return [head + f"no ({lift})"]
+    label = {"named": "NAMED", "not_named": "PRESENT, NOT ATTRIBUTED", "no_carrier": "PRESENT, NO SINGLE CARRIER"}
+    what = ("what the base leaves exceeds its plausible corrections; each of these explains it alike (held-out "
+            "drops within the joint lift's carry gap), so nothing is named:" if b["status"] == "not_named"
+            else b["verdict"])
+    lines = [head + f"{label.get(b['status'], b['status'])} ({lift}): {what}"]
+    for c in b.get("carriers") or []:
+        vals = ", ".join(f"{n} = {_num(v['value'])} {v.get('unit', '')}".rstrip()
+                         + (f" [{_num(v['ci95'][0])}, {_num(v['ci95'][1])}]" if v.get("ci95") else "")
+                         + (f" ({_bound_text(v['plausible_bound'])})" if v.get("plausible_bound") else "")
+                         for n, v in c["values"].items())
+        lines.append(f"    {'named' if c['named'] else 'or'}: {c['meaning']}"
+                     + (f" ({c['name']})" if not c["base"] else "")
+                     + f", held-out drop {_num(c['holdout_chi2_drop'], '.4g')}" + (f": {vals}" if vals else "")
+                     + (f"; not named alone: {c['not_named_because']}" if c.get("not_named_because") else ""))
+    if b["status"] == "not_named" and doc.get("separability"):
+        lines.append("    the records that would tell them apart: under 'what this record cannot tell apart'")
+    return lines
+
+
 def format_trace_summary(doc: dict) -> str:
     """Console / report text: what was added, the ranking, the errors, the signature."""
     lines = [f"declared model: {doc['base_model']} ({', '.join(doc['declared_effects']) or 'functional'}), "
@@ -772,6 +813,7 @@ def format_trace_summary(doc: dict) -> str:
     sig = doc["residual_signature"]
     lines.append(f"unexplained: {doc['unexplained']}" + (f" (structured in: {', '.join(sig['structured'])})"
                                                          if doc["unexplained"] else ""))
+    lines += beyond_base_lines(doc)
     if sig.get("base_like"):
         lines.append("left as a declared model of another rig's base leaves it (not unexplained): "
                      + "; ".join(sig["base_like"]))

@@ -79,7 +79,7 @@ from .scoring import (_amplitude_out, _at_edge, _base_correction, _channel_error
                       _run_jobs,
                       _signature_brief, admission_tests, beats_null, holdout_total, null_drop, scaled_threshold, zero_is_absent,
                       ROBUST_TESTS)
-from .lift import better, contribution, interior, joint_verdict, lift_names, lifted as lifted_bounds
+from .lift import beyond_base, better, contribution, interior, joint_verdict, lift_names, lifted as lifted_bounds
 from .signature import SignatureSettings, base_transients, split_remainder
 from .threads import limit_blas_threads
 
@@ -973,7 +973,9 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 ef = better(fits_joint[2], fits_joint[3])
                 if "error" not in ef:
                     singles.append({"name": EFFICIENCY_LIFT, "holdout_chi2_drop": (
-                        holdout_total(current, noise, cmask) - holdout_total(ef, noise, cmask))})
+                        holdout_total(current, noise, cmask) - holdout_total(ef, noise, cmask)),
+                        "parameters": {n: _param_entry(ef["estimates"][n]) for n in EFFICIENCY_EXPLAINER.free
+                                       if n in ef["estimates"]}})
             if "error" not in jf:
                 jf = {**jf, "_lifted": tuple(lifting)}
                 nested = [x["name"] for x in singles if x.get("beyond_base_correction")] + [EFFICIENCY_LIFT]
@@ -1153,6 +1155,9 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         "error_by_regime_after": _regime_errors(final, runs),
         "unexplained": bool(structured),
         "ambiguous": ambiguous,
+        "beyond_plausible_base": (beyond_base(rounds, cur_effects, base_doc if use_base else None, added,
+                                              EFFICIENCY_LIFT) if st.joint_lift else
+                                  {"status": "not_fitted", "why": "the joint lift is off (TraceSettings.joint_lift)"}),
         "separability": separ,
         "residual_signature": {**sig_after, "structured": [t["variable"] for t in structured],
                                "base_like": [t["variable"] for t in base_like]},

@@ -105,9 +105,13 @@ def joint_verdict(current: dict, joint: dict, scored: Sequence[dict], noise: Map
                    + "): what the base leaves exceeds the plausible set, but no single constant torque carries it "
                    "(a base mismatch the explainers share, or a torque this record cannot attribute); nothing named")
     est = joint["estimates"]
+    # what each carrier would be: its own lifted fit's values (a single is one explanation of the whole drop)
+    values = {s["name"]: {n: {k: p[k] for k in ("value", "ci95", "unit") if k in p}
+                          for n, p in (s.get("parameters") or {}).items()}
+              for s in scored if s.get("name") in carriers and s.get("parameters")}
     return {"parameters_lifted": k, "holdout_chi2_drop": drop, "chi2_threshold": thr * scale,
             "threshold_scale": scale, "holdout_iact": tau, "carry_gap": gap, "significant": significant,
-            "single_drops": singles, "carriers": carriers, "verdict": verdict,
+            "single_drops": singles, "carriers": carriers, "carrier_values": values, "verdict": verdict,
             "values": {n: est[n]["value"] for n in est if n in (joint.get("_lifted") or ())},
             **({"starts": joint["starts"]} if "starts" in joint else {}),
             **({"joint_from": joint_from, "joint_fit_drop": b0 - b1} if joint_from else {})}
@@ -134,3 +138,81 @@ def contribution(fit: dict, none: dict | None, at_bound: dict | None, noise: Map
         out["total_window_reduction"] = 1 - math.sqrt(c_all / c_none) if math.isfinite(c_all) else None
         out["bounded_window_reduction"] = 1 - math.sqrt(c_bound / c_none) if math.isfinite(c_bound) else None
     return out
+
+
+#: what each single lift stands for, in an engineer's words (the record's summary of a joint lift)
+CARRIER_MEANING = {
+    "coulomb_friction": "a Coulomb drag larger than a rig's base has",
+    "force_offset": "an axial force on the nut that the load cell does not see",
+    "direction_friction": "a drag in one direction of motion only",
+}
+#: the base's own alternative: load-proportional losses beyond the catalogue spread (a no-back that drags while
+#: driven shows so); no effect
+BASE_MEANING = "a lossier screw and gearbox than the catalogue spread (the base, not an effect)"
+
+
+def beyond_base(rounds: Sequence[Mapping], final_effects: Sequence[str], base_doc: Mapping | None,
+                added: Sequence[Mapping], efficiency_lift: str) -> dict:
+    """The record's answer to "is there a constant torque beyond a plausible base?" (trace.json
+    ``beyond_plausible_base``), from the last round's joint lift.
+
+    ``status``: ``not_fitted`` (no base correction reached its plausible bound: the plausible base holds the constant
+    torques; or no base step), ``failed`` (the joint fit), ``within`` (the whole set lifted does not pass),
+    ``named`` (it passes and a carrier was added in that round), ``not_named`` (it passes, one or more carriers, none
+    added: each carrier is one explanation the record does not rule out, with its own lifted values against the
+    plausible bound), ``no_carrier`` (it passes and no single constant torque carries it: what the base leaves
+    exceeds the plausible set, nothing to name).  ``on_final_model`` says whether that round's model is the final
+    one (a round that added an effect judged the model before it).
+    """
+    joint_rounds = [r for r in rounds if r.get("joint_lift")]
+    if not joint_rounds:
+        why = ("no base-correction step accepted" if not (base_doc or {}).get("accepted") else
+               "no base correction reached its plausible bound: the plausible base holds the record's constant torques")
+        return {"status": "not_fitted", "why": why}
+    r = joint_rounds[-1]
+    j = r["joint_lift"]
+    k = r["round"]
+    added_here = [e["name"] for e in added if e.get("round_added") == k and not e.get("implied_by")]
+    out = {"round": k, "on_final_model": list(r["model"]) == list(final_effects) and not added_here}
+    if "error" in j:
+        return {**out, "status": "failed", "why": f"the joint lift's fit failed: {j['error']}"}
+    out.update(holdout_chi2_drop=j["holdout_chi2_drop"], chi2_threshold=j["chi2_threshold"])
+    if not j["significant"]:
+        return {**out, "status": "within",
+                "verdict": "nothing beyond a plausible base: the base corrections lifted together do not pass"}
+    bounds = {c["parameter"]: c["bound"] for c in (base_doc or {}).get("corrections") or []}
+    # the round's candidates, and a retry round's: decided with the candidates of the round it retried
+    of = (r.get("retry") or {}).get("of_round")
+    cands = {c["name"]: c for rr in rounds if rr["round"] == of for c in rr.get("candidates") or []}
+    cands.update({c["name"]: c for c in r.get("candidates") or []})
+    carriers = []
+    for nm in j["carriers"]:
+        c = cands.get(nm, {})
+        why_not = (c.get("joint_lift_refused") or c.get("not_robust")
+                   or "; ".join(c.get("implausible_because") or []) or None) if nm not in added_here else None
+        carriers.append({"name": nm, "base": nm == efficiency_lift,
+                         "meaning": BASE_MEANING if nm == efficiency_lift else CARRIER_MEANING.get(nm, nm),
+                         "holdout_chi2_drop": j["single_drops"].get(nm),
+                         "values": {n: {**{q: v[q] for q in ("value", "ci95", "unit") if q in v},
+                                        **({"plausible_bound": bounds[n]} if n in bounds else {})}
+                                    for n, v in ((j.get("carrier_values") or {}).get(nm)
+                                                 or c.get("parameters") or {}).items()},
+                         "named": nm in added_here,
+                         **({"not_named_because": why_not} if why_not else {})})
+    out["carriers"] = carriers
+    if not carriers:
+        return {**out, "status": "no_carrier",
+                "verdict": ("what the base leaves exceeds the plausible base corrections, but no single constant "
+                            "torque carries it (a base mismatch the explainers share): nothing named")}
+    if added_here and set(added_here) & set(j["carriers"]):
+        named = [c["name"] for c in carriers if c["named"]]
+        others = [c["name"] for c in carriers if not c["named"]]
+        return {**out, "status": "named",
+                "verdict": f"a constant torque beyond a plausible base, named: {', '.join(named)}"
+                           + (f" (the record does not rule out {', '.join(others)})" if others else "")}
+    return {**out, "status": "not_named",
+            "verdict": ("what the base leaves exceeds the plausible base corrections, and this record does not "
+                        "attribute it: "
+                        + ("one of " if len(carriers) > 1 else "")
+                        + "; ".join(c["meaning"] + f" ({c['name']})" if not c["base"] else c["meaning"]
+                                    for c in carriers) + "; nothing named")}
