@@ -185,8 +185,22 @@ def test_the_records_answer_beyond_a_plausible_base_follows_the_last_joint_lift(
     added = [{"name": "coulomb_friction", "round_added": 1}]
     b = beyond_base(_rounds(_joint(carriers=("coulomb_friction",))), final + ["coulomb_friction"], BASE, added, EFF)
     assert b["status"] == "named" and not b["on_final_model"] and b["carriers"][0]["named"]
+    # the drop carried by a drag lifted that stays inside its plausible bound: nothing beyond the plausible base
+    inside = _rounds(_joint(carriers=("coulomb_friction", "direction_friction")))
+    inside[0]["candidates"][0]["parameters"]["drive.coulomb_torque"]["value"] = 0.039
+    b = beyond_base(inside, final, BASE, [], EFF)
+    assert b["status"] == "within" and b["explained_inside_bounds_by"] == "coulomb_friction", b
+    assert [c["inside_plausible_bounds"] for c in b["carriers"]] == [True, False]
     b = beyond_base(_rounds(_joint(carriers=())), final, BASE, [], EFF)
     assert b["status"] == "no_carrier" and b["carriers"] == []
+    # the model changed after the lift (an effect added in round 1); round 2 on the final model fitted none
+    later = _rounds(_joint(), refusal="improves 10 of 15") + [{"round": 2, "model": final + ["cogging_torque"],
+                                                              "candidates": []}]
+    ripple = [{"name": "cogging_torque", "round_added": 1}]
+    b = beyond_base(later, final + ["cogging_torque"], BASE, ripple, EFF)
+    assert b["status"] == "within" and b["before"]["status"] == "not_named" and "round 2" in b["verdict"], b
+    b = beyond_base(later[:1], final + ["cogging_torque"], BASE, ripple, EFF)  # the search ended on the addition
+    assert b["status"] == "not_on_final_model" and "cogging_torque" in b["verdict"], b
     b = beyond_base(_rounds({"error": "solver stopped"}), final, BASE, [], EFF)
     assert b["status"] == "failed" and "solver stopped" in b["why"]
 
@@ -201,7 +215,7 @@ def test_the_summary_says_what_is_beyond_a_plausible_base_and_what_each_explanat
            "ambiguous": [], "rounds": [], "error_before": err, "error_after": err,
            "unexplained": False, "separability": {"sentences": []},
            "residual_signature": {"structured": [], "base_like": [], "tests": [], "sensors": []}}
-    doc["beyond_plausible_base"] = beyond_base(_rounds(_joint()), [], BASE, [], EFF)
+    doc["beyond_plausible_base"] = beyond_base(_rounds(_joint()), ["standby_motor"], BASE, [], EFF)
     lines = beyond_base_lines(doc)
     assert lines[0].startswith("beyond a plausible base (constant torques): PRESENT, NOT ATTRIBUTED")
     assert any("drive.coulomb_torque = 0.096 N m [0.022, 0.17] (plausible 0.057 at most)" in x for x in lines)
@@ -211,3 +225,5 @@ def test_the_summary_says_what_is_beyond_a_plausible_base_and_what_each_explanat
     doc["beyond_plausible_base"] = {"status": "not_fitted", "why": "no base correction reached its plausible bound"}
     assert beyond_base_lines(doc) == ["beyond a plausible base (constant torques): not tested: no base correction "
                                       "reached its plausible bound"]
+    doc["beyond_plausible_base"]["base_step"] = True  # the base step ran and held them: a no
+    assert beyond_base_lines(doc)[0].startswith("beyond a plausible base (constant torques): no (no base correction")

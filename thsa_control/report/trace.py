@@ -669,14 +669,18 @@ def beyond_base_lines(doc: dict) -> list[str]:
     if not b:
         return []
     head = "beyond a plausible base (constant torques): "
+    if b["status"] == "not_fitted" and b.get("base_step"):  # the plausible base holds the constant torques
+        return [head + f"no ({b['why']})"]
     if b["status"] in ("not_fitted", "failed"):
         return [head + f"not tested: {b['why']}"]
+    if "before" in b or "holdout_chi2_drop" not in b:  # judged through a later round, or not on the final model
+        return [head + ("no: " if b["status"] == "within" else "NOT JUDGED ON THE FINAL MODEL: ") + b["verdict"]]
     lift = (f"round {b['round']}'s joint lift, held-out chi2 drop {_num(b['holdout_chi2_drop'], '.4g')} against "
             f"{_num(b['chi2_threshold'], '.3g')}" + ("" if b["on_final_model"] else
                                                      ", on the model before that round's addition"))
     if b["status"] == "within":
-        return [head + f"no ({lift})"]
-    label = {"named": "NAMED", "not_named": "PRESENT, NOT ATTRIBUTED", "no_carrier": "PRESENT, NO SINGLE CARRIER"}
+        return [head + f"no ({lift})" + (f": {b['verdict']}" if b.get("explained_inside_bounds_by") else "")]
+    label = {"named": "NAMED", "not_named": "PRESENT, NOT ATTRIBUTED", "no_carrier": "A BASE MISMATCH BEYOND THE PLAUSIBLE SET, NO CONSTANT TORQUE"}
     what = ("what the base leaves exceeds its plausible corrections; each of these explains it alike (held-out "
             "drops within the joint lift's carry gap), so nothing is named:" if b["status"] == "not_named"
             else b["verdict"])
