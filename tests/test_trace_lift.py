@@ -227,3 +227,26 @@ def test_the_summary_says_what_is_beyond_a_plausible_base_and_what_each_explanat
                                       "reached its plausible bound"]
     doc["beyond_plausible_base"]["base_step"] = True  # the base step ran and held them: a no
     assert beyond_base_lines(doc)[0].startswith("beyond a plausible base (constant torques): no (no base correction")
+
+
+def test_a_named_physical_effect_lists_the_single_lifts_it_does_not_rule_out():
+    """In a round whose joint lift passes, the single lifts whose drop on the constant torques' samples reaches the
+    named effect's own less the carry gap are what the record does not rule out in its place, with their refusals;
+    one that explains clearly less is not listed, and none listed gives nothing."""
+    from thsa_control.report.trace import not_ruled_out_text
+    from thsa_control.trace.lift import not_ruled_out
+
+    joint = {"carry_gap": 23.1, "single_drops": {"coulomb_friction": 11070.0, "force_offset": 11068.0, EFF: 11050.0,
+                                                 "direction_friction": 9000.0}}
+    cands = {"coulomb_friction": {"joint_lift_refused": "a lossier base explains as much"}}
+    n = not_ruled_out(10650.0, joint, cands)
+    assert [a["name"] for a in n["alternatives"]] == ["coulomb_friction", "force_offset", EFF]
+    assert n["alternatives"][0]["not_named_because"] == "a lossier base explains as much"
+    assert "not_named_because" not in n["alternatives"][1]
+    # an effect that explains a little more: only the lifts within the gap below it (11090 - 23.1 = 11066.9)
+    assert [a["name"] for a in not_ruled_out(11090.0, joint, cands)["alternatives"]] == ["coulomb_friction",
+                                                                                         "force_offset"]
+    assert not_ruled_out(20000.0, joint, cands) is None
+    text = not_ruled_out_text({"not_ruled_out": n})
+    assert text.startswith("this record does not rule out, in its place: coulomb_friction (held-out drop 1.107e+04")
+    assert not_ruled_out_text({}) is None

@@ -95,6 +95,8 @@ def conclusion_table_html(doc: dict) -> str:
             pars += f"<br><small>{esc(_final_text(e))}</small>"
         pars += "".join(f"<br><small>{esc(w)}</small>" for w in _weights_text(e.get("weight_check"))
                         + _every_segment_text(e) + _segments_text(e))
+        if not_ruled_out_text(e):
+            pars += f"<br><b>{esc(not_ruled_out_text(e))}</b>"
         nd = "<br>".join([f"{esc(h['parameter'])} held at {_num(h['held_at'])} {esc(h['unit'])}: {esc(h['reason'])}"
                           for h in e.get("not_determined", [])]
                          + [f"part not shown by this run (kept at its fit): {esc(w)}"
@@ -661,6 +663,19 @@ def _bound_text(b) -> str:
     return f"plausible {_num(hi)} at most" if lo == 0 else f"plausible {_num(lo)} .. {_num(hi)}"
 
 
+def not_ruled_out_text(e: dict) -> str | None:
+    """One line: the constant torques (or a lossier base) a named physical effect does not rule out on this record."""
+    n = e.get("not_ruled_out")
+    if not n:
+        return None
+    return ("this record does not rule out, in its place: " + "; ".join(
+        f"{a['name']} (held-out drop {_num(a['holdout_chi2_drop'], '.4g')}"
+        + (f", not named: {a['not_named_because']}" if a.get("not_named_because") else "") + ")"
+        for a in n["alternatives"])
+        + f" (its own drop on the constant torques' samples {_num(n['own_drop_on_constant_torque_samples'], '.4g')},"
+        f" carry gap {_num(n['carry_gap'], '.3g')}: it was named as the physical effect that explains as much)")
+
+
 def beyond_base_lines(doc: dict) -> list[str]:
     """The record's answer to "a constant torque beyond a plausible base?" (trace.json ``beyond_plausible_base``):
     a headline, and for a joint lift that passed, each single explanation with its own lifted values against the
@@ -744,6 +759,8 @@ def format_trace_summary(doc: dict) -> str:
                          + (" (profiled)" if p.get("profiled") else "") + (" (held)" if p.get("held") else "")
                          + _outside(p))
         lines += [f"    {t}" for t in _amplitude_lines(e)]
+        if not_ruled_out_text(e):
+            lines.append(f"    {not_ruled_out_text(e)}")
         for h in e.get("not_determined", []):
             lines.append(f"    not determined by this run: {h['parameter']} held at {_num(h['held_at'])} {h['unit']} "
                          f"({h['reason']})")

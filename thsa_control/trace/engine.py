@@ -79,7 +79,8 @@ from .scoring import (_amplitude_out, _at_edge, _base_correction, _channel_error
                       _run_jobs,
                       _signature_brief, admission_tests, beats_null, holdout_total, null_drop, scaled_threshold, zero_is_absent,
                       ROBUST_TESTS)
-from .lift import beyond_base, better, contribution, interior, joint_verdict, lift_names, lifted as lifted_bounds
+from .lift import (beyond_base, better, contribution, interior, joint_verdict, lift_names, lifted as lifted_bounds,
+                   not_ruled_out)
 from .signature import SignatureSettings, base_transients, split_remainder
 from .threads import limit_blas_threads
 
@@ -1049,6 +1050,16 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 **({"start": best["start"]} if best.get("start") else {}),
                 **({"beyond_base_correction": True} if best.get("beyond_base_correction") else {}),
                 **({"profile": best["profile"]} if best.get("profile") else {})}
+        if joint and "error" not in joint and joint["significant"] and not _is_explainer(best) \
+                and best["_spec"].channel == "motor_speed":
+            own = holdout_total(current, noise, cmask) - holdout_total(best["_fit"], noise, cmask)
+            alts = not_ruled_out(own, joint, {c["name"]: c for c in scored})
+            if alts:
+                step["not_ruled_out"] = alts
+                say(f"{best['name']}: the record does not rule out "
+                    + ", ".join(a["name"] for a in alts["alternatives"])
+                    + f" (held-out drops on the constant torques' samples at least its {own:.4g} less the carry gap "
+                      f"{joint['carry_gap']:.3g})")
         if best.get("beyond_base_correction"):
             step["contribution"] = _contribution(best, f, base_bounds, cur_effects, fit_runs, noise, job,
                                                  win_scored[best["window"]], st, say)

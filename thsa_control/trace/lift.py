@@ -273,3 +273,25 @@ def _joint_answer(r: Mapping, rounds: Sequence[Mapping], final_effects: Sequence
                         + ("one of " if len(carriers) > 1 else "")
                         + "; ".join(c["meaning"] + f" ({c['name']})" if not c["base"] else c["meaning"]
                                     for c in carriers) + "; nothing named")}
+
+
+def not_ruled_out(own: float, joint: Mapping, candidates: Mapping[str, Mapping]) -> dict | None:
+    """The single lifts a named physical effect does not rule out: in a round whose joint lift passes, those whose
+    held-out drop on the constant torques' samples is at least the effect's own there (``own``) less the carry gap.
+    A cold drag at one temperature, one load and one direction is one constant torque among the others: on a blind
+    cold ramp with a 2.7 kN axial force planted, temperature_friction was named (1.065e4 on those samples) beside a
+    Coulomb drag, an axial force, a one-direction drag and a lossier base beyond their bounds (1.105e4 .. 1.107e4,
+    refused against the lossier base), and the record cannot say which.  ``candidates``: the round's scored
+    candidates by name (their refusals are reported)."""
+    gap = joint["carry_gap"]
+    alts = []
+    for nm, d in sorted(joint["single_drops"].items(), key=lambda kv: -kv[1]):
+        if d < own - gap:
+            continue
+        c = candidates.get(nm) or {}
+        why = (c.get("joint_lift_refused") or c.get("not_robust") or "; ".join(c.get("implausible_because") or [])
+               or None)
+        alts.append({"name": nm, "holdout_chi2_drop": d, **({"not_named_because": why} if why else {})})
+    if not alts:
+        return None
+    return {"own_drop_on_constant_torque_samples": own, "carry_gap": gap, "alternatives": alts}

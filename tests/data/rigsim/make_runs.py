@@ -33,6 +33,7 @@ REPO = HERE.parents[2]
 RECORD_HZ = 500
 #: runs logged at another rate than :data:`RECORD_HZ`: where a rate shows what the catalogue's does not
 RECORD_HZ_OF: dict[str, int] = {"null_rig_cold_s10716255": 1000, "rig_pair_cogging_compliance": 1000,
+                                "rig_axial_offset_cold": 1000,
                                 "rig_pair_cold_ripple": 1000, "rig_pair_cold_ripple_phase": 1000}
 #: runs at another ambient temperature than their scenario's (rigsim ``--temperature``) [degC]
 TEMPERATURE_OF: dict[str, float] = {"rig_pair_cold_ripple": -40.0}
@@ -185,6 +186,11 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     # were within the ambiguity gap and neither was named, although the load path leaves the screw-speed error the
     # compliance explains (docs/trace_notes.md "Another part of the residual is no rival")
     "rig_drivetrain_compliance_rev": ("reversals_under_load", "rig", "drivetrain_compliance", 682, None, "library"),
+    # an axial force on the cold ramp (-30 degC, one direction, one load): drawn blind (the ninth blind set, seed and
+    # size from os.urandom); temperature_friction is named, its cold drag one constant torque among the others on one
+    # temperature, and the trace says which it does not rule out (docs/trace_notes.md "What a named effect does not
+    # rule out")
+    "rig_axial_offset_cold": ("cold_ramp", "rig", "axial_offset=F_N:2666", 783101, None, "library"),
 }
 
 #: run sets traced together (``thsa trace A.csv B.csv``; tests/test_trace_sets.py), written to ``sets/``: the rig base
