@@ -151,6 +151,11 @@ CARRIER_MEANING = {
 BASE_MEANING = "a lossier screw and gearbox than the catalogue spread (the base, not an effect)"
 
 
+def _refusal(c: Mapping) -> str | None:
+    """Why a scored candidate was not named: the joint-lift gate, the robustness test, or its implausibility."""
+    return c.get("joint_lift_refused") or c.get("not_robust") or "; ".join(c.get("implausible_because") or []) or None
+
+
 def _inside(values: Mapping[str, Mapping]) -> bool:
     """Every value inside its plausible bound (within 2 % of the bound's range of it, as at-the-bound is judged);
     false for no values or a parameter without a plausible bound (a found drag, no base correction)."""
@@ -236,8 +241,7 @@ def _joint_answer(r: Mapping, rounds: Sequence[Mapping], final_effects: Sequence
     carriers = []
     for nm in j["carriers"]:
         c = cands.get(nm, {})
-        why_not = (c.get("joint_lift_refused") or c.get("not_robust")
-                   or "; ".join(c.get("implausible_because") or []) or None) if nm not in added_here else None
+        why_not = _refusal(c) if nm not in added_here else None
         carriers.append({"name": nm, "base": nm == efficiency_lift,
                          "meaning": BASE_MEANING if nm == efficiency_lift else CARRIER_MEANING.get(nm, nm),
                          "holdout_chi2_drop": j["single_drops"].get(nm),
@@ -289,8 +293,7 @@ def not_ruled_out(own: float, joint: Mapping, candidates: Mapping[str, Mapping])
         if d < own - gap:
             continue
         c = candidates.get(nm) or {}
-        why = (c.get("joint_lift_refused") or c.get("not_robust") or "; ".join(c.get("implausible_because") or [])
-               or None)
+        why = _refusal(c)
         alts.append({"name": nm, "holdout_chi2_drop": d, **({"not_named_because": why} if why else {})})
     if not alts:
         return None
