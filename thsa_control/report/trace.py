@@ -95,8 +95,9 @@ def conclusion_table_html(doc: dict) -> str:
             pars += f"<br><small>{esc(_final_text(e))}</small>"
         pars += "".join(f"<br><small>{esc(w)}</small>" for w in _weights_text(e.get("weight_check"))
                         + _every_segment_text(e) + _segments_text(e))
-        if not_ruled_out_text(e):
-            pars += f"<br><b>{esc(not_ruled_out_text(e))}</b>"
+        nro = not_ruled_out_text(e)
+        if nro:
+            pars += f"<br><b>{esc(nro)}</b>"
         nd = "<br>".join([f"{esc(h['parameter'])} held at {_num(h['held_at'])} {esc(h['unit'])}: {esc(h['reason'])}"
                           for h in e.get("not_determined", [])]
                          + [f"part not shown by this run (kept at its fit): {esc(w)}"
@@ -695,7 +696,8 @@ def beyond_base_lines(doc: dict) -> list[str]:
                                                      ", on the model before that round's addition"))
     if b["status"] == "within":
         return [head + f"no ({lift})" + (f": {b['verdict']}" if b.get("explained_inside_bounds_by") else "")]
-    label = {"named": "NAMED", "not_named": "PRESENT, NOT ATTRIBUTED", "no_carrier": "A BASE MISMATCH BEYOND THE PLAUSIBLE SET, NO CONSTANT TORQUE"}
+    label = {"named": "NAMED", "not_named": "PRESENT, NOT ATTRIBUTED",
+             "no_carrier": "A BASE MISMATCH BEYOND THE PLAUSIBLE SET, NO CONSTANT TORQUE"}
     what = ("what the base leaves exceeds its plausible corrections; each of these explains it alike (held-out "
             "drops within the joint lift's carry gap), so nothing is named:" if b["status"] == "not_named"
             else b["verdict"])
@@ -759,8 +761,9 @@ def format_trace_summary(doc: dict) -> str:
                          + (" (profiled)" if p.get("profiled") else "") + (" (held)" if p.get("held") else "")
                          + _outside(p))
         lines += [f"    {t}" for t in _amplitude_lines(e)]
-        if not_ruled_out_text(e):
-            lines.append(f"    {not_ruled_out_text(e)}")
+        nro = not_ruled_out_text(e)
+        if nro:
+            lines.append(f"    {nro}")
         for h in e.get("not_determined", []):
             lines.append(f"    not determined by this run: {h['parameter']} held at {_num(h['held_at'])} {h['unit']} "
                          f"({h['reason']})")
