@@ -100,6 +100,7 @@ def conclusion_table_html(doc: dict) -> str:
             pars += f"<br><b>{esc(nro)}</b>"
         nd = "<br>".join([f"{esc(h['parameter'])} held at {_num(h['held_at'])} {esc(h['unit'])}: {esc(h['reason'])}"
                           for h in e.get("not_determined", [])]
+                         + [esc(determined_later_text(h)) for h in e.get("determined_later", [])]
                          + [f"part not shown by this run (kept at its fit): {esc(w)}"
                             for w in e.get("parts_not_shown", [])])
         win = e.get("window_reduction") or {}
@@ -664,6 +665,15 @@ def _bound_text(b) -> str:
     return f"plausible {_num(hi)} at most" if lo == 0 else f"plausible {_num(lo)} .. {_num(hi)}"
 
 
+def determined_later_text(h: dict) -> str:
+    """One line for a parameter held as undecided when its effect was added and determined once a later one was in
+    the model (``determined_later``)."""
+    ci = h.get("ci95")
+    return (f"determined once {h['determined_given']} was added: {h['parameter']} = {_num(h['value'])} {h['unit']}"
+            + (f" [{_num(ci[0])}, {_num(ci[1])}]" if ci else "")
+            + f" (held at {_num(h['held_at'])} when added: {h['reason']})")
+
+
 def not_ruled_out_text(e: dict) -> str | None:
     """One line: the constant torques (or a lossier base) a named physical effect does not rule out on this record."""
     n = e.get("not_ruled_out")
@@ -767,6 +777,7 @@ def format_trace_summary(doc: dict) -> str:
         for h in e.get("not_determined", []):
             lines.append(f"    not determined by this run: {h['parameter']} held at {_num(h['held_at'])} {h['unit']} "
                          f"({h['reason']})")
+        lines += [f"    {determined_later_text(h)}" for h in e.get("determined_later", [])]
         if e.get("start"):
             lines.append(f"    {_start_text(e['start'])}")
         if e.get("changed_after_added"):
