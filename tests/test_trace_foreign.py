@@ -277,8 +277,11 @@ LIB_RUNS_SHORT = [("rig_temp_friction_checkcold", LIBRARY["temp_friction"])]
 LIB_RUNS_WHOLE = [("rig_drivetrain_compliance_exc", LIBRARY["drivetrain_compliance"]),
                   ("rig_drivetrain_compliance_rev", LIBRARY["drivetrain_compliance"])]
 #: a library effect drawn blind on another scenario: the axial force on the cold ramp (one temperature, one load, one
-#: direction), where the cold drag is named in its place (KNOWN_FAILING; its not_ruled_out is tested)
-LIB_RUNS_BLIND = [("rig_axial_offset_cold", LIBRARY["axial_offset"])]
+#: direction), where the cold drag is named in its place (KNOWN_FAILING; its not_ruled_out is tested); the pawl backlash
+#: on the compressive trim under a softer velocity loop, where an axial force of 2 kN was named beyond the base before
+#: fd1fc02 (a disk coefficient held undecided while the model lacked the pawl clearance)
+LIB_RUNS_BLIND = [("rig_axial_offset_cold", LIBRARY["axial_offset"]),
+                  ("rig_ratchet_backlash_lowgain", LIBRARY["ratchet_backlash"])]
 
 
 @pytest.mark.campaign
@@ -855,6 +858,30 @@ def test_a_cold_drag_named_at_one_temperature_says_which_constant_torques_it_doe
         n = e["not_ruled_out"]
         assert all(a["holdout_chi2_drop"] >= n["own_drop_on_constant_torque_samples"] - n["carry_gap"]
                    for a in n["alternatives"]), n
+
+
+@pytest.mark.campaign
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["rig_ratchet_backlash", "rig_ratchet_backlash_lowgain"])
+def test_a_disk_coefficient_held_without_the_pawl_clearance_is_determined_once_the_clearance_is_in(traced, name):
+    """The pawl clearance on the trim ramps (30 kN compressive, both directions): the base step's model lacks it and
+    its fit leaves the no-back's retraction disk coefficient undecided (a standard error larger than the value), so it
+    is held at the parameter file's 0.0043.  Once the clearance is added the coefficient is freed again and
+    determined, within 10 % of the rig's loaded-disk coefficient (its truth file's ``mu_noback_coulomb``), and no
+    constant torque is named beyond the base: held at the file's value it left 7.5 N m of loaded-disk drag at 30 kN
+    that the blind record (rig_ratchet_backlash_lowgain, a softer velocity loop) named an axial force of 2 kN."""
+    doc = traced(name)
+    nb = next(e for e in doc["effects_added"] if e["name"] == "noback_quadrant_friction")
+    later = {h["parameter"]: h for h in nb.get("determined_later", [])}
+    assert "noback.mu_coulomb_neg" in later, (nb["not_determined"], [r.get("held_refreed") for r in doc["rounds"]])
+    assert later["noback.mu_coulomb_neg"]["determined_given"] == "noback_backlash"
+    assert "noback.mu_coulomb_neg" not in {h["parameter"] for h in nb["not_determined"]}
+    truth = _truth(name)["parameters"]["mu_noback_coulomb"]["value"]
+    final = doc["final_parameters"]["noback.mu_coulomb_neg"]
+    final = final["value"] if isinstance(final, dict) else final
+    assert abs(final - truth) <= 0.1 * truth, (final, truth)
+    assert doc["beyond_plausible_base"]["status"] != "named", doc["beyond_plausible_base"]
+    assert not any(e.get("beyond_base_correction") for e in doc["effects_added"]), _found(doc)
 
 
 @pytest.mark.campaign
