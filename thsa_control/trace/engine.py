@@ -77,8 +77,8 @@ from .scoring import (_amplitude_out, _at_edge, _base_correction, _channel_error
                       _holdout_segment_changes,
                       _held_params, _null_runs, _param_entry, _plausibility, reason_kind,
                       _run_jobs,
-                      _signature_brief, admission_tests, beats_null, holdout_total, null_drop, scaled_threshold, zero_is_absent,
-                      ROBUST_TESTS)
+                      _signature_brief, admission_tests, beats_null, determination, holdout_total, null_drop,
+                      scaled_threshold, zero_is_absent, ROBUST_TESTS)
 from .lift import (beyond_base, better, contribution, interior, joint_verdict, lift_names, lifted as lifted_bounds,
                    not_ruled_out)
 from .signature import SignatureSettings, base_transients, split_remainder
@@ -1114,11 +1114,12 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             refit = _refree_held(added, best["name"], current, cur_effects, cur_free, cur_params, fit_runs, params,
                                  found_info, ref_held, job, say)
             if refit is not None:
-                rec, current = refit
-                rounds[-1]["held_refreed"] = rec
-                cur_params, cur_free = ParameterSet.from_toml(current["params_toml"]), tuple(current["free"])
-                fit_memo[bw.model_key(cur_effects, cur_free, cur_params)] = current
-                at_plausible_bound = _explainers_at_bound(current, base_bounds)
+                rounds[-1]["held_refreed"], refit_fit = refit
+                if refit_fit is not None:
+                    current = refit_fit
+                    cur_params, cur_free = ParameterSet.from_toml(current["params_toml"]), tuple(current["free"])
+                    fit_memo[bw.model_key(cur_effects, cur_free, cur_params)] = current
+                    at_plausible_bound = _explainers_at_bound(current, base_bounds)
         # once per round, on the model the backward check left
         cur_sig = _signature(current, runs, cur_params, plant_of(cur_effects, cur_params), st.signature, sensor_noise,
                              st.speed_sensors)
@@ -1208,9 +1209,10 @@ def _refree_held(added: list, given: str, current: dict, cur_effects, cur_free, 
     """Free once more, on the model with ``given`` just added, the parameters an earlier effect's own fit held
     because its estimate was undecided (``stderr_if_free`` finite: the run had information on it, not enough given
     that model; a null direction, a profiled parameter or the effect just added are not tried), each judged by the
-    rule that held it (:func:`scoring._undetermined`, against the same reference magnitude).  Returns ``(record,
-    fit)`` where the fit determines at least one of them and fits the training samples no worse, else None; a
-    determined one moves from its effect's ``not_determined`` to ``determined_later``."""
+    rule that held it (:func:`scoring._undetermined`, against the same reference magnitude).  Returns None where
+    nothing is tried, else ``(record, fit)``: the fit where it moved from its start, determines at least one of them
+    and fits the training samples no worse (``adopted``), else None with ``why_not``; a determined one moves from its
+    effect's ``not_determined`` to ``determined_later``."""
     tried: dict[str, tuple[dict, dict]] = {}  # parameter -> (its effect's entry, its not_determined entry)
     for e in added:
         if e.get("implied_by") or e["name"] == given:
@@ -1236,28 +1238,72 @@ def _refree_held(added: list, given: str, current: dict, cur_effects, cur_free, 
         judge[n] = ref if ref > 0 else 0.01 * (params[n].max - params[n].min)
     jb = job(f"{', '.join(names)} freed again given {given}", cur_effects, tuple(cur_free) + names, cur_params,
              fit_runs)
-    # from the current fit's segment starts: the same model with more freedom fits no worse unless the fit fails
     jb = {**jb, "judge": judge, "hold_at": {n: cur_params.value(n) for n in names},
-          "absent": {n: zero_is_absent(tried[n][0]["name"], n) for n in names},
-          "initial_states": current.get("segment_states"), "custom_states": current.get("custom_states")}
+          "absent": {n: zero_is_absent(tried[n][0]["name"], n) for n in names}}
+    # two starts, the lower training error kept among the fits that moved: from the current fit's segment states
+    # and from the states the fit finds itself (as every candidate's).  Each alone fails on one pawl record:
+    # started from the current states, the trust region of rig_ratchet_backlash_lowgain's refit shrank to nothing
+    # in 22 evaluations (xtol) with every parameter at its start (0.0043 "determined"; training chi2 4.747e5 ->
+    # 4.739e5 from the states alone), from its own states it moves to 0.00466 (2.79e5); on rig_ratchet_backlash
+    # the own states' fit ends at 6.4e5 against 7.8e4 before, the current states' at 7.0e4 (0.00450)
+    starts = {"current_states": {**jb, "initial_states": current.get("segment_states"),
+                                 "custom_states": current.get("custom_states")}} if current.get("segment_states") else {}
+    starts["own_states"] = jb
     say(f"freeing again, given {given}: {', '.join(names)} (held as undecided when their effect was added)")
-    f = _run_jobs([jb], 1, None)[0]
-    if "error" in f:
-        say(f"  the refit failed ({f['error']}): held as before")
-        return None
-    determined = [n for n in names if n in f["free"] and not f["estimates"][n].get("held")]
+    fits = dict(zip(starts, _run_jobs(list(starts.values()), 1, None)))
+
+    def moved(f: dict) -> bool:
+        pairs = [(e["value"], e["init"]) for e in (f["estimates"].get(n) for n in f["free"])
+                 if e is not None and e.get("init") is not None]
+        return not pairs or any(v != i for v, i in pairs)
+
+    base_rec = {"given": given, "tried": list(names), "determined": {}, "adopted": False,
+                "starts": {k: (f"failed: {f['error']}" if "error" in f else
+                               {"training_chi2": f["chisqr"], "moved": moved(f), "status": f.get("status")})
+                           for k, f in fits.items()}}
+    ok = {k: f for k, f in fits.items() if "error" not in f}
+    if not ok:
+        why = "the refit failed from both starts: " + "; ".join(f["error"] for f in fits.values())
+        say(f"  {why}: held as before")
+        return {**base_rec, "why_not": why}, None
+    went = {k: f for k, f in ok.items() if moved(f)}
+    if not went:
+        # no parameter moved from its start: a standard error there is no determination of the optimum
+        why = "no parameter moved from its start (" + "; ".join(f"{k}: {f.get('status', '')}" for k, f in ok.items()) + ")"
+        say(f"  {why}: held as before")
+        return {**base_rec, "why_not": why,
+                "training_chi2": {"before": current["chisqr"], "after": min(f["chisqr"] for f in ok.values())}}, None
+    start, f = min(went.items(), key=lambda kv: kv[1]["chisqr"])
+    base_rec["start"] = start
+    z = jb.get("determination_z", 2.0)
+
+    def verdict(n: str) -> str:
+        # the rule that held it, on the refit's own estimate: a fit that leaves every freed parameter undecided
+        # keeps them free but marked (``undetermined``, no held value), and a finite estimate with a standard
+        # error of 142 on a 0.0048 coefficient is no determination (measured on rig_cogging_steps)
+        e = f["estimates"].get(n)
+        if n not in f["free"] or e is None or e.get("held") or "undetermined" in e:
+            return "not determined"
+        sd = e.get("stderr_data", e.get("stderr"))
+        sd = float(sd) if sd is not None and math.isfinite(sd) else None
+        return determination(e["value"], sd, judge[n], z, jb["absent"].get(n, True))
+
+    verdicts = {n: verdict(n) for n in names}
+    determined = [n for n in names if verdicts[n] != "not determined"]
     worse = f["chisqr"] > current["chisqr"] * (1 + 1e-9)
-    still = {n: (f.get("held") or {}).get(n, {}).get("reason", "") for n in names if n not in determined}
-    rec = {"given": given, "tried": list(names), "determined": {}, "still_held": still,
-           "training_chi2": {"before": current["chisqr"], "after": f["chisqr"]}}
+    still = {n: ((f.get("held") or {}).get(n, {}).get("reason")
+                 or (f["estimates"].get(n) or {}).get("undetermined", {}).get("reason")
+                 or "not determined by the refit") for n in names if n not in determined}
+    rec = {**base_rec, "still_held": still, "training_chi2": {"before": current["chisqr"], "after": f["chisqr"]}}
     if not determined or worse:
-        say("  " + ("none determined" if not determined else "the refit fits the training samples worse")
-            + ": held as before")
-        return None
+        why = "none determined" if not determined else "the refit fits the training samples worse"
+        say(f"  {why}: held as before")
+        return {**rec, "why_not": why}, None
+    rec["adopted"] = True
     for n in determined:
         e, h = tried[n]
         est = _param_entry(f["estimates"][n])
-        rec["determined"][n] = {"effect": e["name"], **est}
+        rec["determined"][n] = {"effect": e["name"], **est, "determination": verdicts[n]}
         e["not_determined"] = [x for x in e["not_determined"] if x is not h]
         e.setdefault("determined_later", []).append({**h, "determined_given": given, "value": est["value"],
                                                      "stderr": est.get("stderr"), "ci95": est.get("ci95")})
