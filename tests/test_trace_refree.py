@@ -12,6 +12,7 @@ import pytest
 
 from thsa_control.model.params import default_parameters
 from thsa_control.trace import engine
+from thsa_control.trace.scoring import determination
 
 
 def _held(name, value, stderr, **extra):
@@ -19,10 +20,15 @@ def _held(name, value, stderr, **extra):
             "stderr_if_free": stderr, **extra}
 
 
-def _est(value, stderr=1e-5, held=False, init=0.0043):
-    return {"value": value, "stderr": None if held else stderr, "stderr_data": stderr, "unit": "N m/N",
-            "at_bound": None, "min": 0.0, "max": 0.1, "init": value if held else init,
-            **({"held": True} if held else {})}
+def _est(value, stderr=1e-5, held=False, init=0.0043, ref=0.0043):
+    """An estimate as the fit job returns it: a free one judged by the determination rule against ``ref``."""
+    e = {"value": value, "stderr": None if held else stderr, "stderr_data": stderr, "unit": "N m/N",
+         "at_bound": None, "min": 0.0, "max": 0.1, "init": value if held else init}
+    if held:
+        e["held"] = True
+    else:
+        e["determination"] = determination(value, stderr, ref, 2.0, True)
+    return e
 
 
 @pytest.fixture
@@ -144,6 +150,7 @@ def test_a_refit_that_leaves_it_free_but_undecided_is_not_a_determination(settin
     applied to the refit: 0.030 with a standard error of 142 on a 0.0048 coefficient, reported determined)."""
     def marked(jb):
         e = {**_est(0.0048, None), "undetermined": {"reason": "undetermined standard error", "held_at": None}}
+        e.pop("determination")  # the fit job gives no verdict on a parameter it marked undetermined
         return {"chisqr": 99.0, "free": list(jb["free"]), "estimates": {"noback.mu_coulomb_neg": e}, "held": {}}
 
     def wide(jb):

@@ -77,8 +77,8 @@ from .scoring import (_amplitude_out, _at_edge, _base_correction, _channel_error
                       _holdout_segment_changes,
                       _held_params, _null_runs, _param_entry, _plausibility, reason_kind,
                       _run_jobs,
-                      _signature_brief, admission_tests, beats_null, determination, holdout_total, null_drop,
-                      scaled_threshold, zero_is_absent, ROBUST_TESTS)
+                      _signature_brief, admission_tests, beats_null, holdout_total, null_drop, scaled_threshold,
+                      zero_is_absent, ROBUST_TESTS)
 from .lift import (beyond_base, better, contribution, interior, joint_verdict, lift_names, lifted as lifted_bounds,
                    not_ruled_out)
 from .signature import SignatureSettings, base_transients, split_remainder
@@ -1275,20 +1275,11 @@ def _refree_held(added: list, given: str, current: dict, cur_effects, cur_free, 
                 "training_chi2": {"before": current["chisqr"], "after": min(f["chisqr"] for f in ok.values())}}, None
     start, f = min(went.items(), key=lambda kv: kv[1]["chisqr"])
     base_rec["start"] = start
-    z = jb.get("determination_z", 2.0)
-
-    def verdict(n: str) -> str:
-        # the rule that held it, on the refit's own estimate: a fit that leaves every freed parameter undecided
-        # keeps them free but marked (``undetermined``, no held value), and a finite estimate with a standard
-        # error of 142 on a 0.0048 coefficient is no determination (measured on rig_cogging_steps)
-        e = f["estimates"].get(n)
-        if n not in f["free"] or e is None or e.get("held") or "undetermined" in e:
-            return "not determined"
-        sd = e.get("stderr_data", e.get("stderr"))
-        sd = float(sd) if sd is not None and math.isfinite(sd) else None
-        return determination(e["value"], sd, judge[n], z, jb["absent"].get(n, True))
-
-    verdicts = {n: verdict(n) for n in names}
+    # the rule that held it, as the fit applied it to its own free estimates (``determination``, from ``judge``); a
+    # fit that leaves every freed parameter undecided keeps them free but marked (``undetermined``, no verdict), and a
+    # finite estimate with a standard error of 142 on a 0.0048 coefficient is no determination (rig_cogging_steps)
+    verdicts = {n: (f["estimates"].get(n) or {}).get("determination", "not determined") if n in f["free"]
+                else "not determined" for n in names}
     determined = [n for n in names if verdicts[n] != "not determined"]
     worse = f["chisqr"] > current["chisqr"] * (1 + 1e-9)
     still = {n: ((f.get("held") or {}).get(n, {}).get("reason")
