@@ -1263,7 +1263,8 @@ def _refree_held(added: list, given: str, current: dict, cur_effects, cur_free, 
                            for k, f in fits.items()}}
     ok = {k: f for k, f in fits.items() if "error" not in f}
     if not ok:
-        why = "the refit failed from both starts: " + "; ".join(f["error"] for f in fits.values())
+        why = f"the refit failed from {'both starts' if len(fits) > 1 else 'its start'}: " + "; ".join(
+            f"{k}: {f['error']}" for k, f in fits.items())
         say(f"  {why}: held as before")
         return {**base_rec, "why_not": why}, None
     went = {k: f for k, f in ok.items() if moved(f)}
