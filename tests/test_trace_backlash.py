@@ -170,6 +170,9 @@ def test_backlash_is_found_first_with_its_pitch(stops_record, params, capsys):
     # five stops after different travels pick one tooth of the comb: the profile set is one range (fit.profile_set)
     assert PITCH not in {h["parameter"] for h in step["not_determined"]}, step["not_determined"]
     assert step["profile"]["determination"][PITCH]["determined"], step["profile"]["determination"]
+    # the 301 values' tooth was narrower than their step: screened again densely, the tooth still one and at least
+    # half the dense step wide (fit.profile.COMB_HIT)
+    assert step["profile"]["determination"][PITCH]["comb_check"]["dense"], step["profile"]["determination"]
     prof = step["profile"]
     assert len(prof["screen"][PITCH]) > 100 and prof["fits"]
     best = min((f for f in prof["fits"] if "score" in f), key=lambda f: f["score"])

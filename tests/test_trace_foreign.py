@@ -890,6 +890,36 @@ def test_a_disk_coefficient_held_without_the_pawl_clearance_is_determined_once_t
     assert not any(e.get("beyond_base_correction") for e in doc["effects_added"]), _found(doc)
 
 
+#: the committed records with rig-sim's pawl clearance planted
+PAWL_RUNS = sorted(p.name[:-len(".truth.json")] for p in DATA.glob("*.truth.json")
+                   if "ratchet_backlash" in (json.loads(p.read_text()).get("effects") or {}))
+
+
+@pytest.mark.campaign
+@pytest.mark.slow
+@pytest.mark.parametrize("name", PAWL_RUNS)
+def test_a_reported_pawl_pitch_holds_the_rigs_pitch(traced, name):
+    """Wherever the trace profiles the pawl pitch on a record with rig-sim's clearance planted, the pitch is either
+    determined with rig-sim's pitch inside its interval, or not determined with rig-sim's pitch inside the set's
+    hull, the interval shown.  A loaded stop after a long travel sees the travel modulo the pitch: a comb of teeth
+    narrower than the profile's grid step, which the grid samples at random; on the bipolar tensile ramps its 301
+    values hit one tooth (0.1425 rad) and called the pitch determined within 0.14239..0.1426 where rig-sim has 0.1285
+    (the comb check, thsa_control.fit.profile.ProfileSettings.comb_budget)."""
+    assert len(PAWL_RUNS) >= 4, PAWL_RUNS
+    doc = traced(name)
+    truth = _truth(name)["effects"]["ratchet_backlash"]["params"]["pitch_deg"]["si"]
+    seen = 0
+    for r in doc["rounds"]:
+        for c in r.get("candidates", []):
+            d = ((c.get("profile") or {}).get("determination") or {}).get("noback.pawl_pitch")
+            if d is None:
+                continue
+            seen += 1
+            lo, hi = c["profile"]["interval"]["noback.pawl_pitch"] or (0.0, math.inf)  # None: it reaches the range's end
+            assert lo <= truth <= hi, (r.get("round"), d["determined"], lo, hi, truth, d.get("comb_check"))
+    assert seen, "the pawl clearance was never tried"
+
+
 @pytest.mark.campaign
 @pytest.mark.slow
 @pytest.mark.parametrize("name", _cases([(n,) for n in NULLS]))

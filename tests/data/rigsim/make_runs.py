@@ -200,6 +200,13 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     # an effect")
     "rig_ratchet_backlash_lowgain": ("trim_ramp_compressive", "rig", "ratchet_backlash=pitch_deg:7.4569", 1057575, None,
                                      "library"),
+    # the pawl clearance with the quadrant no-back on the bipolar tensile ramps (drawn blind in the eleventh blind set:
+    # pitch and seed from os.urandom): one loaded stop after 30 mm of travel sees the travel modulo the pitch, a comb
+    # of teeth 0.02 % wide about 0.8 % apart; the profile's 301 values hit one tooth (0.1425 rad) and called the pitch
+    # determined within 0.14239..0.1426 where rig-sim has 0.1285 (docs/trace_notes.md "A comb of teeth narrower than
+    # the screen's step")
+    "rig_pair_ratchet_quadrant_tensile": ("bipolar_ramp_tensile", "rig", "ratchet_backlash=pitch_deg:7.3599,noback_quadrant",
+                                          106868, None, "pair"),
 }
 
 #: run sets traced together (``thsa trace A.csv B.csv``; tests/test_trace_sets.py), written to ``sets/``: the rig base
