@@ -210,7 +210,9 @@ class ProfileResult:
         tooth's width and the grid's step in the grid's coordinate, of the
         first screen (``coarse_*``) and of the one used (``tooth_width``,
         ``grid_step``, ``points``); ``dense`` when the range was screened again
-        because the tooth was narrower than the step; ``resolved`` when the
+        because the tooth was narrower than the step (``skipped`` says why
+        not where the first screen's set already covers more than
+        ``determined_span``); ``resolved`` when the
         tooth used is at least one step wide (otherwise teeth of its width can
         still lie between the screened values: the set holds those found, and
         a lone tooth narrower than :data:`COMB_HIT` of the step is not
@@ -730,7 +732,14 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
         comb = {"tooth_width": w, "grid_step": step0, "coordinate": "log" if lo > 0 else "linear",
                 "points": int(x.size), "dense": False, "coarse_tooth_width": w, "coarse_grid_step": step0,
                 "coarse_points": int(x.size)}
-        if w < step0:
+        # a set already over ``determined_span`` of the range at the smaller threshold (no IACT) does not determine at
+        # the profile's own, and a denser screen only adds teeth to it: not screened again
+        share0 = profile_set(allx, ally, q * max(float(np.min(ally)) / max(screen.n - 1, 1), 1.0), (lo, hi),
+                             ps.screen_points, None, ps.determined_span)["share"]
+        if w < step0 and share0 > ps.determined_span:
+            comb["skipped"] = (f"the first screen's set already covers {share0:.0%} of the range (more than "
+                               f"{ps.determined_span:.0%}): it does not determine, and more teeth only widen it")
+        elif w < step0:
             n_dense = int(min(math.ceil(4 * u_span / w) + 1, max(x.size, ps.comb_budget // max(screen.n, 1))))
             if n_dense > x.size:
                 xd = _grid(lo, hi, n_dense)

@@ -1112,7 +1112,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 rounds[-1]["backward"] = checked
         if st.refree_held:
             refit = _refree_held(added, best["name"], current, cur_effects, cur_free, cur_params, fit_runs, params,
-                                 found_info, ref_held, job, say)
+                                 found_info, ref_held, job, say, st.workers)
             if refit is not None:
                 rounds[-1]["held_refreed"], refit_fit = refit
                 if refit_fit is not None:
@@ -1205,14 +1205,15 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
 
 
 def _refree_held(added: list, given: str, current: dict, cur_effects, cur_free, cur_params: ParameterSet, fit_runs,
-                 params: ParameterSet, found_info: dict, ref_held: Mapping, job: Callable, say: Callable):
+                 params: ParameterSet, found_info: dict, ref_held: Mapping, job: Callable, say: Callable,
+                 workers: int = 1):
     """Free once more, on the model with ``given`` just added, the parameters an earlier effect's own fit held
     because its estimate was undecided (``stderr_if_free`` finite: the run had information on it, not enough given
     that model; a null direction, a profiled parameter or the effect just added are not tried), each judged by the
     rule that held it (:func:`scoring._undetermined`, against the same reference magnitude).  Returns None where
     nothing is tried, else ``(record, fit)``: the fit where it moved from its start, determines at least one of them
     and fits the training samples no worse (``adopted``), else None with ``why_not``; a determined one moves from its
-    effect's ``not_determined`` to ``determined_later``."""
+    effect's ``not_determined`` to ``determined_later``.  ``workers``: the starts run side by side."""
     tried: dict[str, tuple[dict, dict]] = {}  # parameter -> (its effect's entry, its not_determined entry)
     for e in added:
         if e.get("implied_by") or e["name"] == given:
@@ -1250,7 +1251,7 @@ def _refree_held(added: list, given: str, current: dict, cur_effects, cur_free, 
                                  "custom_states": current.get("custom_states")}} if current.get("segment_states") else {}
     starts["own_states"] = jb
     say(f"freeing again, given {given}: {', '.join(names)} (held as undecided when their effect was added)")
-    fits = dict(zip(starts, _run_jobs(list(starts.values()), 1, None)))
+    fits = dict(zip(starts, _run_jobs(list(starts.values()), workers, None)))  # the starts side by side
 
     def moved(f: dict) -> bool:
         pairs = [(e["value"], e["init"]) for e in (f["estimates"].get(n) for n in f["free"])
