@@ -287,6 +287,11 @@ def holdout_chi2(res: IdentificationResult, noise: Mapping[str, float]) -> float
     return sum(chi2_by_channel(res.predictions, noise, "holdout" if held else "all").values())
 
 
+#: the most samples x parameter sets one compiled call of :meth:`OneStepScreen.chi2_many` evaluates (about 32 MB of
+#: errors, more with the custom states the loop returns)
+CHI2_CHUNK_SAMPLES = 4_000_000
+
+
 class OneStepScreen:
     """One-step-ahead chi-square of the measured motor speed, the model's custom states carried.
 
@@ -375,9 +380,13 @@ class OneStepScreen:
         """:meth:`chi2` of several parameter sets (a profile's grid), in one compiled call per run where a C
         compiler works (each set computed exactly as alone)."""
         tot = np.zeros(len(psets))
-        for k, e in enumerate(self._errors_many(psets)):
-            e = e[np.isfinite(e)]
-            tot[k] = float(e @ e)
+        # in chunks of at most CHI2_CHUNK_SAMPLES samples x sets: a comb check's thousands of sets on a 10 s, 1 kHz
+        # record held every set's errors (and its custom states) at once, 1.26 GB at the peak
+        step = max(1, CHI2_CHUNK_SAMPLES // max(self.n, 1))
+        for k0 in range(0, len(psets), step):
+            for k, e in enumerate(self._errors_many(psets[k0:k0 + step]), start=k0):
+                e = e[np.isfinite(e)]
+                tot[k] = float(e @ e)
         return tot
 
 
