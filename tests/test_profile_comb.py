@@ -1,0 +1,76 @@
+"""The profile's comb check: a pawl pitch seen through one loaded stop after a long travel (issue #21).
+
+One stop's back-drive depth is the screw travel since the pawl last engaged modulo the pitch, so every pitch
+``p_k = (travel - depth) / k`` fits it: a comb of teeth.  After 30 mm of nut travel (15.7 rad of screw, about 110
+pitches) the teeth are about 0.8 % of the pitch apart and each is narrower than 0.05 %: the profile's geometric grid
+of 301 values (0.77 % apart) hits a few teeth near their bottom by chance and misses the others, and the teeth it hit
+look like the only ones (rig-sim's bipolar tensile ramps, pawl pitch 0.1285 rad, quadrant no-back: the grid's set was
+0.133..0.154 rad on the parameter file's values, 0.14239..0.1426 "determined" in the trace).  The comb check screens
+the range again at a quarter of the best tooth's width (:class:`~thsa_control.fit.profile.ProfileSettings`
+``comb_budget``).  The record is rig-sim's (tests/data/rigsim/make_runs.py, rig_pair_ratchet_quadrant_tensile).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from thsa_control.data.rigdata import read_run
+from thsa_control.fit.identify import IdentificationSettings
+from thsa_control.fit.profile import ProfileSettings, _tooth_width, profile_identify
+
+DATA = Path(__file__).resolve().parent / "data" / "rigsim"
+RECORD = "rig_pair_ratchet_quadrant_tensile"
+PITCH, INITIAL = "noback.pawl_pitch", "noback.pawl_initial_clearance"
+EFFECTS = ("standby_motor", "noback_backlash", "noback_quadrant_friction")
+
+
+def test_tooth_width_is_the_span_between_the_values_either_side_of_the_run_within_the_threshold():
+    x = np.geomspace(0.03, 0.3, 301)
+    y = np.full(x.size, 100.0)
+    y[150:153] = [5.0, 0.0, 8.0]  # a run of three values within 10 of the minimum
+    w = _tooth_width(x, y, 10.0, geo=True)
+    assert w == pytest.approx(math.log(x[153] / x[149]))
+    assert _tooth_width(x, y, 1.0, geo=True) == pytest.approx(math.log(x[152] / x[150]))  # only the minimum
+    lin = np.linspace(0.0, 1.0, 11)
+    assert _tooth_width(lin, np.r_[0.0, np.full(10, 9.0)], 1.0, geo=False) == pytest.approx(0.1)  # at the range's end
+
+
+def test_a_negative_comb_budget_is_refused_naming_the_field():
+    with pytest.raises(ValueError, match="comb_budget"):
+        ProfileSettings(comb_budget=-1).validate()
+
+
+@pytest.mark.slow
+def test_a_comb_of_narrow_teeth_is_screened_densely_and_not_determined(params):
+    """On the committed rig-sim record, with the parameter file's values: the coarse screen's set excludes rig-sim's
+    pitch; with the comb check the range is screened again densely, the pitch is not determined (a comb of many
+    ranges) and the set's hull, the interval reported, holds rig-sim's pitch."""
+    truth = json.loads((DATA / f"{RECORD}.truth.json").read_text())["effects"]["ratchet_backlash"]["params"]
+    true_pitch = truth["pitch_deg"]["si"]
+    run = read_run(DATA / f"{RECORD}.csv")
+    st = IdentificationSettings(channels=("motor_speed",), noise={"motor_speed": 0.232}, max_nfev=10, holdout_every=3,
+                                no_prior=("noback.mu_coulomb_neg",))
+
+    def prof(budget):
+        return profile_identify(run, params, ("noback.mu_coulomb_neg",), {PITCH: (0.03, 0.3), INITIAL: (0.0, 1.0)},
+                                effects=EFFECTS, settings=st, psettings=ProfileSettings(comb_budget=budget),
+                                fractions={INITIAL: PITCH})
+
+    coarse = prof(0)
+    lo0, hi0 = coarse.interval[PITCH]
+    assert not lo0 <= true_pitch <= hi0, ("the record no longer shows a comb the coarse grid misses", lo0, hi0)
+    assert "comb_check" not in coarse.determination[PITCH]
+    res = prof(ProfileSettings().comb_budget)
+    d = res.determination[PITCH]
+    check = d["comb_check"]
+    assert (check["dense"] and check["points"] > 10 * 301 and check["grid_step"] < check["coarse_tooth_width"] / 3
+            and check["coarse_tooth_width"] < check["coarse_grid_step"]), check
+    assert not d["determined"] and len(d["components"]) >= 3, d
+    assert "comb of equal minima" in d["reason"]
+    lo, hi = res.interval[PITCH]
+    assert lo <= true_pitch <= hi, (lo, hi, true_pitch)
