@@ -414,7 +414,12 @@ def _tooth_width(x: np.ndarray, y: np.ndarray, thr: float, geo: bool) -> float:
     ok = np.isfinite(y)
     if not ok.any():
         return math.inf
-    i0 = int(np.nanargmin(np.where(ok, y, np.nan)))
+    i, j = _run_within(y, int(np.nanargmin(np.where(ok, y, np.nan))), thr)
+    return float(u[min(j + 1, len(u) - 1)] - u[max(i - 1, 0)])
+
+
+def _run_within(y: np.ndarray, i0: int, thr: float) -> tuple[int, int]:
+    """The first and last index of the contiguous run around ``i0`` where ``y <= y[i0] + thr``."""
     top = y[i0] + thr
     i = i0
     while i > 0 and y[i - 1] <= top:
@@ -422,7 +427,7 @@ def _tooth_width(x: np.ndarray, y: np.ndarray, thr: float, geo: bool) -> float:
     j = i0
     while j < len(y) - 1 and y[j + 1] <= top:
         j += 1
-    return float(u[min(j + 1, len(u) - 1)] - u[max(i - 1, 0)])
+    return i, j
 
 
 def _local_minima(x: np.ndarray, y: np.ndarray, k: int) -> list[int]:
@@ -433,13 +438,7 @@ def _local_minima(x: np.ndarray, y: np.ndarray, k: int) -> list[int]:
 def _interval(x: np.ndarray, y: np.ndarray, i0: int, thr: float) -> tuple[float, float] | None:
     """Contiguous range around ``x[i0]`` where ``y <= y[i0] + thr``, widened by one grid step each side (the
     profile resolves nothing finer: the switch times are whole samples); None if it reaches an edge."""
-    top = y[i0] + thr
-    i = i0
-    while i > 0 and y[i - 1] <= top:
-        i -= 1
-    j = i0
-    while j < len(y) - 1 and y[j + 1] <= top:
-        j += 1
+    i, j = _run_within(y, i0, thr)
     if i == 0 or j == len(y) - 1:
         return None
     return float(x[i - 1]), float(x[j + 1])
