@@ -74,3 +74,28 @@ def test_a_comb_of_narrow_teeth_is_screened_densely_and_not_determined(params):
     assert "comb of equal minima" in d["reason"]
     lo, hi = res.interval[PITCH]
     assert lo <= true_pitch <= hi, (lo, hi, true_pitch)
+
+
+def test_a_dense_screens_teeth_a_coarse_step_apart_are_separate_ranges():
+    """Teeth 1.5 coarse steps apart, resolved by a dense grid: merged at the coarse grid's resolution they read as one
+    range whose inside the screen itself excludes; at the dense grid's resolution each tooth is its own range (the
+    comb check's grid is the one the set is read at), and the reason lists a few of them by name."""
+    from thsa_control.fit.profile import SHOWN_RANGES, profile_set
+
+    lo, hi, coarse, dense = 0.03, 0.3, 301, 12001
+    x = np.geomspace(lo, hi, dense)
+    u = np.log(x)
+    step = (u[-1] - u[0]) / (coarse - 1)
+    centres = u[0] + step * (100 + 1.5 * np.arange(12))  # twelve teeth 1.5 coarse steps apart
+    y = np.full(x.size, 1e4)
+    for c in centres:
+        y[np.abs(u - c) < 0.05 * step] = 0.0  # each much narrower than the coarse step
+    merged = profile_set(x, y, 10.0, (lo, hi), coarse)
+    assert len(merged["components"]) == 1  # what the set said before: one range holding the gaps between teeth
+    got = profile_set(x, y, 10.0, (lo, hi), dense)
+    assert len(got["components"]) == 12 and not got["determined"], got["components"]
+    for (a, b), c in zip(got["components"], centres):
+        assert a <= math.exp(c) <= b and math.log(b / a) < 0.1 * step
+    assert got["share"] == pytest.approx(merged["share"])  # the hull, the interval reported, is the same
+    listed = got["reason"].split(": ", 1)[1].split(", ")
+    assert len(listed) == SHOWN_RANGES + 1 and listed[-2] == "... (all in `components`)", listed  # 7, "...", last

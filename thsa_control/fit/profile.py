@@ -444,6 +444,10 @@ def _interval(x: np.ndarray, y: np.ndarray, i0: int, thr: float) -> tuple[float,
     return float(x[i - 1]), float(x[j + 1])
 
 
+#: ranges of a profile set listed by name in its reason (a dense comb has a hundred; all are in ``components``)
+SHOWN_RANGES = 8
+
+
 def profile_set(x: Sequence[float], y: Sequence[float], threshold: float, search: tuple[float, float],
                 steps: int, chosen: float | None = None, span: float = 0.5, chosen_by: str = "profile fits") -> dict:
     """The profile-likelihood set of a screened parameter and whether it determines the parameter.
@@ -451,8 +455,9 @@ def profile_set(x: Sequence[float], y: Sequence[float], threshold: float, search
     The set is every screened value whose chi-square lies within ``threshold`` of the profile's minimum (the
     ``chi2(1)`` quantile scaled as the fit's held-out differences are: reduced chi-square x the residual's
     integrated autocorrelation time).  Its connected components are runs of consecutive screened values;
-    two runs separated by less than two steps of the coarse grid (``steps`` values over ``search``: at most
-    one coarse value between them) are one component, since the screen resolves nothing finer than its grid
+    two runs separated by less than two steps of the grid screened (``steps`` values over ``search``: at most
+    one screened value between them; the dense grid's after a comb check) are one component, since the screen
+    resolves nothing finer than its grid
     (a switch acts at whole samples: the profile is a staircase at fine scale).
 
     Determined when the set is one component, does not reach an end of the search range, covers at most
@@ -490,8 +495,10 @@ def profile_set(x: Sequence[float], y: Sequence[float], threshold: float, search
     share = float((u[inside[-1]] - u[inside[0]]) / (uhi - ulo)) if uhi > ulo else math.nan
     why = []
     if len(comps) > 1:
+        shown = [f"{a:.4g}" if a == b else f"{a:.4g}..{b:.4g}" for a, b in components]
         why.append(f"{len(comps)} separate ranges within the threshold (a comb of equal minima): "
-                   + ", ".join(f"{a:.4g}" if a == b else f"{a:.4g}..{b:.4g}" for a, b in components))
+                   + ", ".join(shown if len(shown) <= SHOWN_RANGES else
+                               shown[:SHOWN_RANGES - 1] + ["... (all in `components`)", shown[-1]]))
     if comps[0][0] == 0 or comps[-1][1] == x.size - 1:
         why.append(f"the set reaches an end of the search range {lo:g}..{hi:g}")
     if share > span:
@@ -822,8 +829,11 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
         e_best = screen._errors_many([params.replace({main: x_best, **held(x_best)})])[0]
         e_best = e_best[np.isfinite(e_best)]
         tau = max(float(iact(e_best)), 1.0) if iact is not None and e_best.size >= 8 else 1.0
-        d = profile_set(allx, ally, q * max(redchi, 1.0) * tau, (lo, hi), ps.screen_points, best[1],
-                        ps.determined_span, chosen_by)
+        # the runs merge at the resolution of the grid screened last: after a dense screen, teeth a coarse step apart
+        # are separate ranges (merged at the coarse grid's two steps, a comb 0.8 % apart read as one range)
+        d = profile_set(allx, ally, q * max(redchi, 1.0) * tau, (lo, hi),
+                        comb["points"] if comb.get("dense") else ps.screen_points, best[1], ps.determined_span,
+                        chosen_by)
         d.update(iact=tau, reduced_chi2=redchi, value_if_free=best[1], held_at=None, file_in_set=None,
                  chosen_by=chosen_by, **({"comb_check": comb} if comb else {}))
         if d["determined"] and comb and comb["tooth_width"] < COMB_HIT * comb["grid_step"]:
