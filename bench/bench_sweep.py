@@ -60,9 +60,16 @@ def _cluster(tmp: Path, workers: int):
     procs = [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
                                "--port", "0", "--no-dashboard", "--scheduler-file", str(sfile)], env=env,
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)]
-    while not sfile.exists():
-        time.sleep(0.1)
-    address = json.loads(sfile.read_text())["address"]
+    deadline = time.time() + 60
+    while True:  # the scheduler creates the file before it writes it: wait until it parses
+        try:
+            address = json.loads(sfile.read_text())["address"]
+            break
+        except (FileNotFoundError, json.JSONDecodeError, KeyError):
+            if procs[0].poll() is not None or time.time() > deadline:
+                _stop(procs)
+                raise SystemExit(f"bench_sweep: the dask scheduler wrote no address to {sfile}")
+            time.sleep(0.1)
     for _ in range(workers):
         procs.append(subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address, "--nthreads",
                                        "1", "--no-dashboard"], env=env, stdout=subprocess.DEVNULL,

@@ -360,6 +360,20 @@ def test_known_distribution_of_the_steady_current(tmp_path, params):
     assert _table(out).num_rows == n
 
 
+def _scheduler_address(file: Path, proc: subprocess.Popen, timeout: float = 60.0) -> str:
+    """The address the scheduler writes to ``file``: read once the file parses (the scheduler creates
+    it before it has written it, so an empty or partial file is waited on, not read)."""
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"the dask scheduler exited with code {proc.returncode} before writing {file}")
+        try:
+            return json.loads(file.read_text())["address"]
+        except (FileNotFoundError, json.JSONDecodeError, KeyError):
+            time.sleep(0.1)
+    raise RuntimeError(f"the dask scheduler wrote no address to {file} within {timeout:.0f} s")
+
+
 class _Cluster:
     """A Dask scheduler and two single-thread workers in their own process groups."""
 
@@ -369,10 +383,7 @@ class _Cluster:
                                         "--port", "0", "--no-dashboard", "--scheduler-file", str(self.file)],
                                        env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                        start_new_session=True)]
-        deadline = time.time() + 60
-        while not self.file.exists() and time.time() < deadline:
-            time.sleep(0.1)
-        self.address = json.loads(self.file.read_text())["address"]
+        self.address = _scheduler_address(self.file, self.procs[0])
         for _ in range(2):
             self.procs.append(subprocess.Popen(
                 [sys.executable, "-m", "distributed.cli.dask_worker", self.address, "--nthreads", "1",
