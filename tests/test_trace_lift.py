@@ -14,7 +14,7 @@ from thsa_control.data.rigdata import read_run
 from thsa_control.fit.virtual_rig import VirtualRig, excitation_inputs
 from thsa_control.trace import TraceSettings, trace
 from thsa_control.trace.engine import EFFICIENCY_LIFT as EFF
-from thsa_control.trace.lift import beyond_base
+from thsa_control.trace.lift import CURRENT_PROPORTIONAL, beyond_base, current_proportional_is_base
 from thsa_control.trace.signature import base_transients
 
 
@@ -203,6 +203,43 @@ def test_the_records_answer_beyond_a_plausible_base_follows_the_last_joint_lift(
     assert b["status"] == "not_on_final_model" and "cogging_torque" in b["verdict"], b
     b = beyond_base(_rounds({"error": "solver stopped"}), final, BASE, [], EFF)
     assert b["status"] == "failed" and "solver stopped" in b["why"]
+
+
+def test_a_current_proportional_remainder_is_the_lossier_base_where_the_efficiencies_carry_the_answer():
+    """The signature's torque proportional to the current is what a lossier screw and gearbox leaves: where the
+    record's answer beyond a plausible base lists the efficiencies among its unnamed carriers, that test describes
+    the base (``unexplained`` no longer follows from it); the current's drift in time at one operating point (a
+    torque constant changing with the rotor's temperature) stays structured.  Where the efficiencies do not carry
+    the answer, or a carrier was named, or the lift does not pass, the test is left as it was."""
+    from thsa_control.trace.signature import split_remainder
+
+    def sig():
+        return {"tests": [{"variable": CURRENT_PROPORTIONAL, "significant": True, "remainder": "structured"},
+                          {"variable": CURRENT_PROPORTIONAL + " drifting in time", "significant": True,
+                           "remainder": "structured"},
+                          {"variable": "time_since_reversal", "significant": True, "remainder": "base"}],
+                "sensors": []}
+
+    final = ["standby_motor"]
+    answer = beyond_base(_rounds(_joint(), refusal="improves 10 of 15"), final, BASE, [], EFF)
+    assert answer["status"] == "not_named"
+    s = sig()
+    hit = current_proportional_is_base(s, answer)
+    assert hit is not None and hit["name"] == EFF
+    by = {t["variable"]: t for t in s["tests"]}
+    assert by[CURRENT_PROPORTIONAL]["remainder"] == "base" and "one column" in by[CURRENT_PROPORTIONAL]["why_base"]
+    assert by[CURRENT_PROPORTIONAL + " drifting in time"]["remainder"] == "structured"
+    structured, base_like = split_remainder(s)
+    assert [t["variable"] for t in structured] == [CURRENT_PROPORTIONAL + " drifting in time"]
+    # not carried by the efficiencies, a named carrier, a lift that does not pass: unchanged
+    for a in (beyond_base(_rounds(_joint(carriers=("coulomb_friction", "direction_friction")), refusal="improves"),
+                          final, BASE, [], EFF),
+              beyond_base(_rounds(_joint(carriers=("coulomb_friction", EFF))), final + ["coulomb_friction"], BASE,
+                          [{"name": "coulomb_friction", "round_added": 1}], EFF),
+              beyond_base(_rounds(_joint(significant=False)), final, BASE, [], EFF)):
+        s = sig()
+        assert current_proportional_is_base(s, a) is None, a
+        assert s == sig()
 
 
 def test_the_summary_says_what_is_beyond_a_plausible_base_and_what_each_explanation_would_be():

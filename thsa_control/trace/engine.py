@@ -79,8 +79,8 @@ from .scoring import (_amplitude_out, _at_edge, _base_correction, _channel_error
                       _run_jobs,
                       _signature_brief, admission_tests, beats_null, holdout_total, null_drop, scaled_threshold,
                       zero_is_absent, ROBUST_TESTS)
-from .lift import (beyond_base, better, contribution, interior, joint_verdict, lift_names, lifted as lifted_bounds,
-                   not_ruled_out)
+from .lift import (beyond_base, better, contribution, current_proportional_is_base, interior, joint_verdict,
+                   lift_names, lifted as lifted_bounds, not_ruled_out)
 from .signature import SignatureSettings, base_transients, split_remainder
 from .threads import limit_blas_threads
 
@@ -1150,6 +1150,9 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         rounds[-1]["signature_after"] = _signature_brief(sig_after)
     # unexplained: structure an unmodelled-but-declared base does not leave; a residual above noise with only the
     # regime dependences of a base mismatch (starts, stops, reversals, quadrant) is reported as base-like
+    beyond = (beyond_base(rounds, cur_effects, base_doc if use_base else None, added, EFFICIENCY_LIFT)
+              if st.joint_lift else {"status": "not_fitted", "why": "the joint lift is off (TraceSettings.joint_lift)"})
+    current_proportional_is_base(sig_after, beyond)
     structured, base_like = split_remainder(sig_after)
     base_like += [{"variable": f"held-out residual above noise ({c}: {r:.2g} x)"}
                   for c, r in sig_after.get("residual_to_noise", {}).items() if r > st.signature.max_noise_ratio]
@@ -1184,9 +1187,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         "error_by_regime_after": _regime_errors(final, runs),
         "unexplained": bool(structured),
         "ambiguous": ambiguous,
-        "beyond_plausible_base": (beyond_base(rounds, cur_effects, base_doc if use_base else None, added,
-                                              EFFICIENCY_LIFT) if st.joint_lift else
-                                  {"status": "not_fitted", "why": "the joint lift is off (TraceSettings.joint_lift)"}),
+        "beyond_plausible_base": beyond,
         "separability": separ,
         "residual_signature": {**sig_after, "structured": [t["variable"] for t in structured],
                                "base_like": [t["variable"] for t in base_like]},
