@@ -769,6 +769,36 @@ def test_a_ripple_whose_one_part_is_near_zero_is_not_taken_out_by_the_backward_c
 
 @pytest.mark.campaign
 @pytest.mark.slow
+def test_a_lossier_base_is_not_read_as_a_torque_constant_error(traced):
+    """rig-sim's direction drag (2.45 / 1.29 N m at the screw) beside the load path's clearance on the position loop at
+    10 kN, 1 kHz (rig_pair_direction_loadpath_steps, the twelfth blind set's draw): the clearance is found; the drag,
+    a constant torque on one load, is not named, and the record's answer beyond a plausible base lists it among the
+    explanations, with the efficiencies lifted beyond their catalogue spread.  The residual's torque proportional to
+    the current (r2 0.08, p 7e-10) is that lossier base's, one column with it at one temperature: it had set
+    ``unexplained`` as a torque-constant error on a record with nothing out of the library.  It is reported as the
+    base's, and no physical effect the rig lacks is invented."""
+    from thsa_control.trace.lift import CURRENT_PROPORTIONAL
+
+    name = "rig_pair_direction_loadpath_steps"
+    assert set(_truth_effects(name)) == {"direction_friction", "loadpath_backlash"}
+    doc = traced(name)
+    found = _found(doc)
+    assert "loadpath_compliance" in found, doc["rounds"]
+    assert not set(found) & INVENTED, found
+    beyond = doc["beyond_plausible_base"]
+    carriers = {c["name"]: c for c in beyond.get("carriers") or []}
+    if "direction_friction" not in found:  # not named: the record says a constant torque is there and what it may be
+        assert beyond["status"] == "not_named" and "direction_friction" in carriers, beyond
+    sig = doc["residual_signature"]
+    kt = next(t for t in sig["tests"] if t["variable"] == CURRENT_PROPORTIONAL)
+    if kt["significant"] and any(c["base"] for c in carriers.values()):
+        assert kt["remainder"] == "base" and "one column" in kt["why_base"], kt
+    assert CURRENT_PROPORTIONAL not in sig["structured"], sig["structured"]
+    assert not doc["unexplained"], sig["structured"]
+
+
+@pytest.mark.campaign
+@pytest.mark.slow
 def test_a_current_offset_on_a_drive_never_off_is_said_not_tested(traced):
     """rig-sim's current-sensor offset (0.25 A) on a rig that keeps its drive energised at zero command
     (rig_current_offset_nogating): with no drive-off sample the offset reads as a constant torque at the motor,
