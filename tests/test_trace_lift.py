@@ -211,6 +211,7 @@ def test_a_current_proportional_remainder_is_the_lossier_base_where_the_efficien
     the base (``unexplained`` no longer follows from it); the current's drift in time at one operating point (a
     torque constant changing with the rotor's temperature) stays structured.  Where the efficiencies do not carry
     the answer, or a carrier was named, or the lift does not pass, the test is left as it was."""
+    from thsa_control.report.trace import why_base_lines
     from thsa_control.trace.signature import split_remainder
 
     def sig():
@@ -231,6 +232,8 @@ def test_a_current_proportional_remainder_is_the_lossier_base_where_the_efficien
     assert by[CURRENT_PROPORTIONAL + " drifting in time"]["remainder"] == "structured"
     structured, base_like = split_remainder(s)
     assert [t["variable"] for t in structured] == [CURRENT_PROPORTIONAL + " drifting in time"]
+    lines = why_base_lines(s)  # the summary and the report say why
+    assert len(lines) == 1 and lines[0].startswith(CURRENT_PROPORTIONAL + " left as the base's"), lines
     # not carried by the efficiencies, a named carrier, a lift that does not pass: unchanged
     for a in (beyond_base(_rounds(_joint(carriers=("coulomb_friction", "direction_friction")), refusal="improves"),
                           final, BASE, [], EFF),

@@ -131,7 +131,8 @@ def conclusion_table_html(doc: dict) -> str:
     tail = (f"<p>unexplained: <b>{doc['unexplained']}</b>"
             + (f" (structured: {esc(', '.join(doc['residual_signature']['structured']))})" if doc["unexplained"] else "")
             + "".join(f"<br>{esc(m.strip())}" for m in beyond_base_lines(doc))
-            + "".join(f"<br><small>{esc(m)}</small>" for m in misfit + not_tested_lines(doc["residual_signature"]))
+            + "".join(f"<br><small>{esc(m)}</small>" for m in misfit + not_tested_lines(doc["residual_signature"])
+                      + why_base_lines(doc["residual_signature"]))
             + (f"<br><small>left as a declared model of another rig's base leaves it (starts, stops, reversals, "
                f"quadrant; not counted as unexplained): {esc('; '.join(base_like))}</small>" if base_like else "")
             + "</p>")
@@ -650,6 +651,13 @@ def _weights_text(check: dict) -> list[str]:
     return out
 
 
+def why_base_lines(sig: dict) -> list[str]:
+    """Why a significant test that would be structure is left as the base's (``why_base``: an angle spanned under two
+    revolutions, a current-proportional torque that a lossier base carries), one line each."""
+    return [f"{t['variable']} left as the base's: {t['why_base']}" for t in sig.get("tests") or []
+            if t.get("significant") and t.get("remainder") == "base" and t.get("why_base")]
+
+
 def not_tested_lines(sig: dict) -> list[str]:
     """The signature tests this record could not make, each with what it would have shown and why not: an
     ``unexplained: False`` says nothing of a current-sensor offset on a record whose drive is never off."""
@@ -854,6 +862,7 @@ def format_trace_summary(doc: dict) -> str:
                      + "; ".join(sig["base_like"]))
     lines += misfit_shapes(sig)
     lines += not_tested_lines(sig)
+    lines += why_base_lines(sig)
     for t in sig["tests"][:6] + sig["sensors"]:
         extra = ""
         if t["kind"] == "periodic":
