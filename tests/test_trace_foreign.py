@@ -777,7 +777,7 @@ def test_a_lossier_base_is_not_read_as_a_torque_constant_error(traced):
     the current (r2 0.08, p 7e-10) is that lossier base's, one column with it at one temperature: it had set
     ``unexplained`` as a torque-constant error on a record with nothing out of the library.  It is reported as the
     base's, and no physical effect the rig lacks is invented."""
-    from thsa_control.trace.lift import CURRENT_PROPORTIONAL
+    from thsa_control.trace.signature import TORQUE_CONSTANT
 
     name = "rig_pair_direction_loadpath_steps"
     assert set(_truth_effects(name)) == {"direction_friction", "loadpath_backlash"}
@@ -790,10 +790,10 @@ def test_a_lossier_base_is_not_read_as_a_torque_constant_error(traced):
     if "direction_friction" not in found:  # not named: the record says a constant torque is there and what it may be
         assert beyond["status"] == "not_named" and "direction_friction" in carriers, beyond
     sig = doc["residual_signature"]
-    kt = next(t for t in sig["tests"] if t["variable"] == CURRENT_PROPORTIONAL)
+    kt = next(t for t in sig["tests"] if t["variable"] == TORQUE_CONSTANT)
     if kt["significant"] and any(c["base"] for c in carriers.values()):
         assert kt["remainder"] == "base" and "one column" in kt["why_base"], kt
-    assert CURRENT_PROPORTIONAL not in sig["structured"], sig["structured"]
+    assert TORQUE_CONSTANT not in sig["structured"], sig["structured"]
     assert not doc["unexplained"], sig["structured"]
 
 

@@ -14,7 +14,8 @@ from thsa_control.data.rigdata import read_run
 from thsa_control.fit.virtual_rig import VirtualRig, excitation_inputs
 from thsa_control.trace import TraceSettings, trace
 from thsa_control.trace.engine import EFFICIENCY_LIFT as EFF
-from thsa_control.trace.lift import CURRENT_PROPORTIONAL, beyond_base, current_proportional_is_base
+from thsa_control.trace.lift import beyond_base, current_proportional_is_base
+from thsa_control.trace.signature import TORQUE_CONSTANT
 from thsa_control.trace.signature import base_transients
 
 
@@ -215,8 +216,8 @@ def test_a_current_proportional_remainder_is_the_lossier_base_where_the_efficien
     from thsa_control.trace.signature import split_remainder
 
     def sig():
-        return {"tests": [{"variable": CURRENT_PROPORTIONAL, "significant": True, "remainder": "structured"},
-                          {"variable": CURRENT_PROPORTIONAL + " drifting in time", "significant": True,
+        return {"tests": [{"variable": TORQUE_CONSTANT, "significant": True, "remainder": "structured"},
+                          {"variable": TORQUE_CONSTANT + " drifting in time", "significant": True,
                            "remainder": "structured"},
                           {"variable": "time_since_reversal", "significant": True, "remainder": "base"}],
                 "sensors": []}
@@ -228,12 +229,12 @@ def test_a_current_proportional_remainder_is_the_lossier_base_where_the_efficien
     hit = current_proportional_is_base(s, answer)
     assert hit is not None and hit["name"] == EFF
     by = {t["variable"]: t for t in s["tests"]}
-    assert by[CURRENT_PROPORTIONAL]["remainder"] == "base" and "one column" in by[CURRENT_PROPORTIONAL]["why_base"]
-    assert by[CURRENT_PROPORTIONAL + " drifting in time"]["remainder"] == "structured"
+    assert by[TORQUE_CONSTANT]["remainder"] == "base" and "one column" in by[TORQUE_CONSTANT]["why_base"]
+    assert by[TORQUE_CONSTANT + " drifting in time"]["remainder"] == "structured"
     structured, base_like = split_remainder(s)
-    assert [t["variable"] for t in structured] == [CURRENT_PROPORTIONAL + " drifting in time"]
+    assert [t["variable"] for t in structured] == [TORQUE_CONSTANT + " drifting in time"]
     lines = why_base_lines(s)  # the summary and the report say why
-    assert len(lines) == 1 and lines[0].startswith(CURRENT_PROPORTIONAL + " left as the base's"), lines
+    assert len(lines) == 1 and lines[0].startswith(TORQUE_CONSTANT + " left as the base's"), lines
     # not carried by the efficiencies, a named carrier, a lift that does not pass: unchanged
     for a in (beyond_base(_rounds(_joint(carriers=("coulomb_friction", "direction_friction")), refusal="improves"),
                           final, BASE, [], EFF),

@@ -30,6 +30,7 @@ from collections.abc import Mapping, Sequence
 from ..model.params import ParameterSet
 from .candidates import INERTIA_EXPLAINER
 from .scoring import _chi2_by_channel, holdout_total, threshold_scale
+from .signature import TORQUE_CONSTANT
 
 
 def lift_names(base_priors: Mapping[str, tuple[float, float]], free: Sequence[str]) -> list[str]:
@@ -300,9 +301,6 @@ def not_ruled_out(own: float, joint: Mapping, candidates: Mapping[str, Mapping])
     return {"own_drop_on_constant_torque_samples": own, "carry_gap": gap, "alternatives": alts}
 
 
-#: the signature's test of a torque proportional to the measured current (trace.residual: given the acceleration)
-CURRENT_PROPORTIONAL = "motor_current (torque constant)"
-
 
 def current_proportional_is_base(sig: dict, answer: Mapping) -> dict | None:
     """Where the record's answer beyond a plausible base (:func:`beyond_base`) lists the screw and gearbox lossier than
@@ -324,7 +322,7 @@ def current_proportional_is_base(sig: dict, answer: Mapping) -> dict | None:
         return None
     hit = None
     for t in sig.get("tests") or []:
-        if t.get("variable") == CURRENT_PROPORTIONAL and t.get("significant") and t.get("remainder") == "structured":
+        if t.get("variable") == TORQUE_CONSTANT and t.get("significant") and t.get("remainder") == "structured":
             t["remainder"] = "base"
             t["why_base"] = (f"a torque proportional to the current is what {base['meaning']} leaves, and the record's "
                              f"answer beyond a plausible base lists it (held-out drop {base['holdout_chi2_drop']:.4g} "

@@ -26,6 +26,7 @@ from .scoring import _rms_by_channel
 from .signature import (
     MIN_DRIVE_OFF_SAMPLES,
     MIN_HOLD,
+    TORQUE_CONSTANT,
     SignatureSettings,
     angle_test_samples,
     base_transients,
@@ -239,7 +240,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             "screw_angle": ("angle", tested["screw_angle"][0]),
             "speed_sign": ("category", motion_sign(w, dv).astype(float)),
             # a torque-constant error (torque against current); a slow drift is tested per pass below
-            "motor_current (torque constant)": ("linear", np.asarray(run.signals["motor_current"], float)),
+            TORQUE_CONSTANT: ("linear", np.asarray(run.signals["motor_current"], float)),
         }
         # the rotor's measured acceleration torque, the nuisance of the torque-constant test (see signature_tests)
         accel.append(inertia * sg_derivative(w, s.window, float(np.median(np.diff(t)))))
@@ -299,7 +300,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
                 only[name]["in_step_here"] = [h for h in hs if h in in_step]
         return {"harmonics_only": only}
     tests = signature_tests(e_all, variables, unit="N m", settings=s,
-                            given={"motor_current (torque constant)": np.concatenate(accel)}, added=own,
+                            given={TORQUE_CONSTANT: np.concatenate(accel)}, added=own,
                             levels=level_of, segment_cycles=seg_cycles, segment_phase=seg_phase)
     for t in tests:  # the angle tests' (the position test's below)
         for name, a in (t.get("added_shapes") or {}).items():
@@ -548,7 +549,7 @@ def _signature_curves(e: np.ndarray, variables: dict, runs, s: SignatureSettings
                 np.r_[0.0, np.diff(x_)] / dt, kinematic_ratio({"screw.lead": run.screw_lead, "gear.ratio": run.gear_ratio})
                 * np.asarray(sig["motor_speed"], float), dt)
     out["cross_correlation"] = cc
-    i = variables["motor_current (torque constant)"][1]
+    i = variables[TORQUE_CONSTANT][1]
     if np.isfinite(i).sum() > 50 and np.nanmax(i) > np.nanmin(i):  # a torque-constant error: torque against current
         out["motor_current"] = binned_mean(e, i, np.unique(np.nanquantile(i, np.linspace(0, 1, 2 * s.quantile_bins + 1))))
     return out

@@ -81,12 +81,14 @@ __all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missin
 #: position over passes, periodic in motor or screw angle, a slow drift, a torque proportional to the current
 #: the variable of :func:`breakaway_position_test`: the breakaway current at starts and reversals by nut position
 BREAKAWAY_VARIABLE = "nut_position (breakaway at starts/reversals)"
+#: the torque proportional to the measured current (the engine's test given the motor acceleration)
+TORQUE_CONSTANT = "motor_current (torque constant)"
 #: the variable of :func:`current_drift_test`: the current at one operating point drifting in time, in proportion
-TORQUE_CONSTANT_DRIFT = "motor_current (torque constant) drifting in time"
+TORQUE_CONSTANT_DRIFT = TORQUE_CONSTANT + " drifting in time"
 STRUCTURED_VARIABLES = ("nut_position (repeated over passes)", "nut_position (revisited, not a drift in time)",
                         BREAKAWAY_VARIABLE,
                         "motor_angle", "screw_angle", "time (slow drift)",
-                        "motor_current (torque constant)", TORQUE_CONSTANT_DRIFT)
+                        TORQUE_CONSTANT, TORQUE_CONSTANT_DRIFT)
 
 
 def remainder_kind(test: dict, temperature_span: float, s: SignatureSettings) -> str:
