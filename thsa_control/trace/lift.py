@@ -301,7 +301,6 @@ def not_ruled_out(own: float, joint: Mapping, candidates: Mapping[str, Mapping])
     return {"own_drop_on_constant_torque_samples": own, "carry_gap": gap, "alternatives": alts}
 
 
-
 def current_proportional_is_base(sig: dict, answer: Mapping) -> dict | None:
     """Where the record's answer beyond a plausible base (:func:`beyond_base`) lists the screw and gearbox lossier than
     the catalogue spread among its unnamed carriers, the signature's torque proportional to the current is that
