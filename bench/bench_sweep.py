@@ -28,7 +28,6 @@ machine may be shared: every figure is from this one run.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import signal
 import subprocess
@@ -40,7 +39,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from thsa_control.sweep.engine import read_results, run_sweep, simulate_chunk
+from thsa_control.sweep.engine import SweepError, read_results, run_sweep, scheduler_address, simulate_chunk
 from thsa_control.sweep.spec import parse_spec
 
 
@@ -60,16 +59,11 @@ def _cluster(tmp: Path, workers: int):
     procs = [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
                                "--port", "0", "--no-dashboard", "--scheduler-file", str(sfile)], env=env,
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)]
-    deadline = time.time() + 60
-    while True:  # the scheduler creates the file before it writes it: wait until it parses
-        try:
-            address = json.loads(sfile.read_text())["address"]
-            break
-        except (FileNotFoundError, json.JSONDecodeError, KeyError):
-            if procs[0].poll() is not None or time.time() > deadline:
-                _stop(procs)
-                raise SystemExit(f"bench_sweep: the dask scheduler wrote no address to {sfile}")
-            time.sleep(0.1)
+    try:  # the scheduler creates the file before it writes it: read once it parses
+        address = scheduler_address(sfile, timeout=60.0, exited=procs[0].poll)
+    except SweepError as exc:
+        _stop(procs)
+        raise SystemExit(f"bench_sweep: {exc}") from None
     for _ in range(workers):
         procs.append(subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address, "--nthreads",
                                        "1", "--no-dashboard"], env=env, stdout=subprocess.DEVNULL,

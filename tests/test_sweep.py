@@ -27,6 +27,7 @@ from thsa_control.cli import main
 from thsa_control.errors import OutputError
 from thsa_control.sweep.analysis import clopper_pearson, sobol_indices
 from thsa_control.sweep.sampling import saltelli_blocks
+from thsa_control.sweep.engine import SweepError, scheduler_address
 from thsa_control.sweep.spec import SweepSpecError, load_spec, parse_spec
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -134,6 +135,66 @@ def test_unreachable_scheduler_exits_2_within_seconds(tmp_path, capsys, monkeypa
     err = capsys.readouterr().err
     assert f"tcp://127.0.0.1:{port}" in err and "within 1 s" in err
     assert elapsed < 1.0 + 5.0  # the connect timeout, before any compile (the same 5 s margin as at 5 s)
+    assert not list((tmp_path / "out" / "runs").glob("*.parquet"))
+
+
+def test_scheduler_file_is_read_once_written_whole(tmp_path):
+    """The scheduler creates its file before it writes it: an empty, then a partial file is waited on, and the
+    address is read once the JSON is whole."""
+    import threading
+
+    f = tmp_path / "scheduler.json"
+    whole = json.dumps({"type": "Scheduler", "address": "tcp://127.0.0.1:8786"})
+
+    def write():
+        time.sleep(0.2)
+        f.write_text("")
+        time.sleep(0.2)
+        f.write_text(whole[:20])
+        time.sleep(0.2)
+        f.write_text(whole)
+
+    t = threading.Thread(target=write)
+    t.start()
+    try:
+        assert scheduler_address(f, timeout=10.0) == "tcp://127.0.0.1:8786"
+    finally:
+        t.join()
+
+
+@pytest.mark.parametrize("text, seen", [(None, "no file"), ("", "an empty file"), ('{"address": ', "no JSON"),
+                                        ('{"type": "Scheduler"}', "without 'address'"),
+                                        ('{"address": ""}', "'address' = ''")])
+def test_scheduler_file_never_written_names_the_file_and_what_it_held(tmp_path, text, seen):
+    f = tmp_path / "scheduler.json"
+    if text is not None:
+        f.write_text(text)
+    t0 = time.perf_counter()
+    with pytest.raises(SweepError) as e:
+        scheduler_address(f, timeout=0.3)
+    assert time.perf_counter() - t0 < 0.3 + 2.0
+    assert str(f) in str(e.value) and seen in str(e.value) and "within 0.3 s" in str(e.value)
+
+
+def test_scheduler_that_exits_before_writing_its_file_is_named_at_once(tmp_path):
+    f = tmp_path / "scheduler.json"
+    f.write_text("")
+    t0 = time.perf_counter()
+    with pytest.raises(SweepError, match="exited with code 3"):
+        scheduler_address(f, timeout=30.0, exited=lambda: 3)
+    assert time.perf_counter() - t0 < 5.0  # not the 30 s timeout
+
+
+def test_missing_scheduler_file_exits_2_with_no_run_written(tmp_path, capsys, monkeypatch):
+    from thsa_control.sweep import engine
+
+    monkeypatch.setattr(engine, "CONNECT_TIMEOUT_S", 0.5)
+    spec = _write(tmp_path, _spec_text(4, 2))
+    missing = tmp_path / "nowhere" / "scheduler.json"
+    code = main(["sweep", str(spec), "--out", str(tmp_path / "out"), "--scheduler-file", str(missing), "-q"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert f"--scheduler-file {missing}" in err and "no file" in err
     assert not list((tmp_path / "out" / "runs").glob("*.parquet"))
 
 
@@ -360,20 +421,6 @@ def test_known_distribution_of_the_steady_current(tmp_path, params):
     assert _table(out).num_rows == n
 
 
-def _scheduler_address(file: Path, proc: subprocess.Popen, timeout: float = 60.0) -> str:
-    """The address the scheduler writes to ``file``: read once the file parses (the scheduler creates
-    it before it has written it, so an empty or partial file is waited on, not read)."""
-    deadline = time.time() + timeout
-    while time.time() < deadline:
-        if proc.poll() is not None:
-            raise RuntimeError(f"the dask scheduler exited with code {proc.returncode} before writing {file}")
-        try:
-            return json.loads(file.read_text())["address"]
-        except (FileNotFoundError, json.JSONDecodeError, KeyError):
-            time.sleep(0.1)
-    raise RuntimeError(f"the dask scheduler wrote no address to {file} within {timeout:.0f} s")
-
-
 class _Cluster:
     """A Dask scheduler and two single-thread workers in their own process groups."""
 
@@ -383,7 +430,7 @@ class _Cluster:
                                         "--port", "0", "--no-dashboard", "--scheduler-file", str(self.file)],
                                        env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                        start_new_session=True)]
-        self.address = _scheduler_address(self.file, self.procs[0])
+        self.address = scheduler_address(self.file, timeout=60.0, exited=self.procs[0].poll)
         for _ in range(2):
             self.procs.append(subprocess.Popen(
                 [sys.executable, "-m", "distributed.cli.dask_worker", self.address, "--nthreads", "1",
@@ -455,8 +502,9 @@ def test_worker_killed_mid_sweep_loses_nothing_and_counts_nothing_twice(tmp_path
     n = 60
     spec_path = _write(tmp_path, _spec_text(n, 2, duration=3.0))
     out = tmp_path / "out"
+    # the cluster reached through its scheduler file (the batch-system way; the address is tested above)
     proc = subprocess.Popen([sys.executable, "-m", "thsa_control.cli", "sweep", str(spec_path), "--out", str(out),
-                             "--scheduler", cluster.address], env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                             "--scheduler-file", str(cluster.file)], env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     at_kill = _wait_for_chunks(out, proc, 1)
     cluster.kill(1)  # one of the two workers, with its nanny

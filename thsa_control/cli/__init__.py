@@ -14,7 +14,7 @@ Commands::
                    [--remove E ...] [--params FILE] --out DIR
     thsa report    --design designs/nominal.toml --out DIR [--level B] [--effects E ...] [--params FILE]
                    [--no-switching] [--check]
-    thsa sweep     SPEC.toml --out DIR [--scheduler ADDRESS | --workers N] [--force] [--check]
+    thsa sweep     SPEC.toml --out DIR [--scheduler ADDRESS | --scheduler-file FILE | --workers N] [--force] [--check]
     thsa linearize --level A --speed 5 --load 20 --temperature -30 [--effects E ...] [--active standby]
                    [--params FILE] [--save FILE.npz|FILE.mat]
 

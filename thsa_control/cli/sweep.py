@@ -1,4 +1,4 @@
-"""``thsa sweep SPEC.toml --out DIR [--scheduler ADDRESS | --workers N]``: campaigns on Dask (issue #19).
+"""``thsa sweep SPEC.toml --out DIR [--scheduler ADDRESS | --scheduler-file FILE | --workers N]``: campaigns on Dask (issue #19).
 
 Registered in ``thsa_control/cli/__init__.py`` with ``add_parser(subparsers, shared)``;
 the handler calls :func:`thsa_control.sweep.command.sweep_command`, which runs
@@ -24,6 +24,10 @@ def add_parser(subparsers, shared) -> None:
     where = p.add_mutually_exclusive_group()
     where.add_argument("--scheduler", help="address of a running Dask scheduler, e.g. tcp://host:8786 "
                        "(default: a local cluster on this machine's cores)")
+    where.add_argument("--scheduler-file", metavar="FILE",
+                       help="the file a Dask scheduler writes its address to ('dask scheduler --scheduler-file "
+                            "FILE', the way batch systems start one on a shared file system); waited on for "
+                            "seconds while it is missing or partly written")
     where.add_argument("--workers", type=int, help="worker processes of the local cluster (default: one per core)")
     p.add_argument("--force", action="store_true",
                    help="discard the results of another sweep in --out (only files thsa wrote)")
@@ -35,6 +39,7 @@ def run(args) -> int:
     """Handler of ``thsa sweep``; returns the exit status."""
     from ..sweep.command import sweep_command
 
-    return sweep_command(args.spec, args.out, scheduler=args.scheduler, workers=args.workers, force=args.force,
+    return sweep_command(args.spec, args.out, scheduler=args.scheduler, scheduler_file=args.scheduler_file,
+                         workers=args.workers, force=args.force,
                          check=args.check, quiet=getattr(args, "quiet", False),
                          command=" ".join(["thsa", *getattr(args, "argv", [])]))

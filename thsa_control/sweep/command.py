@@ -1,4 +1,4 @@
-"""What ``thsa sweep SPEC.toml --out DIR [--scheduler ADDRESS | --workers N]`` does: run, resume, report.
+"""What ``thsa sweep SPEC.toml --out DIR [--scheduler ADDRESS | --scheduler-file FILE | --workers N]`` does: run, resume, report.
 
 :func:`sweep_command` is the whole command behind the parser: validate the
 spec, run or resume it (``engine.run_sweep``), read the table, analyse it and
@@ -19,7 +19,7 @@ __all__ = ["sweep_command"]
 
 
 def sweep_command(spec_path: str, out: str, *, scheduler: str | None = None, workers: int | None = None,
-                  force: bool = False, check: bool = False, quiet: bool = False, command: str = "thsa sweep") -> int:
+                  scheduler_file: str | None = None, force: bool = False, check: bool = False, quiet: bool = False, command: str = "thsa sweep") -> int:
     """Run the command; see the module docstring.  Returns the exit status."""
     from ..errors import UsageError
     from ..progress import Progress
@@ -35,7 +35,7 @@ def sweep_command(spec_path: str, out: str, *, scheduler: str | None = None, wor
     progress.phase(f"{spec.name}: {spec.total_runs} runs in chunks of {spec.chunk_runs}")
     with progress.heartbeat():  # a line whenever a chunk or the warm-up keeps it silent for 2 s
         stats = run_sweep(spec, out, scheduler=scheduler, workers=workers, force=force, progress=progress,
-                          command=command)
+                          command=command, scheduler_file=scheduler_file)
         progress.phase("analysing the table and writing the report")
         table = read_results(out)
         analysis = analyse_sweep(spec, table)

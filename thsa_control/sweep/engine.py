@@ -3,7 +3,10 @@
 Where the work runs
     ``scheduler=None``: a ``dask.distributed.LocalCluster`` of ``workers``
     processes (default: one per core), started and stopped here; an address:
-    an existing Dask cluster, unchanged.  Both run the same tasks.
+    an existing Dask cluster, unchanged; ``scheduler_file``: the JSON file a
+    scheduler started with ``dask scheduler --scheduler-file FILE`` writes
+    (the batch-system way: scheduler and workers started as jobs on a shared
+    file system), read by :func:`scheduler_address`.  All run the same tasks.
 
 What a task does
     :func:`simulate_chunk` simulates a chunk of :class:`~.spec.RunSpec` (the
@@ -64,6 +67,7 @@ __all__ = [
     "results_schema",
     "run_inputs",
     "run_sweep",
+    "scheduler_address",
     "simulate_chunk",
 ]
 
@@ -413,15 +417,54 @@ def local_cores() -> int:
         return os.cpu_count() or 1
 
 
-def _connect(scheduler: str | None, workers: int | None):
-    """``(client, cluster or None)``; SweepError within ``CONNECT_TIMEOUT_S`` when unreachable."""
+def scheduler_address(file: str | Path, timeout: float | None = None, exited=None) -> str:
+    """The address a Dask scheduler wrote to its scheduler file (``dask scheduler --scheduler-file FILE``).
+
+    The scheduler creates the file before it writes it, and a batch job may start the client before the scheduler
+    job runs: a missing, empty or partly written file is waited on until ``timeout`` (default
+    :data:`CONNECT_TIMEOUT_S`), then a :class:`SweepError` names the file and what it held.  Dask's own
+    ``Client(scheduler_file=...)`` waits for a missing file without end and gives up on a partial one after 0.1 s
+    with an unbound-variable error (distributed 2026.8).  ``exited``: a callable that returns the scheduler
+    process's exit code once it has ended (``subprocess.Popen.poll``), for a scheduler started by the caller."""
+    file = Path(file)
+    timeout = CONNECT_TIMEOUT_S if timeout is None else timeout
+    deadline = time.monotonic() + timeout
+    seen = "no file"
+    while True:
+        try:
+            text = file.read_text()
+            address = json.loads(text)["address"]
+            if isinstance(address, str) and address:
+                return address
+            seen = f"'address' = {address!r}"
+        except FileNotFoundError:
+            seen = "no file"
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            seen = "an empty file" if not text.strip() else f"no JSON ({len(text)} bytes)"
+        except (KeyError, TypeError):
+            seen = "JSON without 'address'"
+        except OSError as exc:
+            raise SweepError(f"--scheduler-file {file}: cannot be read ({exc.strerror or exc})") from None
+        code = exited() if exited is not None else None
+        if code is not None:
+            raise SweepError(f"--scheduler-file {file}: the Dask scheduler exited with code {code} before writing "
+                             f"its address ({seen})")
+        if time.monotonic() >= deadline:
+            raise SweepError(f"--scheduler-file {file}: no scheduler address within {timeout:g} s ({seen}; a "
+                             "scheduler started with 'dask scheduler --scheduler-file FILE' writes it)")
+        time.sleep(0.05)
+
+
+def _connect(scheduler: str | None, workers: int | None, given: str | None = None):
+    """``(client, cluster or None)``; SweepError within ``CONNECT_TIMEOUT_S`` when unreachable (``given``: what
+    the user gave, where it was not the address itself)."""
     from distributed import Client, LocalCluster
 
     if scheduler:
         try:
             client = Client(scheduler, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
         except (OSError, TimeoutError, ValueError) as exc:
-            raise SweepError(f"--scheduler {scheduler}: cannot reach the Dask scheduler within "
+            raise SweepError(f"{given or '--scheduler ' + scheduler}: cannot reach the Dask scheduler within "
                              f"{CONNECT_TIMEOUT_S:g} s ({str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__})") from None
         return client, None
     import dask
@@ -453,7 +496,8 @@ def _fmt_s(s: float) -> str:
 
 
 def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None, workers: int | None = None,
-              force: bool = False, progress=None, command: str = "thsa sweep") -> SweepRun:
+              force: bool = False, progress=None, command: str = "thsa sweep",
+              scheduler_file: str | Path | None = None) -> SweepRun:
     """Run (or resume) ``spec`` into the folder ``out``; see the module docstring.
 
     Parameters
@@ -464,6 +508,8 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
         Address of a Dask scheduler (``tcp://host:8786``); None: a local cluster.
     workers : int, optional
         Processes of the local cluster (default: the machine's cores).
+    scheduler_file : path, optional
+        The file a Dask scheduler writes its address to (:func:`scheduler_address`), instead of ``scheduler``.
     force : bool
         Discard the results of another sweep in ``out`` (only what thsa wrote).
     progress : thsa_control.progress.Progress, optional
@@ -476,8 +522,8 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
     OutputError
         ``out`` may not be used.
     """
-    if scheduler and workers:
-        raise SweepError("give --scheduler or --workers, not both (a cluster has its own workers)")
+    if sum(bool(x) for x in (scheduler, scheduler_file, workers)) > 1:
+        raise SweepError("give one of --scheduler, --scheduler-file or --workers (a cluster has its own workers)")
     folder = prepare_folder(spec, out, force=force, command=command)
     ranges = chunk_ranges(spec)
     done = _done_chunks(spec, folder)
@@ -502,8 +548,15 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
     try:
         if progress is not None:
             progress.phase(f"connecting to {scheduler}" if scheduler else
+                           f"reading the scheduler's address from {scheduler_file}" if scheduler_file else
                            f"starting a local Dask cluster of {workers or local_cores()} worker process(es)")
-        client, cluster = _connect(scheduler, workers)  # first: an unreachable scheduler fails within seconds
+        given = None
+        if scheduler_file:
+            scheduler = scheduler_address(scheduler_file)
+            given = f"--scheduler-file {scheduler_file} (address {scheduler})"
+            if progress is not None:
+                progress.phase(f"connecting to {scheduler}")
+        client, cluster = _connect(scheduler, workers, given)  # first: an unreachable scheduler fails within seconds
         if progress is not None:
             progress.phase("compiling the model and checking the metrics on the first run of each plant")
         libraries = _warm_up(spec)
