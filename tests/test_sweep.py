@@ -164,10 +164,12 @@ def test_scheduler_file_is_read_once_written_whole(tmp_path):
 
 @pytest.mark.parametrize("text, seen", [(None, "no file"), ("", "an empty file"), ('{"address": ', "no JSON"),
                                         ('{"type": "Scheduler"}', "without 'address'"),
-                                        ('{"address": ""}', "'address' = ''")])
+                                        ('{"address": ""}', "'address' = ''"), (b"\xff\xfe", "not UTF-8")])
 def test_scheduler_file_never_written_names_the_file_and_what_it_held(tmp_path, text, seen):
     f = tmp_path / "scheduler.json"
-    if text is not None:
+    if isinstance(text, bytes):
+        f.write_bytes(text)
+    elif text is not None:
         f.write_text(text)
     t0 = time.perf_counter()
     with pytest.raises(SweepError) as e:

@@ -439,7 +439,9 @@ def scheduler_address(file: str | Path, timeout: float | None = None, exited=Non
             seen = f"'address' = {address!r}"
         except FileNotFoundError:
             seen = "no file"
-        except (json.JSONDecodeError, UnicodeDecodeError):
+        except UnicodeDecodeError:
+            seen = "no text (not UTF-8)"
+        except json.JSONDecodeError:
             seen = "an empty file" if not text.strip() else f"no JSON ({len(text)} bytes)"
         except (KeyError, TypeError):
             seen = "JSON without 'address'"
