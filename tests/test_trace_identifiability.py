@@ -165,6 +165,63 @@ def test_a_coefficient_at_a_zero_bound_is_the_same_part_not_shown():
     assert parts_not_shown(nothing, spec, w3) == (w3, [])
 
 
+def test_a_loaded_disk_set_that_cannot_hold_its_load_is_no_rigs_base():
+    """The holding limit (trace/candidates._rule_holding): beyond twice the preload the loaded disk set carries the
+    whole load, which back-drives the screw with ``lead x inverse efficiency / 2 pi`` N m per N; a static coefficient
+    below that (95 % interval and all) is a no-back that does not hold, refused, and no part the run does not show.
+    Measured on a blind rig-sim cold record whose ratchet's free travel let the screw slip back 0.24 mm while the
+    load rose with the drive off: the detailed no-back took it as a compressive-side static coefficient of 0.0003
+    (the papers' 0.0066) and a drive-train compliance was added after it.  The light set's coefficient is not judged
+    (a run that never loads it says nothing about its holding), nor one whose interval reaches the limit."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from thsa_control.model.params import default_parameters
+    from thsa_control.trace.candidates import _rule_holding
+
+    params = default_parameters()
+    limit = 0.012 * 0.85 / (2 * math.pi)
+    compressive = SimpleNamespace(signals={"load_force": np.r_[np.zeros(50), np.full(200, 10e3)]})
+    tensile = SimpleNamespace(signals={"load_force": np.full(200, -8e3)})
+    within = SimpleNamespace(signals={"load_force": np.full(200, 5.9e3)})  # both sets share it, the preload helps
+    assert _rule_holding(params, [compressive])[0] == pytest.approx(limit)
+    assert _rule_holding(params, [compressive])[2] == ("noback.mu_static_neg",)
+    assert _rule_holding(params, [tensile])[2] == ("noback.mu_static_pos",)
+    assert _rule_holding(params, [compressive, tensile])[2] == ("noback.mu_static_neg", "noback.mu_static_pos")
+    assert _rule_holding(params, [within])[2] == ()
+    assert _rule_holding(params, [SimpleNamespace(signals={"load_force": np.full(40, 10e3)})])[2] == ()  # too few
+    spec = CANDIDATES["noback_quadrant_friction"]
+
+    def fit(value, sd, verdict="determined", at_bound=None):
+        est = {n: {"value": 0.0046, "stderr": 1e-4, "stderr_data": 1e-4, "at_bound": None, "min": 0.0,
+                   "determination": "determined"} for n in spec.free}
+        est["noback.mu_static_neg"].update(value=value, stderr=sd, stderr_data=sd, determination=verdict,
+                                           at_bound=at_bound)
+        return {"estimates": est}
+
+    plaus = {"holding": _rule_holding(params, [compressive])}
+    why = _plausibility(fit(3.03e-4, 1.1e-4), spec, plaus)[1]
+    assert [(w.kind, w.param) for w in why] == [("holding", "noback.mu_static_neg")]
+    assert "0.000303" in why[0] and f"{limit:.3g}" in why[0]
+    assert parts_not_shown(fit(3.03e-4, 1.1e-4), spec, why) == (why, [])  # a refusal, not a part not shown
+    # the light set: the same value is no verdict on holding
+    assert _plausibility(fit(3.03e-4, 1.1e-4), spec, {"holding": _rule_holding(params, [tensile])})[1] == []
+    # an interval that reaches the limit: the run does not say it cannot hold
+    assert _plausibility(fit(0.0010, 0.0004), spec, plaus)[1] == []
+    assert _plausibility(fit(0.0066, 1e-4), spec, plaus)[1] == []
+    # determined at zero on the loaded set: the zero (a part not shown elsewhere) and the holding; the holding stays
+    at_zero = fit(0.0, 1e-5, verdict="zero", at_bound="min")
+    why0 = _plausibility(at_zero, spec, plaus)[1]
+    assert [w.kind for w in why0] == ["bound", "zero", "holding"]
+    kept, parts = parts_not_shown(at_zero, spec, why0)
+    assert [w.kind for w in kept] == ["holding"] and [w.kind for w in parts] == ["zero"]
+    # held at the file value: not judged
+    held = fit(3.03e-4, 1.1e-4)
+    held["estimates"]["noback.mu_static_neg"]["held"] = True
+    assert _plausibility(held, spec, plaus)[1] == []
+
+
 def test_a_load_share_outside_its_assumed_range_is_said_not_refused():
     """A share the run determines beyond the assumed 0.4..0.6 (rig-sim's rig-base no-back, no disk pair, read 0.61
     on two run sets) is reported with the range it leaves, in trace.json and the report's line; inside the range and

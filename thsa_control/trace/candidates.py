@@ -145,9 +145,41 @@ def _rule_efficiency(params: ParameterSet, runs) -> tuple[float, str]:
                "while driven also shows as a direct-efficiency loss and is not covered beyond this")
 
 
-#: Plausible magnitudes (rule -> function(params, runs) -> (bound, where the bound comes from)).
+#: The no-back's static disk coefficients [N m/N] and the load sign that makes each one's disk set the loaded one
+#: (``noback_quadrant_friction``: the compressive-side set, locked against retraction, carries a compressive load,
+#: the tensile-side set a tensile one): a value the run determines below the holding limit (:func:`_rule_holding`)
+#: for a set the run loads is a no-back that does not hold, no rig's base
+HOLDING_COEFFICIENTS = {"noback.mu_static_neg": +1.0, "noback.mu_static_pos": -1.0}
+#: samples beyond the light set's unloading for a disk set to count as loaded by the runs
+HOLDING_MIN_SAMPLES = 50
+
+
+def _rule_holding(params: ParameterSet, runs) -> tuple[float, str, tuple[str, ...]]:
+    """``(limit, source, coefficients)``: the holding limit [N m/N], where it comes from, and the static
+    coefficients of the disk sets the runs load beyond the light set's unloading (the file's preload and load share:
+    the loaded set then carries the whole load; below it both sets share the load and the preload helps hold)."""
+    lead, eta = params.value("screw.lead"), params.value("screw.efficiency_inverse")
+    mu = lead * eta / (2.0 * math.pi)
+    pre, share = params.value("noback.preload"), params.value("noback.load_share")
+    unload = {+1.0: pre / max(1.0 - share, 1e-9), -1.0: pre / max(share, 1e-9)}  # compressive, tensile [N]
+    loaded = []
+    for n, sign in HOLDING_COEFFICIENTS.items():
+        k = sum(int(np.sum(sign * np.asarray(r.signals["load_force"], float) > unload[sign])) for r in runs
+                if "load_force" in r.signals)
+        if k >= HOLDING_MIN_SAMPLES:
+            loaded.append(n)
+    return mu, (f"the holding limit lead x inverse efficiency / 2 pi = {lead * 1e3:g} mm x {eta:g} / 2 pi = "
+                f"{mu:.3g} N m/N: beyond {unload[+1.0]:.0f} N compressive ({unload[-1.0]:.0f} N tensile) the loaded "
+                "disk set carries the whole load, and with a static coefficient below this the load back-drives the "
+                "screw through it; a no-back's function is to hold (the papers' Table 2 gives 0.0066 and 0.0072, four "
+                "times the limit), so one that slips under the load it carries is a fault or another effect (a "
+                "ratchet's free travel), not a rig's base"), tuple(loaded)
+
+
+#: Plausible magnitudes (rule -> function(params, runs) -> (bound, where the bound comes from); ``holding`` adds the
+#: coefficients it applies to on these runs).
 PLAUSIBLE: dict[str, Callable] = {"drag": _rule_drag, "axial_force": _rule_axial, "periodic": _rule_periodic,
-                                  "efficiency": _rule_efficiency, "inertia": _rule_inertia}
+                                  "efficiency": _rule_efficiency, "inertia": _rule_inertia, "holding": _rule_holding}
 
 
 class ReadStart(dict):

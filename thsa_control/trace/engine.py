@@ -543,7 +543,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     base_doc = None
     at_plausible_bound: dict[str, str] = {}  # explainer parameter -> its effect, where the base correction hit the bound
     base_bounds: dict[str, tuple[float, float, str]] = {}  # explainer parameter -> (lo, hi, effect) while bounded
-    base_step_refused: set[str] = set()  # declared components detailed (or tried) in the base step
+    base_step_refused: dict[str, str] = {}  # declared components detailed (or tried) in the base step -> its verdict
     cur_sig: dict | None = None  # the signature of the current model's residual, where computed
     if use_base:
         say("base-correction step: constant-torque explainers, screw efficiencies and motor-side inertia within "
@@ -568,7 +568,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             base_doc["declared_components_detailed"] = [d["doc"] for d in detailed]
             kept = next((d for d in detailed if d["doc"]["accepted"]), None)
             for d in detailed:
-                base_step_refused.add(d["doc"]["name"])
+                base_step_refused[d["doc"]["name"]] = d["doc"].get("reason") or "not kept"
             if kept is not None:
                 f = kept["fit"]
                 added.append(kept["step"])
@@ -738,7 +738,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 # drive-train compliance; level A's ideal no-back holds the load torque exactly and lets the screw
                 # slip back with each swing (docs/trace_notes.md, "A damping the stop chose")
                 skipped.append({"name": spec.name, "reason": "the detailed model of a declared component, judged in "
-                                                             "the base step (not significant there)"})
+                                                             f"the base step ({base_step_refused[spec.name]})"})
             elif use_base and spec.name in RESOLVES and RESOLVES[spec.name](params, runs):
                 # with the base step only: a declared model of another rig's base leaves drags that vary along
                 # the stroke (Stribeck at the reversals of a short stroke), which a short record's ripple fits

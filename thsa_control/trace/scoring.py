@@ -26,6 +26,7 @@ from ..model.params import ParameterSet
 from .candidates import (
     CANDIDATES,
     EFFICIENCY_EXPLAINER,
+    HOLDING_COEFFICIENTS,
     INERTIA_DATASHEET_TOLERANCE,
     INERTIA_EXPLAINER,
     PROFILE_FLOORS,
@@ -648,7 +649,8 @@ class Reason(str):
 
     Kinds: ``"undetermined"`` (no parameter determined by the run), ``"zero"`` (a determined parameter, or a periodic
     pair's amplitude with ``param`` None, collapses to zero), ``"bound"`` (at a search bound or a profile range's end),
-    ``"periodic"`` (an amplitude beyond a healthy drive's).  A ``str``: JSON and the text write it as its text.
+    ``"periodic"`` (an amplitude beyond a healthy drive's), ``"holding"`` (a no-back static coefficient below the
+    holding limit).  A ``str``: JSON and the text write it as its text.
     """
 
     kind: str
@@ -670,7 +672,8 @@ def reason_kind(reason) -> str | None:
 
 def _plausibility(fit: dict, spec: CandidateSpec, plaus: Mapping | None = None) -> tuple[bool, list[Reason]]:
     """Plausible: no parameter at a bound, none collapsing to zero, at least one determined by the data,
-    no periodic torque larger than a healthy drive's (:data:`PLAUSIBLE`).
+    no periodic torque larger than a healthy drive's, no no-back static coefficient that lets the load back-drive
+    the screw (:data:`PLAUSIBLE`, ``holding``).
 
     A parameter the run does not determine was held at its file value (``held``) and is not judged: "collapses
     to zero" is a verdict only for a parameter the data determine.  Each reason is a :class:`Reason`.
@@ -715,6 +718,15 @@ def _plausibility(fit: dict, spec: CandidateSpec, plaus: Mapping | None = None) 
         if not pairs and zero_is_absent(spec.name, n) and (verdict == "zero" if verdict else abs(e["value"]) < 2 * sd):
             why.append(Reason(f"{n} = {e['value']:.3g} collapses to zero (stderr {sd:.2g}"
                               f"{' from the run' if verdict else ''})", "zero", n))
+        if plaus and "holding" in plaus and n in plaus["holding"][2]:
+            # a loaded disk set's static coefficient below the holding limit with its whole interval (at zero too):
+            # the run says this no-back does not hold the load it carries (a light set's is a part the run does not
+            # show, engine.parts_not_shown)
+            lim, src, _ = plaus["holding"]
+            top = (e.get("ci95") or [None, e["value"] + 1.96 * sd])[1]
+            if top is not None and top < lim:
+                why.append(Reason(f"{n} = {e['value']:.3g} N m/N (95 % up to {top:.3g}) is below the no-back's "
+                                  f"holding limit ({src})", "holding", n))
     if pairs and len(est) == 2:
         (_, a), (nb, b) = est
         zero = pair_amplitude_zero(a, b, nb)
