@@ -99,3 +99,34 @@ def test_a_dense_screens_teeth_a_coarse_step_apart_are_separate_ranges():
     assert got["share"] == pytest.approx(merged["share"])  # the hull, the interval reported, is the same
     listed = got["reason"].split(": ", 1)[1].split(", ")
     assert len(listed) == SHOWN_RANGES + 1 and listed[-2] == "... (all in `components`)", listed  # 7, "...", last
+
+
+def test_a_flat_screen_is_not_determined_and_its_first_value_not_reported_as_chosen(params):
+    """A ratchet that slips through its initial free travel once (rig-sim's cold check, tests/data/rigsim
+    rig_pair_cogging_ratchet_cold): the one-step screen of the pitch is flat over the whole range, so one profile
+    fit was made, at the screen's first value (0.03 rad, the range's end), and the trace reported it as the pitch.
+    Now the pitch is not determined by the profile (no interval), the free travel (the initial clearance's product
+    with the pitch) is kept, and the parameter file's pitch is held where its fit's score is within the gap the data
+    resolve; where it is not, the fitted value is held and both scores are kept."""
+    run = read_run(DATA / "rig_pair_cogging_ratchet_cold.csv")
+    st = IdentificationSettings(channels=("motor_speed",), noise={"motor_speed": 0.232}, max_nfev=10, holdout_every=3,
+                                no_prior=("noback.mu_coulomb_neg",))
+
+    def prof(gap):
+        return profile_identify(run, params, ("noback.mu_coulomb_neg",), {PITCH: (0.03, 0.3), INITIAL: (0.0, 1.0)},
+                                effects=EFFECTS, settings=st, fractions={INITIAL: PITCH}, gap=gap)
+
+    res = prof(None)  # no gap: every score difference within it, the file value held
+    d = res.determination[PITCH]
+    assert not res.mattered[PITCH] and res.mattered[INITIAL]
+    assert d["flat"] and not d["determined"] and d["components"] == [] and res.interval[PITCH] is None
+    assert d["value_if_free"] == pytest.approx(0.03) and d["held_at"] == res.values[PITCH] == params.value(PITCH)
+    first = res.fits[0]["values"]
+    assert first[PITCH] == pytest.approx(0.03)
+    travel = first[PITCH] * first[INITIAL]  # the free travel the screen of the initial clearance chose
+    assert res.values[PITCH] * res.values[INITIAL] == pytest.approx(travel, rel=1e-9)
+    assert any("not determined" in n and "one-step screen" in n for n in res.notes), res.notes
+    strict = prof(lambda r: 10.0)  # the file value's fit is far worse than the gap: the fitted value, said so
+    ds = strict.determination[PITCH]
+    assert not ds["determined"] and ds["file_score_above_best"] > 10.0
+    assert ds["held_at"] == strict.values[PITCH] == pytest.approx(0.03)

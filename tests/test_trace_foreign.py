@@ -799,6 +799,35 @@ def test_a_lossier_base_is_not_read_as_a_torque_constant_error(traced):
 
 @pytest.mark.campaign
 @pytest.mark.slow
+def test_a_no_back_that_would_not_hold_is_no_base_and_the_ratchet_is_found(traced):
+    """rig-sim's ratchet backlash (9.02 deg) beside a cogging (0.062 N m) on the cold check at 500 Hz
+    (rig_pair_cogging_ratchet_cold, the thirteenth blind set's draw): while the load rises to 10 kN with the drive
+    off, the screw slips back through the pawl's initial free travel.  The base step's detailed no-back took that
+    slip as a compressive-side static coefficient of 0.0003 N m/N, a no-back that cannot hold the 10 kN it then
+    carries, and a drive-train compliance the rig lacks was added after it.  The detail is refused at the holding
+    limit, and the ratchet's clearance is the first physical effect, with the disks it needs; the cogging's harmonic
+    is beyond the record's Nyquist frequency and is not asked for."""
+    from thsa_control.trace.candidates import HOLDING_COEFFICIENTS
+
+    name = "rig_pair_cogging_ratchet_cold"
+    assert set(_truth_effects(name)) == {"cogging", "ratchet_backlash"}
+    doc = traced(name)
+    nb = next(d for d in doc["base_corrections"]["declared_components_detailed"]
+              if d["name"] == "noback_quadrant_friction")
+    assert not nb["accepted"] and "holding limit" in nb["reason"], nb["reason"]
+    low = [n for n in HOLDING_COEFFICIENTS if n in nb["parameters"] and not nb["parameters"][n].get("held")
+           and nb["parameters"][n]["ci95"][1] < 0.012 * 0.85 / (2 * math.pi)]
+    assert low == ["noback.mu_static_neg"], nb["parameters"]  # the compressive side, the set the 10 kN loads
+    phys = _physical(doc)
+    assert [e["name"] for e in phys][:1] == ["noback_backlash"], doc["rounds"]
+    assert max(phys[0]["window_reduction"].values()) >= 0.5, phys[0]["window_reduction"]
+    assert any(e["name"] == "noback_quadrant_friction" and e.get("implied_by") == "noback_backlash"
+               for e in doc["effects_added"]), doc["effects_added"]
+    assert set(_found(doc)) & INVENTED == {"noback_backlash"}, _found(doc)  # no compliance, nothing else
+
+
+@pytest.mark.campaign
+@pytest.mark.slow
 def test_a_current_offset_on_a_drive_never_off_is_said_not_tested(traced):
     """rig-sim's current-sensor offset (0.25 A) on a rig that keeps its drive energised at zero command
     (rig_current_offset_nogating): with no drive-off sample the offset reads as a constant torque at the motor,

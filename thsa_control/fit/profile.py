@@ -862,6 +862,33 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
                 d["held_at"] = best[1]
             say(f"profile {main}: not determined ({d['reason']}); held at {d['held_at']:.5g}")
         determination[main] = d
+    elif not integer:
+        # a flat screen: no value of the first parameter changes the one-step error by the threshold, and one
+        # profile fit was made, at the screen's first value (measured on a blind rig-sim cold check whose ratchet
+        # slips through its initial free travel once: the pitch screened flat to the last digit and the fit at
+        # 0.03 rad, the range's end, was reported as the pitch).  Not determined by the profile: held at the
+        # parameter file's value where that fit's score is within the gap the data resolve (the fractions' products
+        # kept), else at the fitted one, as for a set that does not determine it; both scores are kept
+        v_file = float(min(max(params.value(main), lo), hi))
+        d = {"determined": False, "flat": True, "components": [], "threshold": thr, "reduced_chi2": redchi,
+             "reason": (f"the one-step screen changes by {float(np.ptp(ally)):.3g} over {lo:g}..{hi:g}, less than "
+                        f"the threshold {thr:.3g}: the profile does not resolve it on these runs (one profile fit, at "
+                        f"the screen's first value)"),
+             "value_if_free": best[1], "held_at": None, "file_value": params.value(main),
+             "file_in_set": bool(lo <= params.value(main) <= hi), "chosen_by": chosen_by}
+        if d["file_in_set"]:
+            held_fit = fit_at(v_file, keep=False)
+            if held_fit is not None:
+                g = float(gap(best[2])) if gap is not None else math.inf
+                d["file_score_above_best"] = held_fit[0] - best[0]
+                d["score_gap"] = g
+                if held_fit[0] - best[0] <= g:
+                    best = held_fit
+                    d["held_at"] = v_file
+        if d["held_at"] is None:
+            d["held_at"] = best[1]
+        say(f"profile {main}: not determined ({d['reason']}); held at {d['held_at']:.5g}")
+        determination[main] = d
     values = {main: best[1], **others_at(best[1])}
     # interval of the chosen value on the screened profile (nearest screened point, then its local minimum)
     intervals, at_bound = {}, {}
@@ -886,7 +913,7 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
         at_bound[name] = ("min" if values[name] - rlo <= 1e-9 * span else
                           "max" if rhi - values[name] <= 1e-9 * span else None) if mattered[name] else None
     notes = [f"{n} does not change the one-step error by more than the threshold: held at {values[n]:g}"
-             for n in names if not mattered[n]]
+             for n in names if not mattered[n] and n not in determination]
     notes += [f"{n} screened at the best {main}, then held as its product with it ({products[n]:.4g}) while {main} "
               f"was screened again" for n in products]
     notes += [f"{n} not determined by the runs ({d['reason']}): held at {d['held_at']:.5g} ({why_held(d)})"

@@ -215,6 +215,13 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     # torque proportional to the current where the base is lossier")
     "rig_pair_direction_loadpath_steps": ("position_steps", "rig", "direction_friction=T_pos_Nm:2.451,T_neg_Nm:1.2916,"
                                           "loadpath_backlash=x0_mm:0.481", 10320558, None, "pair"),
+    # a cogging beside the ratchet's backlash on the cold check at 500 Hz (drawn blind in the thirteenth blind set:
+    # effect sizes and seed from os.urandom): the cogging's harmonic is beyond the record's Nyquist; the screw slips
+    # back through the pawl's initial free travel (0.24 mm) while the load rises with the drive off, which the base
+    # step's detailed no-back took as a compressive-side static coefficient of 0.0003 (a no-back that does not hold)
+    # and a drive-train compliance was added after it (docs/trace_notes.md "A no-back that does not hold")
+    "rig_pair_cogging_ratchet_cold": ("check_cold", "rig", "cogging=A_Nm:0.0615,phase_deg:43.9097,"
+                                      "ratchet_backlash=pitch_deg:9.0244", 69142977, None, "pair"),
 }
 
 #: run sets traced together (``thsa trace A.csv B.csv``; tests/test_trace_sets.py), written to ``sets/``: the rig base
