@@ -823,6 +823,24 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
         for v in (v0 - 0.5 * step, v0 + 0.5 * step):
             if lo <= v <= hi:
                 fit_at(v)
+    def hold_file(d: dict, v_file: float) -> None:
+        """A first parameter not determined: held at the parameter file's value where the set holds it and its
+        profile fit scores within the gap the data resolve of the best (``best`` replaced), else at the best fit's;
+        ``d`` records both scores and where it is held."""
+        nonlocal best
+        if d["file_in_set"]:
+            held_fit = fit_at(v_file, keep=False)
+            if held_fit is not None:
+                g = float(gap(best[2])) if gap is not None else math.inf
+                d["file_score_above_best"] = held_fit[0] - best[0]
+                d["score_gap"] = g
+                if held_fit[0] - best[0] <= g:
+                    best = held_fit
+                    d["held_at"] = v_file
+        if d["held_at"] is None:
+            d["held_at"] = best[1]
+        say(f"profile {main}: not determined ({d['reason']}); held at {d['held_at']:.5g}")
+
     # is the first parameter determined?  its profile set at the threshold the tracer uses for held-out differences
     determination: dict = {}
     if mattered[main] and not integer:
@@ -849,18 +867,7 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
                 c_file = float(screen.chi2_many([params.replace({main: v_file, **held(v_file)})])[0])
                 d["file_chi2_above_min"] = c_file - y_min
                 d["file_in_set"] = bool(c_file <= y_min + d["threshold"])
-            if d["file_in_set"]:
-                held_fit = fit_at(v_file, keep=False)
-                if held_fit is not None:
-                    g = float(gap(best[2])) if gap is not None else math.inf
-                    d["file_score_above_best"] = held_fit[0] - best[0]
-                    d["score_gap"] = g
-                    if held_fit[0] - best[0] <= g:
-                        best = held_fit
-                        d["held_at"] = v_file
-            if d["held_at"] is None:
-                d["held_at"] = best[1]
-            say(f"profile {main}: not determined ({d['reason']}); held at {d['held_at']:.5g}")
+            hold_file(d, v_file)
         determination[main] = d
     elif not integer:
         # a flat screen: no value of the first parameter changes the one-step error by the threshold, and one
@@ -876,18 +883,7 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
                         f"the screen's first value)"),
              "value_if_free": best[1], "held_at": None, "file_value": params.value(main),
              "file_in_set": bool(lo <= params.value(main) <= hi), "chosen_by": chosen_by}
-        if d["file_in_set"]:
-            held_fit = fit_at(v_file, keep=False)
-            if held_fit is not None:
-                g = float(gap(best[2])) if gap is not None else math.inf
-                d["file_score_above_best"] = held_fit[0] - best[0]
-                d["score_gap"] = g
-                if held_fit[0] - best[0] <= g:
-                    best = held_fit
-                    d["held_at"] = v_file
-        if d["held_at"] is None:
-            d["held_at"] = best[1]
-        say(f"profile {main}: not determined ({d['reason']}); held at {d['held_at']:.5g}")
+        hold_file(d, v_file)
         determination[main] = d
     values = {main: best[1], **others_at(best[1])}
     # interval of the chosen value on the screened profile (nearest screened point, then its local minimum)
