@@ -46,7 +46,12 @@ def row(folder: Path) -> dict | None:
     csv = Path(doc["datasets"][0]["csv"])
     # beside the CSV; for a committed run traced from a checkout that is gone, the repository's copy
     here = [Path(str(csv)[:-4] + ".truth.json"), DATA / (csv.stem + ".truth.json")]
-    truth = json.loads(next((t for t in here if t.exists()), here[0]).read_text())
+    found = next((t for t in here if t.exists()), None)
+    if found is None:  # a CSV path relative to where the trace ran: run this from there
+        raise SystemExit(f"trace_rigsim_table: {f}: no truth file for its run {csv} (tried "
+                         + ", ".join(str(t) for t in here) + "; a relative CSV path is read from the current folder: "
+                         "run this from the folder the traces were run in)")
+    truth = json.loads(found.read_text())
     effs = list(truth.get("effects") or {})
     channel = next((p["channel"]["value"] for p in ((e or {}).get("params", {}) for e in (truth.get("effects") or
                                                                                          {}).values())
