@@ -589,3 +589,28 @@ def test_one_motion_rule_for_the_still_pair_and_the_clearance_window():
         got = sustained_motion(motion_sign(w, motion_band(w)))
         assert moves_beyond_noise(w) == moving and bool(got.any()) == moving, pattern
         assert not moving or np.flatnonzero(got).tolist() == [1001], pattern  # the second of the two samples
+
+
+@pytest.mark.parametrize("true_gain", [1.0, 1.03])
+def test_the_speeds_fallback_gain_is_not_attenuated_by_the_regressors_noise(true_gain):
+    """Where no steady pass qualifies, the speeds' gain is fitted on the rates: least squares of the motor speed on a
+    screw speed whose noise (a chattering screw, an RVDT differenced over one sample) is a quarter of its motion
+    attenuates the gain by the noise share (about 4 %) and reads a sensor gain; the fit with errors in both
+    (trace/signature._gain_lag ``errors_in_both``) recovers the true gain, 1 or a planted 3 %, within 0.5 %."""
+    from thsa_control.trace.signature import _gain_lag
+
+    rng = np.random.default_rng(7)
+    n, dt = 20000, 1e-3  # 20 s: the noise's cross term with the motion is 0.2 % of the gain
+    t = np.arange(n) * dt
+    motion = 140.0 * np.sin(2 * np.pi * 0.7 * t) + 60.0 * np.sign(np.sin(2 * np.pi * 0.23 * t))  # rad/s at the motor
+    a = true_gain * motion + 0.35 * rng.standard_normal(n)  # the motor speed: its sensor's noise
+    b = motion + 30.0 * rng.standard_normal(n)  # the screw speed x ratio: noise a quarter of the motion's spread
+    ols = _gain_lag(a, b, dt)
+    both = _gain_lag(a, b, dt, errors_in_both=True)
+    share = 30.0 ** 2 / float(np.mean(motion ** 2) + 30.0 ** 2)
+    assert ols["gain"] == pytest.approx(true_gain * (1 - share), rel=0.01)  # attenuated, as least squares must be
+    assert abs(ols["gain"] / true_gain - 1) > 0.03
+    assert both["gain"] == pytest.approx(true_gain, abs=0.005) and both["ols_gain"] == pytest.approx(ols["gain"])
+    # noise-free regressor: the two fits agree
+    clean = _gain_lag(a, motion, dt, errors_in_both=True)
+    assert clean["gain"] == pytest.approx(_gain_lag(a, motion, dt)["gain"], rel=1e-3)

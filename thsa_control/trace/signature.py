@@ -721,8 +721,15 @@ def still_pair(regressor: str) -> str:
             "motion are not told apart here")
 
 
-def _gain_lag(a: np.ndarray, b: np.ndarray, dt: float, max_lag: int = 20) -> dict:
-    """Fit ``a ~ g b(t - lag)``: gain, its standard error, lag [s] (cross-correlation peak)."""
+def _gain_lag(a: np.ndarray, b: np.ndarray, dt: float, max_lag: int = 20, errors_in_both: bool = False) -> dict:
+    """Fit ``a ~ g b(t - lag)``: gain, its standard error, lag [s] (cross-correlation peak).
+
+    ``errors_in_both``: the gain of an errors-in-variables fit (Deming's, through the origin) with each signal's
+    noise variance from its second differences (:func:`~thsa_control.fit.identify.estimate_noise`), where the least
+    squares of ``a`` on ``b`` is attenuated by ``b``'s noise share (``ols_gain`` keeps it): measured on a blind
+    rig-sim check stop whose screw speed chatters at 20 rpm while the aiding load slips the loaded no-back disk
+    (its second-difference noise 13 x the motor speed's, at the motor), least squares 0.964 +- 0.007 set
+    ``unexplained`` as a sensor gain; the fit in both, 1.002, and the two travels, 0.9997, say the sensors agree."""
     ok = np.isfinite(a) & np.isfinite(b)
     a, b = a[ok], b[ok]
     if a.size < 50 or float(b @ b) <= 0:
@@ -736,11 +743,20 @@ def _gain_lag(a: np.ndarray, b: np.ndarray, dt: float, max_lag: int = 20) -> dic
         c = float(x @ y) / math.sqrt(max(float(x @ x) * float(y @ y), 1e-300))
         if c > best:
             best, best_lag = c, lag
-    g = float(a @ b) / float(b @ b)
+    g = g_ols = float(a @ b) / float(b @ b)
+    if errors_in_both and float(a @ b) > 0:
+        from ..fit.identify import estimate_noise
+
+        ratio = (estimate_noise(a) / estimate_noise(b)) ** 2  # noise variance of a over b's
+        saa, sbb, sab = float(a @ a), float(b @ b), float(a @ b)
+        h = saa - ratio * sbb
+        g = (h + math.sqrt(h * h + 4.0 * ratio * sab * sab)) / (2.0 * sab)
     r = a - g * b
     n_eff = _effective_n(r)
     se = math.sqrt(float(r @ r) / max(n_eff - 1, 1) / float(b @ b)) * math.sqrt(a.size / max(n_eff, 1))
-    return {"gain": g, "gain_stderr": se, "lag_s": best_lag * dt, "z": (g - 1.0) / se if se > 0 else math.inf}
+    return {"gain": g, "gain_stderr": se, "lag_s": best_lag * dt, "z": (g - 1.0) / se if se > 0 else math.inf,
+            **({"ols_gain": g_ols, "gain_method": "errors in both (Deming, noise from second differences)"}
+               if errors_in_both else {})}
 
 
 #: a lag between two redundant sensors within this many logged samples (beyond the chains' declared difference
@@ -1086,9 +1102,10 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
     without it agrees is named (``odd_sensor``): one sensor's gain or lag reads in the two pairs that hold it.
 
     The speeds' gain is the motor angle's against the screw angle over the steady passes (:func:`travel_gain_test`,
-    both integrated speeds), the rates' regression only where no pass qualifies: regressing one noisy rate on the
-    other attenuates the gain by the regressor's noise share (0.92 on a 0.15 mm/s record whose screw speed, an RVDT
-    angle differenced over one sample, carries 13 rpm of noise at the motor against 49 rpm of motion).  Every
+    both integrated speeds), the rates' fit only where no pass qualifies, with errors in both (:func:`_gain_lag`):
+    regressing one noisy rate on the other attenuates the gain by the regressor's noise share (0.92 on a 0.15 mm/s
+    record whose screw speed, an RVDT angle differenced over one sample, carries 13 rpm of noise at the motor
+    against 49 rpm of motion; 0.964 on a check stop whose screw speed chatters under an aiding load).  Every
     pair's lag is :func:`lag_test` on the two rates filtered alike (the speeds by a 31-sample quadratic
     Savitzky-Golay smoother, the LVDT and the integrated speed by the same filter's differentiator), its known
     part ``delays`` (speed signal -> the delay its chain declares [s], a difference quotient over ``T`` lags by
@@ -1134,7 +1151,7 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
         return {**lt, "xcorr_peak_s": d.get("lag_s")}
 
     if w is not None and ws is not None:
-        d = _gain_lag(np.asarray(w, float), gear_ratio * np.asarray(ws, float), dt)
+        d = _gain_lag(np.asarray(w, float), gear_ratio * np.asarray(ws, float), dt, errors_in_both=True)
         if d:
             # the gain from the angles (integrated speeds) over the steady passes; the rates' regression as a fallback
             wa = speeds["motor_speed"]
@@ -1160,6 +1177,8 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
                         "p_value": p, "significant": bool(sig_gain or lf["lag_significant"]),
                         "gain_significant": sig_gain, **lf,
                         "size": abs(gain - 1.0), "unit": "-", **({"travel_test": tg} if tg is not None else {}),
+                        **({k: d[k] for k in ("ols_gain", "gain_method") if k in d} if tg is None and not still
+                           else {}),
                         **({"gain_not_determined": still} if still else {})})
     x = signals.get("nut_position")
     if x is not None:
@@ -1217,6 +1236,8 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
                         "gain": gain, "gain_stderr": se, "p_value": p,
                         "significant": bool(sig_gain or lf["lag_significant"]), "gain_significant": sig_gain, **lf,
                         "size": abs(gain - 1.0), "unit": "-", **({"travel_test": tg} if tg is not None else {}),
+                        **({k: d[k] for k in ("ols_gain", "gain_method") if k in d} if tg is None and not still
+                           else {}),
                         **({"gain_not_determined": still} if still else {})})
     # the odd sensor out: in every pair that disagrees (gain or lag), absent from the pair that agrees
     if len(out) == 3:
