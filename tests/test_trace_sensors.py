@@ -595,7 +595,7 @@ def test_one_motion_rule_for_the_still_pair_and_the_clearance_window():
 def test_the_speeds_fallback_gain_is_not_attenuated_by_the_regressors_noise(true_gain):
     """Where no steady pass qualifies, the speeds' gain is fitted on the rates: least squares of the motor speed on a
     screw speed whose noise (a chattering screw, an RVDT differenced over one sample) is a quarter of its motion
-    attenuates the gain by the noise share (about 4 %) and reads a sensor gain; the fit with errors in both
+    attenuates the gain by the noise share (5.2 % here) and reads a sensor gain; the fit with errors in both
     (trace/signature._gain_lag ``errors_in_both``) recovers the true gain, 1 or a planted 3 %, within 0.5 %."""
     from thsa_control.trace.signature import _gain_lag
 
