@@ -823,6 +823,7 @@ def profile_identify(runs: RigRun | Sequence[RigRun], params: ParameterSet, free
         for v in (v0 - 0.5 * step, v0 + 0.5 * step):
             if lo <= v <= hi:
                 fit_at(v)
+
     def hold_file(d: dict, v_file: float) -> None:
         """A first parameter not determined: held at the parameter file's value where the set holds it and its
         profile fit scores within the gap the data resolve of the best (``best`` replaced), else at the best fit's;

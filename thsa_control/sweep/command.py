@@ -19,7 +19,8 @@ __all__ = ["sweep_command"]
 
 
 def sweep_command(spec_path: str, out: str, *, scheduler: str | None = None, workers: int | None = None,
-                  scheduler_file: str | None = None, force: bool = False, check: bool = False, quiet: bool = False, command: str = "thsa sweep") -> int:
+                  scheduler_file: str | None = None, force: bool = False, check: bool = False, quiet: bool = False,
+                  command: str = "thsa sweep") -> int:
     """Run the command; see the module docstring.  Returns the exit status."""
     from ..errors import UsageError
     from ..progress import Progress

@@ -26,7 +26,6 @@ from ..model.params import ParameterSet
 from .candidates import (
     CANDIDATES,
     EFFICIENCY_EXPLAINER,
-    HOLDING_COEFFICIENTS,
     INERTIA_DATASHEET_TOLERANCE,
     INERTIA_EXPLAINER,
     PROFILE_FLOORS,
@@ -723,8 +722,8 @@ def _plausibility(fit: dict, spec: CandidateSpec, plaus: Mapping | None = None) 
             # the run says this no-back does not hold the load it carries (a light set's is a part the run does not
             # show, engine.parts_not_shown)
             lim, src, _ = plaus["holding"]
-            top = (e.get("ci95") or [None, e["value"] + 1.96 * sd])[1]
-            if top is not None and top < lim:
+            top = e["value"] + 1.96 * sd  # the run's own standard error, as the verdicts above
+            if top < lim:
                 why.append(Reason(f"{n} = {e['value']:.3g} N m/N (95 % up to {top:.3g}) is below the no-back's "
                                   f"holding limit ({src})", "holding", n))
     if pairs and len(est) == 2:

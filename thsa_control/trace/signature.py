@@ -1236,8 +1236,6 @@ def sensor_consistency(time, signals: dict, *, gear_ratio: float, lead: float, a
                         "gain": gain, "gain_stderr": se, "p_value": p,
                         "significant": bool(sig_gain or lf["lag_significant"]), "gain_significant": sig_gain, **lf,
                         "size": abs(gain - 1.0), "unit": "-", **({"travel_test": tg} if tg is not None else {}),
-                        **({k: d[k] for k in ("ols_gain", "gain_method") if k in d} if tg is None and not still
-                           else {}),
                         **({"gain_not_determined": still} if still else {})})
     # the odd sensor out: in every pair that disagrees (gain or lag), absent from the pair that agrees
     if len(out) == 3:
