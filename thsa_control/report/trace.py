@@ -734,6 +734,16 @@ def beyond_base_lines(doc: dict) -> list[str]:
     return lines
 
 
+def restart_text(r: dict) -> str:
+    """One line on a declared component's detailed fit restarted from the corrections' optimum."""
+    how = (f"the restart reached {_num(r.get('training_chi2_restart'), '.6g')}" if "training_chi2_restart" in r
+           else f"the restart failed ({r.get('error')})")
+    return (f"its joint fit from the file's values ended at training chi2 {_num(r['training_chi2_first'], '.6g')} "
+            f"({r.get('first_status') or 'status unknown'}), above the corrections' own "
+            f"{_num(r['training_chi2_corrections'], '.6g')}: fitted again from their optimum, {how}; "
+            f"kept: {'the restart' if r.get('kept') == 'restart' else 'the first fit'}")
+
+
 def format_trace_summary(doc: dict) -> str:
     """Console / report text: what was added, the ranking, the errors, the signature."""
     lines = [f"declared model: {doc['base_model']} ({', '.join(doc['declared_effects']) or 'functional'}), "
@@ -755,6 +765,8 @@ def format_trace_summary(doc: dict) -> str:
     for d in (bc or {}).get("declared_components_detailed", []):
         lines.append(f"    declared component detailed: {d['name']} (for {', '.join(d.get('refines', []))}): "
                      f"{'kept' if d['accepted'] else 'not kept'}, {d.get('reason', '')}")
+        if d.get("restart"):
+            lines.append(f"        {restart_text(d['restart'])}")
         for w in d.get("parts_not_shown") or []:
             lines.append("        part not shown by this run"
                          + (" (kept at its fit; the component is declared): " if d["accepted"] else ": ") + w)

@@ -1902,7 +1902,8 @@ def _detail_declared(refinements, current: dict, cur_effects, cur_free, fit_runs
                  plausible=plausible, implausible_because=why, parameters=_params_out(f, spec),
                  not_determined=_held_out(f), holdout_segments=_holdout_segment_changes(current, f, noise),
                  error_reduction=adm["error_reduction"], parts_not_shown=absent_parts,
-                 **({"window_on_all_samples": adm["window_on_all_samples"]} if adm["window_on_all_samples"] else {}))
+                 **({"window_on_all_samples": adm["window_on_all_samples"]} if adm["window_on_all_samples"] else {}),
+                 **({"restart": f["restart"]} if f.get("restart") else {}))
         if adm["significant"] and adm["window_ok"] and plausible:
             todo.append((spec, jb, f, d))
         else:

@@ -950,6 +950,7 @@ def _base_correction(first: dict, declared, uncertain, params: ParameterSet, pla
                                         fit_runs, prior=True, spec=spec)))
     fits = _run_jobs([jb] + ref_jobs, st.workers, say)
     f, ref_fits = fits[0], fits[1:]
+    _restart_worse_refinements(f, refinements, ref_jobs, ref_fits, st, say)
     doc = {"explainers": {n: {"effect": owner[n], "bound": list(bounds[n]), "bound_source": sources[n]}
                           for n in bounds}}
     if "error" in f:
@@ -970,6 +971,47 @@ def _base_correction(first: dict, declared, uncertain, params: ParameterSet, pla
             "bounds": {n: (*bounds[n], owner[n]) for n in bounds if owner[n] in EFFECTS},
             "refinements": [(spec, rj, rf) for spec, rj, rf in zip(refinements, ref_jobs, ref_fits)],
             "corrections_of": lambda fit: _corrections(fit, bounds, owner, sources, priors)}
+
+
+def _restart_worse_refinements(f: dict, refinements, ref_jobs: list, ref_fits: list, st, say: Callable) -> None:
+    """A declared component's detailed model whose joint fit with the corrections ends worse on the samples it was
+    fitted to than the corrections' own fit (training objective, priors included) is fitted again from that fit's
+    optimum (its corrections, its segment states; the detail's own parameters at their start), and the better of
+    the two kept (``ref_jobs`` / ``ref_fits`` replaced in place; the fit carries ``restart``).
+
+    Both fits start from the file's values; the detailed one frees more, so ending above the other is the
+    optimiser stopping short (the evaluation limit), not what the detail explains: measured on a rig-sim check_cold
+    record (a 10 kN load over twice the preload throughout the motion, so the light disks never carry and the
+    detail's torque is the ideal no-back's), the joint fit stopped at its 40 evaluations with a training chi2 of
+    24132 against the corrections' 9261, and "motor_speed error grows by 166 %" was reported as the detail's
+    verdict, where declaring the detail gives the ideal's error to 0.1 %."""
+    if "error" in f:
+        return
+    todo = [i for i, rf in enumerate(ref_fits) if "error" not in rf and rf["chisqr"] > f["chisqr"]]
+    if not todo:
+        return
+    jobs = []
+    for i in todo:
+        spec, rj = refinements[i], ref_jobs[i]
+        own = ParameterSet.from_toml(rj["params_toml"])
+        start = ParameterSet.from_toml(f["params_toml"]).replace({n: own.value(n) for n in spec.free})
+        jobs.append({**rj, "label": f"base + {spec.name} (from the corrections' fit)", "params_toml": start.to_toml(),
+                     "initial_states": f.get("segment_states")})
+    say("base step: " + ", ".join(refinements[i].name for i in todo) + " fitted again from the corrections' "
+        "optimum (the joint fit from the file's values ended above it on its own samples)")
+    for i, jb2, rf2 in zip(todo, jobs, _run_jobs(jobs, st.workers, say)):
+        first = ref_fits[i]
+        info = {"reason": "the joint fit from the file's values ended above the corrections' own fit on the samples "
+                          "it was fitted to: fitted again from the corrections' optimum",
+                "training_chi2_corrections": f["chisqr"], "training_chi2_first": first["chisqr"],
+                "first_status": first.get("status")}
+        if "error" in rf2:
+            ref_fits[i] = {**first, "restart": {**info, "kept": "first", "error": rf2["error"]}}
+        elif rf2["chisqr"] < first["chisqr"]:
+            ref_jobs[i], ref_fits[i] = jb2, {**rf2, "restart": {**info, "training_chi2_restart": rf2["chisqr"],
+                                                                "kept": "restart"}}
+        else:
+            ref_fits[i] = {**first, "restart": {**info, "training_chi2_restart": rf2["chisqr"], "kept": "first"}}
 
 
 def _corrections(f: dict, bounds, owner, sources, priors) -> list[dict]:
