@@ -284,12 +284,15 @@ LIB_RUNS_WHOLE = [("rig_drivetrain_compliance_exc", LIBRARY["drivetrain_complian
 LIB_RUNS_BLIND = [("rig_axial_offset_cold", LIBRARY["axial_offset"]),
                   ("rig_ratchet_backlash_lowgain", LIBRARY["ratchet_backlash"]),
                   ("rig_noback_quadrant_checkstop", LIBRARY["noback_quadrant"])]
+#: a library effect as a fault: rig-sim's quadrant no-back with its compressive-side coefficients worn below the
+#: holding limit, on the check stop (the load back-drives the screw at each drive-off stop)
+LIB_RUNS_FAULT = [("rig_noback_worn_stop", LIBRARY["noback_quadrant"])]
 
 
 @pytest.mark.campaign
 @pytest.mark.slow
 @pytest.mark.parametrize("name, expected", _cases(LIB_RUNS + LIB_RUNS_EXCITED + LIB_RUNS_SHORT + LIB_RUNS_WHOLE
-                                                  + LIB_RUNS_BLIND))
+                                                  + LIB_RUNS_BLIND + LIB_RUNS_FAULT))
 def test_library_effect_on_the_rig_base_is_found_first(traced, name, expected):
     """rig base + one library effect: the effect is added, first among the physical effects (a constant-torque
     one first among the found effects), and the error inside its window drops by half."""
@@ -850,6 +853,44 @@ def test_a_no_back_that_would_not_hold_is_no_base_and_the_ratchet_is_found(trace
     assert any(e["name"] == "noback_quadrant_friction" and e.get("implied_by") == "noback_backlash"
                for e in doc["effects_added"]), doc["effects_added"]
     assert set(_found(doc)) & INVENTED == {"noback_backlash"}, _found(doc)  # no compliance, nothing else
+
+
+@pytest.mark.slow
+def test_a_no_back_that_does_not_hold_is_found_as_a_fault(traced, params):
+    """rig-sim's quadrant no-back with the compressive-side disks worn (static 0.001, Coulomb 0.0008 N m/N, below
+    the holding limit 0.0016) on the check stop at 20 kN (rig_noback_worn_stop): at each drive-off stop the load
+    back-drives the screw, and it is still turning back when the record ends, where a pawl's free travel would have
+    been taken up.  The base step's detailed no-back reads the worn coefficients and is refused as the rig's base
+    (a no-back that cannot hold is none); before this the trace stopped there, "nothing significant", ``unexplained``
+    false, the motor-speed residual 16 times its noise.  The detail is offered in the rounds as a finding: it is the
+    first found effect, reported as a fault, its coefficients those rig-sim planted.  A safety finding: traced in
+    the default run too (about 45 s), not only in the campaign."""
+    from thsa_control.trace.candidates import _rule_holding
+
+    name = "rig_noback_worn_stop"
+    truth = _truth(name)["effects"]["noback_quadrant"]["params"]
+    assert truth["mu_s_neg"]["si"] < 0.012 * 0.85 / (2 * math.pi)  # the premise: planted below the limit
+    run = run_kinematics(read_run(DATA / f"{name}.csv"), params)
+    s, t = run.signals, np.asarray(run.time, float)
+    off = (np.asarray(s["primary_enable"]) == 0) & (np.asarray(s["standby_enable"]) == 0)
+    last = off & (t > t[-1] - 0.1)  # the record's last 0.1 s: the drive off, 20 kN on
+    assert last.sum() > 20 and np.min(s["load_force"][last]) > 15e3
+    assert np.max(s["screw_speed"][last]) < -0.3, s["screw_speed"][last]  # [rad/s]: still slipping back
+    doc = traced(name)
+    nb = next(d for d in doc["base_corrections"]["declared_components_detailed"]
+              if d["name"] == "noback_quadrant_friction")
+    assert not nb["accepted"] and nb.get("offered_as_finding"), nb
+    found = [e for e in doc["effects_added"] if not e.get("implied_by")]
+    assert found and found[0]["name"] == "noback_quadrant_friction" and not found[0].get("base_step"), found
+    step = found[0]
+    assert step["fault"]["kind"] == "no_back_does_not_hold", step
+    assert step["window_reduction"]["motor_speed"] >= 0.5, step["window_reduction"]
+    limit = _rule_holding(params, [run])[0]
+    for n, k in (("noback.mu_static_neg", "mu_s_neg"), ("noback.mu_coulomb_neg", "mu_c_neg")):
+        p = step["parameters"][n]
+        assert not p.get("held") and p["ci95"][1] < limit, p
+        assert abs(p["value"] / truth[k]["si"] - 1) < 0.3, (p, truth[k])
+    assert not set(_found(doc)) & (INVENTED - {"noback_backlash"}) and "noback_backlash" not in _found(doc)
 
 
 @pytest.mark.campaign

@@ -87,6 +87,8 @@ def conclusion_table_html(doc: dict) -> str:
             f"declared component detailed ({', '.join(e['refines_declared'])}; base step, what the base contains)"
             if e.get("refines_declared") and e.get("base_step") else
             f"detailed declared {', '.join(e['refines_declared'])}" if e.get("refines_declared") else "found effect")
+        if e.get("fault"):
+            kind = f"FAULT ({kind}): {e['fault']['text']}"
         pars = "<br>".join(f"{esc(n)} = {_num(p['value'])} {esc(p['unit'])}{_ci(p)}"
                            + (" (profiled)" if p.get("profiled") else "") + (" (held)" if p.get("held") else "")
                            + _outside(p) for n, p in e["parameters"].items())
@@ -767,6 +769,8 @@ def format_trace_summary(doc: dict) -> str:
                      f"{'kept' if d['accepted'] else 'not kept'}, {d.get('reason', '')}")
         if d.get("restart"):
             lines.append(f"        {restart_text(d['restart'])}")
+        if d.get("offered_as_finding"):
+            lines.append(f"        {d['offered_as_finding']}")
         for w in d.get("parts_not_shown") or []:
             lines.append("        part not shown by this run"
                          + (" (kept at its fit; the component is declared): " if d["accepted"] else ": ") + w)
@@ -785,6 +789,9 @@ def format_trace_summary(doc: dict) -> str:
                      + (f" in round {e['round_added']}" if e.get("round_added") and doc.get("order") else "")
                      + f" (score {_num(e['score'], '.3f')}, AIC drop {_num(e['aic_drop'], '.1f')}, "
                      f"BIC drop {_num(e['bic_drop'], '.1f')})")
+        if e.get("fault"):
+            lines.append(f"    FAULT: {e['fault']['text']}")
+            lines += [f"        because {w}" for w in e["fault"].get("because", [])]
         for n, p in e["parameters"].items():
             ci = p["ci95"]
             lines.append(f"    {n} = {_num(p['value'])} {p['unit']}" + (f"  95 % CI [{_num(ci[0])}, {_num(ci[1])}]" if ci else "")

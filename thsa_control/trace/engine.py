@@ -75,7 +75,7 @@ from .residual import _regime_errors, _segment_rate_not_tested, _signature
 from .scoring import (_amplitude_out, _at_edge, _base_correction, _channel_errors, _chi2_by_channel,
                       _explainers_at_bound, _held_out,
                       _holdout_segment_changes,
-                      _held_params, _null_runs, _param_entry, _plausibility, reason_kind,
+                      _held_params, _null_runs, _param_entry, _plausibility, no_back_fault, reason_kind,
                       _run_jobs,
                       _signature_brief, admission_tests, beats_null, holdout_total, null_drop, scaled_threshold,
                       zero_is_absent, ROBUST_TESTS)
@@ -544,6 +544,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
     at_plausible_bound: dict[str, str] = {}  # explainer parameter -> its effect, where the base correction hit the bound
     base_bounds: dict[str, tuple[float, float, str]] = {}  # explainer parameter -> (lo, hi, effect) while bounded
     base_step_refused: dict[str, str] = {}  # declared components detailed (or tried) in the base step -> its verdict
+    slipping: dict[str, list[str]] = {}  # of those, the ones refused only for a no-back that would not hold -> why
     cur_sig: dict | None = None  # the signature of the current model's residual, where computed
     if use_base:
         say("base-correction step: constant-torque explainers, screw efficiencies and motor-side inertia within "
@@ -569,6 +570,14 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             kept = next((d for d in detailed if d["doc"]["accepted"]), None)
             for d in detailed:
                 base_step_refused[d["doc"]["name"]] = d["doc"].get("reason") or "not kept"
+                why_d = d["doc"].get("implausible_because") or []
+                if not d["doc"]["accepted"] and why_d and all(reason_kind(w) == "holding" for w in why_d):
+                    # refused as the rig's base only because its loaded disks would not hold: a finding, not a base
+                    # (a worn no-back), offered in the rounds beside what else lets the screw slip (a pawl's play)
+                    slipping[d["doc"]["name"]] = [str(w) for w in why_d]
+                    d["doc"]["offered_as_finding"] = ("refused as the rig's base only because its loaded disks would "
+                                                      "not hold: offered in the rounds as a finding (a no-back that "
+                                                      "does not hold), beside what else lets the screw slip")
             if kept is not None:
                 f = kept["fit"]
                 added.append(kept["step"])
@@ -732,7 +741,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             win = windows_cache[spec.window]
             if sum(int(w.sum()) for w in win.values()) < MIN_WINDOW_SAMPLES:
                 skipped.append({"name": spec.name, "reason": f"does not act on these runs (window '{spec.window}' empty)"})
-            elif spec.name in base_step_refused and not found_info:
+            elif spec.name in base_step_refused and not found_info and spec.name not in slipping:
                 # offered again once a found effect changed the model: the holding margin of the rig's no-back (its
                 # static coefficients) is what keeps the screw still at a drive-off stop while the rotors ring on a
                 # drive-train compliance; level A's ideal no-back holds the load torque exactly and lets the screw
@@ -872,6 +881,13 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "window_segments"))
             win_sys = adm["window_reduction_beyond_noise"]
             plausible, why = _plausibility(f, spec, plaus)
+            fault = None
+            if spec.name in slipping:  # a no-back that does not hold: what the candidate finds, not a refusal
+                held_why = [w for w in why if reason_kind(w) == "holding"]
+                why = [w for w in why if reason_kind(w) != "holding"]
+                plausible = not why
+                if held_why:
+                    fault = no_back_fault(held_why)
             at_file = _declared_detail_at_file_values(f, spec, declared, why, params)
             if at_file:  # the declared component in detail at the parameter file's values: what the base contains
                 plausible, why = True, []
@@ -899,6 +915,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "window_reduction_beyond_noise": win_sys, "aic_drop": aic_drop, "bic_drop": current["bic"] - f["bic"],
                 **({"window_on_all_samples": adm["window_on_all_samples"]} if adm["window_on_all_samples"] else {}),
                 "plausible": plausible, "implausible_because": why, "parameters": _params_out(f, spec),
+                **({"fault": fault} if fault else {}),
                 **_amplitude_out(f, spec),
                 "fit_time_s": f["time_s"], "converged": f["converged"], "prelim": prelim, "_fit": f, "_job": jb,
                 **({"starts": f["starts"]} if "starts" in f else {}),
@@ -1057,6 +1074,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "not_determined": best["not_determined"],
                 **({"start": best["start"]} if best.get("start") else {}),
                 **({"beyond_base_correction": True} if best.get("beyond_base_correction") else {}),
+                **({"fault": best["fault"]} if best.get("fault") else {}),
                 **({"profile": best["profile"]} if best.get("profile") else {})}
         if joint and "error" not in joint and joint["significant"] and not _is_explainer(best) \
                 and best["_spec"].channel == "motor_speed":

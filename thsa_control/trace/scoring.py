@@ -736,6 +736,18 @@ def _plausibility(fit: dict, spec: CandidateSpec, plaus: Mapping | None = None) 
     return not why, why
 
 
+def no_back_fault(reasons: Sequence) -> dict:
+    """What a detailed no-back found with a loaded disk set below the holding limit says (the ``holding`` reasons of
+    :func:`_plausibility`): refused as the rig's base, it is a finding when the rounds choose it over what else lets
+    the screw slip (a pawl's free travel is crossed once, within one tooth pitch; a disk that does not hold slips as
+    long as the load stays on with the drive off)."""
+    return {"kind": "no_back_does_not_hold", "because": [str(w) for w in reasons],
+            "text": "the no-back does not hold the load it carries: a loaded disk set's static coefficient, determined "
+                    "by the run, lies below the holding limit, so with the drive off the load back-drives the screw "
+                    "through it (a worn, glazed or contaminated no-back, or disk springs that lost their preload): a "
+                    "fault of this unit, not the rig's base"}
+
+
 def pair_amplitude_zero(a: Mapping, b: Mapping, name_b: str, stderr=None) -> str | None:
     """Why a cosine and sine pair's amplitude collapses to zero (None when it does not): the one test of a periodic
     candidate's absence, on its amplitude, never on one part (the forward selection and the backward check).

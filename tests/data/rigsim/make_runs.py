@@ -228,6 +228,13 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     # of 0.964 and set ``unexplained`` on a library record (docs/trace_notes.md "A chattering screw speed")
     "rig_noback_quadrant_checkstop": ("check_stop", "rig", "noback_quadrant=preload_N:2439.5116", 79119548, None,
                                       "library"),
+    # a worn no-back on the check stop at 20 kN: the compressive-side disks' coefficients at 0.001 (static) and
+    # 0.0008 (Coulomb), below the holding limit lead x inverse efficiency / 2 pi = 0.0016 N m/N (Table 2 gives
+    # 0.0066 and 0.0043), so the load back-drives the screw at each drive-off stop; the base step refused the
+    # detailed no-back as the rig's base and nothing was reported (docs/trace_notes.md "A no-back that does not hold
+    # is a finding"); the seed drawn from os.urandom
+    "rig_noback_worn_stop": ("check_stop", "rig", "noback_quadrant=mu_s_neg:0.001,mu_c_neg:0.0008", 6249025, None,
+                             "library"),
 }
 
 #: run sets traced together (``thsa trace A.csv B.csv``; tests/test_trace_sets.py), written to ``sets/``: the rig base
