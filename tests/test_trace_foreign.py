@@ -561,6 +561,8 @@ FOREIGN["rig_worn_spot_stiction_cold"] = FOREIGN["rig_worn_spot_stiction"]
 FOREIGN["rig_kt_temperature_reversals"] = tuple(CATALOGUE["foreign"]["kt_temperature"])
 #: the friction bump on the reversal scenario (3 mm of steady travel a pass: the position test's bins narrowed)
 FOREIGN["rig_friction_bump_reversals"] = FOREIGN["rig_friction_bump"]
+#: a lag on the screw-speed sensor on the load sweep, where an overdamped drive-train compliance stood in for it
+FOREIGN["rig_sensor_lag_screw_sweep"] = tuple(CATALOGUE["foreign_sensor_channel"]["screw_speed"])
 
 
 @pytest.mark.campaign

@@ -222,6 +222,54 @@ def test_a_loaded_disk_set_that_cannot_hold_its_load_is_no_rigs_base():
     assert _plausibility(held, spec, plaus)[1] == []
 
 
+def test_the_drive_train_damping_ratio_is_the_twist_modes_and_an_overdamped_one_is_no_gear_train():
+    """laws.drivetrain_damping_ratio against the eigenvalues of the two-mass drive train it describes (rotors and
+    gear-output side, both at the motor shaft, on the series stiffness with the gearbox damping): ``-Re(s) / |s|``
+    of the twist mode, lightly damped at the parameter file's values (about 0.2) and overdamped (real roots) beyond
+    1.  A compliance fit whose twist mode is overdamped, its whole 95 % interval beyond critical damping, is
+    refused (reason kind ``overdamped``): measured on a blind rig-sim load sweep with a 15 ms lag on the screw-speed
+    sensor, where a compliance of 6.7e4 N m/rad with 187 N m s/rad (damping ratio 1.9) was added while the sensor
+    test named the lag; rig-sim's own compliances were fitted at 0.01..0.37."""
+    import numpy as np
+
+    from thsa_control.model import build_plant
+    from thsa_control.model.laws import drivetrain_damping_ratio, drivetrain_stiffness
+    from thsa_control.model.params import default_parameters
+    from thsa_control.trace.candidates import _rule_damping_ratio
+
+    effects = ["standby_motor", "drivetrain_compliance"]
+    for damping, ringing in ((20.0, True), (400.0, False)):
+        p = default_parameters().replace({"gear.torsional_damping": damping})
+        j_main, j_rot = build_plant(None, effects, params=p).inertia(p)
+        k, d = drivetrain_stiffness(p), damping / p.value("gear.ratio") ** 2
+        # twist q = rotor angle - output angle: J_eff q'' + d q' + k q = 0 with 1/J_eff = 1/J_rot + 1/J_main
+        j = 1.0 / (1.0 / j_rot + 1.0 / j_main)
+        s = np.roots([j, d, k])
+        zeta = drivetrain_damping_ratio(p, j_main, j_rot)
+        if ringing:
+            assert np.iscomplex(s).all() and zeta == pytest.approx(-s[0].real / abs(s[0]), rel=1e-9)
+            assert 0.1 < zeta < 0.3  # the file's "about 0.2"
+        else:
+            assert np.isreal(s).all() and zeta > 1
+    spec = CANDIDATES["drivetrain_compliance"]
+    plaus = {"damping_ratio": _rule_damping_ratio(default_parameters(), [])}
+
+    def fit(damping, sd, held=False):
+        p = default_parameters().replace({"gear.torsional_stiffness": 6.69e4, "gear.torsional_damping": damping})
+        est = {"gear.torsional_stiffness": {"value": 6.69e4, "stderr": 4.6e3, "stderr_data": 4.6e3, "at_bound": None,
+                                            "determination": "determined"},
+               "gear.torsional_damping": {"value": damping, "stderr": sd, "stderr_data": sd, "at_bound": None,
+                                          **({"held": True} if held else {})}}
+        return {"estimates": est, "params_toml": p.to_toml(), "effects": effects}
+
+    why = _plausibility(fit(186.9, 1.1), spec, plaus)[1]
+    assert [(w.kind, w.param) for w in why] == [("overdamped", "gear.torsional_damping")], why
+    assert "critical damping" in why[0]
+    assert _plausibility(fit(20.0, 1.0), spec, plaus)[1] == []  # lightly damped: a gear train
+    assert _plausibility(fit(186.9, 80.0), spec, plaus)[1] == []  # its interval reaches below critical damping
+    assert _plausibility(fit(186.9, 1.1, held=True), spec, plaus)[1] == []  # held: not the run's value
+
+
 def test_a_load_share_outside_its_assumed_range_is_said_not_refused():
     """A share the run determines beyond the assumed 0.4..0.6 (rig-sim's rig-base no-back, no disk pair, read 0.61
     on two run sets) is reported with the range it leaves, in trace.json and the report's line; inside the range and

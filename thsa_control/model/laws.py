@@ -39,8 +39,8 @@ import casadi as ca
 __all__ = ["Law", "LAWS", "values_of", "kinematic_ratio", "torque_constant", "back_emf_constant", "motor_lag",
            "stribeck", "noback_disk_normal_forces",
            "temperature_drag_terms", "loadpath_force_law", "loadpath_static_deflection",
-           "drivetrain_stiffness", "drivetrain_modes", "stiffness_of_output_mode", "limiter_slip_torques",
-           "drive_coulomb_terms", "screw_angle", "motor_angle"]
+           "drivetrain_stiffness", "drivetrain_modes", "drivetrain_damping_ratio", "stiffness_of_output_mode",
+           "limiter_slip_torques", "drive_coulomb_terms", "screw_angle", "motor_angle"]
 
 
 def values_of(p):
@@ -211,6 +211,19 @@ def drivetrain_modes(k, j_main, j_rotors, efficiency) -> tuple[float, float]:
     motor shaft (``Plant.inertia``)."""
     out = efficiency * k / j_main
     return math.sqrt(k / j_rotors + out), math.sqrt(out)
+
+
+def drivetrain_damping_ratio(p, j_main, j_rotors) -> float:
+    """Damping ratio of the compliant drive train's twist mode (``drivetrain_compliance``): the rotors against the
+    gear-output side on the series stiffness (:func:`drivetrain_stiffness`) with the gearbox damping, both referred
+    to the motor shaft, ``d / (2 sqrt(k J))`` with ``J = J_main J_rotors / (J_main + J_rotors)``; inertias at the
+    motor shaft (``Plant.inertia``).  Above 1 the mode does not ring: the gear-output side follows the rotors as a
+    first-order lag."""
+    p = values_of(p)
+    k = drivetrain_stiffness(p)
+    d = p["gear.torsional_damping"] / p["gear.ratio"] ** 2
+    j = j_main * j_rotors / (j_main + j_rotors)
+    return d / (2.0 * math.sqrt(k * j))
 
 
 def stiffness_of_output_mode(w, j_main, efficiency) -> float:

@@ -176,10 +176,25 @@ def _rule_holding(params: ParameterSet, runs) -> tuple[float, str, tuple[str, ..
                 "ratchet's free travel), not a rig's base"), tuple(loaded)
 
 
+#: the largest damping ratio of the drive train's twist mode a gear train can have (:func:`_rule_damping_ratio`)
+DAMPING_RATIO_LIMIT = 1.0
+
+
+def _rule_damping_ratio(params: ParameterSet, runs) -> tuple[float, str]:
+    """``(limit, source)``: the damping ratio of the drive train's twist mode above which a fitted compliance is no
+    gear train (:func:`thsa_control.model.laws.drivetrain_damping_ratio`)."""
+    return DAMPING_RATIO_LIMIT, (
+        f"critical damping, a damping ratio of {DAMPING_RATIO_LIMIT:g}: a gear train's twist mode is lightly damped "
+        "(assumed: gear-dynamics models use damping ratios of a few hundredths to about 0.2; the parameter file's 20 "
+        "N m s/rad is 0.2; rig-sim's drive-train compliances were fitted at 0.01..0.37), and an overdamped one does "
+        "not ring: the screw then follows the rotors as a first-order lag, which a lagging speed sensor gives too")
+
+
 #: Plausible magnitudes (rule -> function(params, runs) -> (bound, where the bound comes from); ``holding`` adds the
 #: coefficients it applies to on these runs).
 PLAUSIBLE: dict[str, Callable] = {"drag": _rule_drag, "axial_force": _rule_axial, "periodic": _rule_periodic,
-                                  "efficiency": _rule_efficiency, "inertia": _rule_inertia, "holding": _rule_holding}
+                                  "efficiency": _rule_efficiency, "inertia": _rule_inertia, "holding": _rule_holding,
+                                  "damping_ratio": _rule_damping_ratio}
 
 
 class ReadStart(dict):

@@ -649,7 +649,7 @@ class Reason(str):
     Kinds: ``"undetermined"`` (no parameter determined by the run), ``"zero"`` (a determined parameter, or a periodic
     pair's amplitude with ``param`` None, collapses to zero), ``"bound"`` (at a search bound or a profile range's end),
     ``"periodic"`` (an amplitude beyond a healthy drive's), ``"holding"`` (a no-back static coefficient below the
-    holding limit).  A ``str``: JSON and the text write it as its text.
+    holding limit), ``"overdamped"`` (a drive-train compliance whose twist mode is overdamped).  A ``str``: JSON and the text write it as its text.
     """
 
     kind: str
@@ -726,6 +726,11 @@ def _plausibility(fit: dict, spec: CandidateSpec, plaus: Mapping | None = None) 
             if top < lim:
                 why.append(Reason(f"{n} = {e['value']:.3g} N m/N (95 % up to {top:.3g}) is below the no-back's "
                                   f"holding limit ({src})", "holding", n))
+    damp = _overdamped(fit) if plaus and "damping_ratio" in plaus and spec.name == "drivetrain_compliance" else None
+    if damp is not None and damp[0] > plaus["damping_ratio"][0]:
+        lim, src = plaus["damping_ratio"]
+        why.append(Reason(f"the drive train's twist mode is overdamped: damping ratio {damp[1]:.3g}, 95 % down to "
+                          f"{damp[0]:.3g}, above {lim:g} ({src})", "overdamped", "gear.torsional_damping"))
     if pairs and len(est) == 2:
         (_, a), (nb, b) = est
         zero = pair_amplitude_zero(a, b, nb)
@@ -734,6 +739,26 @@ def _plausibility(fit: dict, spec: CandidateSpec, plaus: Mapping | None = None) 
     if (est or spec.profile) and determined == 0 and not any(w.kind == "undetermined" for w in why):
         why.append(Reason("no parameter determined by the data", "undetermined"))
     return not why, why
+
+
+def _overdamped(fit: dict) -> tuple[float, float] | None:
+    """``(lower 95 % end, value)`` of the damping ratio of a compliance fit's twist mode
+    (:func:`~thsa_control.model.laws.drivetrain_damping_ratio`: the gearbox damping at its lower end and the
+    stiffness at its upper, each from the run's own standard error), where the fit determines the damping (freed and
+    not held); None otherwise."""
+    from ..model.laws import drivetrain_damping_ratio
+
+    est = fit["estimates"]
+    d, k = est.get("gear.torsional_damping"), est.get("gear.torsional_stiffness")
+    if d is None or k is None or d.get("held") or d.get("undetermined") or d.get("stderr_data") is None:
+        return None
+    p = ParameterSet.from_toml(fit["params_toml"])
+    j_main, j_rot = build_plant(None, fit["effects"], params=p).inertia(p)
+    z = drivetrain_damping_ratio(p, j_main, j_rot)
+    k_hi = k["value"] + 1.96 * (k.get("stderr_data") or 0.0) if not k.get("held") else k["value"]
+    lo = p.replace({"gear.torsional_damping": max(d["value"] - 1.96 * d["stderr_data"], 0.0),
+                    "gear.torsional_stiffness": k_hi})
+    return drivetrain_damping_ratio(lo, j_main, j_rot), z
 
 
 def no_back_fault(reasons: Sequence) -> dict:
