@@ -869,9 +869,13 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             cand_times.append(f["time_s"])
             k = len(spec.free) + len(spec.profile)
             # at the fit's own values where the window depends on them (the cogging's count)
-            win = window_of(spec.window, ParameterSet.from_toml(f["params_toml"]))
+            win = (windows_cache[spec.window] if spec.name in slipping
+                   else window_of(spec.window, ParameterSet.from_toml(f["params_toml"])))
             constant = CANDIDATES.get(spec.name) is not None and CANDIDATES[spec.name].base_correction
-            adm = admission_tests(current, f, noise, k=k, alpha=st.alpha, mask=score_mask(spec.window), window=win,
+            # a no-back that does not hold is judged as in the base step, on every sample: it slips while the load
+            # changes and the screw accelerates, which the base's transients are (all of a drive-off load ramp)
+            smask = None if spec.name in slipping else score_mask(spec.window)
+            adm = admission_tests(current, f, noise, k=k, alpha=st.alpha, mask=smask, window=win,
                                   channel=spec.channel, min_window_reduction=st.min_window_reduction,
                                   max_channel_increase=st.max_channel_increase,
                                   robust=bool(use_base and st.robust_constant_torque and constant),
@@ -898,7 +902,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             prelim = adm["significant"] and adm["window_ok"] and plausible
             robust = adm["robust_fail"] is None
             prelim = prelim and robust
-            period_test = (_repetition(current, f, spec, k, runs, noise, score_mask(spec.window), st.alpha,
+            period_test = (_repetition(current, f, spec, k, runs, noise, smask, st.alpha,
                                        2 * st.signature.position_bin)
                            if spec.name in PERIODS and st.periodic_repeat else None)
             if period_test is not None and not period_test["repeats"]:
@@ -927,8 +931,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 **({"periodicity": period_test} if period_test is not None else {}),
                 **({} if repeats else {"not_periodic": periodicity.describe(period_test)}),
                 **({} if adm["window_ok"] else {"window_too_small": True}),
-                **({"scored_outside_transients": True} if score_mask(spec.window) is not None else {}),
-                "_mask": score_mask(spec.window),
+                **({"scored_outside_transients": True} if smask is not None else {}),
+                "_mask": smask,
                 "_win": win,
                 **({"beyond_base_correction": True} if any(n in offer_beyond for n in spec.free) else {}),
                 **({"profile": f["profile"]} if f.get("profile") else {}),
@@ -958,7 +962,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                     nbs["fit"] = null_fits.pop(0)
                     base_job.clear()
                 for c, nf in zip(batch, null_fits):
-                    c["null_chi2_drop"] = null_drop(nbs["fit"], nf, noise, score_mask(c["window"]))
+                    c["null_chi2_drop"] = null_drop(nbs["fit"], nf, noise, c["_mask"])
                 return [c for c in batch if beats_null(c["holdout_chi2_drop"], c["null_chi2_drop"], st.null_factor)]
 
             while todo:
