@@ -769,8 +769,9 @@ def no_back_fault(reasons: Sequence) -> dict:
     return {"kind": "no_back_does_not_hold", "because": [str(w) for w in reasons],
             "text": "the no-back does not hold the load it carries: a loaded disk set's static coefficient, determined "
                     "by the run, lies below the holding limit, so with the drive off the load back-drives the screw "
-                    "through it (a worn, glazed or contaminated no-back, or disk springs that lost their preload): a "
-                    "fault of this unit, not the rig's base"}
+                    "through it (worn, glazed or contaminated friction disks: beyond the light set's unloading the loaded "
+                    "set carries the whole load, so the preload does not help it hold): a fault of this unit, not the "
+                    "rig's base"}
 
 
 def pair_amplitude_zero(a: Mapping, b: Mapping, name_b: str, stderr=None) -> str | None:
