@@ -649,7 +649,8 @@ class Reason(str):
     Kinds: ``"undetermined"`` (no parameter determined by the run), ``"zero"`` (a determined parameter, or a periodic
     pair's amplitude with ``param`` None, collapses to zero), ``"bound"`` (at a search bound or a profile range's end),
     ``"periodic"`` (an amplitude beyond a healthy drive's), ``"holding"`` (a no-back static coefficient below the
-    holding limit), ``"overdamped"`` (a drive-train compliance whose twist mode is overdamped).  A ``str``: JSON and the text write it as its text.
+    holding limit), ``"overdamped"`` (a drive-train compliance whose twist mode is overdamped).  A ``str``: JSON and
+    the text write it as its text.
     """
 
     kind: str
@@ -769,9 +770,9 @@ def no_back_fault(reasons: Sequence) -> dict:
     return {"kind": "no_back_does_not_hold", "because": [str(w) for w in reasons],
             "text": "the no-back does not hold the load it carries: a loaded disk set's static coefficient, determined "
                     "by the run, lies below the holding limit, so with the drive off the load back-drives the screw "
-                    "through it (worn, glazed or contaminated friction disks: beyond the light set's unloading the loaded "
-                    "set carries the whole load, so the preload does not help it hold): a fault of this unit, not the "
-                    "rig's base"}
+                    "through it (worn, glazed or contaminated friction disks: beyond the light set's unloading the "
+                    "loaded set carries the whole load, so the preload does not help it hold): a fault of this unit, "
+                    "not the rig's base"}
 
 
 def pair_amplitude_zero(a: Mapping, b: Mapping, name_b: str, stderr=None) -> str | None:
