@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from thsa_control.report.trace import conclusion_table_html, plot_signature
+from thsa_control.report.trace import conclusion_table_html, plot_candidate_drops, plot_signature
 
 
 def _param(v, unit="N m/N", held=False):
@@ -86,3 +86,20 @@ def test_the_angle_panels_say_the_test_beyond_an_added_effects_harmonic_and_the_
     assert "harmonics: p 3e-09 (STRUCTURED)" in next(t for t in titles if "motor angle" in t)
     pos = next(t for t in titles if "nut position" in t)
     assert "breakaway current at starts/reversals: p 3.4e-07 (STRUCTURED)" in pos and "+0.24 A at 0.0 mm" in pos, pos
+
+
+def test_the_candidate_bar_chart_ticks_fall_on_decades_even_when_every_drop_is_tiny():
+    """A round whose drops all sit inside the symmetric log's linear part (|drop| < 10) gets the ticks -10, 0, 10,
+    not the data's own ends (once printed as "-2.43583e-1"); a round with large drops keeps its decades."""
+    cand = lambda n, d, sig=False: {"name": n, "holdout_chi2_drop": d, "significant": sig, "plausible": True}
+    doc = {"rounds": [{"round": 1, "model": [], "candidates": [cand("a", -0.243583), cand("b", 0.7), cand("c", 3.1)]},
+                      {"round": 2, "model": ["c"], "candidates": [cand("a", -2e4), cand("b", 5e5, True)]}],
+           "effects_added": [{"name": "b"}]}
+    fig = plot_candidate_drops(doc)
+    fig.canvas.draw()
+    for ax in fig.get_axes():
+        ticks = [t for t in ax.get_xticks() if ax.get_xlim()[0] <= t <= ax.get_xlim()[1]]
+        assert 0.0 in ticks and len(ticks) >= 3, ticks
+        for t in ticks:  # 0 or a signed power of ten
+            assert t == 0.0 or abs(np.log10(abs(t)) - round(np.log10(abs(t)))) < 1e-9, ticks
+    assert max(fig.get_axes()[1].get_xticks()) >= 1e5

@@ -203,6 +203,8 @@ def plot_candidate_drops(doc: dict):
         ax.set_yticks(y, names, fontsize=8)
         ax.invert_yaxis()
         ax.set_xscale("symlog", linthresh=10.0)  # negative: the candidate made the held-out error worse
+        lo, hi = ax.get_xlim()  # at least one decade each side, so the ticks fall on decades, not on the data's ends
+        ax.set_xlim(min(lo, -10.0), max(hi, 10.0))
         ax.axvline(0, color="0.3", lw=0.6)
         ax.set_xlabel("held-out chi2 drop, symmetric log (green: significant, red: implausible, grey: not significant)")
         ax.set_title(f"round {r['round']}"
@@ -233,6 +235,8 @@ def plot_periodicity(doc: dict):
                       fontsize=8)
         ax.set_xlabel("nut travel, one period each (from the lowest held-out position)", fontsize=8)
         ax.set_yscale("symlog", linthresh=10.0)
+        lo, hi = ax.get_ylim()
+        ax.set_ylim(min(lo, -10.0), max(hi, 10.0))
         ax.set_ylabel("held-out chi2 drop", fontsize=8)
         a, b = t["left_out"]
         verdict = "repeats" if t["repeats"] else "NOT periodic"
