@@ -897,6 +897,12 @@ def test_a_no_back_that_does_not_hold_is_found_as_a_fault(traced, params, name):
     assert not p.get("held") and p["ci95"][1] < limit, p
     assert abs(math.log(p["value"] / truth["mu_s_neg"]["si"])) < math.log(1.5), (p, truth["mu_s_neg"])
     assert "noback_backlash" not in _found(doc) and not set(_found(doc)) & INVENTED, _found(doc)
+    # the record's own stops say the same without the model, and the final model's margin is below 1 over the
+    # whole inverse-efficiency range
+    h = doc["no_back_holding"]
+    assert h["observed"]["verdict"] == "slips" and h["fault_found"] and h["remainder"] is None, h
+    m = next(x for x in h["margin"] if x["side"] == "compressive")
+    assert m["determined"] and m["shown"] == "does not hold" and m["margin_range"][1] < 1, m
 
 
 @pytest.mark.campaign

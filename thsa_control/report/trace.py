@@ -132,7 +132,7 @@ def conclusion_table_html(doc: dict) -> str:
     misfit = misfit_shapes(doc["residual_signature"])
     tail = (f"<p>unexplained: <b>{doc['unexplained']}</b>"
             + (f" (structured: {esc(', '.join(doc['residual_signature']['structured']))})" if doc["unexplained"] else "")
-            + "".join(f"<br>{esc(m.strip())}" for m in beyond_base_lines(doc))
+            + "".join(f"<br>{esc(m.strip())}" for m in beyond_base_lines(doc) + holding_lines(doc))
             + "".join(f"<br><small>{esc(m)}</small>" for m in misfit + not_tested_lines(doc["residual_signature"])
                       + why_base_lines(doc["residual_signature"]))
             + (f"<br><small>left as a declared model of another rig's base leaves it (starts, stops, reversals, "
@@ -740,6 +740,37 @@ def beyond_base_lines(doc: dict) -> list[str]:
     return lines
 
 
+def holding_lines(doc: dict) -> list[str]:
+    """Does the no-back hold: the record's drive-off stretches (model-free) and the final model's margin
+    (:mod:`thsa_control.trace.holding`)."""
+    h = doc.get("no_back_holding")
+    if not h:
+        return []
+    o = h["observed"]
+    if o["verdict"] == "not tested":
+        lines = [f"no-back holding, observed with the drive off: not tested ({o['why']})"]
+    else:
+        parts = []
+        for state in ("slips", "undecided", "holds"):
+            st = [x for x in o["stretches"] if x["state"] == state]
+            if st:
+                parts.append(f"{state} in {len(st)} ("
+                             + " / ".join(f"{abs(x['load_N']) / 1e3:.3g} kN {x['side']}: {x['nut_travel_mm']:+.3g} mm, "
+                                         f"{x['end_speed_mm_s']:.2g} mm/s at the end" for x in st) + ")")
+        lines = [f"no-back holding, observed with the drive off: {o['verdict'].upper()}; " + "; ".join(parts)
+                 + f" (pawl pitch {o['pawl_pitch_rad']:.4g} rad; {o['sensor']})"]
+    for m in h.get("margin", []):
+        if not m.get("determined"):
+            lines.append(f"    model margin, {m['side']} side: not determined: {m['why']}")
+            continue
+        lines.append(f"    model margin, {m['side']} side: {m['parameter']} {m['coefficient']:.3g} over the holding "
+                     f"limit {m['limit']:.3g} N m/N = {m['margin']:.3g} (95 % {m['margin_ci95'][0]:.3g}.."
+                     f"{m['margin_ci95'][1]:.3g}; {m['margin_range'][0]:.3g}..{m['margin_range'][1]:.3g} over "
+                     f"{m['eta_source']}, {m['eta_range'][0]:.3g}..{m['eta_range'][1]:.3g}): {m['shown']}")
+    lines += [f"    note: {n}" for n in h.get("notes", [])]
+    return lines
+
+
 def restart_text(r: dict) -> str:
     """One line on a declared component's detailed fit restarted from the corrections' optimum."""
     how = (f"the restart reached {_num(r.get('training_chi2_restart'), '.6g')}" if "training_chi2_restart" in r
@@ -880,6 +911,7 @@ def format_trace_summary(doc: dict) -> str:
     lines.append(f"unexplained: {doc['unexplained']}" + (f" (structured in: {', '.join(sig['structured'])})"
                                                          if doc["unexplained"] else ""))
     lines += beyond_base_lines(doc)
+    lines += holding_lines(doc)
     if sig.get("base_like"):
         lines.append("left as a declared model of another rig's base leaves it (not unexplained): "
                      + "; ".join(sig["base_like"]))

@@ -64,11 +64,12 @@ from ..fit.replay import check_run_model
 from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
 from ..model.params import ParameterSet, default_parameters
 from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, INERTIA_EXPLAINER, MIN_WINDOW_SAMPLES,
-                         ANGLE_OF, PERIODS, PLAUSIBLE,
+                         ANGLE_OF, HOLDING_COEFFICIENTS, PERIODS, PLAUSIBLE,
                          PROFILE_GRIDS, RESOLVES, STARTS, WINDOWS, reference_not_determined,
                          _window, turning_band,
                          candidate_specs, not_candidates, nut_travel)
 from . import backward as bw
+from .holding import drive_off_holds, holding_finding, holding_margin
 from . import periodicity
 from . import weights as wt
 from .residual import _regime_errors, _segment_rate_not_tested, _signature
@@ -1180,6 +1181,10 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                   for c, r in sig_after.get("residual_to_noise", {}).items() if r > st.signature.max_noise_ratio]
     separ = _separability_doc(runs, cur_effects, cur_params, base_doc, added, rounds, uncertain, plaus, say) \
         if use_base and base_doc is not None and base_doc.get("accepted") else None
+    final_parameters = _final_parameters(final, params)
+    holding = _holding_doc(runs, params, final_parameters, plaus, added)
+    if holding["remainder"]:  # the record shows a slip no found fault carries: never "explained"
+        structured.append({"variable": holding["remainder"], "kind": "no_back_slip", "significant": True})
     doc = {
         "format": TRACE_FORMAT,
         "datasets": [{"name": r.name, "csv": str(r.csv_path), "samples": int(len(r.time)),
@@ -1195,7 +1200,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         "declared_not_determined": declared_held,
         # the final model's parameters (what a user rebuilds it from: the parameter file with these values and
         # ``final_effects``), and the declared uncertain set's fit before the base step under a name that says so
-        "final_parameters": _final_parameters(final, params),
+        "final_parameters": final_parameters,
         "declared_fit_before_base_step": {n: v for n, v in first["estimates"].items()},
         "effects_added": added,
         "found_effects": [e["name"] for e in added],
@@ -1211,6 +1216,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         "ambiguous": ambiguous,
         "beyond_plausible_base": beyond,
         "separability": separ,
+        "no_back_holding": holding,
         "residual_signature": {**sig_after, "structured": [t["variable"] for t in structured],
                                "base_like": [t["variable"] for t in base_like]},
         "residual_signature_before": sig_before,
@@ -1225,6 +1231,17 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                    "weight_check_s": t_weights, "every_segment_s": t_every, "segment_rate_check_s": t_grid},
     }
     return TraceResult(doc, {"before": first, "after": final})
+
+
+def _holding_doc(runs, params: ParameterSet, final_parameters: Mapping, plaus: Mapping, added: list) -> dict:
+    """Does the no-back hold (:mod:`thsa_control.trace.holding`): the record's drive-off stretches, the final
+    model's margin on each side the runs load (the holding rule's loaded disk sets, and the sides tested with the
+    drive off) and what the two say against the found effects."""
+    observed = drive_off_holds(runs, params)
+    sides = {"compressive" if HOLDING_COEFFICIENTS[n] > 0 else "tensile" for n in plaus["holding"][2]}
+    sides |= {s["side"] for s in observed["stretches"]}
+    margin = holding_margin(final_parameters, params, sorted(sides))
+    return {"observed": observed, "margin": margin, **holding_finding(observed, margin, added)}
 
 
 def _refree_held(added: list, given: str, current: dict, cur_effects, cur_free, cur_params: ParameterSet, fit_runs,
