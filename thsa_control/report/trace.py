@@ -755,8 +755,8 @@ def holding_lines(doc: dict) -> list[str]:
             st = [x for x in o["stretches"] if x["state"] == state]
             if st:
                 parts.append(f"{state} in {len(st)} ("
-                             + " / ".join(f"{abs(x['load_N']) / 1e3:.3g} kN {x['side']}: {x['nut_travel_mm']:+.3g} mm, "
-                                         f"{x['end_speed_mm_s']:.2g} mm/s at the end" for x in st) + ")")
+                             + " / ".join(f"{abs(x['load_N']) / 1e3:.3g} kN {x['side']}: {x['nut_travel_mm']:.3g} mm "
+                                         f"back-driven, {x['end_speed_mm_s']:.2g} mm/s at the end" for x in st) + ")")
         lines = [f"no-back holding, observed with the drive off: {o['verdict'].upper()}; " + "; ".join(parts)
                  + f" (pawl pitch {o['pawl_pitch_rad']:.4g} rad; {o['sensor']})"]
     for m in h.get("margin", []):
