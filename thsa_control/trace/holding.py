@@ -31,12 +31,13 @@ import numpy as np
 
 from ..model.params import ParameterSet
 from .candidates import HOLDING_COEFFICIENTS
+from .signature import MIN_HOLD
 
 __all__ = ["drive_off_holds", "holding_margin", "holding_finding", "MIN_DRIVE_OFF", "END_FRACTION",
            "MIN_LOAD_FRACTION", "MIN_LOAD", "SLIP_Z", "BRAKED_FRACTION", "INVERSE_EFFICIENCY_SPREAD"]
 
-#: the shortest drive-off stretch tested [s] (the load-cell drift test's shortest hold, :data:`.signature.MIN_HOLD`)
-MIN_DRIVE_OFF = 0.2
+#: the shortest drive-off stretch tested [s]: the load-cell drift test's shortest hold
+MIN_DRIVE_OFF = MIN_HOLD
 #: the end of a stretch whose speed says whether the screw still turns: its last tenth, at least 5 samples
 END_FRACTION = 0.1
 #: a stretch is under load where |load| exceeds this share of the record's largest |load| and :data:`MIN_LOAD`
