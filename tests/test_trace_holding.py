@@ -63,6 +63,29 @@ def test_a_healthy_no_back_holds_even_where_a_pawl_lets_the_screw_turn(params, n
         assert max(s["nut_travel_mm"] for s in doc["stretches"]) > 0.15  # the pawl's free travel is there
 
 
+def test_each_stretch_carries_its_back_driven_travel_curve_for_the_report(params):
+    """The report's holding figure draws each stretch's cumulative back-driven travel: it starts at 0, never falls
+    (only travel in the load's direction counts), ends at the stretch's nut_travel_mm, keeps at most CURVE_POINTS
+    points over the stretch's duration, and the slip's curve is still rising over its end window while the healthy
+    side's is flat there."""
+    from thsa_control.trace.holding import CURVE_POINTS
+
+    doc = drive_off_holds([_run("rig_noback_worn_hold", params)], params)
+    assert doc["pawl_pitch_mm"] == pytest.approx(params.value("noback.pawl_pitch") / (2 * math.pi) * 12.0)
+    for s in doc["stretches"]:
+        t, mm = s["curve"]["t_s"], s["curve"]["mm"]
+        assert 2 <= len(t) <= CURVE_POINTS + 1 and len(t) == len(mm)
+        assert mm[0] == 0.0 and all(b >= a for a, b in zip(mm, mm[1:]))
+        assert mm[-1] == pytest.approx(s["nut_travel_mm"])
+        assert 0 <= t[0] and t[-1] <= s["end"] - s["start"] + 1e-9 and t[0] < s["end_from_s"] < t[-1]
+        late = [m for tt, m in zip(t, mm) if tt >= s["end_from_s"]]
+        rise = late[-1] - late[0]
+        if s["state"] == "slips":
+            assert rise > 1.0, s["state"]  # mm over the end window: still being back-driven
+        else:
+            assert rise < 0.01, rise
+
+
 def test_no_drive_off_stretch_is_not_tested(params):
     """A record whose drive is never de-energised (the speed loop holds the nut in the stops) says nothing of the
     no-back's holding, and says so."""
@@ -116,3 +139,15 @@ def test_the_trace_is_unexplained_when_the_record_slips_and_no_candidate_is_trie
     assert not doc["effects_added"]
     assert doc["unexplained"] and any("slips with the drive off" in v for v in doc["residual_signature"]["structured"])
     assert "observed with the drive off: SLIPS" in format_trace_summary(doc)
+
+
+def test_the_trace_report_draws_the_drive_off_stretches(params, tmp_path):
+    """The report folder of a trace whose record has drive-off stretches carries the holding figure."""
+    from thsa_control.report.trace import write_trace_folder
+    from thsa_control.trace.engine import TraceSettings, trace
+
+    result = trace(_run("rig_noback_worn_stop", params), "A", params=params,
+                   settings=TraceSettings(candidates=(), base_corrections=False))
+    write_trace_folder(tmp_path, result)
+    assert "no-back holding: the nut travel the load back-drives with the drive off" in (
+        tmp_path / "report.html").read_text()

@@ -13,7 +13,7 @@ from .figure import subplots  # noqa: E402
 from .identification import Html, figure_png, write_html_report  # noqa: E402
 
 __all__ = ["write_trace_folder", "format_trace_summary", "plot_residual_before_after", "conclusion_table_html",
-           "plot_candidate_drops", "plot_signature", "plot_periodicity"]
+           "plot_candidate_drops", "plot_signature", "plot_periodicity", "plot_holding"]
 
 
 def _num(x, fmt=".4g"):
@@ -964,6 +964,44 @@ def format_trace_summary(doc: dict) -> str:
     return "\n".join(lines)
 
 
+_STATE_COLOURS = {"slips": "C3", "undecided": "C1", "holds": "C2"}
+
+
+def plot_holding(doc: dict):
+    """Does the no-back hold: each drive-off stretch's nut travel back-driven by the load, against the time since
+    the drive went off (:func:`~thsa_control.trace.holding.drive_off_holds`), coloured by its state, with the end
+    window the state is read in shaded and one pawl pitch dashed; left the whole travel, right the first three
+    pitches (a pawl's free travel and the braking after it)."""
+    o = doc["no_back_holding"]["observed"]
+    fig, axes = subplots(1, 2, figsize=(11, 3.8), squeeze=False)
+    pitch = o.get("pawl_pitch_mm") or 0.0
+    for k, ax in enumerate(axes[0]):
+        seen: dict[str, int] = {}
+        for s in o["stretches"]:
+            c = s["curve"]
+            n = seen[s["state"]] = seen.get(s["state"], -1) + 1  # stretches of one state told apart by line style
+            line, = ax.plot(c["t_s"], c["mm"], color=_STATE_COLOURS[s["state"]], lw=1.2,
+                            ls=("-", (0, (6, 2)), (0, (1, 1)), (0, (6, 2, 1, 2)))[n % 4],
+                            label=f"{s['run']} {s['start']:.3g}..{s['end']:.3g} s, {abs(s['load_N']) / 1e3:.3g} kN "
+                                  f"{s['side']}: {s['state']}" if k == 0 else None)
+            if c["t_s"]:
+                ax.axvspan(s["end_from_s"], c["t_s"][-1], color=line.get_color(), alpha=0.08, lw=0)
+        if pitch > 0:
+            ax.axhline(pitch, color="0.3", ls="--", lw=0.8, label="one pawl pitch" if k == 0 else None)
+        ax.set_xlabel("time since the drive went off [s]", fontsize=8)
+        ax.set_ylabel("nut travel back-driven by the load [mm]", fontsize=8)
+        ax.axhline(0, color="0.6", lw=0.5)
+    if pitch > 0:
+        axes[0, 1].set_ylim(-0.3 * pitch, 3 * pitch)
+        axes[0, 1].set_title("zoomed to three pawl pitches (shaded: the end window the state is read in)",
+                             fontsize=9, wrap=True)
+    else:
+        axes[0, 1].set_visible(False)
+    axes[0, 0].set_title(f"drive off, under load: {o['verdict'].upper()}", fontsize=9)
+    axes[0, 0].legend(fontsize=7, loc="best")
+    return fig
+
+
 def write_trace_folder(folder: str | Path, result) -> dict:
     """``trace.json`` and ``report.html`` in ``folder`` (built inside an atomic folder by the caller)."""
     folder = Path(folder)
@@ -981,6 +1019,8 @@ def write_trace_folder(folder: str | Path, result) -> dict:
     if _periodic_tests(doc):
         figs["periodic candidates: held-out drop per period of nut travel (repetition test)"] = figure_png(
             plot_periodicity(doc))
+    if ((doc.get("no_back_holding") or {}).get("observed") or {}).get("stretches"):
+        figs["no-back holding: the nut travel the load back-drives with the drive off"] = figure_png(plot_holding(doc))
     figs["signature of the remaining residual (missing torque at the motor shaft)"] = figure_png(
         plot_signature(doc["residual_signature"]))
     write_html_report(folder / "report.html", title=f"Residual trace: {', '.join(d['name'] for d in doc['datasets'])}",

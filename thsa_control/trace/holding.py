@@ -34,7 +34,7 @@ from .candidates import HOLDING_COEFFICIENTS
 from .signature import MIN_HOLD
 
 __all__ = ["drive_off_holds", "holding_margin", "holding_finding", "MIN_DRIVE_OFF", "END_FRACTION",
-           "MIN_LOAD_FRACTION", "MIN_LOAD", "SLIP_Z", "BRAKED_FRACTION", "INVERSE_EFFICIENCY_SPREAD"]
+           "MIN_LOAD_FRACTION", "MIN_LOAD", "SLIP_Z", "BRAKED_FRACTION", "INVERSE_EFFICIENCY_SPREAD", "CURVE_POINTS"]
 
 #: the shortest drive-off stretch tested [s]: the load-cell drift test's shortest hold
 MIN_DRIVE_OFF = MIN_HOLD
@@ -50,6 +50,8 @@ BRAKED_FRACTION = 0.5
 #: +- around the file's inverse efficiency over which the holding limit is shown (the spread of catalogue
 #: ball-screw efficiencies, as :func:`.candidates._rule_efficiency`'s 0.05)
 INVERSE_EFFICIENCY_SPREAD = 0.05
+#: the most points of a stretch's back-driven travel curve kept for the report (every k-th sample, the last kept)
+CURVE_POINTS = 200
 
 _SOURCE = (f"drive-off stretches of at least {MIN_DRIVE_OFF:g} s under a load above {100 * MIN_LOAD_FRACTION:g} % of "
            f"the record's largest and {MIN_LOAD:g} N (assumed: below that the load's back-driving torque is of the "
@@ -91,6 +93,14 @@ def _moving_band(rate: np.ndarray, off: np.ndarray) -> float:
     return max(0.05 * float(np.max(np.abs(on))) if on.size else 0.0, 5.0 * noise, 1e-12)
 
 
+def _curve(t: np.ndarray, y: np.ndarray) -> dict:
+    """``t`` and ``y`` thinned to at most :data:`CURVE_POINTS` samples (every k-th, the last always kept)."""
+    k = max(1, int(math.ceil(t.size / CURVE_POINTS)))
+    idx = np.r_[np.arange(0, t.size, k), t.size - 1] if t.size else np.arange(0)
+    idx = np.unique(idx)
+    return {"t_s": [float(v) for v in t[idx]], "mm": [float(v) for v in y[idx]]}
+
+
 def _stretches(key: np.ndarray) -> list[tuple[int, int]]:
     """(start, stop) index pairs of the runs of equal non-zero ``key``."""
     edges = np.flatnonzero(np.diff(np.r_[0, key, 0]) != 0)
@@ -118,8 +128,11 @@ def drive_off_holds(runs: Sequence, params: ParameterSet) -> dict:
         ``nut_travel_mm`` (in the direction the load pushes, from the speed sensor, counted from the first sample at
         rest or turning against the load), ``lvdt_travel_mm`` (the same
         from the LVDT, elastic deflection included), ``end_speed_mm_s`` with its ``end_stderr`` and ``band``,
-        ``turning_at_end``, ``beyond_pitch``, ``state`` (slips / holds / undecided)), ``held_up_to_N`` and
-        ``slipped_at_N`` per side, ``pawl_pitch_rad``, ``sensor`` and ``rule``.
+        ``turning_at_end``, ``beyond_pitch``, ``state`` (slips / holds / undecided), ``lead_mm``, ``end_from_s``
+        (where the end window starts, from the stretch's start) and ``curve`` (``t_s`` from the stretch's start and
+        ``mm``, the cumulative back-driven travel from the rest sample, at most :data:`CURVE_POINTS` points)),
+        ``held_up_to_N`` and ``slipped_at_N`` per side, ``pawl_pitch_rad``, ``pawl_pitch_mm`` (at the first
+        stretch's lead), ``sensor`` and ``rule``.
     """
     pitch = params.value("noback.pawl_pitch") if "noback.pawl_pitch" in params else 0.0
     out: list[dict] = []
@@ -154,7 +167,8 @@ def drive_off_holds(runs: Sequence, params: ParameterSet) -> dict:
             rest = np.flatnonzero(r <= band)
             q = np.maximum(r[rest[0] if rest.size else 0:], 0.0)
             tq = t[a:b][rest[0] if rest.size else 0:]
-            turn = float(np.sum(0.5 * (q[1:] + q[:-1]) * np.diff(tq)))
+            travel = np.r_[0.0, np.cumsum(0.5 * (q[1:] + q[:-1]) * np.diff(tq))] if q.size else np.zeros(1)
+            turn = float(travel[-1])
             n_end = max(5, int(round(END_FRACTION * (b - a))))
             e = r[-n_end:]
             v_end = float(np.mean(e))
@@ -173,11 +187,14 @@ def drive_off_holds(runs: Sequence, params: ParameterSet) -> dict:
                         "load_N": float(np.mean(f[a:b])), "side": "compressive" if key[a] > 0 else "tensile",
                         "screw_turn_rad": turn, "nut_travel_mm": turn * to_mm, "lvdt_travel_mm": lv,
                         "end_speed_mm_s": v_end * to_mm, "end_stderr_mm_s": se * to_mm, "band_mm_s": band * to_mm,
-                        "turning_at_end": turning, "beyond_pitch": beyond, "state": state})
+                        "turning_at_end": turning, "beyond_pitch": beyond, "state": state,
+                        "lead_mm": run.screw_lead * 1e3, "end_from_s": float(t[b - n_end] - t[a]),
+                        "curve": _curve(tq - t[a] if q.size else np.zeros(1), travel * to_mm)})
         if not stretch_found:
             why.append(f"{run.name}: no drive-off stretch of {MIN_DRIVE_OFF:g} s or more under a load above "
                        f"{fmin:.0f} N")
-    doc = {"pawl_pitch_rad": float(pitch), "sensor": ", ".join(sorted(sensors)) or None, "rule": _SOURCE,
+    doc = {"pawl_pitch_rad": float(pitch),
+           "pawl_pitch_mm": float(pitch) / (2 * math.pi) * out[0]["lead_mm"] if out else None, "sensor": ", ".join(sorted(sensors)) or None, "rule": _SOURCE,
            "stretches": out}
     if not out:
         return {**doc, "verdict": "not tested", "why": "; ".join(why) or "no run"}
