@@ -758,7 +758,9 @@ def holding_lines(doc: dict) -> list[str]:
                              + " / ".join(f"{abs(x['load_N']) / 1e3:.3g} kN {x['side']}: {x['nut_travel_mm']:.3g} mm "
                                          f"back-driven, {x['end_speed_mm_s']:.2g} mm/s at the end" for x in st) + ")")
         lines = [f"no-back holding, observed with the drive off: {o['verdict'].upper()}; " + "; ".join(parts)
-                 + f" (pawl pitch {o['pawl_pitch_rad']:.4g} rad; {o['sensor']})"]
+                 + f" (pawl pitch {o['pawl_pitch_rad']:.4g} rad"
+                 + (f", {o['pawl_pitch_mm']:.3g} mm of nut travel" if o.get("pawl_pitch_mm") is not None else "")
+                 + f"; {o['sensor']})"]
     for m in h.get("margin", []):
         if not m.get("determined"):
             lines.append(f"    model margin, {m['side']} side: not determined: {m['why']}")
