@@ -1383,18 +1383,21 @@ def test_every_harmonic_left_out_at_the_segment_rate_is_tested_on_the_second_gri
 
 @pytest.mark.campaign
 @pytest.mark.slow
-def test_the_segments_hold_the_compliance_damping_the_information_interval_misses(traced):
-    """rig-sim's drive-train compliance over position steps (rig_drivetrain_compliance_steps): the final damping
-    2.49 N m s/rad has an information interval of +-0.29 that misses rig-sim's 2; the residual the rig's base leaves
-    is structured (the steps' starts and stops carry the damping), and over the record's segments the standard error
-    is three times that: the interval the segments support holds rig-sim's 2 (docs/trace_notes.md, "The interval
-    the segments support")."""
+def test_the_segments_interval_of_the_compliance_damping_is_wider_and_holds_rigsims(traced):
+    """rig-sim's drive-train compliance over position steps (rig_drivetrain_compliance_steps).  While the base's own
+    load path was refused ("no parameter determined": the load path is linear there) the final damping was 2.51
+    N m s/rad with an information interval of +-0.30 that missed rig-sim's 2; with the load path in (its clearance
+    held) it is 2.24 +-0.27, which holds 2.  Over the record's segments the standard error is still more than twice
+    the information's (the steps' starts and stops carry the damping: the residual the rig's base leaves is
+    structured), and the interval the segments support holds rig-sim's 2 (docs/trace_notes.md, "The interval the
+    segments support")."""
     name = "rig_drivetrain_compliance_steps"
     d_true = _truth(name)["effects"]["drivetrain_compliance"]["params"]["d_Nm_s_rad"]["si"]
     doc = traced(name)
+    assert "loadpath_compliance" in [e["name"] for e in doc["effects_added"]]
     step = next(e for e in doc["effects_added"] if e["name"] == "drivetrain_compliance")
     p = step["parameters_final"]["gear.torsional_damping"]
-    assert not p["ci95"][0] <= d_true <= p["ci95"][1], p
+    assert p["ci95"][0] <= d_true <= p["ci95"][1], p
     assert p["stderr_segments"] > 2.0 * p["stderr"] and p["ci95_segments"][0] <= d_true <= p["ci95_segments"][1], p
 
 

@@ -151,3 +151,21 @@ def test_the_trace_report_draws_the_drive_off_stretches(params, tmp_path):
     write_trace_folder(tmp_path, result)
     assert "no-back holding: the nut travel the load back-drives with the drive off" in (
         tmp_path / "report.html").read_text()
+
+
+@pytest.mark.slow
+def test_the_backward_check_judges_a_no_back_fault_on_the_samples_it_was_admitted_on(params):
+    """rig_noback_worn_hold, traced as a user does: the worn disks (the fault, admitted on every sample: the screw
+    slips while the load is applied, which the base's transients are) and the base's own load path (its clearance
+    held: the load path is linear) are both found.  Judged again given the load path, the fault still explains the
+    slip, on the same samples, and stays.  Scored outside the transients it had been removed (a held-out drop of
+    0.000685 against 7.8e5 on every sample), a pawl clearance added in its place and the slip left unexplained."""
+    from thsa_control.trace.engine import TraceSettings, trace
+
+    doc = trace(_run("rig_noback_worn_hold", params), "A", params=params, settings=TraceSettings()).to_dict()
+    by = {e["name"]: e for e in doc["effects_added"]}
+    assert "loadpath_compliance" in by and "noback_backlash" not in by, list(by)
+    assert (by["noback_quadrant_friction"].get("fault") or {}).get("kind") == "no_back_does_not_hold"
+    recs = [b for r in doc["rounds"] for b in r.get("backward") or [] if b["name"] == "noback_quadrant_friction"]
+    assert recs and all(b["kept"] and b["holdout_chi2_drop"] > 1e5 for b in recs), recs
+    assert not doc["unexplained"] and not doc["effects_removed"]

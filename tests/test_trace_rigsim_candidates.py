@@ -109,6 +109,27 @@ def test_loadpath_candidate_is_added_and_explains_half_of_the_lvdt_error(loadpat
     assert step["window_reduction"]["nut_position"] >= 0.4, step["window_reduction"]
 
 
+def test_a_linear_load_path_is_read_as_its_summed_stiffness_with_the_clearance_held(params):
+    """null_rig_hold_s603 (rig-sim's check_hold on the rig base, no effect: its load path is linear, 1.2e8 N/m in
+    series with the 3e8 N/m ball-screw contact, 8.57e7 N/m at the LVDT; the load goes to +40 kN and then -40 kN with
+    the drive off).  The load reaches no clearance and lifts no preloaded contact, so the fit alone determines none
+    of the three parameters; the candidate had been refused ("no parameter determined by the run") with 81 % of the
+    LVDT error explained.  The clearance is held at the static screen's value (said in ``not_determined``), the
+    contacts' summed stiffness is read within 10 % of rig-sim's and the candidate is added (traced as a user does: the
+    default settings)."""
+    doc = trace(_run("null_rig_hold_s603", params), "A", params=params,
+                settings=TraceSettings()).to_dict()
+    step = next((e for e in doc["effects_added"] if e["name"] == "loadpath_compliance"), None)
+    assert step is not None, [(c["name"], c.get("implausible_because")) for r in doc["rounds"] for c in r["candidates"]]
+    held = {d["parameter"]: d for d in step["not_determined"]}
+    assert "loadpath.backlash" in held and held["loadpath.backlash"]["held_at"] < 0, held  # a preload: linear
+    assert "held in the effect's order" in held["loadpath.backlash"]["reason"]
+    fp = step["parameters_final"]
+    k = fp["loadpath.contact_stiffness_upper"]["value"] + fp["loadpath.contact_stiffness_lower"]["value"]
+    assert k == pytest.approx(1.0 / (1.0 / 1.2e8 + 1.0 / 3e8), rel=0.10), fp
+    assert step["error_reduction"]["nut_position"] > 0.5, step["error_reduction"]
+
+
 @pytest.mark.slow
 def test_cogging_period_count_is_profiled(params):
     """rig-sim's cogging (18 per motor revolution, the file's placeholder is 6) is found with its count."""

@@ -129,6 +129,13 @@ class CandidateSpec:
     #: +-0.1): the assumption's spread, which a run that determines it must narrow; default the reference magnitude
     #: (file value, seed or plausible bound; ``trace.scoring.determination``)
     resolution: Mapping[str, float] = field(default_factory=dict)
+    #: parameters of ``free`` held, one more at a time in this order, where a fit determines none of them (a null
+    #: direction the law has on some runs: a load path whose load never lifts a preloaded contact nor closes a
+    #: clearance shows the contacts' summed stiffness, not the clearance or the split): each at its start value
+    #: (``start``'s screen, else the file's), the rest refitted until the runs determine one; the usual holding
+    #: then goes on from that fit (``trace.scoring._hold_undetermined``).  Empty: such a candidate is refused as
+    #: "no parameter determined by the run"
+    singular_hold: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -514,6 +514,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "hold_at": {n: (pset.value(n) if spec is not None and spec.start else params.value(n)) for n in judge}, "determination_z": st.determination_z,
                 "alpha": st.alpha,
                 "second_stage": tuple(spec.second_stage) if spec is not None and not profile else (),
+                "singular_hold": tuple(spec.singular_hold) if spec is not None and not profile else (),
                 "absent": {n: zero_is_absent(spec.name, n) for n in judge}}
 
     for r in runs:
@@ -651,8 +652,12 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                                     "error": f"the model without it cannot be fitted: {f['error']}"})
                 continue
             constant = CANDIDATES.get(a.name) is not None and CANDIDATES[a.name].base_correction
+            # the criterion that admitted it: a no-back that does not hold was judged on every sample (as in the
+            # rounds, where it slips while the load changes: the base's transients)
+            every = a.name in slipping
             out[a.name].append(bw.judge_removal(
-                a, current, f, noise=noise, mask=score_mask(a.spec.window), window_mask=window_of(a.spec.window, cur_params),
+                a, current, f, noise=noise, mask=None if every else score_mask(a.spec.window),
+                window_mask=windows_cache[a.spec.window] if every else window_of(a.spec.window, cur_params),
                 alpha=st.alpha, min_window_reduction=st.min_window_reduction,
                 max_channel_increase=st.max_channel_increase, z=st.determination_z,
                 robust=bool(use_base and st.robust_constant_torque and constant), robust_test=st.robust_test))
@@ -679,7 +684,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                     jobs_of[r["name"]] = ({**jr, "params_toml": red["params_toml"], "free": tuple(red["free"])},
                                           job(f"with {r['name']}", cur_effects, cur_free, cur_params, fit_runs))
                 bw.null_calibrate(cands, {r["name"]: loo[r["name"]][0] for r in cands}, jobs_of, fit_runs, noise,
-                                  {r["name"]: score_mask(found_info[r["name"]].spec.window) for r in cands},
+                                  {r["name"]: (None if r["name"] in slipping
+                                               else score_mask(found_info[r["name"]].spec.window)) for r in cands},
                                   st.seed + 2000 + 10 * after_round, st.null_factor, fit_jobs)
             for r in recs:
                 r["kept"] = not r["fails"]  # a model without it that cannot be fitted: kept, said so

@@ -237,7 +237,10 @@ def _hold_undetermined(job: dict, res, params: ParameterSet, refit: Callable):
     determine (:func:`_undetermined`) are held at ``job["hold_at"]`` and the others refitted (``refit(params, free,
     settings)``); the refit can leave another one undetermined (it traded with a held one and no longer does), so
     that one is held too, until the fit determines every parameter it frees.  Where none is left determined, the
-    last ones are marked undetermined without a held value (``held_at`` None): the candidate is judged as such.
+    last ones are marked undetermined without a held value (``held_at`` None): the candidate is judged as such,
+    unless the effect names the parameters to hold where its law has a null direction on the runs
+    (``job["singular_hold"]``, :attr:`~thsa_control.model.effect.CandidateSpec.singular_hold`): those are held one
+    more at a time until a refit determines one of the others, and the holding goes on from that refit.
     Returns the last fit, the job with its free set, the parameters with the held values, and the held entries.
     """
     judged = {n: r for n, r in (job.get("judge") or {}).items() if n in job["free"]}
@@ -257,6 +260,27 @@ def _hold_undetermined(job: dict, res, params: ParameterSet, refit: Callable):
         for h in new.values():
             h["reason"] += " (in the refit with " + ", ".join(sorted(held)) + " held)"
         held.update(new)
+    order = [n for n in job.get("singular_hold", ()) if n in judged and n in job["free"]]
+    if new and len(held) == len(judged) and order and len(order) < len(judged):
+        # the fit determines none: a null direction of the law on these runs (CandidateSpec.singular_hold); hold
+        # the named ones one more at a time and go on from the first refit that determines one of the others
+        for k in range(1, len(order) + 1):
+            hold = order[:k]
+            keep = tuple(n for n in job["free"] if n not in hold)
+            p2 = params.replace({n: job["hold_at"][n] for n in hold})
+            st = dataclasses.replace(job["settings"],
+                                     no_prior=tuple(n for n in job["settings"].no_prior if n in keep))
+            r2 = refit(p2, keep, st)
+            rest = {n: r for n, r in judged.items() if n in keep}
+            if len(_undetermined(r2, rest, z, job.get("absent"))) < len(rest):
+                h0 = {n: {**held[n], "held_at": job["hold_at"][n],
+                          "reason": held[n]["reason"] + "; held at " + f"{job['hold_at'][n]:.4g}" + " (the fit "
+                          "determined none of " + ", ".join(judged) + ": held in the effect's order for such runs, "
+                          + ", ".join(order) + ", until the others are)"} for n in hold}
+                res, job2, params, more = _hold_undetermined({**job, "free": keep, "judge": rest,
+                                                              "singular_hold": ()}, r2, p2, refit)
+                before = {n: h for n, h in held.items() if n not in job["free"]}  # held by the loop above
+                return res, {**job2, "judge": job["judge"]}, params, {**before, **h0, **more}
     for h in new.values():
         h["held_at"] = None  # nothing (left) determined: the candidate is judged as such
     return res, job, params, held

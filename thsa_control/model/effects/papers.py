@@ -347,7 +347,11 @@ register(Effect(
     candidate=CandidateSpec("loadpath_compliance",
                             ("loadpath.contact_stiffness_upper", "loadpath.contact_stiffness_lower",
                              "loadpath.backlash"),
-                            {}, "load_change", "nut_position", start="loadpath_static"),
+                            {}, "load_change", "nut_position", start="loadpath_static",
+                            # a linear load path (the load never reaches a clearance or lifts a preloaded contact):
+                            # the clearance only bounds the deflection, and a load of one sign does not split the
+                            # contacts' stiffness; held at the static screen's values, the stiffness is read
+                            singular_hold=("loadpath.backlash", "loadpath.contact_stiffness_lower")),
     linear=LinearHints(
         # a steady motion ramps both positions: the deflection nut - surface is its equilibrium state
         relative={"surface_position": ("loadpath_deflection", "nut_position")},
