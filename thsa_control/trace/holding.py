@@ -194,8 +194,8 @@ def drive_off_holds(runs: Sequence, params: ParameterSet) -> dict:
             why.append(f"{run.name}: no drive-off stretch of {MIN_DRIVE_OFF:g} s or more under a load above "
                        f"{fmin:.0f} N")
     doc = {"pawl_pitch_rad": float(pitch),
-           "pawl_pitch_mm": float(pitch) / (2 * math.pi) * out[0]["lead_mm"] if out else None, "sensor": ", ".join(sorted(sensors)) or None, "rule": _SOURCE,
-           "stretches": out}
+           "pawl_pitch_mm": float(pitch) / (2 * math.pi) * out[0]["lead_mm"] if out else None,
+           "sensor": ", ".join(sorted(sensors)) or None, "rule": _SOURCE, "stretches": out}
     if not out:
         return {**doc, "verdict": "not tested", "why": "; ".join(why) or "no run"}
     states = {s["state"] for s in out}

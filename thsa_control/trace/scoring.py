@@ -232,6 +232,14 @@ def _holdout_iact(fit: dict, noise, mask: dict | None = None) -> float:
     return max(acc / wsum, 1.0) if wsum > 0 else 1.0
 
 
+def _refit_holding(job: dict, params: ParameterSet, hold, refit: Callable):
+    """The refit of ``job`` with ``hold`` held at ``job["hold_at"]``: (fit, the free set left, the parameters)."""
+    keep = tuple(n for n in job["free"] if n not in hold)
+    params = params.replace({n: job["hold_at"][n] for n in hold})
+    settings = dataclasses.replace(job["settings"], no_prior=tuple(n for n in job["settings"].no_prior if n in keep))
+    return refit(params, keep, settings), keep, params
+
+
 def _hold_undetermined(job: dict, res, params: ParameterSet, refit: Callable):
     """Identifiability before plausibility: the parameters of ``job["judge"]`` the first fit ``res`` does not
     determine (:func:`_undetermined`) are held at ``job["hold_at"]`` and the others refitted (``refit(params, free,
@@ -248,11 +256,7 @@ def _hold_undetermined(job: dict, res, params: ParameterSet, refit: Callable):
     held = _undetermined(res, judged, z, job.get("absent"))
     new = dict(held)
     while new and len(held) < len(judged):
-        keep = tuple(n for n in job["free"] if n not in new)
-        params = params.replace({n: job["hold_at"][n] for n in new})
-        settings = dataclasses.replace(job["settings"], no_prior=tuple(n for n in job["settings"].no_prior
-                                                                       if n in keep))
-        res = refit(params, keep, settings)
+        res, keep, params = _refit_holding(job, params, new, refit)
         job = {**job, "free": keep}
         for n, h in new.items():
             h["held_at"] = job["hold_at"][n]
@@ -266,17 +270,13 @@ def _hold_undetermined(job: dict, res, params: ParameterSet, refit: Callable):
         # the named ones one more at a time and go on from the first refit that determines one of the others
         for k in range(1, len(order) + 1):
             hold = order[:k]
-            keep = tuple(n for n in job["free"] if n not in hold)
-            p2 = params.replace({n: job["hold_at"][n] for n in hold})
-            st = dataclasses.replace(job["settings"],
-                                     no_prior=tuple(n for n in job["settings"].no_prior if n in keep))
-            r2 = refit(p2, keep, st)
+            r2, keep, p2 = _refit_holding(job, params, hold, refit)
             rest = {n: r for n, r in judged.items() if n in keep}
             if len(_undetermined(r2, rest, z, job.get("absent"))) < len(rest):
+                why = (f" (the fit determined none of {', '.join(judged)}: held in the effect's order for such runs, "
+                       f"{', '.join(order)}, until the others are)")
                 h0 = {n: {**held[n], "held_at": job["hold_at"][n],
-                          "reason": held[n]["reason"] + "; held at " + f"{job['hold_at'][n]:.4g}" + " (the fit "
-                          "determined none of " + ", ".join(judged) + ": held in the effect's order for such runs, "
-                          + ", ".join(order) + ", until the others are)"} for n in hold}
+                          "reason": f"{held[n]['reason']}; held at {job['hold_at'][n]:.4g}{why}"} for n in hold}
                 res, job2, params, more = _hold_undetermined({**job, "free": keep, "judge": rest,
                                                               "singular_hold": ()}, r2, p2, refit)
                 before = {n: h for n, h in held.items() if n not in job["free"]}  # held by the loop above
