@@ -614,6 +614,14 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
         mask = score_mask(window)
         return {r.name: _window(window, r, fitted) & (mask[r.name] if mask is not None else True) for r in runs}
 
+    def judged_on(name: str, window: str, fitted: ParameterSet) -> tuple[dict | None, dict]:
+        """(score mask, window) an effect is admitted and judged again on: a no-back that does not hold on every
+        sample (it slips while the load changes and the screw accelerates, which the base's transients are: all of
+        a drive-off load ramp, as in the base step), any other outside the base's transients."""
+        if name in slipping:
+            return None, windows_cache[window]
+        return score_mask(window), window_of(window, fitted)
+
     hurt: set[str] = set()
     retry: dict | None = None  # the round to retry the skipped ones in: its number, their names, its candidates
     # the backward check (:mod:`thsa_control.trace.backward`): the found effects' bookkeeping, the fits of every
@@ -652,12 +660,9 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                                     "error": f"the model without it cannot be fitted: {f['error']}"})
                 continue
             constant = CANDIDATES.get(a.name) is not None and CANDIDATES[a.name].base_correction
-            # the criterion that admitted it: a no-back that does not hold was judged on every sample (as in the
-            # rounds, where it slips while the load changes: the base's transients)
-            every = a.name in slipping
+            smask, win = judged_on(a.name, a.spec.window, cur_params)  # the samples that admitted it
             out[a.name].append(bw.judge_removal(
-                a, current, f, noise=noise, mask=None if every else score_mask(a.spec.window),
-                window_mask=windows_cache[a.spec.window] if every else window_of(a.spec.window, cur_params),
+                a, current, f, noise=noise, mask=smask, window_mask=win,
                 alpha=st.alpha, min_window_reduction=st.min_window_reduction,
                 max_channel_increase=st.max_channel_increase, z=st.determination_z,
                 robust=bool(use_base and st.robust_constant_torque and constant), robust_test=st.robust_test))
@@ -684,8 +689,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                     jobs_of[r["name"]] = ({**jr, "params_toml": red["params_toml"], "free": tuple(red["free"])},
                                           job(f"with {r['name']}", cur_effects, cur_free, cur_params, fit_runs))
                 bw.null_calibrate(cands, {r["name"]: loo[r["name"]][0] for r in cands}, jobs_of, fit_runs, noise,
-                                  {r["name"]: (None if r["name"] in slipping
-                                               else score_mask(found_info[r["name"]].spec.window)) for r in cands},
+                                  {r["name"]: judged_on(r["name"], found_info[r["name"]].spec.window,
+                                                        cur_params)[0] for r in cands},
                                   st.seed + 2000 + 10 * after_round, st.null_factor, fit_jobs)
             for r in recs:
                 r["kept"] = not r["fails"]  # a model without it that cannot be fitted: kept, said so
@@ -876,12 +881,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
             cand_times.append(f["time_s"])
             k = len(spec.free) + len(spec.profile)
             # at the fit's own values where the window depends on them (the cogging's count)
-            win = (windows_cache[spec.window] if spec.name in slipping
-                   else window_of(spec.window, ParameterSet.from_toml(f["params_toml"])))
+            smask, win = judged_on(spec.name, spec.window, ParameterSet.from_toml(f["params_toml"]))
             constant = CANDIDATES.get(spec.name) is not None and CANDIDATES[spec.name].base_correction
-            # a no-back that does not hold is judged as in the base step, on every sample: it slips while the load
-            # changes and the screw accelerates, which the base's transients are (all of a drive-off load ramp)
-            smask = None if spec.name in slipping else score_mask(spec.window)
             adm = admission_tests(current, f, noise, k=k, alpha=st.alpha, mask=smask, window=win,
                                   channel=spec.channel, min_window_reduction=st.min_window_reduction,
                                   max_channel_increase=st.max_channel_increase,
