@@ -118,6 +118,9 @@ class CandidateSpec:
     #: the current-to-speed response on a drive train the run shows rigid.  Judged by the same rule (held at the
     #: file value where the second fit does not determine it)
     second_stage: tuple[str, ...] = ()
+    #: second-stage parameters whose end of range is a physical value, not a failed estimate (a no-back without a
+    #: disk-spring preload: 0 N); the others at a bound are held (a load share of 0 or 1)
+    second_stage_range_ends: tuple[str, ...] = ()
     #: declared parameters this effect's law reads as their value at its reference condition, i.e. outside its
     #: window (``temperature_friction`` reads ``gear.viscous_friction`` as the 25 degC drag ``b_25``).  Runs with
     #: (almost) no moving sample outside the window do not determine them: fitted there, they take this effect's

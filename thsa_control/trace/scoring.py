@@ -321,7 +321,7 @@ def _second_stage(job: dict, res, params: ParameterSet, held: dict):
     res2 = Identifier(None, start, free, effects=job["effects"], settings=job["settings"]).fit(job["runs"],
                                                                                            **_warm(job))
     und = _undetermined(res2, judge, z, absent)
-    edge = [n for n in second if res2.estimates[n].at_bound]
+    edge = [n for n in second if res2.estimates[n].at_bound and n not in job.get("second_stage_range_ends", ())]
     if edge and not und:  # a share of 0 or 1 is no estimate (its standard error is not that of a value inside)
         def why(n: str) -> str:
             e = res2.estimates[n]
@@ -331,6 +331,10 @@ def _second_stage(job: dict, res, params: ParameterSet, held: dict):
         return res, job, params, {**held, **{
             n: {"reason": why(n), "value_if_free": res2.estimates[n].value,
                 "stderr_if_free": _data_stderr(res2.estimates[n]), "held_at": params.value(n)} for n in second}}
+    if und and not [n for n in und if n not in second] and len(und) < len(second):
+        # only second-stage parameters left undetermined: hold those, free the others again from the first fit
+        held = {**held, **{n: {**und[n], "held_at": params.value(n)} for n in und}}
+        return _second_stage({**job, "second_stage": tuple(n for n in second if n not in und)}, res, params, held)
     if und:  # the first fit stands; the second-stage parameters stay at their file values, reported as held
         lost = [n for n in und if n not in second]
         for n in second:

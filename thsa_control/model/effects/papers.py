@@ -399,7 +399,8 @@ register(Effect(
     # traded with them where the band is thin (trace.scoring._second_stage)
     candidate=CandidateSpec("noback_quadrant_friction", ("noback.mu_coulomb_pos", "noback.mu_coulomb_neg",
                                                          "noback.mu_static_pos", "noback.mu_static_neg"), {},
-                            "loaded", second_stage=("noback.load_share",),
+                            "loaded", second_stage=("noback.preload", "noback.load_share"),
+                            second_stage_range_ends=("noback.preload",),
                             resolution={"noback.load_share": NOBACK_LOAD_SHARE_SPREAD}),
     linear=LinearHints(kinks={"noback_normal_force": "the no-back's light disk set unloading (load-path force at "
                                                      "preload / (1 - load share), compressive, preload / load "
