@@ -157,6 +157,39 @@ def test_noback_load_share_is_held_on_a_load_beyond_the_band(record, params):
     assert "noback.load_share" in {h["parameter"] for h in nb["not_determined"]}, nb["not_determined"]
 
 
+def test_noback_preload_is_read_where_the_load_crosses_the_band(record, params):
+    """The truth's no-back has half the file's disk-spring preload (1.5 kN against 3 kN), the load swinging
+    +-12 kN: inside the band (|F| below twice the preload) the slipping set carries the preload plus its share of the
+    load, beyond it the load alone, so the drag's offset and where it ends give the preload.  The tracer adds the
+    detailed no-back with the preload determined, within 10 % of the truth, its interval clear of the file's
+    3 kN."""
+    truth = 1500.0
+    run = record(("noback_quadrant_friction",), {"noback.preload": truth}, load=12e3, duration=3.0, level="A",
+                 triangle_load=True)
+    doc = trace(run, "A", params=params,
+                settings=_settings(("noback_quadrant_friction", "coulomb_friction"), max_effects=1)).to_dict()
+    assert [e["name"] for e in doc["effects_added"]] == ["noback_quadrant_friction"], doc["rounds"]
+    nb = next(e for e in doc["effects_added"] if e["name"] == "noback_quadrant_friction")
+    pre = nb["parameters"]["noback.preload"]
+    assert not pre.get("held"), pre
+    assert pre["value"] == pytest.approx(truth, rel=0.10), pre
+    assert pre["ci95"][1] < params.value("noback.preload"), pre
+
+
+def test_noback_preload_is_held_on_a_load_beyond_the_band(record, params):
+    """On a constant 12 kN (beyond twice the preload) the loaded disk set carries the load alone: the preload
+    changes no sample, so it is held at the file's value and reported as not determined (truth 1.5 kN)."""
+    run = record(("noback_quadrant_friction",), {"noback.preload": 1500.0}, load=12e3, duration=3.0, level="A")
+    doc = trace(run, "A", params=params,
+                settings=_settings(("noback_quadrant_friction", "coulomb_friction"), max_effects=1)).to_dict()
+    assert [e["name"] for e in doc["effects_added"]] == ["noback_quadrant_friction"], doc["rounds"]
+    nb = next(e for e in doc["effects_added"] if e["name"] == "noback_quadrant_friction")
+    pre = nb["parameters"]["noback.preload"]
+    assert pre.get("held") and pre["value"] == params.value("noback.preload"), pre
+    cand = next(c for c in doc["candidates"] if c["name"] == "noback_quadrant_friction")
+    assert "noback.preload" in {h["parameter"] for h in cand["not_determined"]}, cand["not_determined"]
+
+
 @pytest.mark.slow
 def test_temperature_friction_is_found_across_temperatures(record, params):
     """At one temperature the cold drag is a Coulomb friction plus a viscous one; with a warm and a cold run

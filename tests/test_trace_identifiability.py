@@ -66,8 +66,18 @@ def test_noback_load_share_is_a_second_stage_parameter():
     """The no-back's load share is freed from the disk coefficients the run determines (freed with them, it traded
     with the light disk's coefficients where the band both sets share is thin), judged against its assumed spread."""
     spec = CANDIDATES["noback_quadrant_friction"]
-    assert "noback.load_share" not in spec.free and spec.second_stage == ("noback.load_share",)
+    assert "noback.load_share" not in spec.free and "noback.load_share" in spec.second_stage
     assert 0 < spec.resolution["noback.load_share"] < 0.5
+
+
+def test_noback_preload_is_a_second_stage_parameter_whose_zero_is_a_value():
+    """The disk-spring preload is freed with the share from the coefficients the run determines (only a load
+    crossing the band where both disk sets carry load shows it); its lower end, 0 N, is a no-back without preload
+    springs, a physical value, so a fit there is kept (a share of 0 or 1 is not: one set infinitely stiffer)."""
+    spec = CANDIDATES["noback_quadrant_friction"]
+    assert spec.second_stage == ("noback.preload", "noback.load_share")
+    assert "noback.preload" not in spec.free
+    assert spec.second_stage_range_ends == ("noback.preload",)
 
 
 def test_interval_of_a_positive_parameter_stays_positive():

@@ -121,6 +121,10 @@ class CandidateSpec:
     #: second-stage parameters whose end of range is a physical value, not a failed estimate (a no-back without a
     #: disk-spring preload: 0 N); the others at a bound are held (a load share of 0 or 1)
     second_stage_range_ends: tuple[str, ...] = ()
+    #: second-stage parameters that, moved far from the file's value (``trace.scoring.RESEED_MOVE``), have the joint
+    #: fit started again with the first stage's parameters at their file values: those were fitted around the file's
+    #: value and carry its error into the start (a no-back's coefficients fitted at the file's preload)
+    second_stage_reseed: tuple[str, ...] = ()
     #: declared parameters this effect's law reads as their value at its reference condition, i.e. outside its
     #: window (``temperature_friction`` reads ``gear.viscous_friction`` as the 25 degC drag ``b_25``).  Runs with
     #: (almost) no moving sample outside the window do not determine them: fitted there, they take this effect's

@@ -91,6 +91,7 @@ def conclusion_table_html(doc: dict) -> str:
             kind = f"FAULT ({kind}): {e['fault']['text']}"
         pars = "<br>".join(f"{esc(n)} = {_num(p['value'])} {esc(p['unit'])}{_ci(p)}"
                            + (" (profiled)" if p.get("profiled") else "") + (" (held)" if p.get("held") else "")
+                           + (f"<br><small>{esc(p['range_end']['reason'])}</small>" if p.get("range_end") else "")
                            + _outside(p) for n, p in e["parameters"].items())
         pars += "".join(f"<br>{esc(t)}" for t in _amplitude_lines(e))
         if e.get("changed_after_added"):
@@ -833,6 +834,7 @@ def format_trace_summary(doc: dict) -> str:
             ci = p["ci95"]
             lines.append(f"    {n} = {_num(p['value'])} {p['unit']}" + (f"  95 % CI [{_num(ci[0])}, {_num(ci[1])}]" if ci else "")
                          + (" (profiled)" if p.get("profiled") else "") + (" (held)" if p.get("held") else "")
+                         + (f" ({p['range_end']['reason']})" if p.get("range_end") else "")
                          + _outside(p))
         lines += [f"    {t}" for t in _amplitude_lines(e)]
         nro = not_ruled_out_text(e)

@@ -515,6 +515,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "alpha": st.alpha,
                 "second_stage": tuple(spec.second_stage) if spec is not None and not profile else (),
                 "second_stage_range_ends": tuple(spec.second_stage_range_ends) if spec is not None else (),
+                "second_stage_reseed": tuple(spec.second_stage_reseed) if spec is not None else (),
                 "singular_hold": tuple(spec.singular_hold) if spec is not None and not profile else (),
                 "absent": {n: zero_is_absent(spec.name, n) for n in judge}}
 

@@ -140,8 +140,13 @@ def _fit_job(job: dict) -> dict:
                           "max": e.max, "unit": e.unit, "held": True, "undetermined": h}
             elif n in est:
                 est[n]["undetermined"] = h
+        for n, info in (job.get("range_end") or {}).items():  # determined by the profile at a range end
+            if n in est and not est[n].get("held"):
+                est[n]["range_end"] = info
+                est[n]["determination"] = "determined"
         for n, ref in (job.get("judge") or {}).items():  # the one rule, on the final fit's free parameters
-            if n in est and not est[n].get("held") and "undetermined" not in est[n]:
+            if n in est and not est[n].get("held") and "undetermined" not in est[n] and n not in (
+                    job.get("range_end") or {}):
                 est[n]["determination"] = determination(est[n]["value"], est[n]["stderr_data"], ref,
                                                         job.get("determination_z", 2.0),
                                                         (job.get("absent") or {}).get(n, True))
@@ -286,6 +291,25 @@ def _hold_undetermined(job: dict, res, params: ParameterSet, refit: Callable):
     return res, job, params, held
 
 
+#: a range-end parameter within this share of its file value's distance from that end is at the end
+#: (:func:`_second_stage`: a preload of 1 N against the file's 3 kN)
+RANGE_END_SHARE = 0.01
+
+
+def _near_range_end(e, file_value: float) -> str | None:
+    """``"min"`` / ``"max"`` where the estimate ``e`` lies at that end of its range, within :data:`RANGE_END_SHARE` of
+    the file value's distance from it; else None."""
+    for end, lim in (("min", e.min), ("max", e.max)):
+        if math.isfinite(lim) and abs(e.value - lim) <= RANGE_END_SHARE * abs(file_value - lim):
+            return end
+    return None
+
+
+#: a second-stage parameter of :attr:`CandidateSpec.second_stage_reseed` moved by more than this share of its file
+#: value: the joint fit is started again with the other parameters at their file values (:func:`_second_stage`)
+RESEED_MOVE = 0.2
+
+
 def _second_stage(job: dict, res, params: ParameterSet, held: dict):
     """Free ``job["second_stage"]`` (:attr:`CandidateSpec.second_stage`) from the first fit's estimates when that
     fit determines every other parameter it still frees (those the run does not determine were held before: a
@@ -320,7 +344,38 @@ def _second_stage(job: dict, res, params: ParameterSet, held: dict):
     start = params.replace({n: e.value for n, e in res.estimates.items()})
     res2 = Identifier(None, start, free, effects=job["effects"], settings=job["settings"]).fit(job["runs"],
                                                                                            **_warm(job))
+    moved = [n for n in second if n in job.get("second_stage_reseed", ()) and abs(
+        res2.estimates[n].value - params.value(n)) > RESEED_MOVE * max(abs(params.value(n)), 1e-12)]
+    if moved:
+        # the first stage fitted the others with these at the file's values; where the second moves one far, the
+        # others' values carry that error into its start and the joint fit stops in a valley beside the optimum
+        # (the virtual rig, preload 1 kN against the file's 3 kN on a +-12 kN sweep: 1085 N with a Coulomb drag of
+        # 0.0069 N m taken in to make up; started at the file's values for the others, 996 N and nothing more)
+        start3 = params.replace({n: res2.estimates[n].value for n in second})
+        res3 = Identifier(None, start3, free, effects=job["effects"], settings=job["settings"]).fit(job["runs"],
+                                                                                                **_warm(job))
+        if res3.chisqr < res2.chisqr:
+            res2, start = res3, start3
     und = _undetermined(res2, judge, z, absent)
+    ends = {}
+    for n in [n for n in und if n in job.get("second_stage_range_ends", ()) and _near_range_end(res2.estimates[n],
+                                                                                              params.value(n))]:
+        # at its range end a parameter can have no first-order information (a no-back preload at 0 N: the band it
+        # acts in has no width, so a small preload changes the drag only to second order); the profile decides: the
+        # first fit is the others' optimum at the file's value, so the drop from it to this fit is the likelihood
+        # ratio against the file's value, judged at the profile's gap (reduced chi2 x IACT x chi2(1) at alpha)
+        gap = _profile_gap(job["settings"].noise, job.get("alpha", 1e-3), "training")(res2)
+        drop = float(res.chisqr - res2.chisqr)
+        if drop > gap:
+            ends[n] = {"range_end": _near_range_end(res2.estimates[n], params.value(n)), "value": res2.estimates[n].value,
+                       "file_value": params.value(n), "training_chi2_drop": drop, "gap": gap,
+                       "reason": f"at its range end ({res2.estimates[n].value:.4g} {res2.estimates[n].unit}), where "
+                                 "the fit has no first-order information; the profile rejects the file's "
+                                 f"{params.value(n):.4g} {res2.estimates[n].unit} (training chi2 drop {drop:.4g} > "
+                                 f"gap {gap:.4g})"}
+            und.pop(n)
+    if ends:
+        job = {**job, "range_end": {**job.get("range_end", {}), **ends}}
     edge = [n for n in second if res2.estimates[n].at_bound and n not in job.get("second_stage_range_ends", ())]
     if edge and not und:  # a share of 0 or 1 is no estimate (its standard error is not that of a value inside)
         def why(n: str) -> str:
@@ -909,7 +964,8 @@ def _param_entry(e: dict) -> dict:
             **({"held": True} if e.get("held") else {}),
             **({"stderr_data": e["stderr_data"]} if "stderr_data" in e and not e.get("held") else {}),
             **(_segments_entry(e) if e.get("stderr_segments") is not None and not e.get("held") else {}),
-            **({"pulled_by": e["pulled_by"]} if e.get("pulled_by") and not e.get("held") else {})}
+            **({"pulled_by": e["pulled_by"]} if e.get("pulled_by") and not e.get("held") else {}),
+            **({"range_end": e["range_end"]} if e.get("range_end") and not e.get("held") else {})}
 
 
 def _segments_entry(e: dict) -> dict:

@@ -89,6 +89,10 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     # the static load reversal with the drive off: the null of rig_loadpath_preload_hold (the rig base's own linear
     # load path, 1.2e8 N/m, is what it may name)
     "null_rig_hold_s603": ("check_hold", "rig", "", 603, None, "null"),
+    # the load sweep through zero on the rig base, nothing planted: the base's no-back has no disk-spring preload
+    # (rig-sim README, the papers' level-B Coulomb disk on the loaded brake), the file's is 3 kN, and only a load
+    # crossing the band where both disk sets carry load (|F| < 2 x 3 kN) shows it (the seed drawn from os.urandom)
+    "null_rig_sweep_s65153": ("triangular_load_sweep", "rig", "", 65153, None, "null"),
     # the whole cold ramp logged at 1 kHz (its two drive-off holds kept): the screw-angle test read the holds' residual,
     # at two angles, against the moving samples' as a harmonic series (p 3.1e-8, flagged unexplained; at 500 Hz the
     # same seed is not); drawn for a blind set from os.urandom (docs/trace_notes.md "The angle tests on moving samples")

@@ -396,11 +396,17 @@ register(Effect(
     # disk sets carry load (|F| below about twice the preload) determines it from where and how the slipping set's
     # drag changes with the load; any other record leaves it at the file's assumed value, held and reported (its
     # spread, NOBACK_LOAD_SHARE_SPREAD, is what a determining record must narrow).  Freed with the coefficients it
-    # traded with them where the band is thin (trace.scoring._second_stage)
+    # traded with them where the band is thin (trace.scoring._second_stage).  The disk-spring preload is freed with
+    # it: the same band shows it (the slipping set carries the preload plus its share of the load there, the load
+    # alone beyond), nothing else does, so it is held at the file's 3 kN on every other record.  rig-sim's bases have
+    # none (the papers' level-B Coulomb disk on the loaded brake); held at 3 kN on its load sweep the base step left a
+    # mismatch "beyond the plausible set" on the null (docs/trace_notes.md, thirty-first session).  0 N is a value (a
+    # no-back without preload springs), kept; moved far from the file's, the fit is started again with the
+    # coefficients at the file's values, which the first stage had fitted around 3 kN
     candidate=CandidateSpec("noback_quadrant_friction", ("noback.mu_coulomb_pos", "noback.mu_coulomb_neg",
                                                          "noback.mu_static_pos", "noback.mu_static_neg"), {},
                             "loaded", second_stage=("noback.preload", "noback.load_share"),
-                            second_stage_range_ends=("noback.preload",),
+                            second_stage_range_ends=("noback.preload",), second_stage_reseed=("noback.preload",),
                             resolution={"noback.load_share": NOBACK_LOAD_SHARE_SPREAD}),
     linear=LinearHints(kinks={"noback_normal_force": "the no-back's light disk set unloading (load-path force at "
                                                      "preload / (1 - load share), compressive, preload / load "
