@@ -390,6 +390,17 @@ def _second_stage(job: dict, res, params: ParameterSet, held: dict):
         # only second-stage parameters left undetermined: hold those, free the others again from the first fit
         held = {**held, **{n: {**und[n], "held_at": params.value(n)} for n in und}}
         return _second_stage({**job, "second_stage": tuple(n for n in second if n not in und)}, res, params, held)
+    if und and len(second) > 1:
+        # freed together, none determined (or one the first fit determined lost): hold the first (the preload, at the
+        # file's value) and free the rest alone from the first fit, as the share was before the preload joined it
+        # (rig-sim's position steps at 10 kN read the share 0.555 +- 0.04 alone and neither of the two together)
+        n0 = second[0]
+        lost = [n for n in und if n not in second]
+        why = und[n0]["reason"] if n0 in und else "freed, it left " + ", ".join(lost) + " undetermined"
+        held = {**held, n0: {**und.get(n0, {"value_if_free": res2.estimates[n0].value,
+                                            "stderr_if_free": _data_stderr(res2.estimates[n0])}),
+                             "reason": f"{why} (freed with {', '.join(second[1:])})", "held_at": params.value(n0)}}
+        return _second_stage({**job, "second_stage": second[1:]}, res, params, held)
     if und:  # the first fit stands; the second-stage parameters stay at their file values, reported as held
         lost = [n for n in und if n not in second]
         for n in second:
