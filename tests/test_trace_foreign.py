@@ -107,7 +107,8 @@ KNOWN_FAILING = {
                              "23), all refused because the lossier base explains as much.  Given the lifted set the "
                              "cold drag still adds 205 on its window (its low-speed rise: the rig base's Stribeck "
                              "drags), so it stays; the trace says what it does not rule out (``not_ruled_out``; "
-                             "drawn blind in the ninth blind set)",
+                             "drawn blind in the ninth blind set).  Since the singular hold (thirtieth session) the "
+                             "base's own load path is listed before the cold drag",
     "rig_drivetrain_compliance_rev": "drivetrain_compliance found first among the physical effects (by what it "
                                      "explains; the base's load path added before it), gearbox 9.8e3 N m/rad (series "
                                      "7.9e3, rig-sim 8e3), damping 0.42 in the search (the held-out segments hold "
