@@ -154,6 +154,40 @@ HOLDING_COEFFICIENTS = {"noback.mu_static_neg": +1.0, "noback.mu_static_pos": -1
 HOLDING_MIN_SAMPLES = 50
 
 
+#: moving samples (speed above this share of the record's largest) with the load inside the no-back's band (below
+#: the light set's unloading at the file's preload and share) for the runs to say anything of the preload
+BAND_MOVING_FRACTION = 0.05
+
+
+def noback_band_gate(params: ParameterSet, runs) -> str | None:
+    """None where the runs move with the load inside the band where both no-back disk sets carry load (at least
+    :data:`HOLDING_MIN_SAMPLES` such samples, at the file's preload and share), else why the preload is not freed.
+    Outside that band the loaded set carries the load alone and the preload changes no moving sample; freed on
+    rig-sim's two-magnitude sets anyway (10..30 kN, no moving sample below 6 kN) it took 864-1072 N from what the
+    Coulomb drag or the axial force had carried, and neither was named."""
+    pre, share = params.value("noback.preload"), params.value("noback.load_share")
+    comp, tens = pre / max(1.0 - share, 1e-9), pre / max(share, 1e-9)
+    k = 0
+    for r in runs:
+        sig = getattr(r, "signals", None) or {}
+        if "load_force" not in sig or "motor_speed" not in sig:
+            continue
+        f, w = np.asarray(sig["load_force"], float), np.asarray(sig["motor_speed"], float)
+        top = float(np.nanmax(np.abs(w))) if w.size else 0.0
+        mov = np.abs(w) > BAND_MOVING_FRACTION * top if top > 0 else np.zeros(w.shape, bool)
+        k += int(np.sum(mov & (f < comp) & (f > -tens)))
+    if k >= HOLDING_MIN_SAMPLES:
+        return None
+    return (f"not freed: {k} moving samples with the load inside the band where both disk sets carry load (below "
+            f"{comp:.0f} N compressive, {tens:.0f} N tensile at the file's preload and share; at least "
+            f"{HOLDING_MIN_SAMPLES} needed): beyond it the loaded set carries the load alone and the preload changes "
+            "no moving sample")
+
+
+#: second-stage parameter -> ``gate(params, runs)``: None where the runs can inform it, else why it is held
+SECOND_STAGE_GATES = {"noback.preload": noback_band_gate}
+
+
 def _rule_holding(params: ParameterSet, runs) -> tuple[float, str, tuple[str, ...]]:
     """``(limit, source, coefficients)``: the holding limit [N m/N], where it comes from, and the static
     coefficients of the disk sets the runs load beyond the light set's unloading (the file's preload and load share:

@@ -64,7 +64,7 @@ from ..fit.replay import check_run_model
 from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
 from ..model.params import ParameterSet, default_parameters
 from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, INERTIA_EXPLAINER, MIN_WINDOW_SAMPLES,
-                         ANGLE_OF, HOLDING_COEFFICIENTS, PERIODS, PLAUSIBLE,
+                         ANGLE_OF, HOLDING_COEFFICIENTS, PERIODS, PLAUSIBLE, SECOND_STAGE_GATES,
                          PROFILE_GRIDS, RESOLVES, STARTS, WINDOWS, reference_not_determined,
                          _window, turning_band,
                          candidate_specs, not_candidates, nut_travel)
@@ -516,6 +516,8 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "second_stage": tuple(spec.second_stage) if spec is not None and not profile else (),
                 "second_stage_range_ends": tuple(spec.second_stage_range_ends) if spec is not None else (),
                 "second_stage_reseed": tuple(spec.second_stage_reseed) if spec is not None else (),
+                "second_stage_gate": {n: why for n in (spec.second_stage if spec is not None and not profile else ())
+                                      if n in SECOND_STAGE_GATES and (why := SECOND_STAGE_GATES[n](pset, data))},
                 "singular_hold": tuple(spec.singular_hold) if spec is not None and not profile else (),
                 "absent": {n: zero_is_absent(spec.name, n) for n in judge}}
 

@@ -324,6 +324,12 @@ def _second_stage(job: dict, res, params: ParameterSet, held: dict):
     the share wandered to 0.1 +- 0.56 and the light disk's static coefficient, which the run determines at zero,
     became undetermined)."""
     second = tuple(n for n in job.get("second_stage", ()) if n in params and n not in job["free"])
+    gated = {n: why for n, why in (job.get("second_stage_gate") or {}).items() if n in second}
+    if gated:  # the runs cannot inform it (trace.candidates.SECOND_STAGE_GATES): held at the file's value, said why
+        held = {**held, **{n: {"reason": why, "value_if_free": None, "stderr_if_free": None,
+                               "held_at": params.value(n)} for n, why in gated.items()}}
+        second = tuple(n for n in second if n not in gated)
+        job = {**job, "second_stage": second}
     judge = job.get("judge") or {}
     first = [n for n in judge if n not in second and n in job["free"]]
     if not second:
