@@ -124,6 +124,17 @@ def _share(doc: dict) -> dict:
     return nb["parameters"]["noback.load_share"]
 
 
+def _noback_traced(record, params, values: dict, triangle: bool) -> dict:
+    """The trace document of a level-A record whose truth has the detailed no-back with ``values``, 12 kN constant
+    or swinging +-12 kN (``triangle``), traced with the no-back and a Coulomb drag as candidates; the no-back alone is
+    added."""
+    run = record(("noback_quadrant_friction",), values, load=12e3, duration=3.0, level="A", triangle_load=triangle)
+    doc = trace(run, "A", params=params,
+                settings=_settings(("noback_quadrant_friction", "coulomb_friction"), max_effects=1)).to_dict()
+    assert [e["name"] for e in doc["effects_added"]] == ["noback_quadrant_friction"], doc["rounds"]
+    return doc
+
+
 def test_noback_load_share_is_identified_where_the_load_crosses_the_band(record, params):
     """The no-back's load share (assumed 0.5) is its candidate's second-stage parameter.  Truth 0.4 (the
     compressive disk set the softer one), the load swinging +-12 kN through the band where both disk sets carry load (|F| below twice the
@@ -131,12 +142,7 @@ def test_noback_load_share_is_identified_where_the_load_crosses_the_band(record,
     set unloads (compressive load 3 kN / 0.6 = 5 kN, tensile 3 kN / 0.4 = 7.5 kN).  The tracer adds the detailed
     no-back with the share determined, its interval around 0.4 and clear of the assumed 0.5."""
     truth = 0.4
-    run = record(("noback_quadrant_friction",), {"noback.load_share": truth}, load=12e3, duration=3.0, level="A",
-                 triangle_load=True)
-    doc = trace(run, "A", params=params,
-                settings=_settings(("noback_quadrant_friction", "coulomb_friction"), max_effects=1)).to_dict()
-    assert [e["name"] for e in doc["effects_added"]] == ["noback_quadrant_friction"], doc["rounds"]
-    share = _share(doc)
+    share = _share(_noback_traced(record, params, {"noback.load_share": truth}, True))
     assert not share.get("held"), share
     lo, hi = share["ci95"]
     assert lo <= truth <= hi and hi < 0.5, share
@@ -147,10 +153,7 @@ def test_noback_load_share_is_held_on_a_load_beyond_the_band(record, params):
     """On a constant 12 kN the light disk set is unloaded throughout (12 kN is beyond twice the preload): no
     sample says how the sets share a load change.  The share is held at the file's 0.5 and reported as not
     determined, and the no-back is still added on what its coefficients explain."""
-    run = record(("noback_quadrant_friction",), {"noback.load_share": 0.4}, load=12e3, duration=3.0, level="A")
-    doc = trace(run, "A", params=params,
-                settings=_settings(("noback_quadrant_friction", "coulomb_friction"), max_effects=1)).to_dict()
-    assert [e["name"] for e in doc["effects_added"]] == ["noback_quadrant_friction"], doc["rounds"]
+    doc = _noback_traced(record, params, {"noback.load_share": 0.4}, False)
     share = _share(doc)
     assert share.get("held") and share["value"] == params.value("noback.load_share"), share
     nb = next(c for c in doc["candidates"] if c["name"] == "noback_quadrant_friction")
@@ -164,13 +167,8 @@ def test_noback_preload_is_read_where_the_load_crosses_the_band(record, params):
     detailed no-back with the preload determined, within 10 % of the truth, its interval clear of the file's
     3 kN."""
     truth = 1500.0
-    run = record(("noback_quadrant_friction",), {"noback.preload": truth}, load=12e3, duration=3.0, level="A",
-                 triangle_load=True)
-    doc = trace(run, "A", params=params,
-                settings=_settings(("noback_quadrant_friction", "coulomb_friction"), max_effects=1)).to_dict()
-    assert [e["name"] for e in doc["effects_added"]] == ["noback_quadrant_friction"], doc["rounds"]
-    nb = next(e for e in doc["effects_added"] if e["name"] == "noback_quadrant_friction")
-    pre = nb["parameters"]["noback.preload"]
+    pre = _noback_traced(record, params, {"noback.preload": truth}, True)["effects_added"][0]["parameters"][
+        "noback.preload"]
     assert not pre.get("held"), pre
     assert pre["value"] == pytest.approx(truth, rel=0.10), pre
     assert pre["ci95"][1] < params.value("noback.preload"), pre
@@ -179,12 +177,8 @@ def test_noback_preload_is_read_where_the_load_crosses_the_band(record, params):
 def test_noback_preload_is_held_on_a_load_beyond_the_band(record, params):
     """On a constant 12 kN (beyond twice the preload) the loaded disk set carries the load alone: the preload
     changes no sample, so it is held at the file's value and reported as not determined (truth 1.5 kN)."""
-    run = record(("noback_quadrant_friction",), {"noback.preload": 1500.0}, load=12e3, duration=3.0, level="A")
-    doc = trace(run, "A", params=params,
-                settings=_settings(("noback_quadrant_friction", "coulomb_friction"), max_effects=1)).to_dict()
-    assert [e["name"] for e in doc["effects_added"]] == ["noback_quadrant_friction"], doc["rounds"]
-    nb = next(e for e in doc["effects_added"] if e["name"] == "noback_quadrant_friction")
-    pre = nb["parameters"]["noback.preload"]
+    doc = _noback_traced(record, params, {"noback.preload": 1500.0}, False)
+    pre = doc["effects_added"][0]["parameters"]["noback.preload"]
     assert pre.get("held") and pre["value"] == params.value("noback.preload"), pre
     cand = next(c for c in doc["candidates"] if c["name"] == "noback_quadrant_friction")
     assert "noback.preload" in {h["parameter"] for h in cand["not_determined"]}, cand["not_determined"]
