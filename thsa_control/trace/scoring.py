@@ -322,7 +322,14 @@ def _second_stage(job: dict, res, params: ParameterSet, held: dict):
     share: the band where both disk sets carry load) trades with the others where that part is thin and takes
     their determination with it (measured on rig-sim's elastic-surface ramp: freed with the disks' coefficients,
     the share wandered to 0.1 +- 0.56 and the light disk's static coefficient, which the run determines at zero,
-    became undetermined)."""
+    became undetermined).
+
+    Of several second-stage parameters: one the runs cannot inform (``second_stage_gate``) is held from the start;
+    those the joint fit leaves undetermined are held and the rest freed again alone; with none determined, the first
+    is held and the rest freed alone.  A parameter of ``second_stage_range_ends`` at that end of its range (no
+    first-order information there) is kept where the profile rejects the file's value (``range_end``), and one of
+    ``second_stage_reseed`` moved far from it has the joint fit started again with the others at their file
+    values."""
     second = tuple(n for n in job.get("second_stage", ()) if n in params and n not in job["free"])
     gated = {n: why for n, why in (job.get("second_stage_gate") or {}).items() if n in second}
     if gated:  # the runs cannot inform it (trace.candidates.SECOND_STAGE_GATES): held at the file's value, said why
@@ -364,22 +371,24 @@ def _second_stage(job: dict, res, params: ParameterSet, held: dict):
             res2, start = res3, start3
     und = _undetermined(res2, judge, z, absent)
     ends = {}
-    for n in [n for n in und if n in job.get("second_stage_range_ends", ()) and _near_range_end(res2.estimates[n],
-                                                                                              params.value(n))]:
+    at_end = {n: end for n in und if n in job.get("second_stage_range_ends", ())
+              if (end := _near_range_end(res2.estimates[n], params.value(n)))}
+    if at_end:
         # at its range end a parameter can have no first-order information (a no-back preload at 0 N: the band it
         # acts in has no width, so a small preload changes the drag only to second order); the profile decides: the
         # first fit is the others' optimum at the file's value, so the drop from it to this fit is the likelihood
         # ratio against the file's value, judged at the profile's gap (reduced chi2 x IACT x chi2(1) at alpha)
         gap = _profile_gap(job["settings"].noise, job.get("alpha", 1e-3), "training")(res2)
         drop = float(res.chisqr - res2.chisqr)
-        if drop > gap:
-            ends[n] = {"range_end": _near_range_end(res2.estimates[n], params.value(n)), "value": res2.estimates[n].value,
-                       "file_value": params.value(n), "training_chi2_drop": drop, "gap": gap,
-                       "reason": f"at its range end ({res2.estimates[n].value:.4g} {res2.estimates[n].unit}), where "
-                                 "the fit has no first-order information; the profile rejects the file's "
-                                 f"{params.value(n):.4g} {res2.estimates[n].unit} (training chi2 drop {drop:.4g} > "
-                                 f"gap {gap:.4g})"}
-            und.pop(n)
+        for n, end in at_end.items():
+            if drop > gap:
+                e = res2.estimates[n]
+                ends[n] = {"range_end": end, "value": e.value, "file_value": params.value(n),
+                           "training_chi2_drop": drop, "gap": gap,
+                           "reason": f"at its range end ({e.value:.4g} {e.unit}), where the fit has no first-order "
+                                     f"information; the profile rejects the file's {params.value(n):.4g} {e.unit} "
+                                     f"(training chi2 drop {drop:.4g} > gap {gap:.4g})"}
+                und.pop(n)
     if ends:
         job = {**job, "range_end": {**job.get("range_end", {}), **ends}}
     edge = [n for n in second if res2.estimates[n].at_bound and n not in job.get("second_stage_range_ends", ())]
