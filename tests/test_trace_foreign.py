@@ -485,9 +485,10 @@ def test_the_rig_bases_no_back_is_read_without_a_preload_on_a_load_sweep(traced,
     the papers' level-B Coulomb disk on the loaded brake, with no preload (its README), where the file says 3 kN.
     The sweep crosses the band where a preloaded pair would share the load twice, so the base step reads the
     preload there: at its range end, 0 N within 1 % of the file's 3 kN (no first-order information there: the band
-    has no width), the file's value rejected by the profile.  Held at 3 kN, the detailed no-back left 1.40 rad/s of
-    motor speed and a base mismatch the plausible corrections could not hold ("present, not attributed"); read, the
-    motor speed goes to 0.36 rad/s and the plausible base holds the record."""
+    has no width), the file's value rejected by the profile.  Held at 3 kN (0df431e), the detailed no-back left 1.40
+    rad/s of motor speed and a base mismatch the plausible corrections could not hold (the answer beyond the base
+    ``no_carrier``: "beyond the plausible set, no constant torque"); read, the motor speed goes to 0.36 rad/s and
+    the plausible base holds the record (``not_fitted``: no correction at its bound, or ``within``)."""
     doc = traced("null_rig_sweep_s65153")
     step = doc["effects_added"][0]
     assert step["name"] == "noback_quadrant_friction" and step["base_step"], step
@@ -495,7 +496,8 @@ def test_the_rig_bases_no_back_is_read_without_a_preload_on_a_load_sweep(traced,
     assert not pre.get("held") and pre["value"] < 0.01 * params.value("noback.preload"), pre
     assert pre["range_end"]["range_end"] == "min" and pre["range_end"]["training_chi2_drop"] > pre["range_end"]["gap"]
     assert doc["error_after"]["motor_speed"]["rms"] < 0.6, doc["error_after"]
-    assert (doc.get("beyond_plausible_base") or {}).get("status") != "beyond", doc.get("beyond_plausible_base")
+    assert (doc.get("beyond_plausible_base") or {}).get("status") in ("not_fitted", "within"), \
+        doc.get("beyond_plausible_base")
     assert not doc["unexplained"]
 
 

@@ -159,14 +159,20 @@ HOLDING_MIN_SAMPLES = 50
 BAND_MOVING_FRACTION = 0.05
 
 
+def noback_unloading_loads(params: ParameterSet) -> tuple[float, float]:
+    """``(compressive, tensile)`` load [N] beyond which the no-back's light disk set is unloaded and the loaded one
+    carries the whole load, at the parameter file's preload and load share."""
+    pre, share = params.value("noback.preload"), params.value("noback.load_share")
+    return pre / max(1.0 - share, 1e-9), pre / max(share, 1e-9)
+
+
 def noback_band_gate(params: ParameterSet, runs) -> str | None:
     """None where the runs move with the load inside the band where both no-back disk sets carry load (at least
     :data:`HOLDING_MIN_SAMPLES` such samples, at the file's preload and share), else why the preload is not freed.
     Outside that band the loaded set carries the load alone and the preload changes no moving sample; freed on
     rig-sim's two-magnitude sets anyway (10..30 kN, no moving sample below 6 kN) it took 864-1072 N from what the
     Coulomb drag or the axial force had carried, and neither was named."""
-    pre, share = params.value("noback.preload"), params.value("noback.load_share")
-    comp, tens = pre / max(1.0 - share, 1e-9), pre / max(share, 1e-9)
+    comp, tens = noback_unloading_loads(params)
     k = 0
     for r in runs:
         sig = getattr(r, "signals", None) or {}
@@ -194,8 +200,7 @@ def _rule_holding(params: ParameterSet, runs) -> tuple[float, str, tuple[str, ..
     the loaded set then carries the whole load; below it both sets share the load and the preload helps hold)."""
     lead, eta = params.value("screw.lead"), params.value("screw.efficiency_inverse")
     mu = lead * eta / (2.0 * math.pi)
-    pre, share = params.value("noback.preload"), params.value("noback.load_share")
-    unload = {+1.0: pre / max(1.0 - share, 1e-9), -1.0: pre / max(share, 1e-9)}  # compressive, tensile [N]
+    unload = dict(zip((+1.0, -1.0), noback_unloading_loads(params)))  # compressive, tensile [N]
     loaded = []
     for n, sign in HOLDING_COEFFICIENTS.items():
         k = sum(int(np.sum(sign * np.asarray(r.signals["load_force"], float) > unload[sign])) for r in runs
