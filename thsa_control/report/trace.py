@@ -699,7 +699,19 @@ def not_ruled_out_text(e: dict) -> str | None:
         + (f", not named: {a['not_named_because']}" if a.get("not_named_because") else "") + ")"
         for a in n["alternatives"])
         + f" (its own drop on the constant torques' samples {_num(n['own_drop_on_constant_torque_samples'], '.4g')},"
-        f" carry gap {_num(n['carry_gap'], '.3g')}: it was named as the physical effect that explains as much)")
+        f" carry gap {_num(n['carry_gap'], '.3g')}: " + _why_named(e.get("given_the_lift")) + ")")
+
+
+def _why_named(g: dict | None) -> str:
+    """Why a physical effect was named beside the constant torques it does not rule out (engine._gate_weaker_physical)."""
+    if not g:
+        return "it was named as the physical effect that explains as much"
+    if g.get("error"):
+        return (f"it explains less than {g['best_lift']} lifted ({_num(g['best_lift_drop'], '.4g')}); its fit with the "
+                f"joint lift failed ({g['error']}), so it was not judged against the lift")
+    return (f"it explains less than {g['best_lift']} lifted ({_num(g['best_lift_drop'], '.4g')}) and was named because, "
+            f"fitted with the joint lift, it still drops its window's held-out error by "
+            f"{_num(g['holdout_chi2_drop'], '.4g')} against {_num(g['chi2_threshold'], '.3g')}")
 
 
 def beyond_base_lines(doc: dict) -> list[str]:
