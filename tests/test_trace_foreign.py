@@ -1048,6 +1048,27 @@ def test_a_cold_drag_named_at_one_temperature_says_which_constant_torques_it_doe
 
 @pytest.mark.campaign
 @pytest.mark.slow
+def test_a_cold_drag_weaker_than_the_lift_is_not_named_in_its_place(traced):
+    """rig_direction_friction_checkcold: a 4.9 / 0.7 N m direction drag on the check cold (one temperature): the cold
+    drag explains less of the constant torques' samples than each constant torque lifted beyond its bound, and fitted
+    with the joint lift it adds nothing; it is not named, and the record's answer beyond a plausible base is a
+    constant torque present and not attributed, with the planted direction drag among its carriers."""
+    doc = traced("rig_direction_friction_checkcold")
+    assert "temperature_friction" not in _found(doc), _found(doc)
+    checks = [c["given_the_lift"] for r in doc["rounds"] for c in r["candidates"]
+              if c["name"] == "temperature_friction" and c.get("given_the_lift")]
+    assert checks, [(r["round"], [c["name"] for c in r["candidates"]]) for r in doc["rounds"]]
+    for g in checks:
+        assert "error" not in g, g
+        assert g["best_lift_drop"] - g["own_drop_on_constant_torque_samples"] > g["carry_gap"], g
+        assert not g["adds"] and g["holdout_chi2_drop"] <= g["chi2_threshold"], g
+    answer = doc["beyond_plausible_base"]
+    assert answer["status"] == "not_named", answer
+    assert "direction_friction" in [c["name"] for c in answer["carriers"]], answer["carriers"]
+
+
+@pytest.mark.campaign
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["rig_ratchet_backlash", "rig_ratchet_backlash_lowgain"])
 def test_a_disk_coefficient_held_without_the_pawl_clearance_is_determined_once_the_clearance_is_in(traced, name):
     """The pawl clearance on the trim ramps (30 kN compressive, both directions): the base step's model lacks it and

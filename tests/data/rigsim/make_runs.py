@@ -252,6 +252,13 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     # "An overdamped drive train is a lag")
     "rig_sensor_lag_screw_sweep": ("triangular_load_sweep", "rig", "sensor_lag=channel:screw_speed,tau_ms:15.3638",
                                    58808547, None, "foreign"),
+    # a 4.88 / 0.67 N m direction drag on the check cold (-30 degC, one load, one direction at a time; the nineteenth
+    # blind set's draw, seed from os.urandom): at one temperature the cold drag is a constant torque, and it was named
+    # with a held-out drop of 1380 on the constant torques' samples where each constant torque lifted beyond its
+    # bound dropped 1664 and the lossier base 1649; fitted with the joint lift it adds nothing (docs/trace_notes.md
+    # "A cold drag weaker than the lift")
+    "rig_direction_friction_checkcold": ("check_cold", "rig", "direction_friction=T_pos_Nm:4.88,T_neg_Nm:0.67",
+                                         584312, None, "library"),
 }
 
 #: run sets traced together (``thsa trace A.csv B.csv``; tests/test_trace_sets.py), written to ``sets/``: the rig base
