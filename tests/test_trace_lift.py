@@ -206,6 +206,34 @@ def test_the_records_answer_beyond_a_plausible_base_follows_the_last_joint_lift(
     assert b["status"] == "failed" and "solver stopped" in b["why"]
 
 
+def test_the_answer_beyond_the_base_says_when_the_record_is_too_short_to_name_a_constant_torque():
+    """Where every carrier but the base was refused by the robustness test on too few held-out segments to pass at
+    all, the not-named answer says the record is too short and what would hold enough; where one of them was refused
+    otherwise (here: on enough segments), it does not."""
+    final = ["standby_motor"]
+    short = {"segments": 4, "needed": 10, "smallest_p": 0.0625, "window_s_needed": 1.5}
+    rounds = _rounds(_joint(), refusal="improves 4 of 4 ...: too few segments to decide")
+    for c in rounds[0]["candidates"]:
+        c["not_robust"] = "improves 4 of 4 ...: too few segments to decide"
+        c["too_few_segments"] = dict(short)
+    b = beyond_base(rounds, final, BASE, [], EFF)
+    assert b["status"] == "not_named" and b["too_few_segments"] == short
+    assert "too short for the robustness test to pass any" in b["verdict"] and "10 needed" in b["verdict"]
+    assert "1.5 s of steady motion" in b["verdict"]
+    by = {c["name"]: c for c in b["carriers"]}
+    assert by["coulomb_friction"]["too_few_segments"] == short and "too_few_segments" not in by[EFF]
+    from thsa_control.report.trace import beyond_base_lines
+
+    said = "\n".join(beyond_base_lines({"beyond_plausible_base": b}))
+    assert "too short for any of them to pass the robustness test" in said and "1.5 s of steady motion" in said
+    # one carrier refused on enough segments: the record is not too short for it
+    del rounds[0]["candidates"][1]["too_few_segments"]
+    rounds[0]["candidates"][1]["not_robust"] = "improves 20 of 40 held-out segments"
+    b = beyond_base(rounds, final, BASE, [], EFF)
+    assert b["status"] == "not_named" and "too_few_segments" not in b and "too short" not in b["verdict"]
+    assert "too short" not in "\n".join(beyond_base_lines({"beyond_plausible_base": b}))
+
+
 def test_a_current_proportional_remainder_is_the_lossier_base_where_the_efficiencies_carry_the_answer():
     """The signature's torque proportional to the current is what a lossier screw and gearbox leaves: where the
     record's answer beyond a plausible base lists the efficiencies among its unnamed carriers, that test describes

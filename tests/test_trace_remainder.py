@@ -207,6 +207,34 @@ def test_signed_rank_weighs_a_segment_by_its_change_and_still_refuses_a_drop_few
     assert (d["improved"], d["worse"]) == (3, 57) and d["sign_p"] > 0.5 and d["signed_rank_p"] > 0.5
 
 
+def test_a_constant_torque_on_too_few_segments_is_refused_as_undecidable_not_as_inconsistent():
+    """Both robustness tests are smallest with every segment improved, at 2^-n: at alpha 1e-3 a window with nine
+    held-out segments that the candidate changes cannot pass however clear they are, and the refusal says so (with
+    what would hold enough: ten held-out segments, one in three of 50 ms, 1.5 s); with ten, all improved, the
+    signed-rank test passes (p 2^-10 = 9.8e-4) and nothing is reported."""
+    n, seg = 3000, 50
+    t, k, hold, starts, meas, before = _held_out_record(n, seg)  # 20 held-out segments
+    every = {**_fit(np.full(n, 0.5), meas, hold, starts, t), "aic": 0.0}
+    common = dict(k=1, alpha=1e-3, channel="motor_speed", min_window_reduction=0.5, max_channel_increase=0.1,
+                  robust=True)
+    for in_window, passes in ((9, False), (10, True)):
+        window = {"r": k < 3 * in_window}  # in_window held-out segments
+        adm = admission_tests({**before, "aic": 1.0}, every, {"motor_speed": 1.0}, mask=window, window=window,
+                              **common)
+        assert adm["window_segments"]["segments"] == adm["window_segments"]["improved"] == in_window
+        if passes:
+            assert adm["robust_fail"] is None and "robust_too_few_segments" not in adm, adm["robust_fail"]
+        else:
+            assert adm["robust_too_few_segments"] == {"segments": 9, "needed": 10, "smallest_p": 0.5 ** 9}
+            assert "too few segments to decide" in adm["robust_fail"] and "9 of 9" in adm["robust_fail"]
+    # a refusal on enough segments is no shortness: 12 of 20 improved, the rest worse
+    mixed = np.full(n, -0.1)
+    mixed[np.isin(k, np.unique(k[hold])[:12])] = 0.5
+    adm = admission_tests({**before, "aic": 1.0}, {**_fit(mixed, meas, hold, starts, t), "aic": 0.0},
+                          {"motor_speed": 1.0}, mask=None, window=None, **common)
+    assert adm["robust_fail"] and "robust_too_few_segments" not in adm and "too few" not in adm["robust_fail"]
+
+
 def _trim_xd():
     t, w, f = _trim()
     x = np.cumsum(w) * 2e-3 * 1e-4  # nut position [m]: 17.5 mm out and back

@@ -748,6 +748,13 @@ def beyond_base_lines(doc: dict) -> list[str]:
                      + (f" ({c['name']})" if not c["base"] else "")
                      + f", held-out drop {_num(c['holdout_chi2_drop'], '.4g')}" + (f": {vals}" if vals else "")
                      + (f"; not named alone: {c['not_named_because']}" if c.get("not_named_because") else ""))
+    short = b.get("too_few_segments") if b["status"] == "not_named" else None
+    if short:
+        lines.append(f"    the record is also too short for any of them to pass the robustness test of a constant torque: "
+                     f"{short['segments']} held-out segments in their window, {short['needed']} needed to pass at all (its "
+                     f"smallest p with {short['segments']} is {_num(short['smallest_p'], '.2g')}); about "
+                     f"{_num(short['window_s_needed'], '.2g')} s of steady motion outside the base's transients "
+                     "would hold them")
     if b["status"] == "not_named" and doc.get("separability"):
         lines.append("    the records that would tell them apart: under 'what this record cannot tell apart'")
     return lines

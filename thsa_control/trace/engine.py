@@ -940,6 +940,12 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "holdout_segments": _holdout_segment_changes(current, f, noise),
                 "window_segments": seg_win,
                 **({} if robust else {"not_robust": adm["robust_fail"]}),
+                **({"too_few_segments": {**adm["robust_too_few_segments"],
+                                         # one held-out segment in holdout_every: the steady constant-torque motion
+                                         # outside the base's transients the test needs
+                                         "window_s_needed": (adm["robust_too_few_segments"]["needed"]
+                                                             * st.holdout_every * st.segment_duration)}}
+                   if adm.get("robust_too_few_segments") else {}),
                 **({"periodicity": period_test} if period_test is not None else {}),
                 **({} if repeats else {"not_periodic": periodicity.describe(period_test)}),
                 **({} if adm["window_ok"] else {"window_too_small": True}),

@@ -251,7 +251,9 @@ def _joint_answer(r: Mapping, rounds: Sequence[Mapping], final_effects: Sequence
                                     for n, v in ((j.get("carrier_values") or {}).get(nm)
                                                  or c.get("parameters") or {}).items()},
                          "named": nm in added_here,
-                         **({"not_named_because": why_not} if why_not else {})})
+                         **({"not_named_because": why_not} if why_not else {}),
+                         **({"too_few_segments": c["too_few_segments"]}
+                            if why_not and c.get("too_few_segments") and why_not == c.get("not_robust") else {})})
     for c in carriers:
         c["inside_plausible_bounds"] = _inside(c["values"])
     out["carriers"] = carriers
@@ -272,12 +274,28 @@ def _joint_answer(r: Mapping, rounds: Sequence[Mapping], final_effects: Sequence
         return {**out, "status": "named",
                 "verdict": f"a constant torque beyond a plausible base, named: {', '.join(named)}"
                            + (f" (the record does not rule out {', '.join(others)})" if others else "")}
-    return {**out, "status": "not_named",
+    short = _too_short(carriers)
+    return {**out, "status": "not_named", **({"too_few_segments": short} if short else {}),
             "verdict": ("what the base leaves exceeds the plausible base corrections, and this record does not "
                         "attribute it: "
                         + ("one of " if len(carriers) > 1 else "")
                         + "; ".join(c["meaning"] + f" ({c['name']})" if not c["base"] else c["meaning"]
-                                    for c in carriers) + "; nothing named")}
+                                    for c in carriers) + "; nothing named"
+                        + (f" (the record is also too short for the robustness test to pass any of them: "
+                           f"{short['segments']} held-out segments in its window, {short['needed']} needed, about "
+                           f"{short['window_s_needed']:.2g} s of steady motion outside the base's transients)"
+                           if short else ""))}
+
+
+def _too_short(carriers: Sequence[Mapping]) -> dict | None:
+    """The record's window too short for the robustness test (:func:`thsa_control.trace.scoring.too_few_segments`)
+    where every carrier that is not the base was refused by it alone: no record of that length could name one, so
+    the answer says what would (the most segments any of them had, and what is needed).  None otherwise."""
+    effects = [c for c in carriers if not c["base"]]
+    if not effects or not all(c.get("too_few_segments") for c in effects):
+        return None
+    most = max((c["too_few_segments"] for c in effects), key=lambda t: t["segments"])
+    return dict(most)
 
 
 def not_ruled_out(own: float, joint: Mapping, candidates: Mapping[str, Mapping]) -> dict | None:
