@@ -202,3 +202,47 @@ def test_cogging_step_is_its_torque_impulse_over_the_step(params):
         assert coarse == pytest.approx(fine, abs=0.02 * abs(sampled) + 1e-9), (w0, coarse, fine, sampled)
         if w0 > 100:
             assert abs(coarse) < 0.2 * abs(sampled), (coarse, sampled)
+
+
+@pytest.mark.parametrize("effects", [["force_offset"], ["loadpath_compliance", "force_offset"],
+                                     ["loadpath_compliance", "force_offset", "noback_quadrant_friction"]])
+def test_an_unmeasured_axial_force_loads_the_load_path_and_takes_its_power(params, effects):
+    """``force_offset`` is a force on the output that the load cell does not see (a fixture's weight, a cable).
+    With a compliant load path it deflects the attachments like the measured load does: at rest under a load ``F``
+    the surface sits where the plant without the offset puts it under ``F + f0`` (``f0 / k``: 38 um at 1.5 kN on the
+    default contacts), in equilibrium; and the power it takes, ``f0 v``, closes the power balance (the electrical
+    power less what the load and the offset take is the losses plus the stored energy's rate) at a state
+    drawn moving, where the offset held at the parameter file's zero would let that term go untested."""
+    import casadi as ca
+
+    f0, load = 1500.0, 12e3
+    pr = params.replace({"drive.axial_force_offset": f0})
+    plant = build_plant(None, effects, params=pr)
+    p = plant.p_vector(pr)
+    x = np.asarray(plant.init(0.0, load, p)).ravel()
+    u = _u(plant, load_force=load)
+    u[plant.index("input", "enable_primary")] = 0.0
+    if "loadpath_compliance" in effects:
+        plain = build_plant(None, [e for e in effects if e != "force_offset"], params=pr)
+        x_plain = np.asarray(plain.init(0.0, load + f0, plain.p_vector(pr))).ravel()
+        s = plant.index("state", "surface_position")
+        assert x[s] == pytest.approx(x_plain[plain.index("state", "surface_position")], rel=1e-12)
+        x_zero = np.asarray(plain.init(0.0, load, plain.p_vector(pr))).ravel()
+        k = pr.value("loadpath.contact_stiffness_upper") + 2 * pr.value("loadpath.disk_spring_stiffness")
+        assert x_zero[s] - x[s] == pytest.approx(f0 / k, rel=0.05)  # beyond the preload: the upper contact
+        xdot = np.asarray(plant.f(x, u, p)[0]).ravel()
+        assert xdot[plant.index("state", "surface_speed")] == pytest.approx(0.0, abs=1e-9)
+    xs, us, ps = ca.SX.sym("x", len(plant.states)), ca.SX.sym("u", len(plant.inputs)), ca.SX.sym("p", len(p))
+    xdot, y = plant.f(xs, us, ps)
+    o = {n: y[k] for k, n in enumerate(plant.outputs)}
+    bal = ca.Function("b", [xs, us, ps], [o["electrical_power"] - o["load_power"], o["loss_power"],
+                                          ca.mtimes(ca.jacobian(o["stored_energy"], xs), xdot)])
+    r = plant.kinematic_ratio(p)
+    for w in (300.0, -300.0):
+        xm = x.copy()
+        for name, v in (("motor_speed", w), ("rotor_speed", w), ("surface_speed", r * w), ("motor_current", 4.0)):
+            if name in plant.state_names:
+                xm[plant.index("state", name)] = v
+        um = _u(plant, load_force=load, voltage_primary=40.0)
+        pin, loss, stored = (float(v) for v in bal(xm, um, p))
+        assert abs(pin - loss - stored) < 1e-8 * max(abs(pin), abs(loss), abs(stored), 1.0), (pin, loss, stored)

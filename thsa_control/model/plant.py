@@ -288,7 +288,8 @@ def _build(chosen: tuple[str, ...], names) -> Plant:
             "electrical_power": ("W", 1.5 * sum_terms(
                 _evaluate(a.outputs[v][1], res) * x[c]
                 for v, c in (("motor_voltage", "motor_current"), ("standby_voltage", "standby_current")) if c in x)),
-            "load_power": ("W", u["load_force"] * _evaluate(a.outputs["surface_speed"][1], res)),
+            "load_power": ("W", (u["load_force"] + a.unmeasured_axial_force())
+                           * _evaluate(a.outputs["surface_speed"][1], res)),
         }
         for name, (unit, expr) in extra.items():
             names_.append(name)

@@ -191,6 +191,12 @@ class Assembly:
         """True if ``effect`` is part of the set being assembled."""
         return effect in self.effects
 
+    def unmeasured_axial_force(self):
+        """The axial force on the output that the load cell does not see (``force_offset``'s
+        ``drive.axial_force_offset``; 0 without it): beside the measured load it loads the load path's attachments
+        (``loadpath_compliance``) and takes the power ``F v`` out with it (``load_power``)."""
+        return self.p["drive.axial_force_offset"] if self.has("force_offset") else 0.0
+
 
 def apply_structure(a: Assembly) -> None:
     """The functional structure (level A): one motor, rigid transmission, efficiencies, viscous drag."""

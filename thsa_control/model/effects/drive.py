@@ -80,7 +80,10 @@ def _direction_friction(a: Assembly) -> None:
 
 
 def _force_offset(a: Assembly) -> None:
-    a.axial_force = a.axial_force + a.p["drive.axial_force_offset"]
+    # with a compliant load path the offset acts on the surface, beside the measured load
+    # (papers._loadpath_compliance), so the attachments' force the screw carries holds it
+    if not a.has("loadpath_compliance"):
+        a.axial_force = a.axial_force + a.p["drive.axial_force_offset"]
 
 
 def _screw_friction_ripple(a: Assembly) -> None:

@@ -114,8 +114,11 @@ def _loadpath_compliance(a: Assembly) -> None:
     force, spring = loadpath_force_law(p, d, dd)
     a.translating_mass = p["loadpath.mass"]  # the surface is now a body of its own
     a.axial_force = force
+    # every axial force on the output passes through the load path's attachments: the measured load and an
+    # unmeasured one (force_offset: a fixture's weight, a cable), so both deflect it
+    outside = u["load_force"] + a.unmeasured_axial_force()
     a.rates["surface_position"] = x["surface_speed"]
-    a.rates["surface_speed"] = (force - u["load_force"]) / p["surface.mass"]
+    a.rates["surface_speed"] = (force - outside) / p["surface.mass"]
     a.loss("loadpath_damping", (force - spring) * dd)
     b = p["loadpath.backlash"]
     a.stored_energy["loadpath_springs"] = (
@@ -124,10 +127,11 @@ def _loadpath_compliance(a: Assembly) -> None:
         + 0.5 * p["loadpath.contact_stiffness_lower"] * ca.fmin(d + b, 0.0) ** 2
     )
     a.stored_energy["kinetic_surface"] = 0.5 * p["surface.mass"] * x["surface_speed"] ** 2
-    a.initial["surface_position"] = lambda x0, f0: x0["nut_position"] - loadpath_static_deflection(p, f0)
+    a.initial["surface_position"] = lambda x0, f0: x0["nut_position"] - loadpath_static_deflection(
+        p, f0 + a.unmeasured_axial_force())
     # a segment of a fit starts with the surface at the static deflection of the load, moving with the nut: the
     # surface mode (about 60 Hz) is not a free state there (fit/shooting.py)
-    a.quasi_static["surface_position"] = x["nut_position"] - loadpath_static_deflection(p, u["load_force"])
+    a.quasi_static["surface_position"] = x["nut_position"] - loadpath_static_deflection(p, outside)
     a.quasi_static["surface_speed"] = v_nut
     a.output("surface_position", "m", x["surface_position"])
     a.output("surface_speed", "m/s", x["surface_speed"])
