@@ -971,6 +971,31 @@ def test_a_current_offset_on_a_drive_never_off_is_said_not_tested(traced):
     assert not set(_found(doc)) & INVENTED, doc["rounds"]
 
 
+@pytest.mark.campaign
+@pytest.mark.slow
+def test_a_constant_torque_a_current_offset_covers_is_not_named_as_a_drag_or_a_force(traced):
+    """rig-sim's 0.25 A offset on the primary current sensor, a trim record with the drive off in its stops
+    (rig_current_offset): the offset is flagged with the drive off, and with the drive on it is a constant torque of
+    one sign that the constant torques beyond the base share.  Since an axial force loads the load path's
+    attachments (its LVDT term) the force offset explained most of it and was named at 6.1 kN; now each constant
+    torque beyond its bound whose excess the offset's torque covers (Kt I0 = 0.081 N m) is refused as the offset's,
+    and none is named.  The force offset's excess is the offset's torque within a factor of 1.5 (0.089 N m)."""
+    name = "rig_current_offset"
+    doc = traced(name)
+    sig = doc["residual_signature"]
+    off = next(d for d in sig["sensors"] if d.get("kind") == "sensor_offset")
+    assert off["significant"] and abs(off["offset"] - 0.25) < 0.02, off
+    assert not set(_found(doc)) & CONSTANT_TORQUES, _found(doc)
+    assert doc["beyond_plausible_base"]["status"] != "named", doc["beyond_plausible_base"]
+    checks = [c for r in doc["rounds"] for c in r["candidates"]
+              if c["name"] == "force_offset" and c.get("beyond_base_correction") and c.get("current_offset")]
+    assert checks, [(r["round"], [c["name"] for c in r["candidates"]]) for r in doc["rounds"]]
+    for c in checks:
+        co = c["current_offset"]
+        assert co["explained"] and 1 / 1.5 < co["excess_torque"] / co["offset_torque"] < 1.5, co
+        assert any("current-sensor offset" in w for w in c["implausible_because"]), c["implausible_because"]
+
+
 #: one-load records of a constant-torque library effect (one load magnitude and sign, both directions or a trim):
 #: the per-(load sign, direction) constants are spanned by the base's explainers (trace.json ``separability``), so
 #: the planted effect may be named, left ambiguous with others, or not named; never another constant torque alone

@@ -32,6 +32,7 @@ from thsa_control.trace.separability import (
     explainer_steps,
     separability,
     separability_sentences,
+    current_offset_torque,
     torque_sensitivities,
 )
 
@@ -180,6 +181,39 @@ def _S(params, pts):
     steps = explainer_steps(params, EXPLAINERS, {}, {"drive.coulomb_torque": 0.057, "drive.axial_force_offset": 400.0,
                                                      "screw.efficiency_direct": 0.07, "screw.efficiency_inverse": 0.07})
     return torque_sensitivities(("coulomb_friction", "force_offset"), params, EXPLAINERS, pts, steps)
+
+
+def test_a_current_offset_covers_a_constant_torque_beyond_its_bound_no_larger_than_twice_its_own(params):
+    """A current-sensor offset I0 read with the drive off biases the motor torque by Kt I0 (0.081 N m at 0.25 A): a
+    Coulomb drag found 0.033 N m beyond its 0.057 N m bound (its interval's near end) is within twice that, one found
+    0.39 N m beyond is not, and one whose interval reaches the bound has no excess; an axial force 2594 N beyond its
+    406 N bound costs that force times the nut travel per motor radian, through the screw's efficiency, at the
+    motor (analytic: r = lead / (2 pi N) = 2.91e-5 m/rad, between r eta_i and r / eta_d, gearbox losses aside)."""
+    from thsa_control.model.laws import kinematic_ratio, torque_constant
+
+    run = run_kinematics(read_run(DATA / "rig_current_offset.csv"), params)
+    kt, r = torque_constant(params), kinematic_ratio(params)
+    test = {"offset": 0.25, "significant": True}
+    effects = ("coulomb_friction", "force_offset")
+    c_bound = {"drive.coulomb_torque": (0.0, 0.057)}
+
+    def coulomb(value, ci):
+        return current_offset_torque(test, effects, params, {"drive.coulomb_torque": {"value": value, "ci95": ci}},
+                                     c_bound, [run], kt)
+
+    near = coulomb(0.1, [0.09, 0.11])
+    assert near["offset_torque"] == pytest.approx(kt * 0.25) and near["explained"], near
+    assert near["parameters"]["drive.coulomb_torque"]["beyond_bound"] == pytest.approx(0.033)
+    assert 0.9 * 0.033 < near["excess_torque"] < 1.1 * 0.033, near
+    far = coulomb(0.5, [0.45, 0.55])
+    assert not far["explained"] and far["excess_torque"] > 2 * far["offset_torque"], far
+    assert coulomb(0.1, [0.05, 0.2])["excess_torque"] == 0.0
+    force = current_offset_torque(test, effects, params, {"drive.axial_force_offset": {"value": 3000.0}},
+                                  {"drive.axial_force_offset": (-406.0, 406.0)}, [run], kt)
+    per_newton = force["excess_torque"] / 2594.0
+    eta_d, eta_i = params.value("screw.efficiency_direct"), params.value("screw.efficiency_inverse")
+    assert 0.9 * r * eta_i < per_newton < 1.1 * r / eta_d, (per_newton, r)
+    assert current_offset_torque(test, effects, params, {}, c_bound, [run], kt) is None
 
 
 def test_coulomb_drag_is_a_constant_torque_against_the_direction(params):

@@ -62,6 +62,7 @@ from ..fit.shooting import HOLDOUT_LAYOUTS
 from ..data.rigformat import speed_sensor_intervals
 from ..fit.replay import check_run_model
 from ..model import EFFECTS, CandidateSpec, build_plant, resolve_effects
+from ..model.laws import torque_constant
 from ..model.params import ParameterSet, default_parameters
 from .candidates import (CANDIDATES, DEFAULT_UNCERTAIN, EFFICIENCY_EXPLAINER, INERTIA_EXPLAINER, MIN_WINDOW_SAMPLES,
                          ANGLE_OF, HOLDING_COEFFICIENTS, PERIODS, PLAUSIBLE, SECOND_STAGE_GATES,
@@ -82,6 +83,7 @@ from .scoring import (_amplitude_out, _at_edge, _base_correction, _channel_error
                       zero_is_absent, ROBUST_TESTS)
 from .lift import (beyond_base, better, contribution, current_proportional_is_base, interior, joint_verdict,
                    lift_names, lifted as lifted_bounds, not_ruled_out)
+from .separability import current_offset_torque
 from .signature import SignatureSettings, base_transients, split_remainder
 from .threads import limit_blas_threads
 
@@ -897,6 +899,11 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "window_segments"))
             win_sys = adm["window_reduction_beyond_noise"]
             plausible, why = _plausibility(f, spec, plaus)
+            current_offset = _current_offset_check(spec, f, cur_sig, cur_effects, offer_beyond, base_bounds, runs,
+                                                   cur_params)
+            if current_offset is not None and current_offset["explained"]:
+                plausible = False
+                why.append(current_offset_reason(current_offset))
             fault = None
             if spec.name in slipping:  # a no-back that does not hold: what the candidate finds, not a refusal
                 held_why = [w for w in why if reason_kind(w) == "holding"]
@@ -940,6 +947,7 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 "holdout_segments": _holdout_segment_changes(current, f, noise),
                 "window_segments": seg_win,
                 **({} if robust else {"not_robust": adm["robust_fail"]}),
+                **({"current_offset": current_offset} if current_offset is not None else {}),
                 **({"too_few_segments": {**adm["robust_too_few_segments"],
                                          # one held-out segment in holdout_every: the steady constant-torque motion
                                          # outside the base's transients the test needs
@@ -1762,6 +1770,38 @@ def _any_at_bound(current: dict, base_doc: dict | None, base_priors: Mapping, ba
         if _at_edge(current["estimates"][n]["value"], lo, hi, base_priors[n][0]):
             return True
     return False
+
+
+def _current_offset_check(spec: CandidateSpec, f: dict, sig: dict | None, cur_effects, offer_beyond: Mapping,
+                          base_bounds: Mapping, runs, cur_params: ParameterSet) -> dict | None:
+    """A constant torque offered beyond its plausible bound on a record whose current reads an offset with the drive
+    off (the signature's significant ``sensor_offset`` test): whether that offset's torque covers what the candidate
+    finds beyond the bound (:func:`thsa_control.trace.separability.current_offset_torque`).  Measured: rig-sim's trim
+    record with a 0.25 A offset on the primary current sensor (rig_current_offset), where an axial force of 6.1 kN
+    [2.9, 9.3] was named beyond the base once the load path carried it (its LVDT term tipping the held-out drop to
+    229 against the Coulomb drag's 208): Kt I0 = 0.081 N m at the motor, the force's excess over the 406 N bound at
+    the interval's near end 0.073 N m.  None where the test did not find an offset or the candidate is no constant
+    torque beyond a bound."""
+    test = next((t for t in (sig or {}).get("sensors") or []
+                 if t.get("kind") == "sensor_offset" and t.get("significant")), None)
+    beyond = [n for n in spec.free if n in offer_beyond and n in base_bounds]
+    if test is None or not beyond or "error" in f:
+        return None
+    vals = {n: v for n, v in _params_out(f, spec).items() if n in beyond and not v.get("held")}
+    if not vals:
+        return None
+    return current_offset_torque(test, tuple(dict.fromkeys((*cur_effects, spec.name))),
+                                 ParameterSet.from_toml(f["params_toml"]), vals,
+                                 {n: tuple(base_bounds[n][:2]) for n in beyond}, runs, torque_constant(cur_params))
+
+
+def current_offset_reason(c: Mapping) -> str:
+    """The refusal text of a constant torque beyond the base that a current-sensor offset covers."""
+    return (f"the record's current reads {c['offset_A']:.3g} A with the drive off: with the drive on that offset is a "
+            f"torque of Kt x {abs(c['offset_A']):.3g} A = {c['offset_torque']:.3g} N m of one sign at the motor that "
+            f"the model takes for motor torque, and what this candidate finds beyond its plausible bound, "
+            f"{c['excess_torque']:.3g} N m at the motor at least, is within {c['factor']:g} x that: a current-sensor "
+            "offset, not a drag or a force")
 
 
 def _gate_on_joint(scored: list[dict], joint: dict) -> None:

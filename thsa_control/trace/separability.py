@@ -281,3 +281,46 @@ def explainer_steps(params: ParameterSet, names: Sequence[str], fitted: Mapping[
         v = fitted.get(n, params.value(n))
         out[n] = math.copysign(1e-3 * ref, v if v != 0 else 1.0)
     return out
+
+
+#: a constant torque beyond the base no larger than this many times the torque a current-sensor offset gives is
+#: read as that offset's (:func:`current_offset_torque`): the offset reading biases the active motor's torque by
+#: ``Kt I0`` while the model takes the recorded current for every motor's, so the model's torque error lies between
+#: one and two times ``Kt I0`` (one or both motors' recorded share)
+CURRENT_OFFSET_FACTOR = 2.0
+
+
+def current_offset_torque(test: Mapping, effects: Sequence[str], params: ParameterSet, values: Mapping[str, Mapping],
+                          bounds: Mapping[str, tuple], runs: Sequence[RigRun], kt: float) -> dict | None:
+    """Whether a current-sensor offset read with the drive off (``test``: the signature's ``sensor_offset`` test,
+    significant) can be the constant torque a candidate finds beyond its plausible bound.
+
+    The current loop regulates the offset reading, so with the drive on the active motor gives ``Kt I0`` less torque
+    than the recorded current says, of one sign in both directions of motion: to a model driven by the recorded
+    current that is a constant torque no drag or force of the rig has.  ``values``: the candidate's parameters
+    beyond their bound (name -> ``value``, ``ci95``), ``bounds``: name -> (lo, hi) of the plausible base; the part
+    beyond the bound nearest to it (the 95 % interval's end, the value where there is none) times the parameter's
+    torque at the motor (:func:`torque_sensitivities`, mean magnitude over the record's moving samples) is compared
+    with ``CURRENT_OFFSET_FACTOR Kt |I0|``.  Returns the numbers (``explained``: within it), or None where the
+    record has no moving sample or no parameter beyond its bound."""
+    names = [n for n in values if n in bounds]
+    pts = _operating_points(runs)
+    if not names or pts["speed"].size == 0:
+        return None
+    steps = {n: max(abs(float(values[n]["value"])), 1.0) * 1e-3 for n in names}
+    S = torque_sensitivities(steady_effects(effects), params, names, pts, steps)
+    excess = 0.0
+    parts = {}
+    for k, n in enumerate(names):
+        lo, hi = bounds[n][0], bounds[n][1]
+        ci = values[n].get("ci95") or [values[n]["value"]] * 2
+        # the least excess the fit allows: its interval's end nearest to the plausible range (0 where it reaches it)
+        near = min(ci, key=lambda v: max(v - hi, lo - v, 0.0))
+        beyond = max(near - hi, lo - near, 0.0)
+        t = float(np.mean(np.abs(S[:, k]))) * beyond
+        parts[n] = {"beyond_bound": beyond, "torque_at_motor": t}
+        excess += t
+    offset_torque = kt * abs(float(test["offset"]))
+    return {"offset_A": float(test["offset"]), "offset_torque": offset_torque, "excess_torque": excess,
+            "factor": CURRENT_OFFSET_FACTOR, "parameters": parts,
+            "explained": bool(excess <= CURRENT_OFFSET_FACTOR * offset_torque)}

@@ -20,10 +20,14 @@ identification and the tracer consume them like the papers' effects.  Every para
     and against negative motion when ``Td < 0``.  With ``coulomb_friction`` it
     gives any pair of direction-dependent Coulomb torques.
 ``force_offset``
-    A constant axial force on the nut [N, compressive positive]: gravity on an
-    inclined axis, a cable or a spring balancer.  It adds to the axial force
-    (so it passes through the screw and gear efficiencies, and loads the
-    no-back disks like the load does).
+    A constant axial force on the output that the load cell does not see [N,
+    compressive positive]: gravity on an inclined axis, a fixture, a cable or
+    a spring balancer.  It adds to the axial force (so it passes through the
+    screw and gear efficiencies, and loads the no-back disks like the load
+    does); with ``loadpath_compliance`` it acts on the surface beside the
+    measured load, so the load path's attachments carry and deflect under it
+    too (``Assembly.unmeasured_axial_force``), and it takes the power ``F v``
+    with the load (``load_power``).
 ``screw_friction_ripple``
     Friction that varies with the screw angle, once per screw revolution
     (screw run-out, a bent shaft, a ball-return bump)::
@@ -120,7 +124,8 @@ register(Effect("direction_friction", "Coulomb friction acting in one direction 
                 candidate=CandidateSpec("direction_friction", ("drive.direction_coulomb_torque",),
                                         {"drive.direction_coulomb_torque": 0.01}, base_correction=True,
                                         plausible={"drive.direction_coulomb_torque": "drag"})))
-register(Effect("force_offset", "constant axial force on the nut (gravity on an inclined axis, a cable)", (),
+register(Effect("force_offset", "constant axial force on the output that the load cell does not see (gravity on an "
+                "inclined axis, a fixture, a cable); with a compliant load path it loads the attachments too", (),
                 ("drive.axial_force_offset",), (), _force_offset,
                 phase=Phase.DRIVE,  # before the no-back, which reads the axial force
                 neutral={"drive.axial_force_offset": 0.0},
