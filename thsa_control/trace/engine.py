@@ -1780,7 +1780,7 @@ def _current_offset_check(spec: CandidateSpec, f: dict, sig: dict | None, cur_ef
     record with a 0.25 A offset on the primary current sensor (rig_current_offset), where an axial force of 6.1 kN
     [2.9, 9.3] was named beyond the base once the load path carried it (its LVDT term tipping the held-out drop to
     229 against the Coulomb drag's 208): Kt I0 = 0.081 N m at the motor, the force's excess over the 406 N bound at
-    the interval's near end 0.073 N m.  None where the test did not find an offset or the candidate is no constant
+    the interval's near end 0.089 N m.  None where the test did not find an offset or the candidate is no constant
     torque beyond a bound."""
     test = next((t for t in (sig or {}).get("sensors") or []
                  if t.get("kind") == "sensor_offset" and t.get("significant")), None)

@@ -307,7 +307,8 @@ def current_offset_torque(test: Mapping, effects: Sequence[str], params: Paramet
     pts = _operating_points(runs)
     if not names or pts["speed"].size == 0:
         return None
-    steps = {n: max(abs(float(values[n]["value"])), 1.0) * 1e-3 for n in names}
+    steps = explainer_steps(params, names, {n: float(values[n]["value"]) for n in names},
+                            {n: max(abs(bounds[n][0]), abs(bounds[n][1])) for n in names})
     S = torque_sensitivities(steady_effects(effects), params, names, pts, steps)
     excess = 0.0
     parts = {}
