@@ -1110,7 +1110,9 @@ def trace(runs: RigRun | Sequence[RigRun], level: str | None = "A", effects: Ite
                 **({"profile": best["profile"]} if best.get("profile") else {})}
         if joint and "error" not in joint and joint["significant"] and not _is_explainer(best) \
                 and best["_spec"].channel == "motor_speed":
-            own = holdout_total(current, noise, cmask) - holdout_total(best["_fit"], noise, cmask)
+            own = best.get("_own_on_constant_torques")
+            if own is None:  # the gate did not score it (no single lift to weigh against)
+                own = holdout_total(current, noise, cmask) - holdout_total(best["_fit"], noise, cmask)
             alts = not_ruled_out(own, joint, {c["name"]: c for c in scored})
             if alts:
                 step["not_ruled_out"] = alts
@@ -1857,6 +1859,7 @@ def _gate_weaker_physical(scored: list[dict], joint: dict, current: dict, jf: di
         if "error" in s or not s.get("significant") or _is_explainer(s) or s["_spec"].channel != "motor_speed":
             continue
         own = b0 - holdout_total(s["_fit"], noise, cmask)
+        s["_own_on_constant_torques"] = own  # read again for what a named effect does not rule out
         if top - own > gap:
             weaker.append((s, own))
     if not weaker:
