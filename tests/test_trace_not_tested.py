@@ -54,3 +54,26 @@ def test_a_drive_off_stretch_makes_the_current_offset_test_and_finds_the_offset(
     co = next(d for d in out["sensors"] if d["kind"] == "sensor_offset")
     assert co["samples"] == int(off.sum()) and abs(co["offset"] - 0.3) < 0.01 and co["significant"]
     assert "motor_current with the drive off" not in {d["test"] for d in out["not_tested"]}
+
+
+def test_a_drift_is_tested_at_a_constant_command_and_said_untested_where_the_command_decays():
+    """A missing torque drifting by 0.01 N m/s on the reversal record: at its constant +-1 mm/s command the drift
+    test runs and flags it.  The same residual under a command that decays within each pass (a proportional
+    position loop's, 2 1/s: 20 % over a 0.1 s segment) is no longer compared as one operating point: the drift test
+    is not made, and the signature says so with the segments it left out."""
+    run, fit = _record(5, lambda t, tau, angle: 0.01 * t)
+    sig = _sig(run, fit)
+    dr = next(d for d in sig["tests"] if d["variable"] == "time (slow drift)")
+    assert dr["significant"] and dr["passes"] >= 6 and "segments_off_command" not in dr, dr
+    assert "time (slow drift)" not in {d["test"] for d in sig["not_tested"]}
+    t = run.time
+    start = np.r_[0.0, t[1:][np.diff(np.sign(run.signals["speed_cmd"])) != 0]]
+    since = t - start[np.searchsorted(start, t, side="right") - 1]
+    decaying = dataclasses.replace(run, signals={**run.signals,
+                                                 "speed_cmd": run.signals["speed_cmd"] * np.exp(-2.0 * since)})
+    out = _sig(decaying, fit)
+    assert not any(d["variable"] == "time (slow drift)" for d in out["tests"]), out["tests"]
+    why = next(d for d in out["not_tested"] if d["test"] == "time (slow drift)")
+    assert why["run"] is None and "changing speed command" in why["why"], why
+    assert int(why["why"].split()[0]) >= dr["segments"], (why, dr["segments"])
+    assert any("time (slow drift)" in ln for ln in not_tested_lines(out)), not_tested_lines(out)

@@ -322,6 +322,42 @@ def test_drift_test_takes_levels_per_pass_as_nuisance_and_finds_a_drift_of_eithe
     assert r["slopes"][1] == pytest.approx(-0.008, abs=4 * r["slope_stderr"][1])
 
 
+def test_a_speed_step_inside_a_pass_is_no_drift_once_the_passes_are_cut_at_the_command():
+    """A remainder that depends on the speed (a Stribeck drag of another rig's base, 0.01 N m per step of the
+    command) on a pass whose command steps down halfway without a stop: over the pass the step reads as a slope in
+    time (significant); cut at the command (the segments' constant speed command), each pass is one level, and a
+    real drift on the same passes is still found."""
+    from thsa_control.trace.signature import drift_test
+
+    rng = np.random.default_rng(7)
+    tm, y, d = _segments(rng, level=(0.02, -0.01))
+    cmd = np.where(d > 0, np.where(tm < 2.75, 60.0, 30.0), np.where(tm < 7.25, -60.0, -30.0))
+    y = y + 0.01 * (np.abs(cmd) == 60.0)
+    assert drift_test(tm, y, d, alpha=1e-4)["significant"]
+    r = drift_test(tm, y, d, cmd, alpha=1e-4)
+    assert r["passes"] == 4 and not r["significant"], r
+    r = drift_test(tm, y + 0.01 * tm, d, cmd, alpha=1e-4)
+    assert r["passes"] == 4 and r["significant"], r
+    assert all(v == pytest.approx(0.01, abs=4 * e) for v, e in zip(r["slopes"], r["slope_stderr"])), r
+    # a command ramping by 0.2 % from segment to segment (11 % over a pass) is cut wherever it has moved 0.5 %: three
+    # segments a piece, too few for a pass
+    ramp = d * 60.0 * 1.002 ** np.r_[np.arange(np.sum(d > 0)), np.arange(np.sum(d < 0))]
+    assert drift_test(tm, y + 0.01 * tm, d, alpha=1e-4)["significant"]
+    assert drift_test(tm, y + 0.01 * tm, d, ramp, alpha=1e-4) is None
+
+
+def test_command_level_is_the_segments_command_where_it_is_one_constant():
+    """A velocity-loop plateau (the command constant, or within 0.5 % of it) has one level; a proportional position
+    loop's command over one 50 ms segment (1.8 1/s: 9 % decay), a zero command, a gap in the record have none."""
+    from thsa_control.trace.signature import COMMAND_RTOL, command_level
+
+    assert command_level(np.full(50, -62.5)) == -62.5
+    assert command_level(62.5 * (1 + 0.9 * COMMAND_RTOL * np.sin(np.arange(50)))) == pytest.approx(62.5, rel=COMMAND_RTOL)
+    assert command_level(150.0 * np.exp(-1.8 * np.arange(50) * 1e-3)) is None
+    assert command_level(np.zeros(50)) is None
+    assert command_level(np.r_[np.full(25, 62.5), np.nan, np.full(24, 62.5)]) is None
+
+
 def test_drift_test_false_alarm_rate_is_its_level():
     """Calibration over 400 seeds of per-pass levels and white segment noise: the rejection rate at alpha = 0.05
     lies inside the binomial 99.9 % band."""

@@ -35,6 +35,7 @@ from .signature import (
     current_noise,
     binned_mean,
     cross_correlation,
+    command_level,
     current_drift_test,
     current_offset_test,
     drift_test,
@@ -181,8 +182,10 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     local_in: dict[str, list] = {"e": [], "x": [], "d": []}
     steady: list = []  # outside the base's transients, per run
     transients: dict = {}  # run name -> the base's transients (the load-cell hold test's too)
-    drift_in: list = []  # (time, segment torque, direction)
-    drift_at: list = []  # (nut position, run number) of each drift segment: time told from position
+    drift_in: list = []  # (time, segment torque, direction, speed command)
+    drift_at: list = []  # (nut position, run and command group) of each drift segment: time told from position
+    drift_groups: dict = {}  # (run number, speed command) -> group number
+    drift_off_command = 0  # steady segments in motion left out of the drift tests: the speed command not constant
     accel: list = []  # J x the measured motor acceleration, per run
     levels: list = []  # the group of each sample (run, direction of motion, sign of the load), per run
     cycles: dict[str, list] = {}  # angle -> its revolutions per multiple-shooting segment at each sample, per run
@@ -269,11 +272,20 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         local_in["e"] += [np.where(steady[-1], torque[-1], np.nan), gap]
         local_in["x"] += [cols["nut_position"][1], gap]
         # a slow drift: one torque per segment outside the base's transients while moving, passes per direction
+        # at one constant speed command (unchanged conditions: a position loop's decaying command moves the speed,
+        # and a speed-dependent remainder of the base with it); the passes are cut where the command changes, and
+        # the position test's levels are per run and command
         sgn = cols["speed_sign"][1]
+        cmd = np.asarray(run.signals["speed_cmd"], float)
         for a, b, tm, tq in segment_torques(t, e, starts, inertia):
             if sgn[a] != 0 and steady[-1][a:b].all() and np.all(sgn[a:b] == sgn[a]):
-                drift_in.append((t_offset + tm, tq, float(sgn[a])))
-                drift_at.append((float(np.mean(cols["nut_position"][1][a:b])), float(len(torque))))  # position, run
+                level = command_level(cmd[a:b])
+                if level is None:
+                    drift_off_command += 1
+                    continue
+                drift_in.append((t_offset + tm, tq, float(sgn[a]), level))
+                group = drift_groups.setdefault((len(torque), level), float(len(drift_groups)))
+                drift_at.append((float(np.mean(cols["nut_position"][1][a:b])), group))  # position, run and command
         t_offset += float(t[-1] - t[0]) + 1.0  # runs one after another, separated by more than a pass gap
         local_in["d"] += [cols["speed_sign"][1], np.zeros(100)]
     if not torque:
@@ -317,11 +329,13 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         for name, a in (loc.get("added_shapes") or {}).items():
             _against_fitted(a, name, params)
         tests.insert(0, loc) if loc["significant"] else tests.append(loc)
-    if drift_in:
-        dr = drift_test(*(np.asarray(v) for v in zip(*drift_in)), alpha=s.local_alpha, min_r2=s.min_r2)
-        if dr is not None:
-            tests.insert(0, dr) if dr["significant"] else tests.append(dr)
-            _time_or_position(dr, drift_in, drift_at, tests, s)
+    dr = drift_test(*(np.asarray(v) for v in zip(*drift_in)), alpha=s.local_alpha, min_r2=s.min_r2) \
+        if drift_in else None
+    if dr is not None:
+        tests.insert(0, dr) if dr["significant"] else tests.append(dr)
+        _time_or_position(dr, drift_in, drift_at, tests, s)
+    if dr is not None and drift_off_command:
+        dr["segments_off_command"] = drift_off_command
     bk = breakaway_of_runs(runs, s)
     if bk is not None:
         tests.insert(0, bk) if bk["significant"] else tests.append(bk)
@@ -350,6 +364,14 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
                                "why": f"the drive is off on {int(np.count_nonzero(~on))} samples (fewer than "
                                       f"{MIN_DRIVE_OFF_SAMPLES}); with the drive on, an offset reads as a constant "
                                       "torque at the motor, which the constant-torque explainers share"})
+    if dr is None and drift_off_command:
+        # said, not silent: a record in motion only at a changing speed command (a position loop's steps)
+        not_tested.append({"test": "time (slow drift)", "run": None,
+                           "would_show": "a drifting sensor or torque constant in the missing torque",
+                           "why": f"{drift_off_command} of the steady segments in motion are at a changing speed "
+                                  "command (a position loop's); the test needs eight at one constant command, four "
+                                  "of them in one pass: a speed-dependent remainder of the base trends in time "
+                                  "wherever the speed does"})
     # an angle test's harmonics in step with the fit segments: a periodic torque there is not told from the grid
     seg = float(np.median([x for x in seg_lens if x > 0] or [0.0]))
     for t in tests:
@@ -462,7 +484,7 @@ def _time_or_position(dr: dict, drift_in: list, drift_at: list, tests: list, s: 
     same-direction passes at the same positions grow), the drift is significant even when the per-pass slopes are
     not (``flagged_by``): each test at the replicate-based level, so the drift's family-wise level is at most twice
     it.  Otherwise the separation is reported with the drift test (``time_or_position``) and changes nothing."""
-    tm, tq, dirn = (np.asarray(v) for v in zip(*drift_in))
+    tm, tq, dirn = (np.asarray(v) for v in list(zip(*drift_in))[:3])  # (the speed command: the group in drift_at)
     pos, grp = (np.asarray(v) for v in zip(*drift_at))
     sep = time_or_position_test(tm, tq, dirn, pos, grp, alpha=s.local_alpha)
     if sep is None:

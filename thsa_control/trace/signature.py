@@ -75,7 +75,8 @@ __all__ = ["SignatureSettings", "signature_tests", "sensor_consistency", "missin
            "harmonics_test", "second_grid_ratio", "SECOND_GRID_RATIOS",
            "time_or_position_test", "hold_samples", "still_band", "stretches", "travel_passes",
            "hold_drift_test", "breakaway_events", "breakaway_position_test", "current_noise",
-           "current_drift_test", "TORQUE_CONSTANT_DRIFT", "BREAKAWAY_VARIABLE"]
+           "current_drift_test", "TORQUE_CONSTANT_DRIFT", "BREAKAWAY_VARIABLE", "command_level",
+           "COMMAND_RTOL"]
 
 #: signature variables whose structure an unmodelled-but-declared base does not leave: a feature repeated at a nut
 #: position over passes, periodic in motor or screw angle, a slow drift, a torque proportional to the current
@@ -1501,18 +1502,50 @@ def stretches(mask, labels=None, max_gap: int = 1) -> list[np.ndarray]:
     return np.split(idx, np.flatnonzero(brk) + 1)
 
 
-def _segment_passes(mid_time, direction, max_gap: float, min_segments: int) -> list:
+#: the speed command's relative span within which a drift segment is at one operating point (:func:`command_level`):
+#: a velocity-loop test's setpoint is constant on its plateaus, a position loop's command follows its error
+COMMAND_RTOL = 0.005
+
+
+def command_level(cmd, rtol: float = COMMAND_RTOL) -> float | None:
+    """The speed command of one segment's samples where it is one constant (every sample within ``rtol`` of the
+    median's magnitude), else None: the slow-drift tests compare segments under unchanged conditions, and a
+    missing torque that depends on the speed (a Stribeck drag of another rig's base) trends in time wherever the
+    speed does (rig-sim's position steps: a proportional position loop's command decays over seconds, and the
+    declared base's residual there drifted at p 1e-8 on a null record)."""
+    c = np.asarray(cmd, float)
+    if c.size == 0 or not np.all(np.isfinite(c)):
+        return None
+    m = float(np.median(c))
+    if m == 0.0 or float(np.max(np.abs(c - m))) > rtol * abs(m):
+        return None
+    return m
+
+
+def _segment_passes(mid_time, direction, max_gap: float, min_segments: int, command=None) -> list:
     """The passes of a record's segments (index arrays, in time order): a new pass where the direction of motion
-    changes or the time to the next segment exceeds ``max_gap``; passes of fewer than ``min_segments`` left out."""
-    brk = np.flatnonzero((np.diff(mid_time) > max_gap) | (np.diff(direction) != 0)) + 1
+    changes, the time to the next segment exceeds ``max_gap`` or (with ``command``, each segment's constant speed
+    command, :func:`command_level`) the command departs from the pass's first by more than :data:`COMMAND_RTOL`
+    (a command ramping slowly from segment to segment is no one operating point); passes of fewer than
+    ``min_segments`` left out."""
+    cut = (np.diff(mid_time) > max_gap) | (np.diff(direction) != 0)
+    if command is not None:
+        c = np.asarray(command, float)
+        ref = c[0] if c.size else 0.0
+        for j in range(1, c.size):
+            if cut[j - 1] or abs(c[j] - ref) > COMMAND_RTOL * abs(ref):
+                cut[j - 1] = True
+                ref = c[j]
+    brk = np.flatnonzero(cut) + 1
     return [q for q in np.split(np.arange(len(mid_time)), brk) if q.size >= min_segments]
 
-def drift_test(mid_time, torque, direction, *, max_gap: float = 0.2, min_segments: int = 4,
+def drift_test(mid_time, torque, direction, command=None, *, max_gap: float = 0.2, min_segments: int = 4,
                alpha: float = 1e-6, min_r2: float = 0.01) -> dict | None:
     """A slow drift of the missing torque in time under unchanged conditions (a load-cell zero drifting, a warming
     motor's torque constant): per-segment torques (:func:`segment_torques`, segments outside the base's
-    transients, in motion) cut into passes (runs of segments of one direction without a gap above ``max_gap``
-    [s]); nested F test of one slope in time per pass against one level per pass.
+    transients, in motion) cut into passes (runs of segments of one direction and, with ``command``, one speed
+    command, :func:`command_level`, without a gap above ``max_gap`` [s]); nested F test of one slope in time per
+    pass against one level per pass.
 
     The levels are nuisance: a declared model of another rig's base leaves a different constant remainder per
     direction, speed and load, and a regression on time over the whole record would take an extension followed
@@ -1527,11 +1560,15 @@ def drift_test(mid_time, torque, direction, *, max_gap: float = 0.2, min_segment
     tm = np.asarray(mid_time, float)
     y = np.asarray(torque, float)
     d = np.asarray(direction, float)
+    c = None if command is None else np.asarray(command, float)
     ok = np.isfinite(tm) & np.isfinite(y) & (d != 0)
+    if c is not None:
+        ok &= np.isfinite(c)
+        c = c[ok]
     tm, y, d = tm[ok], y[ok], d[ok]
     if y.size < 2 * min_segments:
         return None
-    passes = _segment_passes(tm, d, max_gap, min_segments)
+    passes = _segment_passes(tm, d, max_gap, min_segments, c)
     if not passes:
         return None
     idx = np.concatenate(passes)
