@@ -437,6 +437,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
                        # the drift test's data: one torque per steady segment (runs one after another in time)
                        "segment_torque": {"time": [d[0] for d in drift_in], "torque": [d[1] for d in drift_in],
                                           "direction": [d[2] for d in drift_in],
+                                          "speed_command": [d[3] for d in drift_in],
                                           "nut_position": [d[0] for d in drift_at]},
                        # the load-cell drift test's data: the load reading and the LVDT in the holds
                        "hold_load": hold_curve}}
