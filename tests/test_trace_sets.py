@@ -207,7 +207,14 @@ def test_a_current_offset_covers_a_constant_torque_beyond_its_bound_no_larger_th
     assert 0.9 * 0.033 < near["excess_torque"] < 1.1 * 0.033, near
     far = coulomb(0.5, [0.45, 0.55])
     assert not far["explained"] and far["excess_torque"] > 2 * far["offset_torque"], far
-    assert coulomb(0.1, [0.05, 0.2])["excess_torque"] == 0.0
+    inside = coulomb(0.1, [0.05, 0.2])
+    assert inside["excess_torque"] == 0.0 and inside["explained"], inside
+    # the estimate's own excess, 0.043 beyond the bound, for the text; the refusal then says the interval reaches it
+    assert 0.9 * 0.043 < inside["estimate_excess_torque"] < 1.1 * 0.043, inside
+    from thsa_control.trace.engine import current_offset_reason
+
+    assert "not beyond its plausible bound at the 95 % level" in current_offset_reason(inside)
+    assert "at least" in current_offset_reason(near) and "95 %" not in current_offset_reason(near)
     force = current_offset_torque(test, effects, params, {"drive.axial_force_offset": {"value": 3000.0}},
                                   {"drive.axial_force_offset": (-406.0, 406.0)}, [run], kt)
     per_newton = force["excess_torque"] / 2594.0

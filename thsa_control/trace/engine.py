@@ -1799,11 +1799,17 @@ def _current_offset_check(spec: CandidateSpec, f: dict, sig: dict | None, cur_ef
 
 def current_offset_reason(c: Mapping) -> str:
     """The refusal text of a constant torque beyond the base that a current-sensor offset covers."""
-    return (f"the record's current reads {c['offset_A']:.3g} A with the drive off: with the drive on that offset is a "
-            f"torque of Kt x {abs(c['offset_A']):.3g} A = {c['offset_torque']:.3g} N m of one sign at the motor that "
-            f"the model takes for motor torque, and what this candidate finds beyond its plausible bound, "
-            f"{c['excess_torque']:.3g} N m at the motor at least, is within {c['factor']:g} x that: a current-sensor "
-            "offset, not a drag or a force")
+    head = (f"the record's current reads {c['offset_A']:.3g} A with the drive off: with the drive on that offset is "
+            f"a torque of Kt x {abs(c['offset_A']):.3g} A = {c['offset_torque']:.3g} N m of one sign at the motor "
+            "that the model takes for motor torque, and ")
+    est = c.get("estimate_excess_torque")
+    if c["excess_torque"] <= 0.0 and est is not None:
+        # the interval reaches back inside the bound: no excess the fit requires, only the estimate's
+        return head + (f"this candidate is not beyond its plausible bound at the 95 % level (its interval reaches "
+                       f"inside it; {est:.3g} N m at the motor beyond it at its estimate): what it finds is within "
+                       f"{c['factor']:g} x the offset's torque, a current-sensor offset, not a drag or a force")
+    return head + (f"what this candidate finds beyond its plausible bound, {c['excess_torque']:.3g} N m at the motor "
+                   f"at least, is within {c['factor']:g} x that: a current-sensor offset, not a drag or a force")
 
 
 def _gate_on_joint(scored: list[dict], joint: dict) -> None:

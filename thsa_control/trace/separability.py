@@ -301,8 +301,9 @@ def current_offset_torque(test: Mapping, effects: Sequence[str], params: Paramet
     beyond their bound (name -> ``value``, ``ci95``), ``bounds``: name -> (lo, hi) of the plausible base; the part
     beyond the bound nearest to it (the 95 % interval's end, the value where there is none) times the parameter's
     torque at the motor (:func:`torque_sensitivities`, mean magnitude over the record's moving samples) is compared
-    with ``CURRENT_OFFSET_FACTOR Kt |I0|``.  Returns the numbers (``explained``: within it), or None where the
-    record has no moving sample or no parameter beyond its bound."""
+    with ``CURRENT_OFFSET_FACTOR Kt |I0|`` (``estimate_excess_torque``: the same at the estimate, for the report).
+    Returns the numbers (``explained``: within it), or None where the record has no moving sample or no parameter
+    beyond its bound."""
     names = [n for n in values if n in bounds]
     pts = _operating_points(runs)
     if not names or pts["speed"].size == 0:
@@ -310,18 +311,22 @@ def current_offset_torque(test: Mapping, effects: Sequence[str], params: Paramet
     steps = explainer_steps(params, names, {n: float(values[n]["value"]) for n in names},
                             {n: max(abs(bounds[n][0]), abs(bounds[n][1])) for n in names})
     S = torque_sensitivities(steady_effects(effects), params, names, pts, steps)
-    excess = 0.0
+    excess = estimate = 0.0
     parts = {}
     for k, n in enumerate(names):
         lo, hi = bounds[n][0], bounds[n][1]
-        ci = values[n].get("ci95") or [values[n]["value"]] * 2
+        v = float(values[n]["value"])
+        ci = values[n].get("ci95") or [v] * 2
         # the least excess the fit allows: its interval's end nearest to the plausible range (0 where it reaches it)
-        near = min(ci, key=lambda v: max(v - hi, lo - v, 0.0))
+        near = min(ci, key=lambda u: max(u - hi, lo - u, 0.0))
         beyond = max(near - hi, lo - near, 0.0)
-        t = float(np.mean(np.abs(S[:, k]))) * beyond
-        parts[n] = {"beyond_bound": beyond, "torque_at_motor": t}
+        sens = float(np.mean(np.abs(S[:, k])))
+        t = sens * beyond
+        parts[n] = {"beyond_bound": beyond, "torque_at_motor": t,
+                    "estimate_torque_at_motor": sens * max(v - hi, lo - v, 0.0)}
         excess += t
+        estimate += parts[n]["estimate_torque_at_motor"]
     offset_torque = kt * abs(float(test["offset"]))
     return {"offset_A": float(test["offset"]), "offset_torque": offset_torque, "excess_torque": excess,
-            "factor": CURRENT_OFFSET_FACTOR, "parameters": parts,
+            "estimate_excess_torque": estimate, "factor": CURRENT_OFFSET_FACTOR, "parameters": parts,
             "explained": bool(excess <= CURRENT_OFFSET_FACTOR * offset_torque)}
