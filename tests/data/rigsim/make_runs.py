@@ -106,6 +106,11 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     "rig_sensor_gain": ("trim_ramp_compressive", "rig", "sensor_gain=channel:screw_speed", 33, None, "foreign"),
     "rig_loadcell_drift": ("trim_ramp_compressive", "rig", "loadcell_drift", 34, None, "foreign"),
     "rig_current_offset": ("trim_ramp_compressive", "rig", "current_offset", 35, None, "foreign"),
+    # a second current-sensor offset with the drive off in the stops, to measure the current-offset rule
+    # (separability.CURRENT_OFFSET_FACTOR) on a record that is not the one it was reasoned on: the cold ramp (two
+    # same-direction ramps at -30 degC against 55 kN, the drive off between them), offset and seed drawn from
+    # os.urandom (-0.33 A, 577301)
+    "rig_current_offset_cold": ("cold_ramp", "rig", "current_offset=offset_A:-0.33", 577301, None, "foreign"),
     "rig_kt_temperature": ("trim_ramp_compressive", "rig", "kt_temperature", 36, None, "foreign"),
     "rig_worn_spot_stiction": ("reversals_under_load", "rig", "worn_spot_stiction", 37, 5.0, "foreign"),
     # the worn spot where the scenario starts twice in one direction under one load (cold_ramp: extension starts at
