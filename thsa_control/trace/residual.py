@@ -368,10 +368,10 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         # said, not silent: a record in motion only at a changing speed command (a position loop's steps)
         not_tested.append({"test": "time (slow drift)", "run": None,
                            "would_show": "a drifting sensor or torque constant in the missing torque",
-                           "why": f"{drift_off_command} of the steady segments in motion are at a changing speed "
-                                  "command (a position loop's); the test needs eight at one constant command, four "
-                                  "of them in one pass: a speed-dependent remainder of the base trends in time "
-                                  "wherever the speed does"})
+                           "why": f"{drift_off_command} of the {drift_off_command + len(drift_in)} steady segments "
+                                  "in motion are at a changing speed command (a position loop's); the test needs "
+                                  "eight at one constant command, four of them in one pass: a speed-dependent "
+                                  "remainder of the base trends in time wherever the speed does"})
     # an angle test's harmonics in step with the fit segments: a periodic torque there is not told from the grid
     seg = float(np.median([x for x in seg_lens if x > 0] or [0.0]))
     for t in tests:
