@@ -596,6 +596,8 @@ FOREIGN["rig_kt_temperature_reversals"] = tuple(CATALOGUE["foreign"]["kt_tempera
 FOREIGN["rig_friction_bump_reversals"] = FOREIGN["rig_friction_bump"]
 #: a lag on the screw-speed sensor on the load sweep, where an overdamped drive-train compliance stood in for it
 FOREIGN["rig_sensor_lag_screw_sweep"] = tuple(CATALOGUE["foreign_sensor_channel"]["screw_speed"])
+#: the friction bump crossed once, on the excitation around one speed (the one-pass test's signature)
+FOREIGN["rig_friction_bump_excitation"] = FOREIGN["rig_friction_bump"]
 #: a second current-sensor offset (-0.33 A, drawn) on the cold ramp, with the drive off in its stops
 FOREIGN["rig_current_offset_cold"] = FOREIGN["rig_current_offset"]
 
@@ -663,6 +665,31 @@ def test_no_torque_constant_drift_where_the_current_does_not_scale(traced, name)
 
     doc = traced(name)
     assert TORQUE_CONSTANT_DRIFT not in doc["residual_signature"]["structured"], doc["residual_signature"]["structured"]
+
+
+@pytest.mark.campaign
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(p.stem for p in DATA.glob("*.csv")))
+def test_a_bump_crossed_once_is_flagged_where_one_is_and_nowhere_else(traced, name):
+    """Records whose positions are crossed once (no bin visited by two passes): the one-pass test compares each bin
+    of a pass with the record's own other bins.  On the friction bump crossed once (rig_friction_bump_excitation,
+    5.2 N m at the screw at 7.82 mm) it is flagged in the bump's bin, opposing the motion; on every other record it
+    ran on (nulls, library effects, the other out-of-library effects) it is not significant.  Where it did not run
+    the record has no such pass (or revisits its positions), which the pass-replicated test covers."""
+    from thsa_control.trace.signature import ONE_PASS_VARIABLE
+
+    doc = traced(name)
+    one = [t for t in doc["residual_signature"]["tests"] if t["variable"] == ONE_PASS_VARIABLE]
+    truth = _truth(name).get("effects") or {}
+    if name == "rig_friction_bump_excitation":
+        assert one and one[0]["significant"], one
+        x_c = truth["friction_bump"]["params"]["x_c_mm"]["si"]
+        lo, hi = one[0]["peak_bin"]
+        assert lo - one[0]["bin_width"] <= x_c <= hi + one[0]["bin_width"], (one[0], x_c)
+        assert one[0]["law"].startswith("dissipative"), one[0]
+        assert ONE_PASS_VARIABLE in doc["residual_signature"]["structured"], doc["residual_signature"]["structured"]
+    elif "friction_bump" not in truth:
+        assert not any(t["significant"] for t in one), one
 
 
 #: the committed records of rig-sim's position_steps (a proportional position loop: its speed command decays)

@@ -43,6 +43,7 @@ from .signature import (
     hold_drift_test,
     hold_samples,
     missing_torque,
+    one_pass_bump_test,
     position_local_test,
     remainder_kind,
     second_grid_ratio,
@@ -336,6 +337,15 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         _time_or_position(dr, drift_in, drift_at, tests, s)
     if dr is not None and drift_off_command:
         dr["segments_off_command"] = drift_off_command
+    if loc is None:
+        # no position crossed by two passes (a check record, a cold ramp, an excitation around one speed): a bump
+        # along one pass against the record's own bins, a place or a moment
+        one = one_pass_bump_test(np.concatenate(local_in["e"]), np.concatenate(local_in["x"]),
+                                 np.concatenate(local_in["d"]), bin_width=s.position_bin,
+                                 origin=float(np.nanmin(xs)) if np.isfinite(xs).any() else None,
+                                 alpha=s.local_alpha)
+        if one is not None:
+            tests.insert(0, one) if one["significant"] else tests.append(one)
     bk = breakaway_of_runs(runs, s)
     if bk is not None:
         tests.insert(0, bk) if bk["significant"] else tests.append(bk)

@@ -102,6 +102,11 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     "null_papers_bipolar_s3": ("bipolar_ramp_tensile", "papers", "", 3, 9.0, "null"),
     # --- the seven out-of-library effects on the rig base
     "rig_friction_bump": ("trim_ramp_compressive", "rig", "friction_bump", 31, None, "foreign"),
+    # a friction bump crossed once (drawn blind in the twenty-first blind set: position, size and seed from
+    # os.urandom): the excitation around +3 mm/s passes each position once, so the pass-replicated position test has
+    # nothing to compare and the one-pass test judges the bump against the record's own bins
+    "rig_friction_bump_excitation": ("speed_excitation", "rig", "friction_bump=x_c_mm:7.82,T_Nm:5.20", 156520, None,
+                                     "foreign"),
     "rig_sensor_lag": ("speed_excitation", "rig", "sensor_lag=channel:motor_speed", 32, 5.5, "foreign"),
     "rig_sensor_gain": ("trim_ramp_compressive", "rig", "sensor_gain=channel:screw_speed", 33, None, "foreign"),
     "rig_loadcell_drift": ("trim_ramp_compressive", "rig", "loadcell_drift", 34, None, "foreign"),
