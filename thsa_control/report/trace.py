@@ -953,6 +953,10 @@ def format_trace_summary(doc: dict) -> str:
                 "effects are found up to a straight line in position: over a few bins the place is uncertain)"
                 if t.get("tested_range") else "") + (
                 f", {t['law']}" if t.get("law") else "")
+        elif t["kind"] == "local_one_pass":
+            extra = (f", peak in {1e3 * t['peak_bin'][0]:.1f}..{1e3 * t['peak_bin'][1]:.1f} mm "
+                     f"{t['peak_mean']:+.3f} N m against the pass's other bins {t['rest_mean']:+.3f} +- "
+                     f"{t['rest_sd']:.2g} ({t['compared']} bins compared, {t['law']}; one pass: a place or a moment)")
         elif t["kind"] == "drift":
             extra = ", slope per pass " + ", ".join(f"{v:.2g}+-{e:.1g}" for v, e in zip(t["slopes"], t["slope_stderr"])) \
                 + f" N m/s over {t['segments']} segments" + (

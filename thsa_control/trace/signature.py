@@ -1346,7 +1346,7 @@ def one_pass_bump_test(residual, position, direction, *, bin_width: float = 2e-3
 
     The scale is the record's own: per direction of motion, the residual (outside the base's transients) is averaged
     in position bins ``bin_width`` wide from ``origin`` (the report's curves' bins), and each bin inside the pass
-    (its neighbours on both sides binned too) is compared with the bins outside its neighbourhood: externally
+    (with a binned bin on each side, its neighbours) is compared with the bins other than it and its neighbours: externally
     studentized, ``t = (m_k - mean_rest) / (sd_rest sqrt(1 + 1 / n_rest))`` on ``n_rest - 1`` degrees of freedom,
     two-sided, the smallest p times the number of bins compared (Bonferroni; for one bin the rest are independent of
     it, so the bound holds for bins of equal noise).  What a declared model of another rig's base leaves along a
@@ -1382,10 +1382,12 @@ def one_pass_bump_test(residual, position, direction, *, bin_width: float = 2e-3
         if len(valid) < min_rest + 3:
             continue
         tested_dirs += 1
-        for k, mk in valid.items():
-            if k - 1 not in valid or k + 1 not in valid:
-                continue
-            rest = np.array([v for j, v in valid.items() if abs(j - k) > 1])
+        order = sorted(valid)
+        for i in range(1, len(order) - 1):
+            # the bin's neighbours are the nearest binned bins on each side (a bin the transients left with too few
+            # samples is no bin: the bump itself changes the speed where it acts)
+            k, mk = order[i], valid[order[i]]
+            rest = np.array([valid[j] for j in order[:i - 1] + order[i + 2:]])
             if rest.size < min_rest:
                 continue
             compared += 1
