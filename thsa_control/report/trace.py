@@ -369,6 +369,12 @@ def plot_signature(sig: dict):
                           + (" (STRUCTURED)" if loc["significant"] else ""))
         else:
             local_note = "repeated over passes: not tested (fewer than three bins crossed by two passes)"
+            one = next((t for t in sig.get("tests", []) if t.get("kind") == "local_one_pass"), None)
+            if one is not None:  # the one-pass test's peak bin against the pass's other bins
+                ax.axvspan(1e3 * one["peak_bin"][0], 1e3 * one["peak_bin"][1],
+                           color="C3" if one["significant"] else "0.85", alpha=0.25, lw=0)
+                local_note += (f"\none pass, a bin against the others: p {_num(one['p_value'], '.2g')}, "
+                               f"{one['law'].split(' ')[0]}" + (" (STRUCTURED)" if one["significant"] else ""))
         bk = next((t for t in sig.get("tests", []) if t.get("kind") == "breakaway"), None)
         if bk is not None:  # the breakaway test's places (starts and reversals of one class), the one that stands out
             for pl in bk["places"]:
