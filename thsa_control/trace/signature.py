@@ -1374,20 +1374,19 @@ def one_pass_bump_test(residual, position, direction, *, bin_width: float = 2e-3
         m = ok & (d == sgn)
         if np.count_nonzero(m) < min_samples * (min_rest + 3):
             continue
-        b = np.floor((x[m] - x0) / bin_width).astype(int)
-        ks, inv, counts = np.unique(b, return_inverse=True, return_counts=True)
-        means = np.bincount(inv, weights=e[m]) / counts
-        floor_n = max(float(min_samples), 0.5 * float(np.median(counts)))
-        valid = {int(k): float(v) for k, v, c in zip(ks, means, counts) if c >= floor_n}
-        if len(valid) < min_rest + 3:
+        edges = x0 + bin_width * np.arange(int(np.floor((float(np.max(x[m])) - x0) / bin_width)) + 2)
+        c = binned_mean(np.where(m, e, np.nan), x, edges)  # the report's curve of this direction
+        counts = np.asarray(c["count"], float)
+        keep = counts >= max(float(min_samples), 0.5 * float(np.median(counts)))
+        means, centres = np.asarray(c["mean"], float)[keep], np.asarray(c["centre"], float)[keep]
+        if means.size < min_rest + 3:
             continue
         tested_dirs += 1
-        order = sorted(valid)
-        for i in range(1, len(order) - 1):
+        for i in range(1, means.size - 1):
             # the bin's neighbours are the nearest binned bins on each side (a bin the transients left with too few
             # samples is no bin: the bump itself changes the speed where it acts)
-            k, mk = order[i], valid[order[i]]
-            rest = np.array([valid[j] for j in order[:i - 1] + order[i + 2:]])
+            mk = float(means[i])
+            rest = np.r_[means[:i - 1], means[i + 2:]]
             if rest.size < min_rest:
                 continue
             compared += 1
@@ -1397,13 +1396,13 @@ def one_pass_bump_test(residual, position, direction, *, bin_width: float = 2e-3
             tt = (mk - float(rest.mean())) / (sd * math.sqrt(1 + 1 / rest.size))
             p = float(2 * t_dist.sf(abs(tt), rest.size - 1))
             if best is None or p < best["p"]:
-                best = {"p": p, "t": float(tt), "dof": int(rest.size - 1), "direction": sgn, "bin": k,
-                        "peak_mean": mk, "rest_mean": float(rest.mean()), "rest_sd": sd,
-                        "bins": len(valid)}
+                best = {"p": p, "t": float(tt), "dof": int(rest.size - 1), "direction": sgn,
+                        "centre": float(centres[i]), "peak_mean": mk, "rest_mean": float(rest.mean()), "rest_sd": sd,
+                        "bins": int(means.size)}
     if best is None:
         return None
     p = min(1.0, best["p"] * compared)
-    lo = x0 + best["bin"] * bin_width
+    lo = best["centre"] - 0.5 * bin_width
     dev = best["peak_mean"] - best["rest_mean"]
     return {"variable": ONE_PASS_VARIABLE, "kind": "local_one_pass", "unit": "N m", "size": abs(dev),
             "p_value": p, "significant": bool(p < alpha), "peak_bin": [lo, lo + bin_width],
