@@ -321,10 +321,9 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     xs = variables["nut_position"][1]
     # the model's own periodic drags (an added screw ripple): their shape misfitted is no effect the model lacks
     shapes = {n: PERIODS[n](params) for n in fit.get("effects", ()) if n in PERIODS}
-    loc = position_local_test(np.concatenate(local_in["e"]), np.concatenate(local_in["x"]),
-                              np.concatenate(local_in["d"]), bin_width=s.position_bin, alpha=s.local_alpha,
-                              origin=float(np.nanmin(xs)) if np.isfinite(xs).any() else None,  # the curves' bins
-                              shapes=shapes)
+    local = [np.concatenate(local_in[k]) for k in ("e", "x", "d")]  # (residual, position, direction)
+    origin = float(np.nanmin(xs)) if np.isfinite(xs).any() else None  # the curves' bins
+    loc = position_local_test(*local, bin_width=s.position_bin, alpha=s.local_alpha, origin=origin, shapes=shapes)
     if loc is not None:
         loc["unit"] = "N m"
         for name, a in (loc.get("added_shapes") or {}).items():
@@ -335,15 +334,12 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     if dr is not None:
         tests.insert(0, dr) if dr["significant"] else tests.append(dr)
         _time_or_position(dr, drift_in, drift_at, tests, s)
-    if dr is not None and drift_off_command:
-        dr["segments_off_command"] = drift_off_command
+        if drift_off_command:
+            dr["segments_off_command"] = drift_off_command
     if loc is None:
         # no position crossed by two passes (a check record, a cold ramp, an excitation around one speed): a bump
         # along one pass against the record's own bins, a place or a moment
-        one = one_pass_bump_test(np.concatenate(local_in["e"]), np.concatenate(local_in["x"]),
-                                 np.concatenate(local_in["d"]), bin_width=s.position_bin,
-                                 origin=float(np.nanmin(xs)) if np.isfinite(xs).any() else None,
-                                 alpha=s.local_alpha)
+        one = one_pass_bump_test(*local, bin_width=s.position_bin, origin=origin, alpha=s.local_alpha)
         if one is not None:
             tests.insert(0, one) if one["significant"] else tests.append(one)
     bk = breakaway_of_runs(runs, s)

@@ -317,13 +317,15 @@ def current_offset_torque(test: Mapping, effects: Sequence[str], params: Paramet
         lo, hi = bounds[n][0], bounds[n][1]
         v = float(values[n]["value"])
         ci = values[n].get("ci95") or [v] * 2
+
+        def outside(u: float) -> float:  # how far u lies beyond the plausible range (0 inside it)
+            return max(u - hi, lo - u, 0.0)
+
         # the least excess the fit allows: its interval's end nearest to the plausible range (0 where it reaches it)
-        near = min(ci, key=lambda u: max(u - hi, lo - u, 0.0))
-        beyond = max(near - hi, lo - near, 0.0)
+        beyond = min(outside(u) for u in ci)
         sens = float(np.mean(np.abs(S[:, k])))
         t = sens * beyond
-        parts[n] = {"beyond_bound": beyond, "torque_at_motor": t,
-                    "estimate_torque_at_motor": sens * max(v - hi, lo - v, 0.0)}
+        parts[n] = {"beyond_bound": beyond, "torque_at_motor": t, "estimate_torque_at_motor": sens * outside(v)}
         excess += t
         estimate += parts[n]["estimate_torque_at_motor"]
     offset_torque = kt * abs(float(test["offset"]))
