@@ -182,6 +182,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
     spans: dict[str, float] = {}  # the largest motor and screw angle spanned by one run's steady samples [rad]
     local_in: dict[str, list] = {"e": [], "x": [], "d": []}
     steady: list = []  # outside the base's transients, per run
+    steady_local: list = []  # the position tests' samples, per run (:func:`_load_ramp_steady`)
     transients: dict = {}  # run name -> the base's transients (the load-cell hold test's too)
     drift_in: list = []  # (time, segment torque, direction, speed command)
     drift_at: list = []  # (nut position, run and command group) of each drift segment: time told from position
@@ -215,6 +216,10 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         # torque's own speed ripple is not a transient: ``sustained``)
         transients[run.name] = base_transients(t, w, load, s.transient_time)
         steady.append(~transients[run.name])
+        # the position tests' samples: on a record whose load ramps through the motion (an elastic surface, a load
+        # sweep) every moving sample is within 0.3 s of a load change, so there a steady ramp of the load is no
+        # transient, only a change of its rate is (``load_steps``, as the candidates' scoring has it)
+        steady_local.append(_load_ramp_steady(t, w, load, steady[-1], s))
         steady_angle = angle_test_samples(t, w, load, s.transient_time)
         # the angle the steady samples span; under two revolutions the harmonics are not told from a dependence on
         # position (below) and a Fourier series on less than a revolution is degenerate: the test then keeps every
@@ -270,7 +275,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         # outside the base's transients: a declared model whose base differs from the rig's leaves structure at
         # starts, stops, reversals and load changes, and a trim run starts and stops at the same positions
         gap = np.full(100, np.nan)
-        local_in["e"] += [np.where(steady[-1], torque[-1], np.nan), gap]
+        local_in["e"] += [np.where(steady_local[-1], torque[-1], np.nan), gap]
         local_in["x"] += [cols["nut_position"][1], gap]
         # a slow drift: one torque per segment outside the base's transients while moving, passes per direction
         # at one constant speed command (unchanged conditions: a position loop's decaying command moves the speed,
@@ -336,16 +341,19 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         _time_or_position(dr, drift_in, drift_at, tests, s)
         if drift_off_command:
             dr["segments_off_command"] = drift_off_command
+    one = not_local = None
     if loc is None:
         # no position crossed by two passes (a check record, a cold ramp, an excitation around one speed): a bump
         # along one pass against the record's own bins, a place or a moment
         one = one_pass_bump_test(*local, bin_width=s.position_bin, origin=origin, alpha=s.local_alpha)
         if one is not None:
             tests.insert(0, one) if one["significant"] else tests.append(one)
+        else:  # said, not silent
+            not_local = _position_not_tested(*local, s)
     bk = breakaway_of_runs(runs, s)
     if bk is not None:
         tests.insert(0, bk) if bk["significant"] else tests.append(bk)
-    sensors, not_tested = [], []
+    sensors, not_tested = [], ([not_local] if loc is None and one is None else [])
     for run in runs:
         measured = {c: run.signals[c] for c in ("motor_speed", "screw_speed", "nut_position") if c in run.source_columns}
         # the redundant sensors' lag at the replicate-based level (signature.LAG_ALPHA), the chains' declared
@@ -439,7 +447,7 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
             **({"second_grid": second} if second is not None else {}),
             # the nut-position curves in the position test's bins (narrower on short passes), so that they share them
             "curves": {**_signature_curves(e_all, variables, runs, s if loc is None else dataclasses.replace(
-                           s, position_bin=loc["bin_width"]), np.concatenate(steady), level_of),
+                           s, position_bin=loc["bin_width"]), np.concatenate(steady_local), level_of),
                        # the drift test's data: one torque per steady segment (runs one after another in time)
                        "segment_torque": {"time": [d[0] for d in drift_in], "torque": [d[1] for d in drift_in],
                                           "direction": [d[2] for d in drift_in],
@@ -525,6 +533,42 @@ def _holdout_chi2_and_count(fit: dict, noise: Mapping[str, float]) -> dict:
             a, n = out.get(c, (0.0, 0))
             out[c] = (a + float(np.sum((e[m] / noise[c]) ** 2)), n + int(m.sum()))
     return out
+
+
+def _position_not_tested(e, x, d, s: SignatureSettings) -> dict:
+    """The ``not_tested`` entry of a record on which neither position test ran: how far its steady samples (outside
+    the base's transients) travel in each direction, against what the tests need."""
+    ok = np.isfinite(e) & np.isfinite(x) & (d != 0)
+    travel = {label: float(np.ptp(x[ok & (d == sgn)])) if np.any(ok & (d == sgn)) else 0.0
+              for label, sgn in (("extending", 1.0), ("retracting", -1.0))}
+    said = ", ".join(f"{v * 1e3:.3g} mm {k}" for k, v in travel.items())
+    return {"test": "nut_position (a place)", "run": None, "would_show": "a friction bump or a worn spot",
+            "travel_m": travel,
+            "why": f"the samples outside the base's transients span {said}: the pass-replicated test needs three "
+                   f"positions crossed by two passes, the one-pass test {7 * s.position_bin * 1e3:g} mm of one "
+                   "direction (seven bins)"}
+
+
+#: a run whose load ramps through the motion: the plain transient mask leaves fewer than this share of the moving
+#: samples that the ``load_steps`` mask leaves outside the base's transients
+LOAD_RAMP_SHARE = 0.25
+
+
+def _load_ramp_steady(t, w, load, steady, s: SignatureSettings) -> np.ndarray:
+    """The position tests' samples of one run: ``steady`` (outside the base's transients), or, on a run whose load
+    ramps through the motion, the samples outside the transients where only a change of the load's rate is one
+    (:func:`~thsa_control.trace.signature.base_transients` with ``load_steps``).
+
+    Measured on rig-sim's elastic surface (``spring_load_ramp``, 30 kN/s while moving) and load sweeps
+    (``triangular_load_sweep``, ``check_load_sweep``): the plain mask leaves none of their moving samples, so the
+    position tests had nothing to test (a 6 N m friction bump at the screw, 0.29 A in the current each way, was not
+    flagged), where ``load_steps`` leaves 0.4 s of each spring pass and 4.4 s of the sweep."""
+    moving = motion_sign(w, stop_band(w)) != 0
+    plain = int(np.count_nonzero(steady & moving))
+    ramp = ~base_transients(t, w, load, s.transient_time, load_steps=True)
+    if plain >= LOAD_RAMP_SHARE * int(np.count_nonzero(ramp & moving)):
+        return steady
+    return ramp
 
 
 def _signature_curves(e: np.ndarray, variables: dict, runs, s: SignatureSettings, steady: np.ndarray | None = None,
