@@ -36,7 +36,8 @@ RECORD_HZ_OF: dict[str, int] = {"null_rig_cold_s10716255": 1000, "rig_pair_coggi
                                 "rig_axial_offset_cold": 1000,
                                 "rig_pair_cold_ripple": 1000, "rig_pair_cold_ripple_phase": 1000,
                                 "rig_pair_direction_loadpath_steps": 1000, "rig_noback_quadrant_checkstop": 1000,
-                                "rig_sensor_lag_screw_sweep": 1000}
+                                "rig_sensor_lag_screw_sweep": 1000, "rig_friction_bump_sweep": 1000,
+                                "rig_friction_bump_spring": 1000}
 #: runs at another ambient temperature than their scenario's (rigsim ``--temperature``) [degC]
 TEMPERATURE_OF: dict[str, float] = {"rig_pair_cold_ripple": -40.0}
 #: runs on another rig than rig-sim's default one: its options (``--motors``, ``--no-gating``) and the velocity loop's
@@ -269,6 +270,14 @@ RUNS: dict[str, tuple[str, str, str, int, float | None, str]] = {
     # "A cold drag weaker than the lift")
     "rig_direction_friction_checkcold": ("check_cold", "rig", "direction_friction=T_pos_Nm:4.88,T_neg_Nm:0.67",
                                          584312, None, "library"),
+    # a friction bump on a load sweep (one pass at -10 mm/s, the load a +-29 kN triangle; place and size chosen, the
+    # seed from os.urandom) and one on the elastic surface (the twenty-second blind set's h09, drawn): before the
+    # load-ramp mask every moving sample of both scenarios was a load-change transient, so no position test ran
+    # (docs/trace_notes.md "Position tests on a load ramp")
+    "rig_friction_bump_sweep": ("triangular_load_sweep", "rig", "friction_bump=x_c_mm:-43.1,T_Nm:6", 5238, None,
+                                "foreign"),
+    "rig_friction_bump_spring": ("spring_load_ramp", "rig", "friction_bump=x_c_mm:8.7552,width_mm:1.3199,T_Nm:6.0082",
+                                 442616, None, "foreign"),
 }
 
 #: run sets traced together (``thsa trace A.csv B.csv``; tests/test_trace_sets.py), written to ``sets/``: the rig base
