@@ -220,7 +220,10 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         # sweep) every moving sample is within 0.3 s of a load change, so there a steady ramp of the load is no
         # transient, only a change of its rate is (``load_steps``, as the candidates' scoring has it)
         steady_local.append(_load_ramp_steady(t, w, load, steady[-1], s))
-        steady_angle = angle_test_samples(t, w, load, s.transient_time)
+        # the angle tests' samples likewise: on such a run the plain mask left none, so an angle's harmonics were
+        # tested on every sample, starts and stops included, and their remainder was "base" by the travel rule
+        steady_angle = angle_test_samples(t, w, load, s.transient_time,
+                                          load_steps=steady_local[-1] is not steady[-1])
         # the angle the steady samples span; under two revolutions the harmonics are not told from a dependence on
         # position (below) and a Fourier series on less than a revolution is degenerate: the test then keeps every
         # sample, for the report only (its remainder is "base")

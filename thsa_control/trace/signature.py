@@ -702,7 +702,7 @@ def motion_beyond_noise(speed) -> np.ndarray:
     return sustained_motion(motion_sign(v, motion_band(v)))
 
 
-def angle_test_samples(time, speed, load, transient_time: float = 0.3) -> np.ndarray:
+def angle_test_samples(time, speed, load, transient_time: float = 0.3, load_steps: bool = False) -> np.ndarray:
     """Per sample, whether the angle tests (periodic in the motor or screw angle) use it: outside the base's
     transients (:func:`base_transients`, ``sustained``: a periodic torque's own speed ripple is no transient) and
     where the angle moves, two successive samples of one sign beyond the speed's noise (:func:`motion_beyond_noise`;
@@ -710,9 +710,11 @@ def angle_test_samples(time, speed, load, transient_time: float = 0.3) -> np.nda
     angle for as long as it lasts, and its residual against the moving samples' projects on every harmonic of that
     one angle (measured on two rig-sim cold ramps at 1 kHz, a null and a worn spot, two holds after two ramps: 943 of
     3931 tested samples at two screw angles, screw angle p 3.1e-8 and 6.8e-7 with amplitudes on all 24 harmonics,
-    the null flagged unexplained; on the moving samples p 0.15 and 0.077)."""
+    the null flagged unexplained; on the moving samples p 0.15 and 0.077).  ``load_steps``: a load that ramps
+    through the motion is no transient, a change of its rate is (:func:`base_transients`)."""
     w = np.nan_to_num(np.asarray(speed, float))
-    return ~base_transients(time, w, load, transient_time, sustained=True) & motion_beyond_noise(w)
+    return (~base_transients(time, w, load, transient_time, sustained=True, load_steps=load_steps)
+            & motion_beyond_noise(w))
 
 
 def still_pair(regressor: str) -> str:
