@@ -46,20 +46,28 @@ def _spring(seed: int, bump: float = 0.0, x_c: float = 9e-3, load_drag: float = 
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, duration, 1 / FS)
     v = _speed(t)
-    w = v * 2 * math.pi * RATIO / LEAD
     x = np.cumsum(v) / FS
     load = 5e3 + spring * x
     sgn = np.sign(v)
     since = t - np.array([max([s for s in (1.0, 4.0) if s <= tt] or [0.0]) for tt in t])
     missing = -sgn * (bump * np.exp(-0.5 * ((x - x_c) / 0.66e-3) ** 2) + load_drag * load
                       + 0.03 * np.exp(-since / 0.1))
+    return _stand_in("synthetic_spring", rng, t, v, load, missing, 2.0 + 1e-4 * load * sgn, duration)
+
+
+def _stand_in(name, rng, t, v, load, missing, current, duration):
+    """The record of nut speed ``v`` [m/s] under ``load`` [N] with the ``current`` [A], and a stand-in fit whose speed
+    residual is the integral of the ``missing`` torque [N m] over the inertia plus the resolver's white noise (2 rpm,
+    rig-sim's at 1 ms), the measured signals with their sensors' noise."""
+    w = v * 2 * math.pi * RATIO / LEAD
+    x = np.cumsum(v) / FS
     e_w = np.cumsum(missing) / FS / J + 0.2 * rng.standard_normal(t.size)
     w_meas = w + 0.2 * rng.standard_normal(t.size)
     sig = {"motor_speed": w_meas, "nut_position": x + 2e-6 * rng.standard_normal(t.size),
-           "load_force": load + 20.0 * rng.standard_normal(t.size), "motor_current": 2.0 + 1e-4 * load * sgn,
+           "load_force": load + 20.0 * rng.standard_normal(t.size), "motor_current": current,
            "temperature": np.full(t.size, 25.0), "primary_enable": (v != 0).astype(float),
            "standby_enable": np.zeros(t.size), "speed_cmd": v}
-    run = RigRun("synthetic_spring", Path("synthetic.csv"), Path("synthetic.json"), {}, t, sig, gear_ratio=RATIO,
+    run = RigRun(name, Path("synthetic.csv"), Path("synthetic.json"), {}, t, sig, gear_ratio=RATIO,
                  screw_lead=LEAD, source_columns={c: c for c in ("motor_speed", "nut_position", "motor_current")})
     fit = {"predictions": {run.name: {"measured": {"motor_speed": w_meas}, "simulated": {"motor_speed": w_meas - e_w},
                                       "segment_starts": np.arange(0.0, duration, SEG),
@@ -136,25 +144,13 @@ def _sweep(seed: int, ripple: float = 0.0, duration: float = 12.0):
     t = np.arange(0.0, duration, 1 / FS)
     ramp = 10e-3 / 30e-3
     v = -np.clip(np.minimum((t - 0.5) / ramp, (11.5 - t) / ramp), 0.0, 1.0) * 10e-3
-    w = v * 2 * math.pi * RATIO / LEAD
     x = np.cumsum(v) / FS
     phase = (t % 10.0) / 10.0
     load = 29e3 * (4 * np.abs(phase - 0.5) - 1)
     theta = 2 * math.pi * x / LEAD
     since = np.minimum(np.abs(t - 0.5), np.abs(t - 11.5))
     missing = np.sign(-v) * (ripple * (1 + np.sin(theta + 0.7)) + 2e-7 * np.abs(load) + 0.03 * np.exp(-since / 0.1))
-    e_w = np.cumsum(missing) / FS / J + 0.2 * rng.standard_normal(t.size)
-    w_meas = w + 0.2 * rng.standard_normal(t.size)
-    sig = {"motor_speed": w_meas, "nut_position": x + 2e-6 * rng.standard_normal(t.size),
-           "load_force": load + 20.0 * rng.standard_normal(t.size), "motor_current": 2.0 + 1e-4 * load,
-           "temperature": np.full(t.size, 25.0), "primary_enable": (v != 0).astype(float),
-           "standby_enable": np.zeros(t.size), "speed_cmd": v}
-    run = RigRun("synthetic_sweep", Path("synthetic.csv"), Path("synthetic.json"), {}, t, sig, gear_ratio=RATIO,
-                 screw_lead=LEAD, source_columns={c: c for c in ("motor_speed", "nut_position", "motor_current")})
-    fit = {"predictions": {run.name: {"measured": {"motor_speed": w_meas}, "simulated": {"motor_speed": w_meas - e_w},
-                                      "segment_starts": np.arange(0.0, duration, SEG),
-                                      "holdout": (np.floor(t / SEG) % 3 == 2)}}}
-    return run, fit
+    return _stand_in("synthetic_sweep", rng, t, v, load, missing, 2.0 + 1e-4 * load, duration)
 
 
 def test_the_angle_tests_on_a_load_sweep_use_its_steady_samples_and_find_a_screw_ripple():
