@@ -344,19 +344,18 @@ def _signature(fit: dict, runs: Sequence[RigRun], params: ParameterSet, plant, s
         _time_or_position(dr, drift_in, drift_at, tests, s)
         if drift_off_command:
             dr["segments_off_command"] = drift_off_command
-    one = not_local = None
+    one = None
     if loc is None:
         # no position crossed by two passes (a check record, a cold ramp, an excitation around one speed): a bump
         # along one pass against the record's own bins, a place or a moment
         one = one_pass_bump_test(*local, bin_width=s.position_bin, origin=origin, alpha=s.local_alpha)
         if one is not None:
             tests.insert(0, one) if one["significant"] else tests.append(one)
-        else:  # said, not silent
-            not_local = _position_not_tested(*local, s)
     bk = breakaway_of_runs(runs, s)
     if bk is not None:
         tests.insert(0, bk) if bk["significant"] else tests.append(bk)
-    sensors, not_tested = [], ([not_local] if loc is None and one is None else [])
+    # said, not silent: neither position test ran
+    sensors, not_tested = [], ([_position_not_tested(*local, s)] if loc is None and one is None else [])
     for run in runs:
         measured = {c: run.signals[c] for c in ("motor_speed", "screw_speed", "nut_position") if c in run.source_columns}
         # the redundant sensors' lag at the replicate-based level (signature.LAG_ALPHA), the chains' declared
